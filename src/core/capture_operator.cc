@@ -1,0 +1,328 @@
+#include "deblur_sr_mvs/core/capture_operator.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+#include "deblur_sr_mvs/core/errors.h"
+#include "deblur_sr_mvs/core/warp.h"
+
+namespace deblur_sr_mvs {
+namespace {
+
+// One bilinear sample: top-left tap and fractional offsets.
+struct BilinearSample {
+  int x0;
+  int y0;
+  float fx;
+  float fy;
+};
+
+// Fractions this close to 0 or 1 are snapped, so that an exact integer warp
+// (zero motion) yields single taps instead of 1e-13 neighbours.
+constexpr float kSnap = 1e-6f;
+constexpr double kInsideTolerance = 1e-6;
+
+// Merging taps through a local dense grid is O(grid area); above this area
+// (extreme blur) a scatter array plus a sort is cheaper.
+constexpr int kMaxLocalGrid = 4096;
+
+int ResolveThreads(int requested) {
+  return requested > 0 ? requested : std::max(1, omp_get_max_threads());
+}
+
+// y = A x for a row-major sparse A and interleaved C-channel images.
+template <int kChannels>
+void MultiplyFixed(const SparseMatrixRM& a, const float* x, float* y, int threads) {
+  const int* outer = a.outerIndexPtr();
+  const int* inner = a.innerIndexPtr();
+  const float* values = a.valuePtr();
+  const int rows = static_cast<int>(a.rows());
+#pragma omp parallel for schedule(static) num_threads(threads)
+  for (int r = 0; r < rows; ++r) {
+    float acc[kChannels] = {};
+    for (int k = outer[r]; k < outer[r + 1]; ++k) {
+      const float w = values[k];
+      const float* px = x + static_cast<std::ptrdiff_t>(inner[k]) * kChannels;
+      for (int c = 0; c < kChannels; ++c) acc[c] += w * px[c];
+    }
+    float* py = y + static_cast<std::ptrdiff_t>(r) * kChannels;
+    for (int c = 0; c < kChannels; ++c) py[c] = acc[c];
+  }
+}
+
+void MultiplyAnyChannels(const SparseMatrixRM& a, const float* x, float* y, int channels,
+                         int threads) {
+  switch (channels) {
+    case 1: MultiplyFixed<1>(a, x, y, threads); return;
+    case 2: MultiplyFixed<2>(a, x, y, threads); return;
+    case 3: MultiplyFixed<3>(a, x, y, threads); return;
+    case 4: MultiplyFixed<4>(a, x, y, threads); return;
+    default: break;
+  }
+  throw InputError("capture operator: images must have 1 to 4 channels");
+}
+
+void Multiply(const SparseMatrixRM& a, const cv::Size& in_size, const cv::Size& out_size,
+              const cv::Mat& in, cv::Mat* out, int threads, const char* what) {
+  if (in.depth() != CV_32F || in.size() != in_size) {
+    std::ostringstream message;
+    message << "capture operator " << what << ": expected a float image of " << in_size.width
+            << "x" << in_size.height << ", got " << in.cols << "x" << in.rows
+            << " (depth " << in.depth() << ")";
+    throw InputError(message.str());
+  }
+  const int channels = in.channels();
+  const cv::Mat source = in.isContinuous() ? in : in.clone();
+  out->create(out_size, CV_32FC(channels));
+  MultiplyAnyChannels(a, source.ptr<float>(), out->ptr<float>(), channels, threads);
+}
+
+}  // namespace
+
+void CaptureOperatorOptions::Check() const {
+  if (samples < 1 || samples > 10000) {
+    throw InputError("capture operator: samples (M) must be in [1, 10000], got " +
+                     std::to_string(samples));
+  }
+  if (scale < 1 || scale > 8) {
+    throw InputError("capture operator: scale must be in [1, 8], got " + std::to_string(scale));
+  }
+  if (num_threads < 0) {
+    throw InputError("capture operator: num_threads must be >= 0, got " +
+                     std::to_string(num_threads));
+  }
+}
+
+void CaptureOperator::Apply(const cv::Mat& hr, cv::Mat* lr) const {
+  Multiply(forward_, hr_size_, lr_size_, hr, lr, num_threads_, "Apply");
+}
+
+void CaptureOperator::ApplyAdjoint(const cv::Mat& lr, cv::Mat* hr) const {
+  Multiply(adjoint_, lr_size_, hr_size_, lr, hr, num_threads_, "ApplyAdjoint");
+}
+
+CaptureOperatorBuilder::CaptureOperatorBuilder(const CaptureOperatorOptions& options)
+    : options_(options) {
+  options_.Check();
+}
+
+void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOperator* op) {
+  const PinholeCamera& camera = geometry.camera_hr;
+  const int scale = options_.scale;
+  const int samples = options_.samples;
+  const int threads = ResolveThreads(options_.num_threads);
+  {
+    const std::string problem = camera.Problem();
+    if (!problem.empty()) throw InputError("capture operator: " + problem);
+  }
+  if (camera.width < 2 || camera.height < 2 || camera.width % scale != 0 ||
+      camera.height % scale != 0) {
+    throw InputError("capture operator: HR size " + std::to_string(camera.width) + "x" +
+                     std::to_string(camera.height) + " must be at least 2x2 and divisible by scale " +
+                     std::to_string(scale));
+  }
+  if (geometry.depth_hr.type() != CV_32FC1 || geometry.depth_hr.cols != camera.width ||
+      geometry.depth_hr.rows != camera.height) {
+    throw InputError("capture operator: depth must be CV_32FC1 of the HR camera size");
+  }
+  if (!(geometry.exposure > 0.0) || !std::isfinite(geometry.exposure)) {
+    throw InputError("capture operator: exposure must be > 0");
+  }
+  const double frame_gap = geometry.stamp - geometry.neighbour_stamp;
+  if (!std::isfinite(frame_gap) || frame_gap == 0.0) {
+    throw InputError("capture operator: the neighbour's stamp must differ from the frame's");
+  }
+
+  // Virtual cameras at tau_m = t_o + (m/M)(t_c - t_o) (eq:blurOperator) on the
+  // path of eq:interpolatingP; alpha = (tau - s)/(t - s) also extrapolates
+  // backwards when s is the next frame (first frame of a sequence).
+  const SE3& T_world_t = geometry.T_world_cam;
+  const SE3 T_source_world = geometry.T_world_source.value_or(T_world_t).Inverse();
+  const double shutter_open = geometry.stamp - geometry.exposure;
+  std::vector<PixelTransfer> transfers;
+  std::vector<SE3> T_tau_t(samples);
+  transfers.reserve(samples);
+  for (int m = 0; m < samples; ++m) {
+    const double tau = shutter_open + (m + 1.0) / samples * geometry.exposure;
+    const double alpha = (tau - geometry.neighbour_stamp) / frame_gap;
+    const SE3 T_world_tau = InterpolatePose(geometry.T_world_neighbour, T_world_t, alpha);
+    T_tau_t[m] = T_world_tau.Inverse() * T_world_t;
+    transfers.emplace_back(camera, T_source_world * T_world_tau);
+  }
+
+  // D_tau_m by reprojecting D_t into each virtual camera (paper Sec. 3).
+  std::vector<const cv::Mat*> virtual_depth(samples, &geometry.depth_hr);
+  if (options_.reproject_depth) {
+    virtual_depths_.resize(samples);
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
+    for (int m = 0; m < samples; ++m) {
+      ReprojectDepth(camera, geometry.depth_hr, T_tau_t[m], /*fill_from_source=*/true,
+                     &virtual_depths_[m]);
+    }
+    for (int m = 0; m < samples; ++m) virtual_depth[m] = &virtual_depths_[m];
+  }
+
+  const int hr_width = camera.width;
+  const int hr_height = camera.height;
+  const int lr_width = hr_width / scale;
+  const int lr_height = hr_height / scale;
+  const int lr_pixels = lr_width * lr_height;
+  const int samples_per_pixel = samples * scale * scale;
+  const float sample_weight = 1.0f / static_cast<float>(samples_per_pixel);
+
+  op->lr_size_ = cv::Size(lr_width, lr_height);
+  op->hr_size_ = cv::Size(hr_width, hr_height);
+  op->num_threads_ = threads;
+  op->coverage_.assign(lr_pixels, 1.0f);
+
+  // Each thread assembles a contiguous block of LR rows into its own CSR
+  // pieces; the blocks are concatenated in order afterwards.
+  std::vector<std::vector<int>> block_columns(threads);
+  std::vector<std::vector<float>> block_values(threads);
+  std::vector<int> row_nnz(lr_pixels, 0);
+
+#pragma omp parallel num_threads(threads)
+  {
+    const int thread = omp_get_thread_num();
+    const int first_row = static_cast<int>(static_cast<long long>(lr_height) * thread / threads);
+    const int last_row =
+        static_cast<int>(static_cast<long long>(lr_height) * (thread + 1) / threads);
+    std::vector<int>& columns = block_columns[thread];
+    std::vector<float>& values = block_values[thread];
+    columns.clear();
+    values.clear();
+    columns.reserve(static_cast<size_t>(last_row - first_row) * lr_width * 64);
+    values.reserve(columns.capacity());
+    std::vector<BilinearSample> pixel_samples(samples_per_pixel);
+    std::vector<float> grid(kMaxLocalGrid);
+    std::vector<float> scatter;       // fallback for huge footprints
+    std::vector<int> touched;
+
+    for (int lr_y = first_row; lr_y < last_row; ++lr_y) {
+      for (int lr_x = 0; lr_x < lr_width; ++lr_x) {
+        const int row = lr_y * lr_width + lr_x;
+        int misses = 0;
+        int min_x = hr_width, max_x = -1, min_y = hr_height, max_y = -1;
+        int n = 0;
+        for (int sub_y = 0; sub_y < scale; ++sub_y) {
+          const int y = lr_y * scale + sub_y;
+          for (int sub_x = 0; sub_x < scale; ++sub_x) {
+            const int x = lr_x * scale + sub_x;
+            for (int m = 0; m < samples; ++m) {
+              const float depth = virtual_depth[m]->ptr<float>(y)[x];
+              Eigen::Vector2d p(x, y);
+              bool inside = ValidDepth(depth) && transfers[m].Warp(x, y, depth, &p);
+              if (!inside) p = Eigen::Vector2d(x, y);  // unknown: identity sample
+              double u = p.x();
+              double v = p.y();
+              // Outside by more than rounding noise: a miss.
+              if (u < -kInsideTolerance || v < -kInsideTolerance ||
+                  u > hr_width - 1.0 + kInsideTolerance || v > hr_height - 1.0 + kInsideTolerance) {
+                inside = false;
+              }
+              u = std::clamp(u, 0.0, hr_width - 1.0);  // replicate the border
+              v = std::clamp(v, 0.0, hr_height - 1.0);
+              if (!inside) ++misses;
+              BilinearSample& s = pixel_samples[n++];
+              s.x0 = std::min(static_cast<int>(u), hr_width - 2);
+              s.y0 = std::min(static_cast<int>(v), hr_height - 2);
+              s.fx = static_cast<float>(u - s.x0);
+              s.fy = static_cast<float>(v - s.y0);
+              if (s.fx < kSnap) s.fx = 0.0f;
+              if (s.fy < kSnap) s.fy = 0.0f;
+              if (s.fx > 1.0f - kSnap) s.fx = 1.0f;
+              if (s.fy > 1.0f - kSnap) s.fy = 1.0f;
+              min_x = std::min(min_x, s.x0);
+              max_x = std::max(max_x, s.x0 + 1);
+              min_y = std::min(min_y, s.y0);
+              max_y = std::max(max_y, s.y0 + 1);
+            }
+          }
+        }
+        op->coverage_[row] = 1.0f - static_cast<float>(misses) / samples_per_pixel;
+
+        const int grid_width = max_x - min_x + 1;
+        const int grid_height = max_y - min_y + 1;
+        const size_t row_start = columns.size();
+        if (grid_width * grid_height <= kMaxLocalGrid) {
+          // Merge taps in a local dense grid; emitting it in raster order
+          // gives sorted column indices for free.
+          std::fill(grid.begin(), grid.begin() + grid_width * grid_height, 0.0f);
+          for (const BilinearSample& s : pixel_samples) {
+            float* g = grid.data() + (s.y0 - min_y) * grid_width + (s.x0 - min_x);
+            const float wy1 = s.fy * sample_weight;
+            const float wy0 = sample_weight - wy1;
+            g[0] += (1.0f - s.fx) * wy0;
+            g[1] += s.fx * wy0;
+            g[grid_width] += (1.0f - s.fx) * wy1;
+            g[grid_width + 1] += s.fx * wy1;
+          }
+          for (int gy = 0; gy < grid_height; ++gy) {
+            const float* g = grid.data() + gy * grid_width;
+            const int base = (min_y + gy) * hr_width + min_x;
+            for (int gx = 0; gx < grid_width; ++gx) {
+              if (g[gx] != 0.0f) {
+                columns.push_back(base + gx);
+                values.push_back(g[gx]);
+              }
+            }
+          }
+        } else {
+          if (scatter.empty()) scatter.assign(static_cast<size_t>(hr_width) * hr_height, 0.0f);
+          auto add = [&](int index, float w) {
+            if (w == 0.0f) return;
+            if (scatter[index] == 0.0f) touched.push_back(index);
+            scatter[index] += w;
+          };
+          for (const BilinearSample& s : pixel_samples) {
+            const int index = s.y0 * hr_width + s.x0;
+            const float wy1 = s.fy * sample_weight;
+            const float wy0 = sample_weight - wy1;
+            add(index, (1.0f - s.fx) * wy0);
+            add(index + 1, s.fx * wy0);
+            add(index + hr_width, (1.0f - s.fx) * wy1);
+            add(index + hr_width + 1, s.fx * wy1);
+          }
+          std::sort(touched.begin(), touched.end());
+          for (int index : touched) {
+            columns.push_back(index);
+            values.push_back(scatter[index]);
+            scatter[index] = 0.0f;
+          }
+          touched.clear();
+        }
+        row_nnz[row] = static_cast<int>(columns.size() - row_start);
+      }
+    }
+  }
+
+  // Concatenate the blocks into one compressed row-major matrix.
+  size_t nnz = 0;
+  for (const auto& block : block_columns) nnz += block.size();
+  SparseMatrixRM& forward = op->forward_;
+  forward.resize(lr_pixels, hr_width * hr_height);
+  forward.resizeNonZeros(static_cast<Eigen::Index>(nnz));
+  int* outer = forward.outerIndexPtr();
+  outer[0] = 0;
+  for (int r = 0; r < lr_pixels; ++r) outer[r + 1] = outer[r] + row_nnz[r];
+  size_t offset = 0;
+  for (int t = 0; t < threads; ++t) {
+    std::copy(block_columns[t].begin(), block_columns[t].end(), forward.innerIndexPtr() + offset);
+    std::copy(block_values[t].begin(), block_values[t].end(), forward.valuePtr() + offset);
+    offset += block_columns[t].size();
+  }
+  op->adjoint_ = forward.transpose();
+}
+
+CaptureOperator BuildCaptureOperator(const CaptureGeometry& geometry,
+                                     const CaptureOperatorOptions& options) {
+  CaptureOperatorBuilder builder(options);
+  CaptureOperator op;
+  builder.Build(geometry, &op);
+  return op;
+}
+
+}  // namespace deblur_sr_mvs
