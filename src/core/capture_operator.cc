@@ -3,6 +3,7 @@
 #include <omp.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <sstream>
 
@@ -20,14 +21,20 @@ struct BilinearSample {
   float fy;
 };
 
-// Fractions this close to 0 or 1 are snapped, so that an exact integer warp
+// Fractions within 1e-4 px of 0 or 1 (float rounding) are snapped, so an exact integer warp
 // (zero motion) yields single taps instead of 1e-13 neighbours.
-constexpr float kSnap = 1e-6f;
-constexpr double kInsideTolerance = 1e-6;
+constexpr float kSnap = 1e-4f;
+constexpr float kInsideTolerance = 1e-4f;
 
 // Merging taps through a local dense grid is O(grid area); above this area
 // (extreme blur) a scatter array plus a sort is cheaper.
 constexpr int kMaxLocalGrid = 4096;
+
+double NowMs() {
+  return std::chrono::duration<double, std::milli>(
+             std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
 
 int ResolveThreads(int requested) {
   return requested > 0 ? requested : std::max(1, omp_get_max_threads());
@@ -142,7 +149,7 @@ void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOpera
   const SE3& T_world_t = geometry.T_world_cam;
   const SE3 T_source_world = geometry.T_world_source.value_or(T_world_t).Inverse();
   const double shutter_open = geometry.stamp - geometry.exposure;
-  std::vector<PixelTransfer> transfers;
+  std::vector<PixelTransferF> transfers;
   std::vector<SE3> T_tau_t(samples);
   transfers.reserve(samples);
   for (int m = 0; m < samples; ++m) {
@@ -150,9 +157,10 @@ void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOpera
     const double alpha = (tau - geometry.neighbour_stamp) / frame_gap;
     const SE3 T_world_tau = InterpolatePose(geometry.T_world_neighbour, T_world_t, alpha);
     T_tau_t[m] = T_world_tau.Inverse() * T_world_t;
-    transfers.emplace_back(camera, T_source_world * T_world_tau);
+    transfers.emplace_back(PixelTransfer(camera, T_source_world * T_world_tau));
   }
 
+  double stage_start = NowMs();
   // D_tau_m by reprojecting D_t into each virtual camera (paper Sec. 3).
   std::vector<const cv::Mat*> virtual_depth(samples, &geometry.depth_hr);
   if (options_.reproject_depth) {
@@ -165,11 +173,25 @@ void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOpera
     for (int m = 0; m < samples; ++m) virtual_depth[m] = &virtual_depths_[m];
   }
 
+  timings_.reprojection_ms = NowMs() - stage_start;
+  stage_start = NowMs();
+
   const int hr_width = camera.width;
   const int hr_height = camera.height;
   const int lr_width = hr_width / scale;
   const int lr_height = hr_height / scale;
   const int lr_pixels = lr_width * lr_height;
+  const float max_u = static_cast<float>(hr_width - 1);
+  const float max_v = static_cast<float>(hr_height - 1);
+  std::vector<const float*> virtual_depth_data(samples);
+  for (int m = 0; m < samples; ++m) virtual_depth_data[m] = virtual_depth[m]->ptr<float>();
+  // Row-constant parts of every virtual camera's transfer, per HR row.
+  std::vector<float> row_bases(static_cast<size_t>(samples) * hr_height * 3);
+  for (int m = 0; m < samples; ++m) {
+    for (int y = 0; y < hr_height; ++y) {
+      transfers[m].RowBase(static_cast<float>(y), &row_bases[(m * hr_height + y) * 3]);
+    }
+  }
   const int samples_per_pixel = samples * scale * scale;
   const float sample_weight = 1.0f / static_cast<float>(samples_per_pixel);
 
@@ -211,26 +233,32 @@ void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOpera
           const int y = lr_y * scale + sub_y;
           for (int sub_x = 0; sub_x < scale; ++sub_x) {
             const int x = lr_x * scale + sub_x;
+            const size_t pixel = static_cast<size_t>(y) * hr_width + x;
             for (int m = 0; m < samples; ++m) {
-              const float depth = virtual_depth[m]->ptr<float>(y)[x];
-              Eigen::Vector2d p(x, y);
-              bool inside = ValidDepth(depth) && transfers[m].Warp(x, y, depth, &p);
-              if (!inside) p = Eigen::Vector2d(x, y);  // unknown: identity sample
-              double u = p.x();
-              double v = p.y();
-              // Outside by more than rounding noise: a miss.
+              const float depth = virtual_depth_data[m][pixel];
+              float u, v, unused_depth;
+              bool inside = ValidDepth(depth) &&
+                            transfers[m].Warp(&row_bases[(m * hr_height + y) * 3],
+                                              static_cast<float>(x), depth, &u, &v,
+                                              &unused_depth);
+              if (!inside) {  // unknown depth or behind: identity sample
+                u = static_cast<float>(x);
+                v = static_cast<float>(y);
+              }
+              // Outside by more than rounding noise: a miss; the border is
+              // replicated.
               if (u < -kInsideTolerance || v < -kInsideTolerance ||
-                  u > hr_width - 1.0 + kInsideTolerance || v > hr_height - 1.0 + kInsideTolerance) {
+                  u > max_u + kInsideTolerance || v > max_v + kInsideTolerance) {
                 inside = false;
               }
-              u = std::clamp(u, 0.0, hr_width - 1.0);  // replicate the border
-              v = std::clamp(v, 0.0, hr_height - 1.0);
+              u = std::clamp(u, 0.0f, max_u);
+              v = std::clamp(v, 0.0f, max_v);
               if (!inside) ++misses;
               BilinearSample& s = pixel_samples[n++];
               s.x0 = std::min(static_cast<int>(u), hr_width - 2);
               s.y0 = std::min(static_cast<int>(v), hr_height - 2);
-              s.fx = static_cast<float>(u - s.x0);
-              s.fy = static_cast<float>(v - s.y0);
+              s.fx = u - static_cast<float>(s.x0);
+              s.fy = v - static_cast<float>(s.y0);
               if (s.fx < kSnap) s.fx = 0.0f;
               if (s.fy < kSnap) s.fy = 0.0f;
               if (s.fx > 1.0f - kSnap) s.fx = 1.0f;
@@ -314,7 +342,10 @@ void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOpera
     std::copy(block_values[t].begin(), block_values[t].end(), forward.valuePtr() + offset);
     offset += block_columns[t].size();
   }
+  timings_.assembly_ms = NowMs() - stage_start;
+  stage_start = NowMs();
   op->adjoint_ = forward.transpose();
+  timings_.adjoint_ms = NowMs() - stage_start;
 }
 
 CaptureOperator BuildCaptureOperator(const CaptureGeometry& geometry,

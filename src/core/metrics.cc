@@ -5,6 +5,7 @@
 #include <limits>
 #include <string>
 
+#include <Eigen/LU>
 #include <Eigen/SVD>
 
 #include "deblur_sr_mvs/core/errors.h"

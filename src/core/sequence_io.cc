@@ -36,6 +36,13 @@ std::string FormatDouble(double value) {
   return std::string(buffer, result.ptr);
 }
 
+// Short form for messages: 0.3 - 0.25 reads 0.05, not 0.04999999999999999.
+std::string MessageNumber(double value) {
+  char buffer[64];
+  std::snprintf(buffer, sizeof(buffer), "%.9g", value);
+  return buffer;
+}
+
 // Quotes user text in messages: bounded length, non-printable bytes as '?',
 // so that binary garbage still gives a one-line message.
 std::string Quote(const std::string& text) {
@@ -617,6 +624,8 @@ std::vector<FrameRecord> ReadFramesCsv(const std::string& path) {
   static const char* kHeader = "index,stamp,exposure";
   const std::string content = ReadTextFile(path);
   std::vector<std::string> lines = SplitLines(content);
+  // Spreadsheet programs may prefix a UTF-8 byte order mark.
+  if (!lines.empty() && lines[0].rfind("\xEF\xBB\xBF", 0) == 0) lines[0].erase(0, 3);
   for (std::string& line : lines) line = Trim(line);
   // Trailing empty lines are tolerated; empty lines elsewhere are not.
   while (!lines.empty() && lines.back().empty()) lines.pop_back();
@@ -678,8 +687,8 @@ std::vector<FrameRecord> ReadFramesCsv(const std::string& path) {
         1e-12 + 8.0 * std::numeric_limits<double>::epsilon() * std::max(std::abs(a), std::abs(b));
     if (frames[i].exposure > interval + tolerance) {
       FailAt(path, static_cast<int>(i) + 2,
-             "exposure " + FormatDouble(frames[i].exposure) + " s exceeds the frame interval " +
-                 FormatDouble(interval) + " s (gap to the " + (first ? "next" : "previous") + " stamp)");
+             "exposure " + MessageNumber(frames[i].exposure) + " s exceeds the frame interval " +
+                 MessageNumber(interval) + " s (gap to the " + (first ? "next" : "previous") + " stamp)");
     }
   }
   return frames;
@@ -860,7 +869,7 @@ Sequence ReadSequence(const std::string& folder, bool read_ground_truth) {
     if (!(std::abs(gt.poses[i].stamp - sequence.frames[i].stamp) <= kStampTolerance)) {
       Fail(poses_path, "pose " + std::to_string(i) + " has stamp " + FormatDouble(gt.poses[i].stamp) +
                            " but frame " + std::to_string(i) + " has stamp " +
-                           FormatDouble(sequence.frames[i].stamp));
+                           FormatDouble(sequence.frames[i].stamp) + " (tolerance 1e-6 s)");
     }
   }
   sequence.ground_truth = std::move(gt);

@@ -14,6 +14,13 @@ PixelTransfer::PixelTransfer(const PinholeCamera& camera, const SE3& T_target_so
   translation = k * T_target_source.translation();
 }
 
+PixelTransferF::PixelTransferF(const PixelTransfer& transfer) {
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) h[3 * r + c] = static_cast<float>(transfer.homography(r, c));
+    t[r] = static_cast<float>(transfer.translation(r));
+  }
+}
+
 void ReprojectDepth(const PinholeCamera& camera, const cv::Mat& depth_source,
                     const SE3& T_target_source, bool fill_from_source, cv::Mat* depth_target) {
   if (depth_source.type() != CV_32FC1 || depth_source.cols != camera.width ||
@@ -23,23 +30,29 @@ void ReprojectDepth(const PinholeCamera& camera, const cv::Mat& depth_source,
   constexpr float kEmpty = std::numeric_limits<float>::infinity();
   depth_target->create(depth_source.size(), CV_32FC1);
   depth_target->setTo(kEmpty);
-  const PixelTransfer transfer(camera, T_target_source);
+  const PixelTransferF transfer{PixelTransfer(camera, T_target_source)};
   const int width = camera.width;
   const int height = camera.height;
+  float* zbuffer = depth_target->ptr<float>();
   for (int y = 0; y < height; ++y) {
     const float* depth_row = depth_source.ptr<float>(y);
+    float base[3];
+    transfer.RowBase(static_cast<float>(y), base);
     for (int x = 0; x < width; ++x) {
       const float depth = depth_row[x];
       if (!ValidDepth(depth)) continue;
-      Eigen::Vector2d target;
-      double target_depth;
-      if (!transfer.Warp(x, y, depth, &target, &target_depth)) continue;
-      // Nearest target pixel; the z-buffer keeps the closest surface.
-      const int tx = static_cast<int>(std::floor(target.x() + 0.5));
-      const int ty = static_cast<int>(std::floor(target.y() + 0.5));
-      if (tx < 0 || ty < 0 || tx >= width || ty >= height) continue;
-      float& slot = depth_target->at<float>(ty, tx);
-      if (target_depth < slot) slot = static_cast<float>(target_depth);
+      float u, v, target_depth;
+      if (!transfer.Warp(base, static_cast<float>(x), depth, &u, &v, &target_depth)) continue;
+      // Nearest target pixel; the z-buffer keeps the closest surface. The
+      // unsigned compare rejects negative and too large indices at once.
+      const int tx = static_cast<int>(std::floor(u + 0.5f));
+      const int ty = static_cast<int>(std::floor(v + 0.5f));
+      if (static_cast<unsigned>(tx) >= static_cast<unsigned>(width) ||
+          static_cast<unsigned>(ty) >= static_cast<unsigned>(height)) {
+        continue;
+      }
+      float& slot = zbuffer[ty * width + tx];
+      if (target_depth < slot) slot = target_depth;
     }
   }
   const float missing = std::numeric_limits<float>::quiet_NaN();

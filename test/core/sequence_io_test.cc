@@ -233,6 +233,7 @@ TEST_F(SequenceIoTest, FramesCsvToleratesCrlfTrailingSpaceAndDecimalRounding) {
   const std::vector<FrameRecord> frames = ReadFramesCsv(path);
   ASSERT_EQ(frames.size(), 3u);
   EXPECT_EQ(frames[2].stamp, 0.3);
+  EXPECT_EQ(ReadFramesCsv(WriteText("bom.csv", "\xEF\xBB\xBFindex,stamp,exposure\n0,1,0.5\n1,2,0.5\n")).size(), 2u);
   // A single frame only needs a positive exposure.
   EXPECT_EQ(ReadFramesCsv(WriteText("one.csv", "index,stamp,exposure\n0,5,10\n")).size(), 1u);
 }

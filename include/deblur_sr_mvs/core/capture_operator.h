@@ -93,7 +93,16 @@ class CaptureOperatorBuilder {
   void Build(const CaptureGeometry& geometry, CaptureOperator* op);
   const CaptureOperatorOptions& options() const { return options_; }
 
+  // Wall time of the stages of the last Build, for profiling and reports.
+  struct Timings {
+    double reprojection_ms = 0.0;  // D_tau_m for every virtual camera
+    double assembly_ms = 0.0;      // warps, bilinear taps, merged rows
+    double adjoint_ms = 0.0;       // the transposed copy
+  };
+  const Timings& last_timings() const { return timings_; }
+
  private:
+  Timings timings_;
   CaptureOperatorOptions options_;
   std::vector<cv::Mat> virtual_depths_;  // D_tau_m, one per sample
 };

@@ -34,6 +34,32 @@ struct PixelTransfer {
   }
 };
 
+// Single-precision form of PixelTransfer for the hot loops (sub-millipixel
+// accuracy for images up to several thousand pixels wide). The row part
+// h1 * v + h2 is hoisted out of the loops over u.
+struct PixelTransferF {
+  explicit PixelTransferF(const PixelTransfer& transfer);
+  float h[9];  // row-major K R K^-1
+  float t[3];  // K t
+  // Row-constant part for image row v: (h1 v + h2) per output coordinate.
+  void RowBase(float v, float base[3]) const {
+    base[0] = h[1] * v + h[2];
+    base[1] = h[4] * v + h[5];
+    base[2] = h[7] * v + h[8];
+  }
+  // Same contract as PixelTransfer::Warp.
+  bool Warp(const float base[3], float u, float depth, float* target_u, float* target_v,
+            float* target_depth) const {
+    const float z = depth * (h[6] * u + base[2]) + t[2];
+    if (!(z > 1e-9f)) return false;
+    const float inv_z = 1.0f / z;
+    *target_u = (depth * (h[0] * u + base[0]) + t[0]) * inv_z;
+    *target_v = (depth * (h[3] * u + base[1]) + t[1]) * inv_z;
+    *target_depth = z;
+    return true;
+  }
+};
+
 // True for a usable depth sample (finite and > 0); 0 and NaN mark unknown.
 inline bool ValidDepth(float depth) { return depth > 0.0f && depth < 1e30f; }
 

@@ -1,0 +1,23 @@
+# Shared by the scripts: paths and the ROS-friendly environment. Source it.
+# shellcheck shell=bash
+
+DSM_REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+# Build folders live outside the source tree (one per clone, keyed by path).
+DSM_CACHE="${DSM_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/deblur_sr_mvs/$(printf '%s' "$DSM_REPO" | md5sum | cut -c1-10)}"
+DSM_PLAIN_BUILD="$DSM_CACHE/build-plain"   # plain CMake: core, tools, gtests
+DSM_WORKSPACE="$DSM_CACHE/catkin_ws"       # catkin workspace: everything + ROS
+DSM_JOBS="${DSM_JOBS:-$(nproc)}"
+
+# Debian's python3 and ROS tools first: the machine's default python3 is another one.
+export PATH="/usr/bin:/bin:$PATH"
+export ROS_HOSTNAME="${ROS_HOSTNAME:-localhost}"
+export ROS_MASTER_URI="${ROS_MASTER_URI:-http://localhost:11311}"
+
+# Plain CMake build (Release) of the core library, tools and gtests.
+dsm_build_plain() {
+  cmake -S "$DSM_REPO" -B "$DSM_PLAIN_BUILD" -DCMAKE_BUILD_TYPE=Release "$@" >/dev/null
+  cmake --build "$DSM_PLAIN_BUILD" -j "$DSM_JOBS"
+}
+
+# The tools of the plain build.
+dsm_tool() { echo "$DSM_PLAIN_BUILD/$1"; }
