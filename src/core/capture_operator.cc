@@ -13,14 +13,6 @@
 namespace deblur_sr_mvs {
 namespace {
 
-// One bilinear sample: top-left tap and fractional offsets.
-struct BilinearSample {
-  int x0;
-  int y0;
-  float fx;
-  float fy;
-};
-
 // Fractions within 1e-4 px of 0 or 1 (float rounding) are snapped, so an exact integer warp
 // (zero motion) yields single taps instead of 1e-13 neighbours.
 constexpr float kSnap = 1e-4f;
@@ -40,9 +32,10 @@ int ResolveThreads(int requested) {
   return requested > 0 ? requested : std::max(1, omp_get_max_threads());
 }
 
-// y = A x for a row-major sparse A and interleaved C-channel images.
+// y = A x for a row-major sparse A and interleaved C-channel images. Not
+// auto-vectorised: gathers of scattered columns are slower than scalar loads.
 template <int kChannels>
-void MultiplyFixed(const SparseMatrixRM& a, const float* x, float* y, int threads) {
+__attribute__((optimize("no-tree-vectorize"))) void MultiplyFixed(const SparseMatrixRM& a, const float* x, float* y, int threads) {
   const int* outer = a.outerIndexPtr();
   const int* inner = a.innerIndexPtr();
   const float* values = a.valuePtr();
@@ -57,6 +50,53 @@ void MultiplyFixed(const SparseMatrixRM& a, const float* x, float* y, int thread
     }
     float* py = y + static_cast<std::ptrdiff_t>(r) * kChannels;
     for (int c = 0; c < kChannels; ++c) py[c] = acc[c];
+  }
+}
+
+// at = a^T (both row-major, compressed) with `threads` threads: per-thread
+// column histograms of contiguous row blocks, one prefix sum, then each thread
+// scatters its block to disjoint slots. Row indices come out sorted.
+void TransposeParallel(const SparseMatrixRM& a, SparseMatrixRM* at, int threads) {
+  const int rows = static_cast<int>(a.rows());
+  const int cols = static_cast<int>(a.cols());
+  const int* outer = a.outerIndexPtr();
+  const int* inner = a.innerIndexPtr();
+  const float* values = a.valuePtr();
+  std::vector<int> slots(static_cast<size_t>(threads) * cols, 0);
+  at->resize(cols, rows);
+  at->resizeNonZeros(a.nonZeros());
+  int* at_outer = at->outerIndexPtr();
+  int* at_inner = at->innerIndexPtr();
+  float* at_values = at->valuePtr();
+#pragma omp parallel num_threads(threads)
+  {
+    const int thread = omp_get_thread_num();
+    const int first = static_cast<int>(static_cast<long long>(rows) * thread / threads);
+    const int last = static_cast<int>(static_cast<long long>(rows) * (thread + 1) / threads);
+    int* count = slots.data() + static_cast<size_t>(thread) * cols;
+    for (int k = outer[first]; k < outer[last]; ++k) ++count[inner[k]];
+#pragma omp barrier
+#pragma omp single
+    {
+      int running = 0;
+      for (int c = 0; c < cols; ++c) {
+        at_outer[c] = running;
+        for (int t = 0; t < threads; ++t) {
+          int& slot = slots[static_cast<size_t>(t) * cols + c];
+          const int n = slot;
+          slot = running;
+          running += n;
+        }
+      }
+      at_outer[cols] = running;
+    }  // implicit barrier
+    for (int r = first; r < last; ++r) {
+      for (int k = outer[r]; k < outer[r + 1]; ++k) {
+        const int position = count[inner[k]]++;
+        at_inner[position] = r;
+        at_values[position] = values[k];
+      }
+    }
   }
 }
 
@@ -181,19 +221,30 @@ void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOpera
   const int lr_width = hr_width / scale;
   const int lr_height = hr_height / scale;
   const int lr_pixels = lr_width * lr_height;
+  const int samples_per_pixel = samples * scale * scale;
+  const float sample_weight = 1.0f / static_cast<float>(samples_per_pixel);
   const float max_u = static_cast<float>(hr_width - 1);
   const float max_v = static_cast<float>(hr_height - 1);
   std::vector<const float*> virtual_depth_data(samples);
   for (int m = 0; m < samples; ++m) virtual_depth_data[m] = virtual_depth[m]->ptr<float>();
-  // Row-constant parts of every virtual camera's transfer, per HR row.
-  std::vector<float> row_bases(static_cast<size_t>(samples) * hr_height * 3);
+  // The transfers as structure-of-arrays over m, so that the per-sample loop
+  // below vectorises; the row-constant parts are precomputed per HR row.
+  std::vector<float> h0(samples), h3(samples), h6(samples), t0(samples), t1(samples),
+      t2(samples);
+  std::vector<float> row_bases(static_cast<size_t>(hr_height) * 3 * samples);
   for (int m = 0; m < samples; ++m) {
+    h0[m] = transfers[m].h[0];
+    h3[m] = transfers[m].h[3];
+    h6[m] = transfers[m].h[6];
+    t0[m] = transfers[m].t[0];
+    t1[m] = transfers[m].t[1];
+    t2[m] = transfers[m].t[2];
     for (int y = 0; y < hr_height; ++y) {
-      transfers[m].RowBase(static_cast<float>(y), &row_bases[(m * hr_height + y) * 3]);
+      float base[3];
+      transfers[m].RowBase(static_cast<float>(y), base);
+      for (int k = 0; k < 3; ++k) row_bases[(static_cast<size_t>(y) * 3 + k) * samples + m] = base[k];
     }
   }
-  const int samples_per_pixel = samples * scale * scale;
-  const float sample_weight = 1.0f / static_cast<float>(samples_per_pixel);
 
   op->lr_size_ = cv::Size(lr_width, lr_height);
   op->hr_size_ = cv::Size(hr_width, hr_height);
@@ -202,9 +253,12 @@ void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOpera
 
   // Each thread assembles a contiguous block of LR rows into its own CSR
   // pieces; the blocks are concatenated in order afterwards.
-  std::vector<std::vector<int>> block_columns(threads);
-  std::vector<std::vector<float>> block_values(threads);
-  std::vector<int> row_nnz(lr_pixels, 0);
+  std::vector<std::vector<int>>& block_columns = block_columns_;
+  std::vector<std::vector<float>>& block_values = block_values_;
+  block_columns.resize(std::max<size_t>(block_columns.size(), threads));
+  block_values.resize(std::max<size_t>(block_values.size(), threads));
+  std::vector<int>& row_nnz = row_nnz_;
+  row_nnz.assign(lr_pixels, 0);
 
 #pragma omp parallel num_threads(threads)
   {
@@ -218,9 +272,12 @@ void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOpera
     values.clear();
     columns.reserve(static_cast<size_t>(last_row - first_row) * lr_width * 64);
     values.reserve(columns.capacity());
-    std::vector<BilinearSample> pixel_samples(samples_per_pixel);
-    std::vector<float> grid(kMaxLocalGrid);
-    std::vector<float> scatter;       // fallback for huge footprints
+    // Per-sample scratch of one LR pixel (structure of arrays).
+    std::vector<float> depth(samples);
+    std::vector<int> tap_x(samples_per_pixel), tap_y(samples_per_pixel);
+    std::vector<float> frac_x(samples_per_pixel), frac_y(samples_per_pixel);
+    std::vector<float> cells(4 * kMaxLocalGrid);
+    std::vector<float> scatter;  // fallback for huge footprints
     std::vector<int> touched;
 
     for (int lr_y = first_row; lr_y < last_row; ++lr_y) {
@@ -228,73 +285,106 @@ void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOpera
         const int row = lr_y * lr_width + lr_x;
         int misses = 0;
         int min_x = hr_width, max_x = -1, min_y = hr_height, max_y = -1;
-        int n = 0;
         for (int sub_y = 0; sub_y < scale; ++sub_y) {
           const int y = lr_y * scale + sub_y;
+          const float* base0 = &row_bases[(static_cast<size_t>(y) * 3 + 0) * samples];
+          const float* base1 = base0 + samples;
+          const float* base2 = base1 + samples;
           for (int sub_x = 0; sub_x < scale; ++sub_x) {
             const int x = lr_x * scale + sub_x;
             const size_t pixel = static_cast<size_t>(y) * hr_width + x;
+            for (int m = 0; m < samples; ++m) depth[m] = virtual_depth_data[m][pixel];
+            const int offset = (sub_y * scale + sub_x) * samples;
+            int* out_x = tap_x.data() + offset;
+            int* out_y = tap_y.data() + offset;
+            float* out_fx = frac_x.data() + offset;
+            float* out_fy = frac_y.data() + offset;
+            const float xf = static_cast<float>(x);
+            const float yf = static_cast<float>(y);
+            // W^{tau_m -> src}(x) for every virtual camera (eq:warpingFunction);
+            // unknown depth or a point behind the camera samples x itself, and
+            // samples outside the image are clamped (border replicated); both
+            // count as misses in the coverage.
+            const float* __restrict depth_m = depth.data();
+            const float* __restrict c_h0 = h0.data();
+            const float* __restrict c_h3 = h3.data();
+            const float* __restrict c_h6 = h6.data();
+            const float* __restrict c_t0 = t0.data();
+            const float* __restrict c_t1 = t1.data();
+            const float* __restrict c_t2 = t2.data();
+#pragma omp simd reduction(+ : misses)
             for (int m = 0; m < samples; ++m) {
-              const float depth = virtual_depth_data[m][pixel];
-              float u, v, unused_depth;
-              bool inside = ValidDepth(depth) &&
-                            transfers[m].Warp(&row_bases[(m * hr_height + y) * 3],
-                                              static_cast<float>(x), depth, &u, &v,
-                                              &unused_depth);
-              if (!inside) {  // unknown depth or behind: identity sample
-                u = static_cast<float>(x);
-                v = static_cast<float>(y);
-              }
-              // Outside by more than rounding noise: a miss; the border is
-              // replicated.
-              if (u < -kInsideTolerance || v < -kInsideTolerance ||
-                  u > max_u + kInsideTolerance || v > max_v + kInsideTolerance) {
-                inside = false;
-              }
-              u = std::clamp(u, 0.0f, max_u);
-              v = std::clamp(v, 0.0f, max_v);
-              if (!inside) ++misses;
-              BilinearSample& s = pixel_samples[n++];
-              s.x0 = std::min(static_cast<int>(u), hr_width - 2);
-              s.y0 = std::min(static_cast<int>(v), hr_height - 2);
-              s.fx = u - static_cast<float>(s.x0);
-              s.fy = v - static_cast<float>(s.y0);
-              if (s.fx < kSnap) s.fx = 0.0f;
-              if (s.fy < kSnap) s.fy = 0.0f;
-              if (s.fx > 1.0f - kSnap) s.fx = 1.0f;
-              if (s.fy > 1.0f - kSnap) s.fy = 1.0f;
-              min_x = std::min(min_x, s.x0);
-              max_x = std::max(max_x, s.x0 + 1);
-              min_y = std::min(min_y, s.y0);
-              max_y = std::max(max_y, s.y0 + 1);
+              const float d = depth_m[m];
+              const float z = d * (c_h6[m] * xf + base2[m]) + c_t2[m];
+              const float inv_z = 1.0f / z;
+              float u = (d * (c_h0[m] * xf + base0[m]) + c_t0[m]) * inv_z;
+              float v = (d * (c_h3[m] * xf + base1[m]) + c_t1[m]) * inv_z;
+              // Bitwise & (no short-circuit branches) keeps the loop vectorisable.
+              const bool usable = (d > 0.0f) & (d < 1e30f) & (z > 1e-9f);
+              u = usable ? u : xf;
+              v = usable ? v : yf;
+              const bool inside = usable & (u >= -kInsideTolerance) & (v >= -kInsideTolerance) &
+                                  (u <= max_u + kInsideTolerance) & (v <= max_v + kInsideTolerance);
+              misses += inside ? 0 : 1;
+              u = std::min(std::max(u, 0.0f), max_u);
+              v = std::min(std::max(v, 0.0f), max_v);
+              const int ix = std::min(static_cast<int>(u), hr_width - 2);
+              const int iy = std::min(static_cast<int>(v), hr_height - 2);
+              float fx = u - static_cast<float>(ix);
+              float fy = v - static_cast<float>(iy);
+              fx = fx < kSnap ? 0.0f : (fx > 1.0f - kSnap ? 1.0f : fx);
+              fy = fy < kSnap ? 0.0f : (fy > 1.0f - kSnap ? 1.0f : fy);
+              out_x[m] = ix;
+              out_y[m] = iy;
+              out_fx[m] = fx;
+              out_fy[m] = fy;
             }
           }
         }
+        for (int k = 0; k < samples_per_pixel; ++k) {
+          min_x = std::min(min_x, tap_x[k]);
+          max_x = std::max(max_x, tap_x[k]);
+          min_y = std::min(min_y, tap_y[k]);
+          max_y = std::max(max_y, tap_y[k]);
+        }
+        ++max_x;  // the right and bottom taps of the bilinear stencil
+        ++max_y;
         op->coverage_[row] = 1.0f - static_cast<float>(misses) / samples_per_pixel;
 
         const int grid_width = max_x - min_x + 1;
         const int grid_height = max_y - min_y + 1;
         const size_t row_start = columns.size();
         if (grid_width * grid_height <= kMaxLocalGrid) {
-          // Merge taps in a local dense grid; emitting it in raster order
-          // gives sorted column indices for free.
-          std::fill(grid.begin(), grid.begin() + grid_width * grid_height, 0.0f);
-          for (const BilinearSample& s : pixel_samples) {
-            float* g = grid.data() + (s.y0 - min_y) * grid_width + (s.x0 - min_x);
-            const float wy1 = s.fy * sample_weight;
+          // Merge taps in a local dense grid. Each sample adds its four
+          // bilinear weights to ONE cell as a 4-vector (top-left, top-right,
+          // bottom-left, bottom-right); the stencil is unfolded when the grid
+          // is emitted. Emitting in raster order gives sorted column indices.
+          std::fill(cells.begin(), cells.begin() + 4 * grid_width * grid_height, 0.0f);
+          float* __restrict c = cells.data();
+          for (int k = 0; k < samples_per_pixel; ++k) {
+            const float wy1 = frac_y[k] * sample_weight;
             const float wy0 = sample_weight - wy1;
-            g[0] += (1.0f - s.fx) * wy0;
-            g[1] += s.fx * wy0;
-            g[grid_width] += (1.0f - s.fx) * wy1;
-            g[grid_width + 1] += s.fx * wy1;
+            const float fx = frac_x[k];
+            float* cell = c + 4 * ((tap_y[k] - min_y) * grid_width + (tap_x[k] - min_x));
+            cell[0] += (1.0f - fx) * wy0;
+            cell[1] += fx * wy0;
+            cell[2] += (1.0f - fx) * wy1;
+            cell[3] += fx * wy1;
           }
           for (int gy = 0; gy < grid_height; ++gy) {
-            const float* g = grid.data() + gy * grid_width;
+            const float* here = c + 4 * gy * grid_width;
+            const float* above = here - 4 * grid_width;
             const int base = (min_y + gy) * hr_width + min_x;
             for (int gx = 0; gx < grid_width; ++gx) {
-              if (g[gx] != 0.0f) {
+              float value = here[4 * gx];
+              if (gx > 0) value += here[4 * gx - 3];
+              if (gy > 0) {
+                value += above[4 * gx + 2];
+                if (gx > 0) value += above[4 * gx - 1];
+              }
+              if (value != 0.0f) {
                 columns.push_back(base + gx);
-                values.push_back(g[gx]);
+                values.push_back(value);
               }
             }
           }
@@ -305,14 +395,15 @@ void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOpera
             if (scatter[index] == 0.0f) touched.push_back(index);
             scatter[index] += w;
           };
-          for (const BilinearSample& s : pixel_samples) {
-            const int index = s.y0 * hr_width + s.x0;
-            const float wy1 = s.fy * sample_weight;
+          for (int k = 0; k < samples_per_pixel; ++k) {
+            const int index = tap_y[k] * hr_width + tap_x[k];
+            const float wy1 = frac_y[k] * sample_weight;
             const float wy0 = sample_weight - wy1;
-            add(index, (1.0f - s.fx) * wy0);
-            add(index + 1, s.fx * wy0);
-            add(index + hr_width, (1.0f - s.fx) * wy1);
-            add(index + hr_width + 1, s.fx * wy1);
+            const float fx = frac_x[k];
+            add(index, (1.0f - fx) * wy0);
+            add(index + 1, fx * wy0);
+            add(index + hr_width, (1.0f - fx) * wy1);
+            add(index + hr_width + 1, fx * wy1);
           }
           std::sort(touched.begin(), touched.end());
           for (int index : touched) {
@@ -344,7 +435,7 @@ void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOpera
   }
   timings_.assembly_ms = NowMs() - stage_start;
   stage_start = NowMs();
-  op->adjoint_ = forward.transpose();
+  TransposeParallel(forward, &op->adjoint_, threads);
   timings_.adjoint_ms = NowMs() - stage_start;
 }
 

@@ -105,6 +105,9 @@ class CaptureOperatorBuilder {
   Timings timings_;
   CaptureOperatorOptions options_;
   std::vector<cv::Mat> virtual_depths_;  // D_tau_m, one per sample
+  std::vector<std::vector<int>> block_columns_;  // per-thread CSR pieces
+  std::vector<std::vector<float>> block_values_;
+  std::vector<int> row_nnz_;
 };
 
 // Convenience: one operator with a temporary builder.
