@@ -1,0 +1,102 @@
+// The joint estimator: Algorithm 1 of the paper end to end on a window of
+// frames (initialisation, then max_iter times: image update, structure
+// update, visibility update).
+#pragma once
+
+#include <functional>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "deblur_sr_mvs/core/camera.h"
+#include "deblur_sr_mvs/core/capture_operator.h"
+#include "deblur_sr_mvs/core/image_update.h"
+#include "deblur_sr_mvs/core/initializer.h"
+#include "deblur_sr_mvs/core/se3.h"
+#include "deblur_sr_mvs/core/sequence_io.h"
+#include "deblur_sr_mvs/core/structure_update.h"
+#include "deblur_sr_mvs/core/visibility.h"
+
+namespace deblur_sr_mvs {
+
+enum class EstimatorMode {
+  kJoint,     // the proposed method
+  kBaseline,  // no capture operator, images fixed to bicubic ("Bic. + Baseline")
+};
+const char* ToString(EstimatorMode mode);
+// "joint" | "baseline"; throws InputError otherwise.
+EstimatorMode ParseEstimatorMode(const std::string& text);
+
+struct EstimatorOptions {
+  EstimatorMode mode = EstimatorMode::kJoint;
+  int scale = 2;              // super-resolution factor (1: "w/o SR")
+  int samples = 50;           // M of eq:blurOperator
+  int max_iterations = 3;     // max_iter of Algorithm 1
+  int neighbour_radius = 1;   // N(t) = frames within this distance of t
+  double lambda_s = 30.0;     // self-consistency weight (eq:IPterm)
+  ImageUpdateOptions image;   // lambda_i and the IRLS/CG budget
+  StructureUpdateOptions structure;  // lambda_d and the IRLS/GN budget
+  VisibilityOptions visibility;
+  InitializerOptions initializer;
+  bool update_poses = true;   // false keeps the initial poses
+  bool update_structure = true;  // false: images only (depth and poses fixed)
+  int num_threads = 0;        // OpenMP threads for every stage; 0 = default
+  void Check() const;         // throws InputError naming the bad value
+};
+
+struct EstimatorInput {
+  std::vector<cv::Mat> images;     // LR frames, float in [0, 1], 1 or 3 channels
+  PinholeCamera camera;            // intrinsics of the LR frames
+  std::vector<FrameRecord> frames; // stamps (shutter close) and exposures
+};
+
+// Energy of eq:energyFunction at one point of the algorithm.
+struct EnergyRecord {
+  int iteration = 0;        // 0 = after initialisation
+  std::string stage;        // "initialization" | "image" | "structure"
+  double total = 0.0;
+  double matching = 0.0;    // sum_t E_t^m
+  double self_consistency = 0.0;  // sum_t E_t^s (includes lambda_s)
+  double image_tv = 0.0;    // lambda_i sum_t TV(I_t)
+  double depth_tv = 0.0;    // lambda_d sum_t TV_g(D_t)
+};
+
+struct StageTiming {
+  std::string stage;
+  double seconds = 0.0;
+};
+
+struct EstimatorResult {
+  PinholeCamera camera_hr;
+  std::vector<cv::Mat> latent;      // HR, float in [0, 1]
+  std::vector<cv::Mat> depth;       // HR CV_32FC1, NaN invalid, scale as the poses
+  std::vector<SE3> T_world_cam;     // world = first camera; first baseline = 1
+  std::vector<EnergyRecord> energies;
+  std::vector<StageTiming> timings;
+  std::string initializer_summary;
+};
+
+// Progress: (fraction done in [0, 1], what is running).
+using ProgressCallback = std::function<void(double, const std::string&)>;
+
+class Estimator {
+ public:
+  explicit Estimator(const EstimatorOptions& options);
+  // Throws InputError on inconsistent input, InitializationError when the
+  // frames cannot be initialised.
+  EstimatorResult Run(const EstimatorInput& input, const ProgressCallback& progress = nullptr);
+
+  // Algorithm 1 from a given structure (tests: ground-truth depth and poses;
+  // the node: the previous window's poses). depth_hr/T_world_cam must have one
+  // entry per frame; the latent images start as bicubic up-samplings.
+  EstimatorResult RunFromStructure(const EstimatorInput& input,
+                                   const std::vector<cv::Mat>& depth_hr,
+                                   const std::vector<SE3>& T_world_cam,
+                                   const ProgressCallback& progress = nullptr);
+
+ private:
+  EstimatorOptions options_;
+};
+
+}  // namespace deblur_sr_mvs

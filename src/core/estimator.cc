@@ -1,0 +1,518 @@
+#include "deblur_sr_mvs/core/estimator.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <list>
+#include <map>
+#include <memory>
+
+#include <opencv2/imgproc.hpp>
+
+#include "deblur_sr_mvs/core/errors.h"
+#include "deblur_sr_mvs/core/frame_structure.h"
+#include "deblur_sr_mvs/core/image_ops.h"
+
+namespace deblur_sr_mvs {
+namespace {
+
+double Now() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
+// Accumulates wall time per named stage, in first-seen order.
+class Timer {
+ public:
+  void Add(const std::string& stage, double seconds) {
+    for (StageTiming& t : timings_) {
+      if (t.stage == stage) {
+        t.seconds += seconds;
+        return;
+      }
+    }
+    timings_.push_back({stage, seconds});
+  }
+  const std::vector<StageTiming>& timings() const { return timings_; }
+
+ private:
+  std::vector<StageTiming> timings_;
+};
+
+double SumAbsMasked(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask) {
+  const int channels = a.channels();
+  double sum = 0.0;
+  for (int y = 0; y < a.rows; ++y) {
+    const float* pa = a.ptr<float>(y);
+    const float* pb = b.ptr<float>(y);
+    const uchar* m = mask.empty() ? nullptr : mask.ptr<uchar>(y);
+    for (int x = 0; x < a.cols; ++x) {
+      if (m != nullptr && m[x] == 0) continue;
+      for (int c = 0; c < channels; ++c) sum += std::abs(pa[x * channels + c] - pb[x * channels + c]);
+    }
+  }
+  return sum;
+}
+
+// Edge-weighted isotropic TV of c * rho (eq:regularizingTerm, depth part).
+double DepthTv(const cv::Mat& inverse_depth, const cv::Mat& edge_weight, double parallax_scale) {
+  double sum = 0.0;
+  const int w = inverse_depth.cols, h = inverse_depth.rows;
+  for (int y = 0; y < h; ++y) {
+    const float* row = inverse_depth.ptr<float>(y);
+    const float* next = inverse_depth.ptr<float>(std::min(y + 1, h - 1));
+    const float* g = edge_weight.ptr<float>(y);
+    for (int x = 0; x < w; ++x) {
+      const double gx = row[std::min(x + 1, w - 1)] - row[x];
+      const double gy = next[x] - row[x];
+      sum += g[x] * parallax_scale * std::sqrt(gx * gx + gy * gy);
+    }
+  }
+  return sum;
+}
+
+// Gray image in [0, 1] for edge weights.
+cv::Mat EdgeWeightOf(const cv::Mat& latent, const EdgeWeightOptions& options) {
+  return EdgeWeight(latent, options);
+}
+
+// Fills NaN / non-positive depth by the nearest valid values (row then
+// column sweeps) so every pixel has a usable inverse depth.
+cv::Mat InverseDepthFromDepth(const cv::Mat& depth) {
+  cv::Mat rho(depth.size(), CV_32FC1);
+  cv::Mat invalid(depth.size(), CV_8UC1, cv::Scalar(0));
+  std::vector<float> valid_values;
+  for (int y = 0; y < depth.rows; ++y) {
+    for (int x = 0; x < depth.cols; ++x) {
+      const float d = depth.at<float>(y, x);
+      if (d > 0.0f && std::isfinite(d)) {
+        rho.at<float>(y, x) = 1.0f / d;
+        valid_values.push_back(1.0f / d);
+      } else {
+        rho.at<float>(y, x) = 0.0f;
+        invalid.at<uchar>(y, x) = 255;
+      }
+    }
+  }
+  if (valid_values.empty()) throw InputError("estimator: a depth map has no valid pixel");
+  if (cv::countNonZero(invalid) > 0) {
+    // Smallest inverse depth (background) nearby fills holes: occlusion holes
+    // are background more often than foreground.
+    cv::Mat filled = rho.clone();
+    cv::Mat mask = invalid.clone();
+    for (int pass = 0; pass < 64 && cv::countNonZero(mask) > 0; ++pass) {
+      cv::Mat next_mask = mask.clone();
+      for (int y = 0; y < rho.rows; ++y) {
+        for (int x = 0; x < rho.cols; ++x) {
+          if (!mask.at<uchar>(y, x)) continue;
+          float best = 0.0f;
+          const int dx[4] = {1, -1, 0, 0}, dy[4] = {0, 0, 1, -1};
+          for (int k = 0; k < 4; ++k) {
+            const int nx = x + dx[k], ny = y + dy[k];
+            if (nx < 0 || ny < 0 || nx >= rho.cols || ny >= rho.rows || mask.at<uchar>(ny, nx)) continue;
+            const float v = filled.at<float>(ny, nx);
+            if (best == 0.0f || v < best) best = v;
+          }
+          if (best > 0.0f) {
+            filled.at<float>(y, x) = best;
+            next_mask.at<uchar>(y, x) = 0;
+          }
+        }
+      }
+      mask = next_mask;
+    }
+    std::nth_element(valid_values.begin(), valid_values.begin() + valid_values.size() / 2,
+                     valid_values.end());
+    filled.setTo(valid_values[valid_values.size() / 2], mask);
+    rho = filled;
+  }
+  return rho;
+}
+
+cv::Mat DepthFromInverse(const cv::Mat& rho) {
+  cv::Mat depth(rho.size(), CV_32FC1);
+  for (int y = 0; y < rho.rows; ++y) {
+    for (int x = 0; x < rho.cols; ++x) {
+      const float r = rho.at<float>(y, x);
+      depth.at<float>(y, x) = r > 0.0f ? 1.0f / r : std::numeric_limits<float>::quiet_NaN();
+    }
+  }
+  return depth;
+}
+
+// Operators Psi_t[src] and their visibility masks, rebuilt only when the
+// structure they depend on (D_t, P_t, P_neighbour(t), P_src) changed. Memory
+// is bounded: the least recently used entries go first.
+class OperatorCache {
+ public:
+  struct Entry {
+    CaptureOperator op;
+    cv::Mat mask;  // LR CV_8UC1: Omega_{t,src} and full coverage
+    std::vector<long> versions;
+  };
+
+  OperatorCache(const CaptureOperatorOptions& options, const PinholeCamera& camera_hr,
+                const VisibilityOptions& visibility, size_t max_bytes)
+      : builder_(options), camera_hr_(camera_hr), visibility_(visibility), max_bytes_(max_bytes) {}
+
+  // Callers hold the returned pointer while they use the operator: eviction
+  // only drops the cache's reference.
+  std::shared_ptr<const Entry> Get(const std::vector<FrameStructure>& frames, const std::vector<long>& depth_version,
+                   const std::vector<long>& pose_version, int t, int source, Timer* timer) {
+    const int neighbour = t > 0 ? t - 1 : t + 1;
+    const std::vector<long> versions = {depth_version[t], pose_version[t], pose_version[neighbour],
+                                        pose_version[source]};
+    const auto key = std::make_pair(t, source);
+    auto it = entries_.find(key);
+    if (it != entries_.end() && it->second->versions == versions) {
+      Touch(key);
+      return it->second;
+    }
+    const double start = Now();
+    auto entry = std::make_shared<Entry>();
+    builder_.Build(MakeCaptureGeometry(frames, camera_hr_, t, source), &entry->op);
+    entry->versions = versions;
+    const cv::Size lr = entry->op.lr_size();
+    entry->mask = cv::Mat(lr, CV_8UC1);
+    const std::vector<float>& coverage = entry->op.coverage();
+    for (int i = 0; i < lr.area(); ++i) entry->mask.ptr<uchar>()[i] = coverage[i] >= 1.0f ? 255 : 0;
+    if (source != t) {
+      const SE3 T_s_t = frames[source].T_world_cam.Inverse() * frames[t].T_world_cam;
+      const cv::Mat visible = DownscaleMaskAll(
+          ComputeVisibility(camera_hr_, frames[t].depth_hr, T_s_t, visibility_),
+          camera_hr_.width / lr.width);
+      cv::bitwise_and(entry->mask, visible, entry->mask);
+    }
+    timer->Add("operator builds", Now() - start);
+    if (it != entries_.end()) {
+      bytes_ -= Bytes(*it->second);
+      it->second = entry;
+    } else {
+      entries_[key] = entry;
+    }
+    bytes_ += Bytes(*entry);
+    Touch(key);
+    Evict(key);
+    return entry;
+  }
+
+ private:
+  static size_t Bytes(const Entry& e) {
+    return static_cast<size_t>(e.op.matrix().nonZeros()) * 16 + e.mask.total();
+  }
+  void Touch(const std::pair<int, int>& key) {
+    order_.remove(key);
+    order_.push_back(key);
+  }
+  void Evict(const std::pair<int, int>& keep) {
+    while (bytes_ > max_bytes_ && order_.size() > 1) {
+      const auto victim = order_.front();
+      if (victim == keep) break;
+      order_.pop_front();
+      auto it = entries_.find(victim);
+      if (it != entries_.end()) {
+        bytes_ -= Bytes(*it->second);
+        entries_.erase(it);
+      }
+    }
+  }
+
+  CaptureOperatorBuilder builder_;
+  PinholeCamera camera_hr_;
+  VisibilityOptions visibility_;
+  size_t max_bytes_;
+  size_t bytes_ = 0;
+  std::map<std::pair<int, int>, std::shared_ptr<Entry>> entries_;
+  std::list<std::pair<int, int>> order_;
+};
+
+}  // namespace
+
+const char* ToString(EstimatorMode mode) {
+  return mode == EstimatorMode::kJoint ? "joint" : "baseline";
+}
+
+EstimatorMode ParseEstimatorMode(const std::string& text) {
+  if (text == "joint") return EstimatorMode::kJoint;
+  if (text == "baseline") return EstimatorMode::kBaseline;
+  throw InputError("mode must be 'joint' or 'baseline', got '" + text + "'");
+}
+
+void EstimatorOptions::Check() const {
+  if (scale < 1 || scale > 4) throw InputError("scale must be in [1, 4], got " + std::to_string(scale));
+  if (samples < 1 || samples > 1000) throw InputError("samples must be in [1, 1000], got " + std::to_string(samples));
+  if (max_iterations < 0 || max_iterations > 100) throw InputError("iterations must be in [0, 100]");
+  if (neighbour_radius < 1 || neighbour_radius > 5) throw InputError("neighbour_radius must be in [1, 5]");
+  if (!(lambda_s >= 0.0) || !std::isfinite(lambda_s)) throw InputError("lambda_s must be >= 0");
+  if (num_threads < 0) throw InputError("threads must be >= 0");
+  image.Check();
+  structure.Check();
+  visibility.Check();
+  initializer.Check();
+}
+
+Estimator::Estimator(const EstimatorOptions& options) : options_(options) { options_.Check(); }
+
+EstimatorResult Estimator::Run(const EstimatorInput& input, const ProgressCallback& progress) {
+  const double start = Now();
+  if (progress) progress(0.0, "initialisation");
+  InitializerOptions init_options = options_.initializer;
+  init_options.num_threads = options_.num_threads;
+  const InitialStructure initial =
+      InitializeStructure(input.images, input.camera, input.frames, init_options);
+  std::vector<cv::Mat> depth_hr;
+  for (const cv::Mat& depth_lr : initial.depth_lr) {
+    // LR depths up-sampled to HR by bicubic interpolation (Sec. optInitialization),
+    // on inverse depth so that holes and edges behave.
+    const cv::Mat rho_hr = UpsampleBicubic(InverseDepthFromDepth(depth_lr), options_.scale);
+    depth_hr.push_back(DepthFromInverse(rho_hr));
+  }
+  const double init_seconds = Now() - start;
+  EstimatorResult result = RunFromStructure(input, depth_hr, initial.T_world_cam, progress);
+  result.timings.insert(result.timings.begin(), StageTiming{"initialization", init_seconds});
+  result.initializer_summary = initial.summary;
+  return result;
+}
+
+EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
+                                            const std::vector<cv::Mat>& depth_hr_in,
+                                            const std::vector<SE3>& T_world_cam_in,
+                                            const ProgressCallback& progress) {
+  const int num_frames = static_cast<int>(input.images.size());
+  if (num_frames < 2) throw InputError("estimator: needs at least 2 frames");
+  if (input.frames.size() != input.images.size() || depth_hr_in.size() != input.images.size() ||
+      T_world_cam_in.size() != input.images.size()) {
+    throw InputError("estimator: images, frames, depths and poses differ in number");
+  }
+  {
+    const std::string problem = input.camera.Problem();
+    if (!problem.empty()) throw InputError("estimator: camera: " + problem);
+  }
+  const int scale = options_.scale;
+  const bool joint = options_.mode == EstimatorMode::kJoint;
+  const PinholeCamera camera_hr = input.camera.Upscaled(scale);
+  const int threads = options_.num_threads > 0 ? options_.num_threads : omp_get_max_threads();
+  omp_set_num_threads(threads);
+  for (const cv::Mat& image : input.images) {
+    if (image.depth() != CV_32F || image.cols != input.camera.width || image.rows != input.camera.height ||
+        image.channels() != input.images[0].channels()) {
+      throw InputError("estimator: every frame must be a float image of the camera size");
+    }
+  }
+
+  Timer timer;
+  EstimatorResult result;
+  result.camera_hr = camera_hr;
+
+  // State: latent images, frame structure, inverse depths, edge weights.
+  std::vector<cv::Mat> observations(num_frames), bicubic(num_frames), latents(num_frames);
+  std::vector<FrameStructure> frames(num_frames);
+  std::vector<cv::Mat> inverse_depth(num_frames), edge_weight(num_frames);
+  std::vector<long> depth_version(num_frames, 0), pose_version(num_frames, 0);
+  for (int t = 0; t < num_frames; ++t) {
+    observations[t] = input.images[t].isContinuous() ? input.images[t] : input.images[t].clone();
+    bicubic[t] = UpsampleBicubic(observations[t], scale);
+    latents[t] = bicubic[t].clone();
+    frames[t].stamp = input.frames[t].stamp;
+    frames[t].exposure = input.frames[t].exposure;
+    frames[t].T_world_cam = T_world_cam_in[t];
+    if (depth_hr_in[t].type() != CV_32FC1 || depth_hr_in[t].size() != cv::Size(camera_hr.width, camera_hr.height)) {
+      throw InputError("estimator: depth maps must be CV_32FC1 of the HR size");
+    }
+    inverse_depth[t] = InverseDepthFromDepth(depth_hr_in[t]);
+    frames[t].depth_hr = DepthFromInverse(inverse_depth[t]);
+    edge_weight[t] = EdgeWeightOf(latents[t], options_.structure.edge_weight);
+  }
+  // Parallax scale: inverse depth in HR pixels of parallax per mean baseline.
+  auto parallax_scale = [&]() {
+    double baseline = 0.0;
+    for (int t = 1; t < num_frames; ++t) {
+      baseline += (frames[t].T_world_cam.translation() - frames[t - 1].T_world_cam.translation()).norm();
+    }
+    baseline /= (num_frames - 1);
+    return camera_hr.fx * std::max(baseline, 1e-9);
+  };
+
+  CaptureOperatorOptions op_options;
+  op_options.samples = options_.samples;
+  op_options.scale = scale;
+  op_options.num_threads = threads;
+  // Enough for every operator of a 10-frame 640x480 window would be ~2 GiB;
+  // keep the peak bounded and rebuild what was evicted.
+  OperatorCache cache(op_options, camera_hr, options_.visibility, size_t(1) << 30);
+
+  const std::vector<std::vector<int>> neighbours = [&] {
+    std::vector<std::vector<int>> n(num_frames);
+    for (int t = 0; t < num_frames; ++t) n[t] = Neighbours(t, num_frames, options_.neighbour_radius);
+    return n;
+  }();
+
+  // Baseline matching at HR: visible, validly warped pixels of t.
+  auto baseline_mask = [&](int t, int s, const cv::Mat& valid) {
+    const SE3 T_s_t = frames[s].T_world_cam.Inverse() * frames[t].T_world_cam;
+    cv::Mat mask = ComputeVisibility(camera_hr, frames[t].depth_hr, T_s_t, options_.visibility);
+    cv::bitwise_and(mask, valid, mask);
+    return mask;
+  };
+
+  // E_t (eq:energyFunctiont) of one frame at the current state.
+  auto frame_energy = [&](int t, EnergyRecord* parts) {
+    double matching = 0.0, self = 0.0;
+    cv::Mat predicted;
+    if (joint) {
+      for (int s : neighbours[t]) {
+        const auto e = cache.Get(frames, depth_version, pose_version, t, s, &timer);
+        e->op.Apply(latents[s], &predicted);
+        matching += SumAbsMasked(predicted, observations[t], e->mask);
+      }
+      const auto e = cache.Get(frames, depth_version, pose_version, t, t, &timer);
+      e->op.Apply(latents[t], &predicted);
+      self = options_.lambda_s * SumAbsMasked(predicted, observations[t], cv::Mat());
+    } else {
+      for (int s : neighbours[t]) {
+        const WarpLinearization lin = LinearizeWarp(camera_hr, inverse_depth[t], frames[t].T_world_cam,
+                                                    frames[s].T_world_cam, latents[s], nullptr);
+        matching += SumAbsMasked(lin.warped, latents[t], baseline_mask(t, s, lin.valid));
+      }
+    }
+    const double image_tv = joint ? options_.image.lambda_i * TotalVariation(latents[t]) : 0.0;
+    const double depth_tv =
+        options_.structure.lambda_d * DepthTv(inverse_depth[t], edge_weight[t], parallax_scale());
+    if (parts != nullptr) {
+      parts->matching += matching;
+      parts->self_consistency += self;
+      parts->image_tv += image_tv;
+      parts->depth_tv += depth_tv;
+      parts->total += matching + self + image_tv + depth_tv;
+    }
+    return matching + self + image_tv + depth_tv;
+  };
+  auto total_energy = [&](int iteration, const std::string& stage) {
+    const double begin = Now();
+    EnergyRecord record;
+    record.iteration = iteration;
+    record.stage = stage;
+    for (int t = 0; t < num_frames; ++t) frame_energy(t, &record);
+    timer.Add("energy", Now() - begin);
+    return record;
+  };
+
+  result.energies.push_back(total_energy(0, "initialization"));
+  const int total_steps = std::max(1, options_.max_iterations * 2);
+  for (int iteration = 1; iteration <= options_.max_iterations; ++iteration) {
+    // ---- Phase 1: latent images (eq:imgUpdate), one frame at a time.
+    if (joint) {
+      const double begin = Now();
+      for (int t = 0; t < num_frames; ++t) {
+        if (progress) {
+          progress((2.0 * (iteration - 1) + double(t) / num_frames) / total_steps,
+                   "iteration " + std::to_string(iteration) + ": image " + std::to_string(t));
+        }
+        std::vector<LinearL1Term> terms;
+        std::vector<std::shared_ptr<const OperatorCache::Entry>> held;
+        for (int s : neighbours[t]) {
+          held.push_back(cache.Get(frames, depth_version, pose_version, s, t, &timer));
+          terms.push_back({&held.back()->op, &observations[s], held.back()->mask, 1.0});
+        }
+        held.push_back(cache.Get(frames, depth_version, pose_version, t, t, &timer));
+        terms.push_back({&held.back()->op, &observations[t], cv::Mat(), options_.lambda_s});
+        ImageUpdateOptions image_options = options_.image;
+        image_options.num_threads = threads;
+        UpdateImage(terms, image_options, &latents[t]);
+        edge_weight[t] = EdgeWeightOf(latents[t], options_.structure.edge_weight);
+      }
+      timer.Add("image update (incl. operator builds)", Now() - begin);
+      result.energies.push_back(total_energy(iteration, "image"));
+    }
+
+    // ---- Phase 2: depths and poses (eq:taylorExpansion, eq:updateVariables).
+    if (!options_.update_structure) continue;
+    const double begin = Now();
+    StructureUpdateOptions structure_options = options_.structure;
+    structure_options.num_threads = threads;
+    std::vector<SE3> poses(num_frames);
+    for (int t = 0; t < num_frames; ++t) poses[t] = frames[t].T_world_cam;
+    // The pairs (t <- s) of frame t; `held` keeps their operators alive.
+    auto pairs_of = [&](int t, std::vector<PairMatching>* pairs,
+                        std::vector<std::shared_ptr<const OperatorCache::Entry>>* held) {
+      for (int s : neighbours[t]) {
+        PairMatching pair;
+        pair.t = t;
+        pair.s = s;
+        if (joint) {
+          held->push_back(cache.Get(frames, depth_version, pose_version, t, s, &timer));
+          pair.mask = held->back()->mask;
+          held->push_back(cache.Get(frames, depth_version, pose_version, t, t, &timer));
+          pair.blur = &held->back()->op;
+          pair.observation = &observations[t];
+        } else {
+          pair.observation = &latents[t];
+        }
+        pairs->push_back(pair);
+      }
+    };
+    for (int t = 0; t < num_frames; ++t) {
+      if (progress) {
+        progress((2.0 * (iteration - 1) + 1.0 + double(t) / num_frames) / total_steps,
+                 "iteration " + std::to_string(iteration) + ": structure " + std::to_string(t));
+      }
+      const double before = frame_energy(t, nullptr);
+      const cv::Mat saved = inverse_depth[t].clone();
+      std::vector<PairMatching> pairs;
+      std::vector<std::shared_ptr<const OperatorCache::Entry>> held;
+      pairs_of(t, &pairs, &held);
+      UpdateDepth(camera_hr, poses, latents, pairs, edge_weight[t], parallax_scale(),
+                  structure_options, &inverse_depth[t]);
+      frames[t].depth_hr = DepthFromInverse(inverse_depth[t]);
+      ++depth_version[t];
+      const double after = frame_energy(t, nullptr);
+      if (!(after <= before)) {  // the surrogate step did not pay: keep D_t
+        inverse_depth[t] = saved;
+        frames[t].depth_hr = DepthFromInverse(saved);
+        ++depth_version[t];
+      }
+    }
+    if (options_.update_poses) {
+      const EnergyRecord before = total_energy(iteration, "structure");
+      std::vector<PairMatching> pairs;
+      std::vector<std::shared_ptr<const OperatorCache::Entry>> held;
+      for (int t = 0; t < num_frames; ++t) pairs_of(t, &pairs, &held);
+      std::vector<SE3> updated = poses;
+      UpdatePoses(camera_hr, inverse_depth, latents, pairs, structure_options, &updated);
+      for (int t = 1; t < num_frames; ++t) {
+        frames[t].T_world_cam = updated[t];
+        ++pose_version[t];
+      }
+      const EnergyRecord after = total_energy(iteration, "structure");
+      if (!(after.total <= before.total)) {
+        for (int t = 1; t < num_frames; ++t) {
+          frames[t].T_world_cam = poses[t];
+          ++pose_version[t];
+        }
+      }
+    }
+    timer.Add("structure update", Now() - begin);
+    result.energies.push_back(total_energy(iteration, "structure"));
+  }
+  if (progress) progress(1.0, "done");
+
+  // Monocular scale: first two cameras 1 unit apart (SPEC section 2).
+  const double baseline =
+      (frames[1].T_world_cam.translation() - frames[0].T_world_cam.translation()).norm();
+  const double rescale = baseline > 1e-12 ? 1.0 / baseline : 1.0;
+  const SE3 T_first_world = frames[0].T_world_cam.Inverse();
+  for (int t = 0; t < num_frames; ++t) {
+    const SE3 pose = T_first_world * frames[t].T_world_cam;
+    result.T_world_cam.emplace_back(pose.rotation(), pose.translation() * rescale);
+    cv::Mat depth = frames[t].depth_hr * rescale;
+    result.depth.push_back(depth);
+    cv::Mat clamped;
+    cv::min(cv::max(latents[t], 0.0), 1.0, clamped);
+    result.latent.push_back(clamped);
+  }
+  result.timings = timer.timings();
+  return result;
+}
+
+}  // namespace deblur_sr_mvs

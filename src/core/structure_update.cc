@@ -1,0 +1,398 @@
+#include "deblur_sr_mvs/core/structure_update.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <cmath>
+
+#include <Eigen/Dense>
+
+#include "deblur_sr_mvs/core/errors.h"
+
+namespace deblur_sr_mvs {
+namespace {
+
+int Threads(int requested) { return requested > 0 ? requested : omp_get_max_threads(); }
+
+// Central-difference gradients of a C-channel float image (one-sided at the border).
+void Gradients(const cv::Mat& image, cv::Mat* gx, cv::Mat* gy) {
+  const int channels = image.channels();
+  gx->create(image.size(), image.type());
+  gy->create(image.size(), image.type());
+  const int w = image.cols, h = image.rows;
+  for (int y = 0; y < h; ++y) {
+    const float* row = image.ptr<float>(y);
+    const float* up = image.ptr<float>(std::max(y - 1, 0));
+    const float* down = image.ptr<float>(std::min(y + 1, h - 1));
+    const float y_scale = (y == 0 || y == h - 1) ? 1.0f : 0.5f;
+    float* ox = gx->ptr<float>(y);
+    float* oy = gy->ptr<float>(y);
+    for (int x = 0; x < w; ++x) {
+      const int left = std::max(x - 1, 0), right = std::min(x + 1, w - 1);
+      const float x_scale = (x == 0 || x == w - 1) ? 1.0f : 0.5f;
+      for (int c = 0; c < channels; ++c) {
+        ox[x * channels + c] = x_scale * (row[right * channels + c] - row[left * channels + c]);
+        oy[x * channels + c] = y_scale * (down[x * channels + c] - up[x * channels + c]);
+      }
+    }
+  }
+}
+
+// Bilinear read of C channels at (u, v), which must lie in [0, w-1] x [0, h-1].
+inline void SampleBilinear(const cv::Mat& image, float u, float v, float* out) {
+  const int channels = image.channels();
+  const int x0 = std::min(static_cast<int>(u), image.cols - 2);
+  const int y0 = std::min(static_cast<int>(v), image.rows - 2);
+  const float fx = u - x0, fy = v - y0;
+  const float* a = image.ptr<float>(y0) + x0 * channels;
+  const float* b = image.ptr<float>(y0 + 1) + x0 * channels;
+  for (int c = 0; c < channels; ++c) {
+    const float top = a[c] + fx * (a[c + channels] - a[c]);
+    const float bottom = b[c] + fx * (b[c + channels] - b[c]);
+    out[c] = top + fy * (bottom - top);
+  }
+}
+
+// Per-element IRLS weights of an L1 residual: 1 / max(|r|, eps) inside mask.
+void L1Weights(const cv::Mat& residual, const cv::Mat& mask, double epsilon, cv::Mat* weights) {
+  const int channels = residual.channels();
+  weights->create(residual.size(), residual.type());
+  for (int y = 0; y < residual.rows; ++y) {
+    const float* r = residual.ptr<float>(y);
+    const uchar* m = mask.empty() ? nullptr : mask.ptr<uchar>(y);
+    float* w = weights->ptr<float>(y);
+    for (int x = 0; x < residual.cols; ++x) {
+      const bool used = m == nullptr || m[x] != 0;
+      for (int c = 0; c < channels; ++c) {
+        const int i = x * channels + c;
+        w[i] = used ? static_cast<float>(1.0 / std::max<double>(std::abs(r[i]), epsilon)) : 0.0f;
+      }
+    }
+  }
+}
+
+// Mask on the observation grid: the pair's mask and, for LR observations,
+// only pixels whose whole HR footprint warped validly.
+cv::Mat ObservationMask(const PairMatching& pair, const cv::Mat& valid_hr) {
+  cv::Mat valid = valid_hr;
+  if (pair.blur != nullptr) valid = DownscaleMaskAll(valid_hr, valid_hr.cols / pair.blur->lr_size().width);
+  if (pair.mask.empty()) return valid;
+  cv::Mat combined;
+  cv::bitwise_and(valid, pair.mask, combined);
+  return combined;
+}
+
+// Predicted observation of a warped HR image: Psi * image, or the image itself.
+void Predict(const PairMatching& pair, const cv::Mat& hr, cv::Mat* out) {
+  if (pair.blur != nullptr) {
+    pair.blur->Apply(hr, out);
+  } else {
+    hr.copyTo(*out);
+  }
+}
+void PredictAdjoint(const PairMatching& pair, const cv::Mat& observation_grid, cv::Mat* out) {
+  if (pair.blur != nullptr) {
+    pair.blur->ApplyAdjoint(observation_grid, out);
+  } else {
+    observation_grid.copyTo(*out);
+  }
+}
+
+// out += scale * D^T diag(v) D x for a single-channel x: the weighted
+// Laplacian of forward differences with Neumann boundary (IRLS form of TV).
+void AddWeightedLaplacian(const cv::Mat& x_image, const cv::Mat& v_image, double scale,
+                          cv::Mat* out) {
+  const int width = x_image.cols, height = x_image.rows;
+  const float* v = v_image.ptr<float>();
+  const float* x = x_image.ptr<float>();
+  float* o = out->ptr<float>();
+  const float s = static_cast<float>(scale);
+#pragma omp parallel for schedule(static)
+  for (int yy = 0; yy < height; ++yy) {
+    for (int xx = 0; xx < width; ++xx) {
+      const int i = yy * width + xx;
+      float acc = 0.0f;
+      if (xx + 1 < width) acc += v[i] * (x[i] - x[i + 1]);
+      if (xx > 0) acc += v[i - 1] * (x[i] - x[i - 1]);
+      if (yy + 1 < height) acc += v[i] * (x[i] - x[i + width]);
+      if (yy > 0) acc += v[i - width] * (x[i] - x[i - width]);
+      o[i] += s * acc;
+    }
+  }
+}
+
+double Dot1(const cv::Mat& a, const cv::Mat& b) {
+  double sum = 0.0;
+  const float* pa = a.ptr<float>();
+  const float* pb = b.ptr<float>();
+  const size_t n = a.total() * a.channels();
+  for (size_t i = 0; i < n; ++i) sum += static_cast<double>(pa[i]) * pb[i];
+  return sum;
+}
+
+}  // namespace
+
+void StructureUpdateOptions::Check() const {
+  if (!(lambda_d >= 0.0)) throw InputError("structure update: lambda_d must be >= 0");
+  if (depth_irls_iterations < 0 || depth_cg_iterations < 1 || pose_iterations < 0) {
+    throw InputError("structure update: iteration counts must be >= 0 (CG >= 1)");
+  }
+  if (!(residual_epsilon > 0.0) || !(tv_epsilon > 0.0) || !(depth_damping >= 0.0) ||
+      !(pose_damping >= 0.0)) {
+    throw InputError("structure update: epsilons must be > 0 and dampings >= 0");
+  }
+  edge_weight.Check();
+}
+
+WarpLinearization LinearizeWarp(const PinholeCamera& camera_hr, const cv::Mat& inverse_depth_t,
+                                const SE3& T_world_t, const SE3& T_world_s,
+                                const cv::Mat& latent_s, std::vector<cv::Mat>* pose_jacobians) {
+  const int channels = latent_s.channels();
+  const int width = camera_hr.width, height = camera_hr.height;
+  WarpLinearization lin;
+  lin.warped = cv::Mat::zeros(height, width, latent_s.type());
+  lin.d_inverse_depth = cv::Mat::zeros(height, width, latent_s.type());
+  lin.valid = cv::Mat::zeros(height, width, CV_8UC1);
+  if (pose_jacobians != nullptr) {
+    pose_jacobians->assign(6, cv::Mat());
+    for (cv::Mat& j : *pose_jacobians) j = cv::Mat::zeros(height, width, latent_s.type());
+  }
+  cv::Mat gx, gy;
+  Gradients(latent_s, &gx, &gy);
+  const SE3 T_s_t = T_world_s.Inverse() * T_world_t;
+  const Eigen::Matrix3d k = camera_hr.K();
+  const Eigen::Matrix3d h = k * T_s_t.rotation() * k.inverse();
+  const Eigen::Vector3d kt = k * T_s_t.translation();
+  const Eigen::Matrix3d R_s_world = T_world_s.rotation().transpose();
+  const double max_u = width - 1.0, max_v = height - 1.0;
+#pragma omp parallel for schedule(static)
+  for (int y = 0; y < height; ++y) {
+    const float* rho_row = inverse_depth_t.ptr<float>(y);
+    std::vector<float> value(channels), grad_x(channels), grad_y(channels);
+    for (int x = 0; x < width; ++x) {
+      const double rho = rho_row[x];
+      if (!(rho > 0.0) || !std::isfinite(rho)) continue;
+      // q ~ K X_s scaled by rho: q = H [x y 1] + rho K t  (eq:warpingFunction).
+      const Eigen::Vector3d q = h * Eigen::Vector3d(x, y, 1.0) + rho * kt;
+      if (!(q.z() > 1e-9)) continue;
+      const double u = q.x() / q.z(), v = q.y() / q.z();
+      if (u < 0.0 || v < 0.0 || u > max_u || v > max_v) continue;
+      lin.valid.at<uchar>(y, x) = 255;
+      SampleBilinear(latent_s, static_cast<float>(u), static_cast<float>(v), value.data());
+      SampleBilinear(gx, static_cast<float>(u), static_cast<float>(v), grad_x.data());
+      SampleBilinear(gy, static_cast<float>(u), static_cast<float>(v), grad_y.data());
+      const double du = (kt.x() - u * kt.z()) / q.z();
+      const double dv = (kt.y() - v * kt.z()) / q.z();
+      float* warped = lin.warped.ptr<float>(y) + x * channels;
+      float* d_rho = lin.d_inverse_depth.ptr<float>(y) + x * channels;
+      for (int c = 0; c < channels; ++c) {
+        warped[c] = value[c];
+        d_rho[c] = static_cast<float>(grad_x[c] * du + grad_y[c] * dv);
+      }
+      if (pose_jacobians == nullptr) continue;
+      // X_w = P_t X_t; X_s = R_s^T (X_w - c_s); d X_s / d eps_t = R_s^T [I, -[X_w]x].
+      const Eigen::Vector3d point_t = camera_hr.Ray(x, y) / rho;
+      const Eigen::Vector3d point_w = T_world_t * point_t;
+      const Eigen::Vector3d point_s = T_world_s.Inverse() * point_w;
+      const double z = point_s.z();
+      Eigen::Matrix<double, 2, 3> d_pixel;
+      d_pixel << camera_hr.fx / z, 0.0, -camera_hr.fx * point_s.x() / (z * z), 0.0,
+          camera_hr.fy / z, -camera_hr.fy * point_s.y() / (z * z);
+      const Eigen::Matrix<double, 2, 6> d_pixel_d_eps =
+          d_pixel * R_s_world * DLeftPerturbedPointDEps(point_w);
+      for (int j = 0; j < 6; ++j) {
+        float* out = (*pose_jacobians)[j].ptr<float>(y) + x * channels;
+        for (int c = 0; c < channels; ++c) {
+          out[c] = static_cast<float>(grad_x[c] * d_pixel_d_eps(0, j) + grad_y[c] * d_pixel_d_eps(1, j));
+        }
+      }
+    }
+  }
+  return lin;
+}
+
+void UpdateDepth(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world_cam,
+                 const std::vector<cv::Mat>& latents, const std::vector<PairMatching>& pairs,
+                 const cv::Mat& edge_weight, double parallax_scale,
+                 const StructureUpdateOptions& options, cv::Mat* inverse_depth) {
+  options.Check();
+  if (pairs.empty()) return;
+  const int width = camera_hr.width, height = camera_hr.height;
+  const int n = width * height;
+  const double c2 = parallax_scale * parallax_scale;
+  struct PairState {
+    WarpLinearization lin;
+    cv::Mat weight;  // observation grid, C channels
+    cv::Mat residual;
+  };
+  std::vector<PairState> states(pairs.size());
+  cv::Mat tv_weight(height, width, CV_32FC1), rhs(height, width, CV_32FC1);
+  cv::Mat step(height, width, CV_32FC1), r(height, width, CV_32FC1), d(height, width, CV_32FC1),
+      nd(height, width, CV_32FC1);
+  cv::Mat expanded, predicted, back;
+  double damping = 0.0;
+
+  // out = sum_p G_p^T Psi^T W Psi (G_p .* in) + lambda c^2 L_v in + damping * in
+  auto apply_normal = [&](const cv::Mat& in, cv::Mat* out) {
+    out->setTo(0.0);
+    for (size_t p = 0; p < pairs.size(); ++p) {
+      const cv::Mat& g = states[p].lin.d_inverse_depth;
+      const int channels = g.channels();
+      expanded.create(g.size(), g.type());
+      for (int i = 0; i < n; ++i) {
+        const float s = in.ptr<float>()[i];
+        for (int c = 0; c < channels; ++c) expanded.ptr<float>()[i * channels + c] = g.ptr<float>()[i * channels + c] * s;
+      }
+      Predict(pairs[p], expanded, &predicted);
+      cv::multiply(predicted, states[p].weight, predicted);
+      PredictAdjoint(pairs[p], predicted, &back);
+      for (int i = 0; i < n; ++i) {
+        float acc = 0.0f;
+        for (int c = 0; c < channels; ++c) acc += g.ptr<float>()[i * channels + c] * back.ptr<float>()[i * channels + c];
+        out->ptr<float>()[i] += acc;
+      }
+    }
+    AddWeightedLaplacian(in, tv_weight, options.lambda_d * c2, out);
+    cv::scaleAdd(in, damping, *out, *out);
+  };
+
+  for (int irls = 0; irls < options.depth_irls_iterations; ++irls) {
+    // Linearise every pair at the current depth (eq:taylorExpansion).
+    double diagonal_sum = 0.0;
+    for (size_t p = 0; p < pairs.size(); ++p) {
+      const PairMatching& pair = pairs[p];
+      PairState& state = states[p];
+      state.lin = LinearizeWarp(camera_hr, *inverse_depth, T_world_cam[pair.t], T_world_cam[pair.s],
+                                latents[pair.s], nullptr);
+      Predict(pair, state.lin.warped, &predicted);
+      state.residual = *pair.observation - predicted;
+      L1Weights(state.residual, ObservationMask(pair, state.lin.valid), options.residual_epsilon,
+                &state.weight);
+      diagonal_sum += Dot1(state.lin.d_inverse_depth, state.lin.d_inverse_depth) *
+                      cv::mean(state.weight)[0] / std::max(1, state.weight.channels());
+    }
+    damping = options.depth_damping * diagonal_sum / n + 1e-12;
+    // TV weights v = g / max(|grad (c rho)|, eps) (eq:regularizingTerm with g_t).
+    const float* rho = inverse_depth->ptr<float>();
+    for (int yy = 0; yy < height; ++yy) {
+      for (int xx = 0; xx < width; ++xx) {
+        const int i = yy * width + xx;
+        const float gxv = xx + 1 < width ? rho[i + 1] - rho[i] : 0.0f;
+        const float gyv = yy + 1 < height ? rho[i + width] - rho[i] : 0.0f;
+        const double magnitude = parallax_scale * std::sqrt(gxv * gxv + gyv * gyv);
+        const float g = edge_weight.empty() ? 1.0f : edge_weight.ptr<float>()[i];
+        tv_weight.ptr<float>()[i] = static_cast<float>(g / std::max(magnitude, options.tv_epsilon));
+      }
+    }
+    // rhs = sum_p G^T Psi^T W r0 - lambda c^2 L_v rho (without damping).
+    rhs.setTo(0.0);
+    for (size_t p = 0; p < pairs.size(); ++p) {
+      cv::multiply(states[p].residual, states[p].weight, predicted);
+      PredictAdjoint(pairs[p], predicted, &back);
+      const cv::Mat& g = states[p].lin.d_inverse_depth;
+      const int channels = g.channels();
+      for (int i = 0; i < n; ++i) {
+        float acc = 0.0f;
+        for (int c = 0; c < channels; ++c) acc += g.ptr<float>()[i * channels + c] * back.ptr<float>()[i * channels + c];
+        rhs.ptr<float>()[i] += acc;
+      }
+    }
+    AddWeightedLaplacian(*inverse_depth, tv_weight, -options.lambda_d * c2, &rhs);
+    // CG on the normal equations from a zero step.
+    step.setTo(0.0);
+    rhs.copyTo(r);
+    r.copyTo(d);
+    double rr = Dot1(r, r);
+    const double rr0 = rr;
+    for (int it = 0; it < options.depth_cg_iterations && rr > 1e-14 * rr0 && rr > 0.0; ++it) {
+      apply_normal(d, &nd);
+      const double dnd = Dot1(d, nd);
+      if (!(dnd > 0.0)) break;
+      const double alpha = rr / dnd;
+      cv::scaleAdd(d, alpha, step, step);
+      cv::scaleAdd(nd, -alpha, r, r);
+      const double rr_next = Dot1(r, r);
+      cv::scaleAdd(d, rr_next / rr, r, d);
+      rr = rr_next;
+    }
+    // Keep inverse depth positive: a step may not shrink it below a quarter.
+    float* rho_out = inverse_depth->ptr<float>();
+    const float* delta = step.ptr<float>();
+    for (int i = 0; i < n; ++i) {
+      if (!(rho_out[i] > 0.0f)) continue;
+      rho_out[i] = std::max(rho_out[i] + delta[i], 0.25f * rho_out[i]);
+    }
+  }
+}
+
+std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr,
+                                  const std::vector<cv::Mat>& inverse_depths,
+                                  const std::vector<cv::Mat>& latents,
+                                  const std::vector<PairMatching>& pairs,
+                                  const StructureUpdateOptions& options,
+                                  std::vector<SE3>* T_world_cam) {
+  options.Check();
+  const int num_frames = static_cast<int>(T_world_cam->size());
+  std::vector<Vector6d> total(num_frames, Vector6d::Zero());
+  if (num_frames < 2 || pairs.empty()) return total;
+  const int unknowns = 6 * (num_frames - 1);  // frame 0 is the gauge
+  cv::Mat predicted, residual, weight;
+  std::vector<cv::Mat> jacobians, projected(6);
+  for (int iteration = 0; iteration < options.pose_iterations; ++iteration) {
+    Eigen::MatrixXd hessian = Eigen::MatrixXd::Zero(unknowns, unknowns);
+    Eigen::VectorXd gradient = Eigen::VectorXd::Zero(unknowns);
+    for (const PairMatching& pair : pairs) {
+      const WarpLinearization lin =
+          LinearizeWarp(camera_hr, inverse_depths[pair.t], (*T_world_cam)[pair.t],
+                        (*T_world_cam)[pair.s], latents[pair.s], &jacobians);
+      Predict(pair, lin.warped, &predicted);
+      residual = *pair.observation - predicted;
+      L1Weights(residual, ObservationMask(pair, lin.valid), options.residual_epsilon, &weight);
+      for (int j = 0; j < 6; ++j) Predict(pair, jacobians[j], &projected[j]);
+      // r(eps) = r0 - A (eps_t - eps_s): A^T W A and A^T W r0 of the pair.
+      Eigen::Matrix<double, 6, 6> block = Eigen::Matrix<double, 6, 6>::Zero();
+      Eigen::Matrix<double, 6, 1> rhs = Eigen::Matrix<double, 6, 1>::Zero();
+      const size_t values = residual.total() * residual.channels();
+      const float* w = weight.ptr<float>();
+      const float* r0 = residual.ptr<float>();
+      for (size_t i = 0; i < values; ++i) {
+        if (w[i] == 0.0f) continue;
+        double a[6];
+        for (int j = 0; j < 6; ++j) a[j] = projected[j].ptr<float>()[i];
+        for (int j = 0; j < 6; ++j) {
+          rhs(j) += w[i] * a[j] * r0[i];
+          for (int k = j; k < 6; ++k) block(j, k) += w[i] * a[j] * a[k];
+        }
+      }
+      block = block.selfadjointView<Eigen::Upper>();
+      const int bt = pair.t - 1, bs = pair.s - 1;  // block indices (-1: fixed frame 0)
+      if (bt >= 0) {
+        hessian.block<6, 6>(6 * bt, 6 * bt) += block;
+        gradient.segment<6>(6 * bt) += rhs;
+      }
+      if (bs >= 0) {
+        hessian.block<6, 6>(6 * bs, 6 * bs) += block;
+        gradient.segment<6>(6 * bs) -= rhs;
+      }
+      if (bt >= 0 && bs >= 0) {
+        hessian.block<6, 6>(6 * bt, 6 * bs) -= block;
+        hessian.block<6, 6>(6 * bs, 6 * bt) -= block;
+      }
+    }
+    // Levenberg-Marquardt damping on the diagonal.
+    Eigen::MatrixXd damped = hessian;
+    for (int i = 0; i < unknowns; ++i) {
+      damped(i, i) += options.pose_damping * hessian(i, i) + 1e-12;
+    }
+    const Eigen::VectorXd step = damped.ldlt().solve(gradient);
+    if (!step.allFinite()) break;
+    for (int f = 1; f < num_frames; ++f) {
+      const Vector6d eps = step.segment<6>(6 * (f - 1));
+      (*T_world_cam)[f] = SE3::Exp(eps) * (*T_world_cam)[f];
+      total[f] += eps;
+    }
+  }
+  return total;
+}
+
+}  // namespace deblur_sr_mvs
