@@ -129,6 +129,22 @@ void Multiply(const SparseMatrixRM& a, const cv::Size& in_size, const cv::Size& 
 
 }  // namespace
 
+std::vector<SE3> VirtualCameraPoses(const CaptureGeometry& geometry, int samples) {
+  // tau_m = t_o + (m/M)(t_c - t_o), m = 1..M (eq:blurOperator), on the path of
+  // eq:interpolatingP; alpha = (tau - s)/(t - s) also extrapolates backwards
+  // when s is the next frame (first frame of a sequence).
+  const double frame_gap = geometry.stamp - geometry.neighbour_stamp;
+  const double shutter_open = geometry.stamp - geometry.exposure;
+  std::vector<SE3> poses;
+  poses.reserve(samples);
+  for (int m = 0; m < samples; ++m) {
+    const double tau = shutter_open + (m + 1.0) / samples * geometry.exposure;
+    const double alpha = (tau - geometry.neighbour_stamp) / frame_gap;
+    poses.push_back(InterpolatePose(geometry.T_world_neighbour, geometry.T_world_cam, alpha));
+  }
+  return poses;
+}
+
 void CaptureOperatorOptions::Check() const {
   if (samples < 1 || samples > 10000) {
     throw InputError("capture operator: samples (M) must be in [1, 10000], got " +
@@ -183,21 +199,15 @@ void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOpera
     throw InputError("capture operator: the neighbour's stamp must differ from the frame's");
   }
 
-  // Virtual cameras at tau_m = t_o + (m/M)(t_c - t_o) (eq:blurOperator) on the
-  // path of eq:interpolatingP; alpha = (tau - s)/(t - s) also extrapolates
-  // backwards when s is the next frame (first frame of a sequence).
   const SE3& T_world_t = geometry.T_world_cam;
   const SE3 T_source_world = geometry.T_world_source.value_or(T_world_t).Inverse();
-  const double shutter_open = geometry.stamp - geometry.exposure;
+  const std::vector<SE3> T_world_tau = VirtualCameraPoses(geometry, samples);
   std::vector<PixelTransferF> transfers;
   std::vector<SE3> T_tau_t(samples);
   transfers.reserve(samples);
   for (int m = 0; m < samples; ++m) {
-    const double tau = shutter_open + (m + 1.0) / samples * geometry.exposure;
-    const double alpha = (tau - geometry.neighbour_stamp) / frame_gap;
-    const SE3 T_world_tau = InterpolatePose(geometry.T_world_neighbour, T_world_t, alpha);
-    T_tau_t[m] = T_world_tau.Inverse() * T_world_t;
-    transfers.emplace_back(PixelTransfer(camera, T_source_world * T_world_tau));
+    T_tau_t[m] = T_world_tau[m].Inverse() * T_world_t;
+    transfers.emplace_back(PixelTransfer(camera, T_source_world * T_world_tau[m]));
   }
 
   double stage_start = NowMs();

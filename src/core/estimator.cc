@@ -130,6 +130,13 @@ cv::Mat InverseDepthFromDepth(const cv::Mat& depth) {
   return rho;
 }
 
+std::vector<cv::Mat> CloneAll(const std::vector<cv::Mat>& images) {
+  std::vector<cv::Mat> copies;
+  copies.reserve(images.size());
+  for (const cv::Mat& image : images) copies.push_back(image.clone());
+  return copies;
+}
+
 cv::Mat DepthFromInverse(const cv::Mat& rho) {
   cv::Mat depth(rho.size(), CV_32FC1);
   for (int y = 0; y < rho.rows; ++y) {
@@ -399,35 +406,42 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
   };
 
   result.energies.push_back(total_energy(0, "initialization"));
-  const int total_steps = std::max(1, options_.max_iterations * 2);
-  for (int iteration = 1; iteration <= options_.max_iterations; ++iteration) {
-    // ---- Phase 1: latent images (eq:imgUpdate), one frame at a time.
-    if (joint) {
-      const double begin = Now();
-      for (int t = 0; t < num_frames; ++t) {
-        if (progress) {
-          progress((2.0 * (iteration - 1) + double(t) / num_frames) / total_steps,
-                   "iteration " + std::to_string(iteration) + ": image " + std::to_string(t));
-        }
-        std::vector<LinearL1Term> terms;
-        std::vector<std::shared_ptr<const OperatorCache::Entry>> held;
-        for (int s : neighbours[t]) {
-          held.push_back(cache.Get(frames, depth_version, pose_version, s, t, &timer));
-          terms.push_back({&held.back()->op, &observations[s], held.back()->mask, 1.0});
-        }
-        held.push_back(cache.Get(frames, depth_version, pose_version, t, t, &timer));
-        terms.push_back({&held.back()->op, &observations[t], cv::Mat(), options_.lambda_s});
-        ImageUpdateOptions image_options = options_.image;
-        image_options.num_threads = threads;
-        UpdateImage(terms, image_options, &latents[t]);
-        edge_weight[t] = EdgeWeightOf(latents[t], options_.structure.edge_weight);
-      }
-      timer.Add("image update (incl. operator builds)", Now() - begin);
-      result.energies.push_back(total_energy(iteration, "image"));
-    }
+  const int total_steps = std::max(1, 2 * options_.max_iterations + 1);
+  int steps_done = 0;
+  auto report = [&](double within, const std::string& what) {
+    if (progress) progress(std::min(1.0, (steps_done + within) / total_steps), what);
+  };
 
-    // ---- Phase 2: depths and poses (eq:taylorExpansion, eq:updateVariables).
-    if (!options_.update_structure) continue;
+  // ---- Phase 1: latent images (eq:imgUpdate), one frame at a time.
+  auto image_phase = [&](int iteration) {
+    const double begin = Now();
+    for (int t = 0; t < num_frames; ++t) {
+      report(double(t) / num_frames, "iteration " + std::to_string(iteration) + ": image " + std::to_string(t));
+      std::vector<LinearL1Term> terms;
+      std::vector<std::shared_ptr<const OperatorCache::Entry>> held;
+      for (int s : neighbours[t]) {
+        held.push_back(cache.Get(frames, depth_version, pose_version, s, t, &timer));
+        terms.push_back({&held.back()->op, &observations[s], held.back()->mask, 1.0});
+      }
+      held.push_back(cache.Get(frames, depth_version, pose_version, t, t, &timer));
+      terms.push_back({&held.back()->op, &observations[t], cv::Mat(), options_.lambda_s});
+      ImageUpdateOptions image_options = options_.image;
+      image_options.num_threads = threads;
+      UpdateImage(terms, image_options, &latents[t]);
+      edge_weight[t] = EdgeWeightOf(latents[t], options_.structure.edge_weight);
+    }
+    ++steps_done;
+    timer.Add("image update (incl. operator builds)", Now() - begin);
+    result.energies.push_back(total_energy(iteration, "image"));
+  };
+
+  // ---- Phase 2: depths and poses (eq:taylorExpansion, eq:updateVariables).
+  // With `isolated` (baseline: the images are fixed) each depth map and the
+  // pose update is kept only if it lowers the energy on its own. In joint
+  // mode the latent images were fitted to the old structure, so a step
+  // towards the true structure can raise the energy until the images follow:
+  // the caller judges the structure update after the next image update.
+  auto structure_phase = [&](int iteration, bool isolated) {
     const double begin = Now();
     StructureUpdateOptions structure_options = options_.structure;
     structure_options.num_threads = threads;
@@ -453,28 +467,37 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
       }
     };
     for (int t = 0; t < num_frames; ++t) {
-      if (progress) {
-        progress((2.0 * (iteration - 1) + 1.0 + double(t) / num_frames) / total_steps,
-                 "iteration " + std::to_string(iteration) + ": structure " + std::to_string(t));
-      }
-      const double before = frame_energy(t, nullptr);
+      report(double(t) / (num_frames + 1),
+             "iteration " + std::to_string(iteration) + ": structure " + std::to_string(t));
+      const double before = isolated ? frame_energy(t, nullptr) : 0.0;
       const cv::Mat saved = inverse_depth[t].clone();
       std::vector<PairMatching> pairs;
       std::vector<std::shared_ptr<const OperatorCache::Entry>> held;
       pairs_of(t, &pairs, &held);
-      UpdateDepth(camera_hr, poses, latents, pairs, edge_weight[t], parallax_scale(),
-                  structure_options, &inverse_depth[t]);
+      SelfConsistencyLinearization self;
+      if (joint) {
+        const auto self_op = cache.Get(frames, depth_version, pose_version, t, t, &timer);
+        self.observation = &observations[t];
+        self_op->op.Apply(latents[t], &self.predicted);
+        self.derivative = BlurDerivativeWrtInverseDepth(
+            MakeCaptureGeometry(frames, camera_hr, t, t), options_.samples, inverse_depth[t],
+            latents[t], /*max_samples=*/10);
+        self.weight = options_.lambda_s;
+        self.scale = scale;
+      }
+      UpdateDepth(camera_hr, poses, latents, pairs, joint ? &self : nullptr, edge_weight[t],
+                  parallax_scale(), structure_options, &inverse_depth[t]);
       frames[t].depth_hr = DepthFromInverse(inverse_depth[t]);
       ++depth_version[t];
-      const double after = frame_energy(t, nullptr);
-      if (!(after <= before)) {  // the surrogate step did not pay: keep D_t
-        inverse_depth[t] = saved;
+      if (isolated && !(frame_energy(t, nullptr) <= before)) {
+        inverse_depth[t] = saved;  // the surrogate step did not pay: keep D_t
         frames[t].depth_hr = DepthFromInverse(saved);
         ++depth_version[t];
       }
     }
     if (options_.update_poses) {
-      const EnergyRecord before = total_energy(iteration, "structure");
+      report(double(num_frames) / (num_frames + 1), "iteration " + std::to_string(iteration) + ": poses");
+      const double before = isolated ? total_energy(iteration, "structure").total : 0.0;
       std::vector<PairMatching> pairs;
       std::vector<std::shared_ptr<const OperatorCache::Entry>> held;
       for (int t = 0; t < num_frames; ++t) pairs_of(t, &pairs, &held);
@@ -484,16 +507,58 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
         frames[t].T_world_cam = updated[t];
         ++pose_version[t];
       }
-      const EnergyRecord after = total_energy(iteration, "structure");
-      if (!(after.total <= before.total)) {
+      if (isolated && !(total_energy(iteration, "structure").total <= before)) {
         for (int t = 1; t < num_frames; ++t) {
           frames[t].T_world_cam = poses[t];
           ++pose_version[t];
         }
       }
     }
+    ++steps_done;
     timer.Add("structure update", Now() - begin);
     result.energies.push_back(total_energy(iteration, "structure"));
+  };
+
+  if (!joint) {
+    for (int iteration = 1; iteration <= options_.max_iterations && options_.update_structure; ++iteration) {
+      structure_phase(iteration, /*isolated=*/true);
+    }
+  } else if (!options_.update_structure) {
+    for (int iteration = 1; iteration <= options_.max_iterations; ++iteration) image_phase(iteration);
+  } else if (options_.max_iterations > 0) {
+    // Algorithm 1: image update, then max_iter times structure update followed
+    // by the image update that judges it (the last one gives the output
+    // images that match the final structure). A structure update whose
+    // following image update does not lower the energy is undone, with the
+    // images, and the iterations stop: the recorded energy after each kept
+    // iteration never increases.
+    image_phase(1);
+    double accepted = result.energies.back().total;
+    for (int iteration = 1; iteration <= options_.max_iterations; ++iteration) {
+      const std::vector<cv::Mat> saved_latents = CloneAll(latents);
+      const std::vector<cv::Mat> saved_inverse_depth = CloneAll(inverse_depth);
+      const std::vector<cv::Mat> saved_edge_weight = CloneAll(edge_weight);
+      std::vector<SE3> saved_poses(num_frames);
+      for (int t = 0; t < num_frames; ++t) saved_poses[t] = frames[t].T_world_cam;
+      structure_phase(iteration, /*isolated=*/false);
+      image_phase(iteration + 1);
+      if (result.energies.back().total <= accepted) {
+        accepted = result.energies.back().total;
+        continue;
+      }
+      latents = saved_latents;
+      inverse_depth = saved_inverse_depth;
+      edge_weight = saved_edge_weight;
+      for (int t = 0; t < num_frames; ++t) {
+        frames[t].T_world_cam = saved_poses[t];
+        frames[t].depth_hr = DepthFromInverse(inverse_depth[t]);
+        ++depth_version[t];
+        ++pose_version[t];
+      }
+      EnergyRecord restored = total_energy(iteration, "restored");
+      result.energies.push_back(restored);
+      break;
+    }
   }
   if (progress) progress(1.0, "done");
 

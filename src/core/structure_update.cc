@@ -6,13 +6,12 @@
 #include <cmath>
 
 #include <Eigen/Dense>
+#include <opencv2/imgproc.hpp>
 
 #include "deblur_sr_mvs/core/errors.h"
 
 namespace deblur_sr_mvs {
 namespace {
-
-int Threads(int requested) { return requested > 0 ? requested : omp_get_max_threads(); }
 
 // Central-difference gradients of a C-channel float image (one-sided at the border).
 void Gradients(const cv::Mat& image, cv::Mat* gx, cv::Mat* gy) {
@@ -130,7 +129,87 @@ double Dot1(const cv::Mat& a, const cv::Mat& b) {
   return sum;
 }
 
+// Box down-sampling (the capture operator's last step) and its adjoint.
+void BoxDown(const cv::Mat& hr, int scale, cv::Mat* lr) {
+  cv::resize(hr, *lr, cv::Size(hr.cols / scale, hr.rows / scale), 0, 0, cv::INTER_AREA);
+}
+void BoxAdjoint(const cv::Mat& lr, int scale, cv::Mat* hr) {
+  cv::resize(lr, *hr, cv::Size(lr.cols * scale, lr.rows * scale), 0, 0, cv::INTER_NEAREST);
+  *hr *= 1.0 / (scale * scale);
+}
+
+// out[i] = sum_c g[i, c] * in[i, c] (a C-channel image against its Jacobian).
+void ContractChannels(const cv::Mat& g, const cv::Mat& in, cv::Mat* out, bool accumulate) {
+  const int channels = g.channels();
+  const int n = static_cast<int>(g.total());
+  const float* pg = g.ptr<float>();
+  const float* pi = in.ptr<float>();
+  float* po = out->ptr<float>();
+  for (int i = 0; i < n; ++i) {
+    float acc = 0.0f;
+    for (int c = 0; c < channels; ++c) acc += pg[i * channels + c] * pi[i * channels + c];
+    po[i] = accumulate ? po[i] + acc : acc;
+  }
+}
+// out[i, c] = g[i, c] * in[i].
+void ExpandChannels(const cv::Mat& g, const cv::Mat& in, cv::Mat* out) {
+  const int channels = g.channels();
+  const int n = static_cast<int>(g.total());
+  out->create(g.size(), g.type());
+  const float* pg = g.ptr<float>();
+  const float* pi = in.ptr<float>();
+  float* po = out->ptr<float>();
+  for (int i = 0; i < n; ++i) {
+    for (int c = 0; c < channels; ++c) po[i * channels + c] = pg[i * channels + c] * pi[i];
+  }
+}
+
 }  // namespace
+
+cv::Mat BlurDerivativeWrtInverseDepth(const CaptureGeometry& geometry, int samples,
+                                      const cv::Mat& inverse_depth, const cv::Mat& latent,
+                                      int max_samples) {
+  const PinholeCamera& camera = geometry.camera_hr;
+  const int channels = latent.channels();
+  cv::Mat derivative = cv::Mat::zeros(latent.size(), latent.type());
+  const std::vector<SE3> T_world_tau = VirtualCameraPoses(geometry, samples);
+  const int step = std::max(1, samples / std::max(1, max_samples));
+  std::vector<int> used;
+  for (int m = samples - 1; m >= 0; m -= step) used.push_back(m);
+  cv::Mat gx, gy;
+  Gradients(latent, &gx, &gy);
+  const Eigen::Matrix3d k = camera.K();
+  const Eigen::Matrix3d k_inv = k.inverse();
+  const float weight = 1.0f / used.size();
+  const double max_u = camera.width - 1.0, max_v = camera.height - 1.0;
+  for (int m : used) {
+    const SE3 T_t_tau = geometry.T_world_cam.Inverse() * T_world_tau[m];
+    const Eigen::Matrix3d h = k * T_t_tau.rotation() * k_inv;
+    const Eigen::Vector3d kt = k * T_t_tau.translation();
+#pragma omp parallel for schedule(static)
+    for (int y = 0; y < camera.height; ++y) {
+      const float* rho_row = inverse_depth.ptr<float>(y);
+      float* out = derivative.ptr<float>(y);
+      std::vector<float> grad_x(channels), grad_y(channels);
+      for (int x = 0; x < camera.width; ++x) {
+        const double rho = rho_row[x];
+        if (!(rho > 0.0)) continue;
+        const Eigen::Vector3d q = h * Eigen::Vector3d(x, y, 1.0) + rho * kt;
+        if (!(q.z() > 1e-9)) continue;
+        const double u = std::clamp(q.x() / q.z(), 0.0, max_u);
+        const double v = std::clamp(q.y() / q.z(), 0.0, max_v);
+        SampleBilinear(gx, static_cast<float>(u), static_cast<float>(v), grad_x.data());
+        SampleBilinear(gy, static_cast<float>(u), static_cast<float>(v), grad_y.data());
+        const double du = (kt.x() - u * kt.z()) / q.z();
+        const double dv = (kt.y() - v * kt.z()) / q.z();
+        for (int c = 0; c < channels; ++c) {
+          out[x * channels + c] += weight * static_cast<float>(grad_x[c] * du + grad_y[c] * dv);
+        }
+      }
+    }
+  }
+  return derivative;
+}
 
 void StructureUpdateOptions::Check() const {
   if (!(lambda_d >= 0.0)) throw InputError("structure update: lambda_d must be >= 0");
@@ -213,10 +292,11 @@ WarpLinearization LinearizeWarp(const PinholeCamera& camera_hr, const cv::Mat& i
 
 void UpdateDepth(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world_cam,
                  const std::vector<cv::Mat>& latents, const std::vector<PairMatching>& pairs,
-                 const cv::Mat& edge_weight, double parallax_scale,
-                 const StructureUpdateOptions& options, cv::Mat* inverse_depth) {
+                 const SelfConsistencyLinearization* self, const cv::Mat& edge_weight,
+                 double parallax_scale, const StructureUpdateOptions& options,
+                 cv::Mat* inverse_depth) {
   options.Check();
-  if (pairs.empty()) return;
+  if (pairs.empty() && self == nullptr) return;
   const int width = camera_hr.width, height = camera_hr.height;
   const int n = width * height;
   const double c2 = parallax_scale * parallax_scale;
@@ -228,29 +308,30 @@ void UpdateDepth(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world
   std::vector<PairState> states(pairs.size());
   cv::Mat tv_weight(height, width, CV_32FC1), rhs(height, width, CV_32FC1);
   cv::Mat step(height, width, CV_32FC1), r(height, width, CV_32FC1), d(height, width, CV_32FC1),
-      nd(height, width, CV_32FC1);
+      nd(height, width, CV_32FC1), nd_self(height, width, CV_32FC1);
   cv::Mat expanded, predicted, back;
   double damping = 0.0;
+  // Self term: weights and the inverse-depth change since it was linearised.
+  cv::Mat self_weight, self_residual;
+  cv::Mat moved = cv::Mat::zeros(height, width, CV_32FC1);
 
   // out = sum_p G_p^T Psi^T W Psi (G_p .* in) + lambda c^2 L_v in + damping * in
   auto apply_normal = [&](const cv::Mat& in, cv::Mat* out) {
     out->setTo(0.0);
     for (size_t p = 0; p < pairs.size(); ++p) {
-      const cv::Mat& g = states[p].lin.d_inverse_depth;
-      const int channels = g.channels();
-      expanded.create(g.size(), g.type());
-      for (int i = 0; i < n; ++i) {
-        const float s = in.ptr<float>()[i];
-        for (int c = 0; c < channels; ++c) expanded.ptr<float>()[i * channels + c] = g.ptr<float>()[i * channels + c] * s;
-      }
+      ExpandChannels(states[p].lin.d_inverse_depth, in, &expanded);
       Predict(pairs[p], expanded, &predicted);
       cv::multiply(predicted, states[p].weight, predicted);
       PredictAdjoint(pairs[p], predicted, &back);
-      for (int i = 0; i < n; ++i) {
-        float acc = 0.0f;
-        for (int c = 0; c < channels; ++c) acc += g.ptr<float>()[i * channels + c] * back.ptr<float>()[i * channels + c];
-        out->ptr<float>()[i] += acc;
-      }
+      ContractChannels(states[p].lin.d_inverse_depth, back, out, true);
+    }
+    if (self != nullptr) {
+      ExpandChannels(self->derivative, in, &expanded);
+      BoxDown(expanded, self->scale, &predicted);
+      cv::multiply(predicted, self_weight, predicted);
+      BoxAdjoint(predicted, self->scale, &back);
+      ContractChannels(self->derivative, back, &nd_self, false);
+      cv::scaleAdd(nd_self, self->weight, *out, *out);
     }
     AddWeightedLaplacian(in, tv_weight, options.lambda_d * c2, out);
     cv::scaleAdd(in, damping, *out, *out);
@@ -271,6 +352,15 @@ void UpdateDepth(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world
       diagonal_sum += Dot1(state.lin.d_inverse_depth, state.lin.d_inverse_depth) *
                       cv::mean(state.weight)[0] / std::max(1, state.weight.channels());
     }
+    if (self != nullptr) {
+      // r = (B - Psi I) - Box(h .* moved): the linear model since linearisation.
+      ExpandChannels(self->derivative, moved, &expanded);
+      BoxDown(expanded, self->scale, &predicted);
+      self_residual = *self->observation - self->predicted - predicted;
+      L1Weights(self_residual, cv::Mat(), options.residual_epsilon, &self_weight);
+      diagonal_sum += self->weight * Dot1(self->derivative, self->derivative) *
+                      cv::mean(self_weight)[0] / (self->scale * self->scale);
+    }
     damping = options.depth_damping * diagonal_sum / n + 1e-12;
     // TV weights v = g / max(|grad (c rho)|, eps) (eq:regularizingTerm with g_t).
     const float* rho = inverse_depth->ptr<float>();
@@ -289,13 +379,13 @@ void UpdateDepth(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world
     for (size_t p = 0; p < pairs.size(); ++p) {
       cv::multiply(states[p].residual, states[p].weight, predicted);
       PredictAdjoint(pairs[p], predicted, &back);
-      const cv::Mat& g = states[p].lin.d_inverse_depth;
-      const int channels = g.channels();
-      for (int i = 0; i < n; ++i) {
-        float acc = 0.0f;
-        for (int c = 0; c < channels; ++c) acc += g.ptr<float>()[i * channels + c] * back.ptr<float>()[i * channels + c];
-        rhs.ptr<float>()[i] += acc;
-      }
+      ContractChannels(states[p].lin.d_inverse_depth, back, &rhs, true);
+    }
+    if (self != nullptr) {
+      cv::multiply(self_residual, self_weight, predicted);
+      BoxAdjoint(predicted, self->scale, &back);
+      ContractChannels(self->derivative, back, &nd_self, false);
+      cv::scaleAdd(nd_self, self->weight, rhs, rhs);
     }
     AddWeightedLaplacian(*inverse_depth, tv_weight, -options.lambda_d * c2, &rhs);
     // CG on the normal equations from a zero step.
@@ -318,9 +408,12 @@ void UpdateDepth(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world
     // Keep inverse depth positive: a step may not shrink it below a quarter.
     float* rho_out = inverse_depth->ptr<float>();
     const float* delta = step.ptr<float>();
+    float* moved_out = moved.ptr<float>();
     for (int i = 0; i < n; ++i) {
       if (!(rho_out[i] > 0.0f)) continue;
-      rho_out[i] = std::max(rho_out[i] + delta[i], 0.25f * rho_out[i]);
+      const float updated = std::max(rho_out[i] + delta[i], 0.25f * rho_out[i]);
+      moved_out[i] += updated - rho_out[i];
+      rho_out[i] = updated;
     }
   }
 }

@@ -29,7 +29,7 @@ constexpr char kUsage[] =
     "                         [--lambda-i X] [--threads N] [--neighbours R] [--fixed-poses]\n"
     "                         [--quiet]\n"
     "Defaults are the paper's: joint, scale 2, 3 iterations, M 50, lambda_s 30,\n"
-    "lambda_d 9, lambda_i 0.45; threads 0 = all cores.\n";
+    "lambda_d 1 (see README), lambda_i 0.45; threads 0 = all cores.\n";
 
 double ParseNumber(const std::string& flag, const std::string& text) {
   char* end = nullptr;

@@ -4,6 +4,8 @@
 #include <cstdlib>
 #include <string>
 
+#include <opencv2/imgproc.hpp>
+
 #include <gtest/gtest.h>
 
 #include "deblur_sr_mvs/core/image_ops.h"
@@ -59,10 +61,79 @@ TEST(Estimator, ImageUpdateWithTrueStructureBeatsBicubic) {
   const double psnr_bicubic = MeanPsnr(bicubic, sequence.ground_truth->latent);
   const double psnr_restored = MeanPsnr(result.latent, sequence.ground_truth->latent);
   std::printf("true structure: bicubic %.2f dB, restored %.2f dB\n", psnr_bicubic, psnr_restored);
+  for (const EnergyRecord& e : result.energies) {
+    std::printf("  iteration %d %-14s E %.2f (match %.2f self %.2f imgtv %.2f depthtv %.2f)\n", e.iteration,
+                e.stage.c_str(), e.total, e.matching, e.self_consistency, e.image_tv, e.depth_tv);
+  }
   EXPECT_GT(psnr_restored, psnr_bicubic + 3.0);
   // The image update may only lower the energy.
   ASSERT_GE(result.energies.size(), 2u);
   EXPECT_LT(result.energies.back().total, result.energies.front().total);
+}
+
+}  // namespace
+}  // namespace deblur_sr_mvs
+
+namespace deblur_sr_mvs {
+namespace {
+
+double MeanDepthRel(const std::vector<cv::Mat>& estimate, const std::vector<cv::Mat>& truth) {
+  DepthMetricOptions options;
+  options.crop_fraction = 0.7;
+  double sum = 0.0;
+  for (size_t t = 0; t < estimate.size(); ++t) sum += EvaluateDepth(estimate[t], truth[t], options).relative_error;
+  return sum / estimate.size();
+}
+
+// From a degraded structure (depth smoothed and scaled wrongly in places,
+// poses perturbed), the joint iterations must lower the energy at every
+// recorded step and improve depth.
+TEST(Estimator, StructureUpdateImprovesDegradedStructure) {
+  const Sequence& sequence = SmallSequence();
+  const EstimatorInput input = InputOf(sequence);
+  std::vector<SE3> poses;
+  std::vector<cv::Mat> depths;
+  for (size_t t = 0; t < sequence.frames.size(); ++t) {
+    const SE3& truth = sequence.ground_truth->poses[t].T_world_cam;
+    const Vector6d noise = (Vector6d() << 0.002, -0.001, 0.003, 0.001, -0.0015, 0.0005).finished();
+    poses.push_back(t == 0 ? truth : SE3::Exp(noise * ((t % 2) ? 1.0 : -1.0)) * truth);
+    // Over-smoothed and tilted by up to 8 %: a typical initialisation error.
+    cv::Mat smooth;
+    cv::GaussianBlur(sequence.ground_truth->depth[t], smooth, cv::Size(0, 0), 12.0);
+    for (int y = 0; y < smooth.rows; ++y) {
+      for (int x = 0; x < smooth.cols; ++x) smooth.at<float>(y, x) *= 1.0f + 0.08f * x / smooth.cols;
+    }
+    depths.push_back(smooth);
+  }
+  EstimatorOptions options;
+  options.max_iterations = 1;
+  Estimator estimator(options);
+  const EstimatorResult result = estimator.RunFromStructure(input, depths, poses);
+  const double rel_before = MeanDepthRel(depths, sequence.ground_truth->depth);
+  const double rel_after = MeanDepthRel(result.depth, sequence.ground_truth->depth);
+  std::printf("degraded structure: depth rel %.4f -> %.4f, PSNR %.2f dB\n", rel_before, rel_after,
+              MeanPsnr(result.latent, sequence.ground_truth->latent));
+  for (const EnergyRecord& e : result.energies) {
+    std::printf("  iteration %d %-14s E %.2f (match %.2f self %.2f imgtv %.2f depthtv %.2f)\n", e.iteration,
+                e.stage.c_str(), e.total, e.matching, e.self_consistency, e.image_tv, e.depth_tv);
+  }
+  // The energy after every kept iteration (each ends with an image update)
+  // never increases, and falls well below the starting point.
+  double previous = result.energies.front().total;
+  int image_stages = 0;
+  for (const EnergyRecord& e : result.energies) {
+    if (e.stage != "image") continue;
+    EXPECT_LE(e.total, previous * (1.0 + 1e-9)) << "iteration " << e.iteration;
+    previous = e.total;
+    ++image_stages;
+  }
+  EXPECT_EQ(image_stages, options.max_iterations + 1);
+  EXPECT_LT(result.energies.back().total, 0.2 * result.energies.front().total);
+  // The matching energy (how well the structure explains the frames) falls
+  // substantially (measured: to 0.53 after two iterations, 0.66 after one).
+  EXPECT_LT(result.energies.back().matching, 0.75 * result.energies[1].matching);
+  EXPECT_LT(rel_after, 0.05);
+  for (const StageTiming& s : result.timings) std::printf("  %s: %.2f s\n", s.stage.c_str(), s.seconds);
 }
 
 }  // namespace

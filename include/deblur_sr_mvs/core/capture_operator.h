@@ -55,6 +55,9 @@ struct CaptureGeometry {
   std::optional<SE3> T_world_source;
 };
 
+// Poses T_world_tau_m of the M virtual cameras over the exposure.
+std::vector<SE3> VirtualCameraPoses(const CaptureGeometry& geometry, int samples);
+
 class CaptureOperator {
  public:
   CaptureOperator() = default;

@@ -10,13 +10,61 @@
 #include "deblur_sr_mvs/core/camera.h"
 #include "deblur_sr_mvs/core/se3.h"
 #include "deblur_sr_mvs/core/sequence_io.h"
+#include "deblur_sr_mvs/core/visibility.h"
 
 namespace deblur_sr_mvs {
 
 struct InitializerOptions {
-  // (fields documented in the implementation's header section; each with a
-  // one-line comment saying what it controls and its unit)
   int num_threads = 0;  // OpenMP threads; 0 = default
+
+  // --- Feature tracking (Shi-Tomasi corners + pyramidal Lucas-Kanade).
+  int max_features = 600;                // corners kept alive per frame
+  double feature_quality = 0.005;        // Shi-Tomasi quality, fraction of the best corner
+  double min_feature_distance_px = 3.0;  // min spacing of corners (LR px)
+  int feature_block_size = 5;            // corner-detector window (LR px)
+  int klt_window_radius_px = 7;          // LK window half-size (LR px): spans the blur
+  int klt_levels = 3;                    // LK pyramid levels (motion up to ~2^levels px)
+  double klt_max_residual = 0.08;        // mean |intensity difference| ([0,1]) of a kept match
+  double max_forward_backward_px = 0.5;  // forward-backward LK disagreement to drop a track
+
+  // --- Two-view geometry of frames 0-1 and PnP of the later frames.
+  double ransac_threshold_px = 1.0;   // essential-matrix RANSAC threshold (LR px)
+  double ransac_confidence = 0.999;   // RANSAC confidence (E and PnP)
+  int min_inliers = 30;               // features / inliers needed on frames 0-1
+  double min_parallax_px = 1.0;       // median 0-1 displacement the rotation leaves, needed (LR px)
+  double min_triangulation_parallax_px = 2.0;  // rotation-free displacement to add a point (px)
+  double pnp_threshold_px = 2.0;      // PnP RANSAC threshold and BA outlier cut (LR px)
+  int min_pnp_inliers = 12;           // PnP inliers needed per later frame
+  double ba_loss_px = 1.0;            // Huber scale of the bundle adjustment (LR px)
+  int ba_max_iterations = 50;         // Levenberg-Marquardt iterations per BA round
+  // Prior on each frame-to-frame rotation, as the image shift f * angle (LR
+  // px) that costs as much as one 1-px reprojection error: resolves the
+  // rotation / translation ambiguity of narrow fields of view.
+  double rotation_prior_px = 1.0;
+
+  // --- Dense depth (eq:initializationScene): sweep, TV-L1, refinement.
+  bool blur_aware = true;          // match Psi_s o B_t against Psi_t o B_s (false: B_t vs B_s)
+  int capture_samples = 16;        // M of the scale-1 blur operators of the matching
+  // Depth of the virtual cameras by reprojection (paper Sec. 3); false uses
+  // D_t(x) itself: 2-3x faster builds, differs only within a blur length of
+  // depth edges, where the patch cost is unreliable anyway.
+  bool capture_reproject_depth = false;
+  int neighbours_per_side = 2;     // frames t-k..t+k matched against frame t
+  int num_planes = 64;             // inverse-depth planes of the first (global) sweep
+  int refine_planes = 16;          // hypotheses per pixel of each refinement level
+  int depth_levels = 2;            // 1 global sweep + (levels - 1) narrowing refinements
+  double refine_band = 2.0;        // refinement half-band, in steps of the previous level
+  int patch_radius_px = 2;         // matching patch (2r+1)^2 (LR px)
+  double cost_truncation = 0.15;   // per-neighbour cost cap (mean |difference|, [0,1] images)
+  double depth_range_margin = 0.5; // widening of the triangulated inverse-depth range (fraction)
+  // lambda_d: TV weight per unit gradient of the normalised inverse depth
+  // (0..1 over the sweep range) per pixel, in cost units (mean |difference|).
+  double depth_tv_weight = 0.05;
+  int tv_iterations = 120;          // DTAM alternations per level
+  double theta_start = 0.5;         // initial coupling theta, x (level span)^2
+  double theta_end = 1e-4;          // final coupling theta, x (level span)^2
+  EdgeWeightOptions edge_weight;    // g_t of eq:regularizingTerm on the input frame
+
   void Check() const;   // throws InputError naming the bad field
 };
 

@@ -59,15 +59,11 @@ struct RenderOptions {
   // it (soft splatting of one surface); farther ones are occluded.
   double depth_tolerance = 0.015;
   // A splat enters the z-buffer only with at least this bilinear weight, so a
-  // point half a pixel away does not fatten its surface over the background.
+  // point most of a pixel away does not fatten its surface over the background.
   double min_splat_weight = 0.05;
-  // Total splat weight above which a view is taken to cover a pixel.
+  // Total splat weight from which a view is taken to cover a pixel. The
+  // secondary view renders only the pixels the primary leaves below it.
   double coverage_weight = 0.3;
-  // The secondary (farther) view replaces the primary at a pixel only where it
-  // is this much nearer and covers well: a surface the primary cannot see
-  // (outside its field of view), not an edge misaligned by a disparity error.
-  double occlusion_tolerance = 0.05;
-  double occlusion_min_weight = 0.6;
   // Fill pixels no view covers (disocclusions) from their background neighbours.
   bool fill_holes = true;
   // -1: both views (the nearer one primary); 0 or 1: only that view (tests).
@@ -79,6 +75,7 @@ struct RenderResult {
   cv::Mat depth;      // CV_32FC1, metres along the optical axis (0 where unfilled)
   cv::Mat hole_mask;  // CV_8UC1, 255 where no view covered the pixel (before filling)
   int num_holes = 0;
+  int num_secondary = 0;  // pixels taken from the secondary view
   double HoleFraction() const {
     return image.empty() ? 0.0 : static_cast<double>(num_holes) / image.total();
   }
@@ -87,37 +84,51 @@ struct RenderResult {
 // Reusable buffers of one rendering thread (contents are internal), so that
 // rendering many sub-frames allocates nothing per frame.
 struct RenderWorkspace {
+  std::vector<float> u, v, z;               // projections of one view's points
   struct Splat {
-    int pixel;       // index of the top-left pixel of the 2x2 footprint, -1: culled
+    int point;       // index into the view's points
+    int x0, y0;      // top-left pixel of the 2x2 bilinear footprint
+    bool inside;     // the whole footprint is in the image
     float ax, ay;    // bilinear fractions
-    float z;         // depth in the virtual camera
   };
-  std::array<std::vector<Splat>, 2> splats;
+  std::vector<Splat> active;                // splats into pixels this view renders
+  std::vector<uint8_t> useful;              // secondary: footprints worth splatting
   std::array<std::vector<float>, 2> zbuffer;
   std::array<std::vector<float>, 2> accum;  // per pixel: b, g, r, weight, weight*z
-  std::vector<int> holes, next_holes;
-  std::vector<float> fill_values;  // b, g, r, z per hole of one fill pass
+  std::vector<int> holes, next_holes, filled;
+  std::vector<float> fill_values;           // b, g, r, z per filled pixel of one fill pass
 };
 
 class SceneRenderer {
  public:
   explicit SceneRenderer(const StereoScene& scene);
 
-  // Renders the sharp image and depth seen by `camera` at pose T_world_cam.
+  // Renders the sharp image and depth seen by `camera` at pose T_world_cam by
+  // forward splatting: per view a z-buffer over bilinear 2x2 footprints, then
+  // colour and depth blended from the splats near the front surface.
   // Thread-safe (const) as long as each thread has its own workspace.
   void Render(const PinholeCamera& camera, const SE3& T_world_cam, const RenderOptions& options,
               RenderWorkspace* workspace, RenderResult* result) const;
   RenderResult Render(const PinholeCamera& camera, const SE3& T_world_cam,
                       const RenderOptions& options = RenderOptions()) const;
 
-  int NumPoints(int view) const { return static_cast<int>(points_[view].size()); }
+  // A renderer holding only the points that can reach `camera`'s image at a
+  // pose on the straight-in-image path through the given poses (e.g. an
+  // exposure's start, middle and end): it renders the same images there, faster.
+  SceneRenderer CulledFor(const PinholeCamera& camera, const std::vector<SE3>& T_world_cams) const;
+
+  int NumPoints(int view) const { return static_cast<int>(points_[view].x.size()); }
 
  private:
-  struct ColouredPoint {
-    float x, y, z;  // world
-    float b, g, r;
+  SceneRenderer() = default;
+  // Structure of arrays so that the projection loop vectorises.
+  struct Points {
+    std::vector<float> x, y, z;  // world
+    std::vector<float> b, g, r;
+    void Reserve(std::size_t n);
+    void Append(const Points& other, std::size_t i);
   };
-  std::array<std::vector<ColouredPoint>, 2> points_;
+  std::array<Points, 2> points_;
   std::array<Eigen::Vector3d, 2> view_centres_world_;
 };
 
@@ -179,8 +190,10 @@ struct SynthesisOptions {
   // by the scale, whose pixels stay covered by the views along the whole path).
   int hr_width = 0;               // --hr-width
   int hr_height = 0;              // --hr-height
-  double arc_fixation_factor = 2.0;   // arc: fixation point at this x median depth
-  double forward_travel_cap = 0.3;    // forward: total z travel <= this x nearest depth
+  double arc_fixation_factor = 2.0;   // arc: fixation point at this x median depth (--arc-fixation)
+  // forward: total z travel over the sequence <= this x the nearest depth, so
+  // the last camera stays >= 0.8 x that depth away (--forward-cap).
+  double forward_travel_cap = 0.4;
   // Automatic crop: the worst pose along the path may leave at most this
   // fraction of the HR pixels uncovered.
   double max_hole_fraction = 0.01;
