@@ -928,7 +928,7 @@ struct DepthWorkspace {
 };
 
 // Sum over a (2r+1)^2 window, separable, zero outside the image.
-void BoxSum(const float* in, int width, int height, int radius, std::vector<float>* row_buffer,
+__attribute__((noinline)) void BoxSum(const float* in, int width, int height, int radius, std::vector<float>* row_buffer,
             float* out) {
   row_buffer->resize(static_cast<size_t>(width) * height);
   float* rows = row_buffer->data();
@@ -976,12 +976,67 @@ struct PlaneSet {
   double Rho(float u) const { return rho_min + u * (rho_max - rho_min); }
 };
 
+// Per pixel of t (depth `depth`, 0 = none): the colour-averaged |difference|
+// of reference and source at the point's blur centroids, and whether the
+// source sees it. The reference is read clamped: its offset from the pixel is
+// a fraction of the blur, and the capture operator replicates the border too.
+template <int kChannels>
+__attribute__((noinline)) void PlaneDifferences(const NeighbourImages& neighbour, const float* depth, int width, int height,
+                      float* difference_out, float* valid_out) {
+  const float max_x = static_cast<float>(width - 1);
+  const float max_y = static_cast<float>(height - 1);
+  constexpr float kInvChannels = 1.0f / kChannels;
+  const float* reference = neighbour.reference.ptr<float>();
+  const float* source = neighbour.source.ptr<float>();
+  const int stride = width * kChannels;
+  for (int y = 0; y < height; ++y) {
+    float base_ref[3], base_src[3];
+    neighbour.to_reference->RowBase(static_cast<float>(y), base_ref);
+    neighbour.to_source->RowBase(static_cast<float>(y), base_src);
+    const float* row_depth = depth + static_cast<size_t>(y) * width;
+    float* difference_row = difference_out + static_cast<size_t>(y) * width;
+    float* valid_row = valid_out + static_cast<size_t>(y) * width;
+    for (int x = 0; x < width; ++x) {
+      const float d = row_depth[x];
+      const float xf = static_cast<float>(x);
+      float ru, rv, su, sv, z;
+      if (!(d > 0.0f) || !neighbour.to_source->Warp(base_src, xf, d, &su, &sv, &z) ||
+          !(su >= 0.0f && sv >= 0.0f && su <= max_x && sv <= max_y) ||
+          !neighbour.to_reference->Warp(base_ref, xf, d, &ru, &rv, &z)) {
+        difference_row[x] = 0.0f;
+        valid_row[x] = 0.0f;
+        continue;
+      }
+      ru = std::min(std::max(ru, 0.0f), max_x);
+      rv = std::min(std::max(rv, 0.0f), max_y);
+      const int rx0 = std::min(static_cast<int>(ru), width - 2);
+      const int ry0 = std::min(static_cast<int>(rv), height - 2);
+      const int sx0 = std::min(static_cast<int>(su), width - 2);
+      const int sy0 = std::min(static_cast<int>(sv), height - 2);
+      const float rfx = ru - rx0, rfy = rv - ry0;
+      const float sfx = su - sx0, sfy = sv - sy0;
+      const float* r0 = reference + static_cast<size_t>(ry0) * stride + rx0 * kChannels;
+      const float* s0 = source + static_cast<size_t>(sy0) * stride + sx0 * kChannels;
+      float difference = 0.0f;
+      for (int c = 0; c < kChannels; ++c) {
+        const float r_top = r0[c] + rfx * (r0[c + kChannels] - r0[c]);
+        const float r_bottom = r0[c + stride] + rfx * (r0[c + stride + kChannels] - r0[c + stride]);
+        const float s_top = s0[c] + sfx * (s0[c + kChannels] - s0[c]);
+        const float s_bottom = s0[c + stride] + sfx * (s0[c + stride + kChannels] - s0[c + stride]);
+        difference += std::abs((s_top + sfy * (s_bottom - s_top)) - (r_top + rfy * (r_bottom - r_top)));
+      }
+      difference_row[x] = difference * kInvChannels;
+      valid_row[x] = 1.0f;
+    }
+  }
+}
+
 // The data term of eq:initializationScene for every pixel and hypothesis:
 // per neighbour the L1 difference of the equally blurred images averaged over
 // colour and over a (2r+1)^2 patch (robust to the residual blur mismatch and
 // noise), truncated at `truncation` (occlusions), then averaged over the
 // neighbours that see the pixel. No neighbour: `truncation`.
-void ComputeCostVolume(const std::vector<NeighbourImages>& neighbours, const PlaneSet& planes,
+__attribute__((noinline)) void ComputeCostVolume(const std::vector<NeighbourImages>& neighbours, const PlaneSet& planes,
                        const InitializerOptions& options, int width, int height,
                        DepthWorkspace* ws) {
   const int pixels = width * height;
@@ -996,8 +1051,6 @@ void ComputeCostVolume(const std::vector<NeighbourImages>& neighbours, const Pla
   ws->aggregated_valid.resize(pixels);
   ws->sum.resize(pixels);
   ws->weight.resize(pixels);
-  const float max_x = static_cast<float>(width - 1);
-  const float max_y = static_cast<float>(height - 1);
   ws->plane_depth.resize(pixels);
   for (int plane = 0; plane < planes.planes; ++plane) {
     // Depth of every pixel's hypothesis, shared by the neighbours.
@@ -1008,54 +1061,12 @@ void ComputeCostVolume(const std::vector<NeighbourImages>& neighbours, const Pla
     std::fill(ws->sum.begin(), ws->sum.end(), 0.0f);
     std::fill(ws->weight.begin(), ws->weight.end(), 0.0f);
     for (int n = 0; n < num_neighbours; ++n) {
-      const NeighbourImages& neighbour = neighbours[n];
-      const int channels = neighbour.reference.channels();
-      const float inv_channels = 1.0f / channels;
-      for (int y = 0; y < height; ++y) {
-        float base_ref[3], base_src[3];
-        neighbour.to_reference->RowBase(static_cast<float>(y), base_ref);
-        neighbour.to_source->RowBase(static_cast<float>(y), base_src);
-        const float* depth = ws->plane_depth.data() + static_cast<size_t>(y) * width;
-        for (int x = 0; x < width; ++x) {
-          const int pixel = y * width + x;
-          float difference = 0.0f, valid = 0.0f;
-          float ru, rv, su, sv, z;
-          const float xf = static_cast<float>(x);
-          if (depth[x] > 0.0f &&
-              neighbour.to_reference->Warp(base_ref, xf, depth[x], &ru, &rv, &z) &&
-              neighbour.to_source->Warp(base_src, xf, depth[x], &su, &sv, &z) && su >= 0.0f &&
-              sv >= 0.0f && su <= max_x && sv <= max_y) {
-            // The reference is read clamped: its offset is a fraction of the
-            // blur, and the border replicates as in the capture operator.
-            ru = std::min(std::max(ru, 0.0f), max_x);
-            rv = std::min(std::max(rv, 0.0f), max_y);
-            const int rx0 = std::min(static_cast<int>(ru), width - 2);
-            const int ry0 = std::min(static_cast<int>(rv), height - 2);
-            const float rfx = ru - rx0;
-            const float rfy = rv - ry0;
-            const int sx0 = std::min(static_cast<int>(su), width - 2);
-            const int sy0 = std::min(static_cast<int>(sv), height - 2);
-            const float sfx = su - sx0;
-            const float sfy = sv - sy0;
-            const float* r0 = neighbour.reference.ptr<float>(ry0) + rx0 * channels;
-            const float* r1 = neighbour.reference.ptr<float>(ry0 + 1) + rx0 * channels;
-            const float* s0 = neighbour.source.ptr<float>(sy0) + sx0 * channels;
-            const float* s1 = neighbour.source.ptr<float>(sy0 + 1) + sx0 * channels;
-            for (int c = 0; c < channels; ++c) {
-              const float reference =
-                  (1.0f - rfy) * ((1.0f - rfx) * r0[c] + rfx * r0[c + channels]) +
-                  rfy * ((1.0f - rfx) * r1[c] + rfx * r1[c + channels]);
-              const float source =
-                  (1.0f - sfy) * ((1.0f - sfx) * s0[c] + sfx * s0[c + channels]) +
-                  sfy * ((1.0f - sfx) * s1[c] + sfx * s1[c + channels]);
-              difference += std::abs(source - reference);
-            }
-            difference *= inv_channels;
-            valid = 1.0f;
-          }
-          ws->difference[pixel] = difference;
-          ws->valid[pixel] = valid;
-        }
+      if (neighbours[n].reference.channels() == 3) {
+        PlaneDifferences<3>(neighbours[n], ws->plane_depth.data(), width, height,
+                            ws->difference.data(), ws->valid.data());
+      } else {
+        PlaneDifferences<1>(neighbours[n], ws->plane_depth.data(), width, height,
+                            ws->difference.data(), ws->valid.data());
       }
       BoxSum(ws->difference.data(), width, height, radius, &ws->box_row, ws->aggregated.data());
       BoxSum(ws->valid.data(), width, height, radius, &ws->box_row, ws->aggregated_valid.data());
@@ -1083,7 +1094,7 @@ void ComputeCostVolume(const std::vector<NeighbourImages>& neighbours, const Pla
 // steps), a a point-wise search; theta decreases geometrically. The last a is
 // refined below the plane spacing by a parabola through the neighbouring
 // costs. Returns u in ws->u.
-void SolveTvL1(const PlaneSet& planes, const cv::Mat& edge_weight,
+__attribute__((noinline)) void SolveTvL1(const PlaneSet& planes, const cv::Mat& edge_weight,
                const InitializerOptions& options, int width, int height, double theta_start,
                double theta_end, const std::vector<float>* u_init, DepthWorkspace* ws) {
   const int pixels = width * height;

@@ -60,7 +60,7 @@ struct InitializerOptions {
   // lambda_d: TV weight per unit gradient of the normalised inverse depth
   // (0..1 over the sweep range) per pixel, in cost units (mean |difference|).
   double depth_tv_weight = 0.05;
-  int tv_iterations = 120;          // DTAM alternations per level
+  int tv_iterations = 60;           // DTAM alternations per pass
   double theta_start = 0.5;         // initial coupling theta, x (level span)^2
   double theta_end = 1e-4;          // final coupling theta, x (level span)^2
   EdgeWeightOptions edge_weight;    // g_t of eq:regularizingTerm on the input frame
