@@ -8,16 +8,24 @@
 //     does on tiny, smeared LR frames (OpenCV's own LK lives in the video
 //     module, which the package does not link, hence the small tracker here).
 //  2. two-view: essential matrix (RANSAC) and recoverPose on frames 0-1, the
-//     paper's SfM step; checks for features, inliers and parallax.
+//     paper's SfM step, plus a pure-translation start; both refined with a
+//     rotation prior that settles the rotation / translation ambiguity of
+//     narrow fields of view (RotationPrior); checks features, inliers and
+//     parallax.
 //  3. poses: triangulation, PnP (RANSAC) per later frame, then a bundle
 //     adjustment of all poses and points (Ceres) with camera 0 fixed and
 //     |c1 - c0| = 1 held by a sphere manifold (the monocular scale, SPEC 2).
-//  4. depths: eq:initializationScene per frame, coarse-to-fine over inverse
-//     depth: a plane sweep of blur-aware L1 patch costs against the
-//     neighbouring frames, TV-L1 regularisation (edge weight g_t of
-//     eq:regularizingTerm) by the quadratic-relaxation alternation of DTAM,
-//     then a narrow per-pixel sweep around that result with re-built blur
-//     operators and sub-plane refinement.
+//     Tracks on blurred frames follow blur centroids, so these are
+//     mid-exposure poses; they are moved to the shutter close t_c along
+//     eq:interpolatingP.
+//  4. depths: eq:initializationScene per frame, coarse to fine: a plane
+//     sweep over inverse depth on a half-size pyramid level, of blur-aware L1
+//     patch costs (Psi_s o B_t vs Psi_t o B_s from scale-1 capture operators,
+//     each image read at the point's blur centroid so that the depth lands on
+//     the t_c grid) against up to two neighbours per side, TV-L1 with the
+//     edge weight g_t (eq:regularizingTerm) by the DTAM alternation, then a
+//     full-size pass with operators re-built from that depth, a narrow
+//     per-pixel sweep and sub-plane refinement.
 #include "deblur_sr_mvs/core/initializer.h"
 
 #include <omp.h>
@@ -29,7 +37,6 @@
 #include <cstdio>
 #include <limits>
 #include <memory>
-#include <numeric>
 #include <sstream>
 
 #include <Eigen/Dense>
@@ -653,7 +660,7 @@ void TwoViewInitialisation(const PinholeCamera& camera, const InitializerOptions
   }
   const int matches = static_cast<int>(points0.size());
   if (matches < options.min_inliers) {
-    throw InitializationError("initialisation: only " + std::to_string(matches) +
+    throw InitializationError("initialisation: frames 0-1: only " + std::to_string(matches) +
                               " features tracked from frame 0 to frame 1 (need " +
                               std::to_string(options.min_inliers) + ")");
   }
@@ -671,7 +678,7 @@ void TwoViewInitialisation(const PinholeCamera& camera, const InitializerOptions
   }
   const int ransac_inliers = cv::countNonZero(inlier_mask);
   if (ransac_inliers < options.min_inliers) {
-    throw InitializationError("initialisation: frames 0-1 have only " +
+    throw InitializationError("initialisation: frames 0-1: only " +
                               std::to_string(ransac_inliers) + " of " + std::to_string(matches) +
                               " matches consistent with one relative pose (need " +
                               std::to_string(options.min_inliers) + ")");
@@ -922,13 +929,13 @@ struct DepthWorkspace {
   std::vector<float> valid;
   std::vector<float> box_row, box_valid_row, aggregated, aggregated_valid;
   std::vector<float> sum, weight;
-  std::vector<float> a, u, u_bar, px, py;
+  std::vector<float> a, u, u_bar, px, py, tv_weight;
   std::vector<float> cost_min, cost_max;
   std::vector<int> best;
 };
 
 // Sum over a (2r+1)^2 window, separable, zero outside the image.
-__attribute__((noinline)) void BoxSum(const float* in, int width, int height, int radius, std::vector<float>* row_buffer,
+void BoxSum(const float* in, int width, int height, int radius, std::vector<float>* row_buffer,
             float* out) {
   row_buffer->resize(static_cast<size_t>(width) * height);
   float* rows = row_buffer->data();
@@ -981,7 +988,7 @@ struct PlaneSet {
 // source sees it. The reference is read clamped: its offset from the pixel is
 // a fraction of the blur, and the capture operator replicates the border too.
 template <int kChannels>
-__attribute__((noinline)) void PlaneDifferences(const NeighbourImages& neighbour, const float* depth, int width, int height,
+void PlaneDifferences(const NeighbourImages& neighbour, const float* depth, int width, int height,
                       float* difference_out, float* valid_out) {
   const float max_x = static_cast<float>(width - 1);
   const float max_y = static_cast<float>(height - 1);
@@ -1036,7 +1043,7 @@ __attribute__((noinline)) void PlaneDifferences(const NeighbourImages& neighbour
 // colour and over a (2r+1)^2 patch (robust to the residual blur mismatch and
 // noise), truncated at `truncation` (occlusions), then averaged over the
 // neighbours that see the pixel. No neighbour: `truncation`.
-__attribute__((noinline)) void ComputeCostVolume(const std::vector<NeighbourImages>& neighbours, const PlaneSet& planes,
+void ComputeCostVolume(const std::vector<NeighbourImages>& neighbours, const PlaneSet& planes,
                        const InitializerOptions& options, int width, int height,
                        DepthWorkspace* ws) {
   const int pixels = width * height;
@@ -1094,7 +1101,7 @@ __attribute__((noinline)) void ComputeCostVolume(const std::vector<NeighbourImag
 // steps), a a point-wise search; theta decreases geometrically. The last a is
 // refined below the plane spacing by a parabola through the neighbouring
 // costs. Returns u in ws->u.
-__attribute__((noinline)) void SolveTvL1(const PlaneSet& planes, const cv::Mat& edge_weight,
+void SolveTvL1(const PlaneSet& planes, const cv::Mat& edge_weight,
                const InitializerOptions& options, int width, int height, double theta_start,
                double theta_end, const std::vector<float>* u_init, DepthWorkspace* ws) {
   const int pixels = width * height;
@@ -1127,7 +1134,8 @@ __attribute__((noinline)) void SolveTvL1(const PlaneSet& planes, const cv::Mat& 
   }
   ws->u_bar = ws->u;
   const float tv_weight = static_cast<float>(options.depth_tv_weight);
-  std::vector<float> weight(pixels);
+  std::vector<float>& weight = ws->tv_weight;
+  weight.resize(pixels);
   for (int y = 0; y < height; ++y) {
     const float* g = edge_weight.ptr<float>(y);
     for (int x = 0; x < width; ++x) weight[y * width + x] = tv_weight * g[x];
@@ -1512,7 +1520,7 @@ InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr,
   int observations = 0;
   const double rms = BundleAdjust(camera_lr, options, threads, tracking.tracks, &structure,
                                   &observations);
-  summary << Format("bundle adjustment: %.0f points, %.0f observations, rms %.3f px; %.1f ms\n",
+  summary << Format("bundle adjustment: %.0f points, %.0f observations, robust rms %.3f px; %.1f ms\n",
                     structure.points_world.size(), observations, rms, NowMs() - stage_ms);
   // The tracks follow the blurred patterns, i.e. the blur centroids: the
   // poses so far are those of mid-exposure, t_c - exposure / 2 (exact for
@@ -1584,7 +1592,9 @@ InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr,
       const double far = Percentile(depths, 0.98);
       median_depth[t] = Median(depths);
       const double rho_near = 1.0 / near, rho_far = 1.0 / far;
-      const double margin = options.depth_range_margin * (rho_near - rho_far);
+      // At least +-10 % of the median: a near-planar scene still gets a range.
+      const double margin = std::max(options.depth_range_margin * (rho_near - rho_far),
+                                     0.1 / median_depth[t]);
       rho_max[t] = rho_near + margin;
       rho_min[t] = std::max(rho_far - margin, 0.5 * rho_far);
     }

@@ -51,9 +51,12 @@ struct InitializerOptions {
   bool capture_reproject_depth = false;
   int neighbours_per_side = 2;     // frames t-k..t+k matched against frame t
   int num_planes = 64;             // inverse-depth planes of the first (global) sweep
-  int refine_planes = 16;          // hypotheses per pixel of each refinement level
-  int depth_levels = 2;            // 1 global sweep + (levels - 1) narrowing refinements
-  double refine_band = 2.0;        // refinement half-band, in steps of the previous level
+  int refine_planes = 16;          // hypotheses per pixel of each refinement pass
+  // Image pyramid levels of the depth passes: the global sweep runs at
+  // 1/2^(levels-1) of the input size (coarsest side kept >= 24 px), each finer
+  // level refines around the up-sampled result.
+  int depth_levels = 2;
+  double refine_band = 2.0;        // refinement half-band, in hypothesis steps of the previous pass
   int patch_radius_px = 2;         // matching patch (2r+1)^2 (LR px)
   double cost_truncation = 0.15;   // per-neighbour cost cap (mean |difference|, [0,1] images)
   double depth_range_margin = 0.5; // widening of the triangulated inverse-depth range (fraction)
@@ -68,8 +71,9 @@ struct InitializerOptions {
   void Check() const;   // throws InputError naming the bad field
 };
 
-// Poses (T_world_cam, world = first camera, monocular scale fixed so that the
-// first two cameras are 1 unit apart) and LR depth maps in the same units.
+// Poses (T_world_cam at each frame's stamp, the shutter close t_c; world =
+// first camera, monocular scale fixed so that the first two cameras are 1
+// unit apart) and LR depth maps (on the t_c image grid) in the same units.
 struct InitialStructure {
   std::vector<SE3> T_world_cam;
   std::vector<cv::Mat> depth_lr;  // CV_32FC1, input size; NaN where unknown
