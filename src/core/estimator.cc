@@ -5,9 +5,12 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <exception>
+#include <functional>
 #include <list>
 #include <map>
 #include <memory>
+#include <mutex>
 
 #include <opencv2/imgproc.hpp>
 
@@ -26,6 +29,7 @@ double Now() {
 class Timer {
  public:
   void Add(const std::string& stage, double seconds) {
+    std::lock_guard<std::mutex> lock(mutex_);
     for (StageTiming& t : timings_) {
       if (t.stage == stage) {
         t.seconds += seconds;
@@ -37,6 +41,7 @@ class Timer {
   const std::vector<StageTiming>& timings() const { return timings_; }
 
  private:
+  std::mutex mutex_;
   std::vector<StageTiming> timings_;
 };
 
@@ -159,9 +164,13 @@ class OperatorCache {
     std::vector<long> versions;
   };
 
-  OperatorCache(const CaptureOperatorOptions& options, const PinholeCamera& camera_hr,
+  // One builder (scratch buffers) per thread: Get may be called from the
+  // threads of a parallel loop over frames, each building its own operators.
+  OperatorCache(const CaptureOperatorOptions& options, int threads, const PinholeCamera& camera_hr,
                 const VisibilityOptions& visibility, size_t max_bytes)
-      : builder_(options), camera_hr_(camera_hr), visibility_(visibility), max_bytes_(max_bytes) {}
+      : camera_hr_(camera_hr), visibility_(visibility), max_bytes_(max_bytes) {
+    for (int i = 0; i < threads; ++i) builders_.emplace_back(options);
+  }
 
   // Callers hold the returned pointer while they use the operator: eviction
   // only drops the cache's reference.
@@ -171,14 +180,18 @@ class OperatorCache {
     const std::vector<long> versions = {depth_version[t], pose_version[t], pose_version[neighbour],
                                         pose_version[source]};
     const auto key = std::make_pair(t, source);
-    auto it = entries_.find(key);
-    if (it != entries_.end() && it->second->versions == versions) {
-      Touch(key);
-      return it->second;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      auto it = entries_.find(key);
+      if (it != entries_.end() && it->second->versions == versions) {
+        Touch(key);
+        return it->second;
+      }
     }
     const double start = Now();
     auto entry = std::make_shared<Entry>();
-    builder_.Build(MakeCaptureGeometry(frames, camera_hr_, t, source), &entry->op);
+    const size_t thread = std::min<size_t>(omp_get_thread_num(), builders_.size() - 1);
+    builders_[thread].Build(MakeCaptureGeometry(frames, camera_hr_, t, source), &entry->op);
     entry->versions = versions;
     const cv::Size lr = entry->op.lr_size();
     entry->mask = cv::Mat(lr, CV_8UC1);
@@ -191,7 +204,9 @@ class OperatorCache {
           camera_hr_.width / lr.width);
       cv::bitwise_and(entry->mask, visible, entry->mask);
     }
-    timer->Add("operator builds", Now() - start);
+    timer->Add("operator builds (thread seconds)", Now() - start);
+    std::lock_guard<std::mutex> lock(mutex_);
+    auto it = entries_.find(key);
     if (it != entries_.end()) {
       bytes_ -= Bytes(*it->second);
       it->second = entry;
@@ -225,7 +240,8 @@ class OperatorCache {
     }
   }
 
-  CaptureOperatorBuilder builder_;
+  std::vector<CaptureOperatorBuilder> builders_;
+  std::mutex mutex_;
   PinholeCamera camera_hr_;
   VisibilityOptions visibility_;
   size_t max_bytes_;
@@ -238,6 +254,16 @@ class OperatorCache {
 
 const char* ToString(EstimatorMode mode) {
   return mode == EstimatorMode::kJoint ? "joint" : "baseline";
+}
+
+const char* ToString(StructureMatching matching) {
+  return matching == StructureMatching::kBlurred ? "blurred" : "restored";
+}
+
+StructureMatching ParseStructureMatching(const std::string& text) {
+  if (text == "blurred") return StructureMatching::kBlurred;
+  if (text == "restored") return StructureMatching::kRestored;
+  throw InputError("structure matching must be 'blurred' or 'restored', got '" + text + "'");
 }
 
 EstimatorMode ParseEstimatorMode(const std::string& text) {
@@ -344,10 +370,32 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
   CaptureOperatorOptions op_options;
   op_options.samples = options_.samples;
   op_options.scale = scale;
-  op_options.num_threads = threads;
+  // The estimator parallelises over frames (no barriers inside a frame's
+  // work, which matters when the cores are shared); every operator runs on
+  // the thread that uses it.
+  op_options.num_threads = 1;
+  omp_set_max_active_levels(1);
   // Enough for every operator of a 10-frame 640x480 window would be ~2 GiB;
   // keep the peak bounded and rebuild what was evicted.
-  OperatorCache cache(op_options, camera_hr, options_.visibility, size_t(1) << 30);
+  OperatorCache cache(op_options, threads, camera_hr, options_.visibility, size_t(1) << 30);
+
+  // Runs body(t) for every frame on `threads` threads; the first exception
+  // thrown by any frame is rethrown here (exceptions must not leave an
+  // OpenMP region).
+  auto for_each_frame = [&](const std::function<void(int)>& body) {
+    std::exception_ptr error;
+    std::mutex error_mutex;
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
+    for (int t = 0; t < num_frames; ++t) {
+      try {
+        body(t);
+      } catch (...) {
+        std::lock_guard<std::mutex> lock(error_mutex);
+        if (!error) error = std::current_exception();
+      }
+    }
+    if (error) std::rethrow_exception(error);
+  };
 
   const std::vector<std::vector<int>> neighbours = [&] {
     std::vector<std::vector<int>> n(num_frames);
@@ -397,10 +445,18 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
   };
   auto total_energy = [&](int iteration, const std::string& stage) {
     const double begin = Now();
+    std::vector<EnergyRecord> parts(num_frames);
+    for_each_frame([&](int t) { frame_energy(t, &parts[t]); });
     EnergyRecord record;
     record.iteration = iteration;
     record.stage = stage;
-    for (int t = 0; t < num_frames; ++t) frame_energy(t, &record);
+    for (const EnergyRecord& part : parts) {
+      record.total += part.total;
+      record.matching += part.matching;
+      record.self_consistency += part.self_consistency;
+      record.image_tv += part.image_tv;
+      record.depth_tv += part.depth_tv;
+    }
     timer.Add("energy", Now() - begin);
     return record;
   };
@@ -415,8 +471,10 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
   // ---- Phase 1: latent images (eq:imgUpdate), one frame at a time.
   auto image_phase = [&](int iteration) {
     const double begin = Now();
-    for (int t = 0; t < num_frames; ++t) {
-      report(double(t) / num_frames, "iteration " + std::to_string(iteration) + ": image " + std::to_string(t));
+    for_each_frame([&](int t) {
+      if (omp_get_thread_num() == 0) {
+        report(double(t) / num_frames, "iteration " + std::to_string(iteration) + ": image " + std::to_string(t));
+      }
       std::vector<LinearL1Term> terms;
       std::vector<std::shared_ptr<const OperatorCache::Entry>> held;
       for (int s : neighbours[t]) {
@@ -426,10 +484,10 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
       held.push_back(cache.Get(frames, depth_version, pose_version, t, t, &timer));
       terms.push_back({&held.back()->op, &observations[t], cv::Mat(), options_.lambda_s});
       ImageUpdateOptions image_options = options_.image;
-      image_options.num_threads = threads;
+      image_options.num_threads = 1;
       UpdateImage(terms, image_options, &latents[t]);
       edge_weight[t] = EdgeWeightOf(latents[t], options_.structure.edge_weight);
-    }
+    });
     ++steps_done;
     timer.Add("image update (incl. operator builds)", Now() - begin);
     result.energies.push_back(total_energy(iteration, "image"));
@@ -454,28 +512,34 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
         PairMatching pair;
         pair.t = t;
         pair.s = s;
-        if (joint) {
+        if (joint && options_.structure_matching == StructureMatching::kBlurred) {
           held->push_back(cache.Get(frames, depth_version, pose_version, t, s, &timer));
           pair.mask = held->back()->mask;
           held->push_back(cache.Get(frames, depth_version, pose_version, t, t, &timer));
           pair.blur = &held->back()->op;
           pair.observation = &observations[t];
         } else {
+          // Restored (or, in the baseline, bicubic) HR images of t and s.
           pair.observation = &latents[t];
+          const SE3 T_s_t = frames[s].T_world_cam.Inverse() * frames[t].T_world_cam;
+          pair.mask = ComputeVisibility(camera_hr, frames[t].depth_hr, T_s_t, options_.visibility);
         }
         pairs->push_back(pair);
       }
     };
-    for (int t = 0; t < num_frames; ++t) {
-      report(double(t) / (num_frames + 1),
-             "iteration " + std::to_string(iteration) + ": structure " + std::to_string(t));
+    for_each_frame([&](int t) {
+      if (omp_get_thread_num() == 0) {
+        report(double(t) / (num_frames + 1),
+               "iteration " + std::to_string(iteration) + ": structure " + std::to_string(t));
+      }
       const double before = isolated ? frame_energy(t, nullptr) : 0.0;
       const cv::Mat saved = inverse_depth[t].clone();
       std::vector<PairMatching> pairs;
       std::vector<std::shared_ptr<const OperatorCache::Entry>> held;
       pairs_of(t, &pairs, &held);
       SelfConsistencyLinearization self;
-      if (joint) {
+      const bool blurred_matching = joint && options_.structure_matching == StructureMatching::kBlurred;
+      if (blurred_matching) {
         const auto self_op = cache.Get(frames, depth_version, pose_version, t, t, &timer);
         self.observation = &observations[t];
         self_op->op.Apply(latents[t], &self.predicted);
@@ -485,7 +549,7 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
         self.weight = options_.lambda_s;
         self.scale = scale;
       }
-      UpdateDepth(camera_hr, poses, latents, pairs, joint ? &self : nullptr, edge_weight[t],
+      UpdateDepth(camera_hr, poses, latents, pairs, blurred_matching ? &self : nullptr, edge_weight[t],
                   parallax_scale(), structure_options, &inverse_depth[t]);
       frames[t].depth_hr = DepthFromInverse(inverse_depth[t]);
       ++depth_version[t];
@@ -494,7 +558,7 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
         frames[t].depth_hr = DepthFromInverse(saved);
         ++depth_version[t];
       }
-    }
+    });
     if (options_.update_poses) {
       report(double(num_frames) / (num_frames + 1), "iteration " + std::to_string(iteration) + ": poses");
       const double before = isolated ? total_energy(iteration, "structure").total : 0.0;

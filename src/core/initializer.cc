@@ -234,7 +234,7 @@ struct Track {
 struct TrackingResult {
   std::vector<Track> tracks;
   std::vector<int> detected;  // new corners per frame
-  std::vector<int> alive;     // tracks reaching each frame
+  std::vector<int> alive;     // tracks followed into each frame from the previous one
 };
 
 TrackingResult TrackFeatures(const std::vector<cv::Mat>& gray, const InitializerOptions& options,
@@ -291,6 +291,7 @@ TrackingResult TrackFeatures(const std::vector<cv::Mat>& gray, const Initializer
       }
       active.swap(still_active);
     }
+    result.alive[t] = static_cast<int>(active.size());
     // Replenish with corners away from the tracks that reached t.
     if (t + 1 < num_frames) {
       cv::Mat mask(gray[t].size(), CV_8UC1, cv::Scalar(255));
@@ -320,7 +321,6 @@ TrackingResult TrackFeatures(const std::vector<cv::Mat>& gray, const Initializer
         }
       }
     }
-    result.alive[t] = static_cast<int>(active.size());
   }
   return result;
 }
@@ -587,7 +587,9 @@ struct TwoViewSolution {
 };
 
 // Refines frames 0-1 from a starting pose: pose 1 (|t| = 1) and one inverse
-// depth per match, Huber reprojection loss plus the rotation prior.
+// depth per match, Cauchy reprojection loss (tracks on occlusion edges are
+// gross outliers that a Huber loss lets pull the pose into the pan +
+// forward-motion basin) plus the rotation prior.
 TwoViewSolution RefineTwoView(const PinholeCamera& camera, const InitializerOptions& options,
                               int threads, const std::vector<Eigen::Vector3d>& rays0,
                               const std::vector<cv::Point2f>& points1,
@@ -614,7 +616,7 @@ TwoViewSolution RefineTwoView(const PinholeCamera& camera, const InitializerOpti
   for (int k = 0; k < n; ++k) {
     problem.AddResidualBlock(new ceres::AutoDiffCostFunction<TwoViewResidual, 2, 3, 3, 1>(
                                  new TwoViewResidual(rays0[k], points1[k], camera)),
-                             new ceres::HuberLoss(options.ba_loss_px), solution.rotation.data(),
+                             new ceres::CauchyLoss(options.ba_loss_px), solution.rotation.data(),
                              solution.translation.data(), &solution.inverse_depth[k]);
   }
   problem.AddResidualBlock(new ceres::AutoDiffCostFunction<AbsoluteRotationPrior, 3, 3>(
@@ -637,6 +639,63 @@ TwoViewSolution RefineTwoView(const PinholeCamera& camera, const InitializerOpti
     for (double& rho : solution.inverse_depth) rho = -rho;
   }
   return solution;
+}
+
+// Direction of a pure translation (R = I) between two views: ray1 lies in
+// the plane of ray0 and t, so t is orthogonal to every n = ray0 x ray1. Two
+// matches fix it (t = n_i x n_j); RANSAC over such pairs, inliers within
+// `threshold_px` of their epipolar line, then least squares over the
+// inliers. The sign puts most points in front.
+Eigen::Vector3d PureTranslationEpipole(const PinholeCamera& camera,
+                                       const std::vector<cv::Point2f>& points0,
+                                       const std::vector<cv::Point2f>& points1,
+                                       double threshold_px) {
+  const int n = static_cast<int>(points0.size());
+  std::vector<Eigen::Vector3d> rays0(n), rays1(n), normals(n);
+  for (int k = 0; k < n; ++k) {
+    rays0[k] = camera.Ray(points0[k].x, points0[k].y);
+    rays1[k] = camera.Ray(points1[k].x, points1[k].y);
+    normals[k] = rays0[k].cross(rays1[k]);
+  }
+  const double focal = 0.5 * (camera.fx + camera.fy);
+  // Distance (px) of x1 from the epipolar line t x ray0.
+  auto residual = [&](const Eigen::Vector3d& t, int k) {
+    const Eigen::Vector3d line = t.cross(rays0[k]);
+    const double norm = line.head<2>().norm();
+    return norm > 1e-15 ? focal * std::abs(line.dot(rays1[k])) / norm
+                        : std::numeric_limits<double>::infinity();
+  };
+  cv::RNG rng(0x5eed);  // fixed: the same frames give the same start
+  Eigen::Vector3d best_t = Eigen::Vector3d::UnitX();
+  int best_count = -1;
+  for (int iteration = 0; iteration < 300 && n >= 2; ++iteration) {
+    const int i = rng.uniform(0, n);
+    const int j = rng.uniform(0, n);
+    if (i == j) continue;
+    const Eigen::Vector3d t = normals[i].cross(normals[j]);
+    if (!(t.norm() > 1e-15)) continue;
+    int count = 0;
+    for (int k = 0; k < n; ++k) count += residual(t.normalized(), k) <= threshold_px ? 1 : 0;
+    if (count > best_count) {
+      best_count = count;
+      best_t = t.normalized();
+    }
+  }
+  Eigen::Matrix3d normal_matrix = Eigen::Matrix3d::Zero();
+  for (int k = 0; k < n; ++k) {
+    if (residual(best_t, k) <= threshold_px) normal_matrix += normals[k] * normals[k].transpose();
+  }
+  Eigen::Vector3d t = best_t;
+  if (best_count >= 2) {
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen(normal_matrix);
+    t = eigen.eigenvectors().col(0);
+  }
+  int in_front = 0;
+  for (int k = 0; k < n; ++k) {
+    const double rho = TriangulateInverseDepth(Eigen::Matrix3d::Identity(), t, rays0[k], rays1[k]);
+    in_front += rho > 0.0 ? 1 : -1;
+  }
+  return in_front < 0 ? Eigen::Vector3d(-t) : t;
 }
 
 // Frames 0-1: the paper's SfM step. Essential matrix (RANSAC) + recoverPose
@@ -696,36 +755,16 @@ void TwoViewInitialisation(const PinholeCamera& camera, const InitializerOptions
     t_essential[r] = t_cv.at<double>(r);
   }
 
-  std::vector<int> used;  // indices into the matches: the RANSAC inliers
-  std::vector<Eigen::Vector3d> rays0;
-  std::vector<cv::Point2f> used_points1;
-  Eigen::Matrix3d normal_matrix = Eigen::Matrix3d::Zero();
-  for (int k = 0; k < matches; ++k) {
-    if (!inlier_mask.at<uchar>(k)) continue;
-    used.push_back(k);
-    rays0.push_back(camera.Ray(points0[k].x, points0[k].y));
-    used_points1.push_back(points1[k]);
-    const Eigen::Vector3d normal = rays0.back().cross(camera.Ray(points1[k].x, points1[k].y));
-    normal_matrix += normal * normal.transpose();
-  }
-  // Pure translation: ray1 ~ ray0 + rho t, so t is orthogonal to every
-  // ray0 x ray1; the sign puts most points in front.
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen(normal_matrix);
-  Eigen::Vector3d t_translation = eigen.eigenvectors().col(0);
-  {
-    int in_front = 0;
-    for (size_t k = 0; k < rays0.size(); ++k) {
-      const double rho = TriangulateInverseDepth(
-          Eigen::Matrix3d::Identity(), t_translation, rays0[k],
-          camera.Ray(used_points1[k].x, used_points1[k].y));
-      in_front += rho > 0.0 ? 1 : -1;
-    }
-    if (in_front < 0) t_translation = -t_translation;
-  }
-  TwoViewSolution from_essential = RefineTwoView(camera, options, threads, rays0, used_points1,
-                                                 R_essential, t_essential);
-  TwoViewSolution from_translation = RefineTwoView(
-      camera, options, threads, rays0, used_points1, Eigen::Matrix3d::Identity(), t_translation);
+  // Both starts are refined on all matches (Cauchy loss), so that their final
+  // costs compare; points that stay off are not triangulated below.
+  std::vector<Eigen::Vector3d> rays0(matches);
+  for (int k = 0; k < matches; ++k) rays0[k] = camera.Ray(points0[k].x, points0[k].y);
+  const Eigen::Vector3d t_translation =
+      PureTranslationEpipole(camera, points0, points1, options.ransac_threshold_px);
+  const TwoViewSolution from_essential =
+      RefineTwoView(camera, options, threads, rays0, points1, R_essential, t_essential);
+  const TwoViewSolution from_translation = RefineTwoView(
+      camera, options, threads, rays0, points1, Eigen::Matrix3d::Identity(), t_translation);
   const bool essential_wins = from_essential.cost <= from_translation.cost;
   const TwoViewSolution& best = essential_wins ? from_essential : from_translation;
 
@@ -741,9 +780,9 @@ void TwoViewInitialisation(const PinholeCamera& camera, const InitializerOptions
   // A static camera or a pure rotation leaves none: the scale (|c1 - c0| = 1)
   // and the depths would be undefined.
   std::vector<double> parallaxes;
-  for (size_t k = 0; k < used.size(); ++k) {
-    parallaxes.push_back(TranslationalParallax(camera, structure->T_cam_world[1],
-                                               points0[used[k]], points1[used[k]]));
+  for (int k = 0; k < matches; ++k) {
+    parallaxes.push_back(
+        TranslationalParallax(camera, structure->T_cam_world[1], points0[k], points1[k]));
   }
   const double parallax = Median(parallaxes);
   if (parallax < options.min_parallax_px) {
@@ -753,11 +792,11 @@ void TwoViewInitialisation(const PinholeCamera& camera, const InitializerOptions
         parallax, options.min_parallax_px));
   }
   int triangulated = 0;
-  for (size_t k = 0; k < used.size(); ++k) {
+  for (int k = 0; k < matches; ++k) {
     const double rho = best.inverse_depth[k];
     if (!(rho > 1e-9)) continue;
     const Eigen::Vector3d point = rays0[k] / rho;
-    Track& track = (*tracks)[track_index[used[k]]];
+    Track& track = (*tracks)[track_index[k]];
     if (ReprojectionError(camera, structure->T_cam_world[1], point, track.At(1)) >
         2.0 * options.ransac_threshold_px) {
       continue;
@@ -832,10 +871,11 @@ void LocaliseFrame(const PinholeCamera& camera, const InitializerOptions& option
                                   object.size()));
 }
 
-// All poses and points by reprojection error (robust loss), camera 0 fixed
-// and |t_1| = |c_1 - c_0| = 1 on a sphere: the gauge of SPEC section 2.
-// Two rounds, dropping observations beyond the outlier threshold in between.
-// Returns the RMS reprojection error (px) of the kept observations.
+// All poses and points by reprojection error (Cauchy loss) plus the
+// frame-to-frame RotationPrior, camera 0 fixed and |t_1| = |c_1 - c_0| = 1 on
+// a sphere: the gauge of SPEC section 2. Two rounds, dropping observations
+// beyond the outlier threshold in between. Returns the RMS reprojection error
+// (px) of the observations within the threshold.
 double BundleAdjust(const PinholeCamera& camera, const InitializerOptions& options, int threads,
                     const std::vector<Track>& tracks, SparseStructure* structure,
                     int* num_observations) {
@@ -862,7 +902,7 @@ double BundleAdjust(const PinholeCamera& camera, const InitializerOptions& optio
         problem.AddResidualBlock(
             new ceres::AutoDiffCostFunction<ReprojectionResidual, 2, 3, 3, 3>(
                 new ReprojectionResidual(track.At(f), camera)),
-            new ceres::HuberLoss(options.ba_loss_px), poses[f].rotation, poses[f].translation,
+            new ceres::CauchyLoss(options.ba_loss_px), poses[f].rotation, poses[f].translation,
             points[track.point_id].data());
         ++observations;
       }
@@ -887,7 +927,21 @@ double BundleAdjust(const PinholeCamera& camera, const InitializerOptions& optio
     solver_options.logging_type = ceres::SILENT;
     ceres::Solver::Summary summary;
     ceres::Solve(solver_options, &problem, &summary);
-    rms = std::sqrt(2.0 * summary.final_cost / std::max(1, 2 * observations));
+    double squares = 0.0;
+    int inliers = 0;
+    for (const Track& track : tracks) {
+      if (track.point_id < 0 || !structure->point_inlier[track.point_id]) continue;
+      for (int f = track.first_frame; f <= track.LastFrame(); ++f) {
+        const double error = ReprojectionError(camera, FromParameters(poses[f]),
+                                               Eigen::Vector3d(points[track.point_id].data()),
+                                               track.At(f));
+        if (error <= outlier_px) {
+          squares += error * error;
+          ++inliers;
+        }
+      }
+    }
+    rms = std::sqrt(squares / std::max(1, inliers));
     *num_observations = observations;
   }
   for (int t = 0; t < num_frames; ++t) structure->T_cam_world[t] = FromParameters(poses[t]);
@@ -910,8 +964,8 @@ double BundleAdjust(const PinholeCamera& camera, const InitializerOptions& optio
 // ---------------------------------------------------------------- depths
 
 // One neighbour s of a frame t in eq:initializationScene: the two images that
-// carry the same blur (B_t through s's blur, B_s through t's blur) and the
-// transfer t -> s.
+// carry the same blur (B_t through s's blur, B_s through t's blur) and where
+// a point of t's grid appears in each.
 struct NeighbourImages {
   int frame = 0;
   cv::Mat reference;  // Psi_s o B_t on t's grid (or B_t when not blur-aware)
@@ -926,12 +980,12 @@ struct DepthWorkspace {
   std::vector<float> cost;        // pixel-major: cost[pixel * planes + plane]
   std::vector<float> plane_depth;  // depth of one hypothesis per pixel
   std::vector<float> difference;   // per neighbour, one plane
+  std::vector<float> row;          // warped coordinates of one row
   std::vector<float> valid;
-  std::vector<float> box_row, box_valid_row, aggregated, aggregated_valid;
+  std::vector<float> box_row, aggregated, aggregated_valid;
   std::vector<float> sum, weight;
   std::vector<float> a, u, u_bar, px, py, tv_weight;
   std::vector<float> cost_min, cost_max;
-  std::vector<int> best;
 };
 
 // Sum over a (2r+1)^2 window, separable, zero outside the image.
@@ -967,8 +1021,8 @@ void BoxSum(const float* in, int width, int height, int radius, std::vector<floa
 
 // Inverse-depth hypotheses of one sweep: plane i of pixel x has the
 // normalised inverse depth u = base[x] + (i - centre) * step, and
-// rho = rho_min + u * (rho_max - rho_min). Level 0 has base = 0, centre = 0
-// (fronto-parallel planes over the whole range); later levels a narrow band
+// rho = rho_min + u * (rho_max - rho_min). Pass 0 has base = 0, centre = 0
+// (fronto-parallel planes over the whole range); later passes a narrow band
 // around the previous estimate.
 struct PlaneSet {
   int planes = 0;
@@ -989,39 +1043,56 @@ struct PlaneSet {
 // a fraction of the blur, and the capture operator replicates the border too.
 template <int kChannels>
 void PlaneDifferences(const NeighbourImages& neighbour, const float* depth, int width, int height,
-                      float* difference_out, float* valid_out) {
+                      std::vector<float>* scratch, float* difference_out, float* valid_out) {
   const float max_x = static_cast<float>(width - 1);
   const float max_y = static_cast<float>(height - 1);
   constexpr float kInvChannels = 1.0f / kChannels;
   const float* reference = neighbour.reference.ptr<float>();
   const float* source = neighbour.source.ptr<float>();
   const int stride = width * kChannels;
+  const PixelTransferF& to_reference = *neighbour.to_reference;
+  const PixelTransferF& to_source = *neighbour.to_source;
+  // Coordinates of a row first (a branch-free loop the compiler vectorises),
+  // then the bilinear reads.
+  scratch->resize(static_cast<size_t>(4) * width);
+  float* ru = scratch->data();
+  float* rv = ru + width;
+  float* su = rv + width;
+  float* sv = su + width;
   for (int y = 0; y < height; ++y) {
     float base_ref[3], base_src[3];
-    neighbour.to_reference->RowBase(static_cast<float>(y), base_ref);
-    neighbour.to_source->RowBase(static_cast<float>(y), base_src);
+    to_reference.RowBase(static_cast<float>(y), base_ref);
+    to_source.RowBase(static_cast<float>(y), base_src);
     const float* row_depth = depth + static_cast<size_t>(y) * width;
     float* difference_row = difference_out + static_cast<size_t>(y) * width;
     float* valid_row = valid_out + static_cast<size_t>(y) * width;
+#pragma omp simd
     for (int x = 0; x < width; ++x) {
       const float d = row_depth[x];
       const float xf = static_cast<float>(x);
-      float ru, rv, su, sv, z;
-      if (!(d > 0.0f) || !neighbour.to_source->Warp(base_src, xf, d, &su, &sv, &z) ||
-          !(su >= 0.0f && sv >= 0.0f && su <= max_x && sv <= max_y) ||
-          !neighbour.to_reference->Warp(base_ref, xf, d, &ru, &rv, &z)) {
-        difference_row[x] = 0.0f;
-        valid_row[x] = 0.0f;
-        continue;
-      }
-      ru = std::min(std::max(ru, 0.0f), max_x);
-      rv = std::min(std::max(rv, 0.0f), max_y);
-      const int rx0 = std::min(static_cast<int>(ru), width - 2);
-      const int ry0 = std::min(static_cast<int>(rv), height - 2);
-      const int sx0 = std::min(static_cast<int>(su), width - 2);
-      const int sy0 = std::min(static_cast<int>(sv), height - 2);
-      const float rfx = ru - rx0, rfy = rv - ry0;
-      const float sfx = su - sx0, sfy = sv - sy0;
+      const float zs = d * (to_source.h[6] * xf + base_src[2]) + to_source.t[2];
+      const float zr = d * (to_reference.h[6] * xf + base_ref[2]) + to_reference.t[2];
+      const float inv_zs = 1.0f / zs;
+      const float inv_zr = 1.0f / zr;
+      const float us = (d * (to_source.h[0] * xf + base_src[0]) + to_source.t[0]) * inv_zs;
+      const float vs = (d * (to_source.h[3] * xf + base_src[1]) + to_source.t[1]) * inv_zs;
+      const float ur = (d * (to_reference.h[0] * xf + base_ref[0]) + to_reference.t[0]) * inv_zr;
+      const float vr = (d * (to_reference.h[3] * xf + base_ref[1]) + to_reference.t[1]) * inv_zr;
+      const bool ok = (d > 0.0f) & (zs > 1e-9f) & (zr > 1e-9f) & (us >= 0.0f) & (vs >= 0.0f) &
+                      (us <= max_x) & (vs <= max_y);
+      valid_row[x] = ok ? 1.0f : 0.0f;
+      su[x] = ok ? us : 0.0f;
+      sv[x] = ok ? vs : 0.0f;
+      ru[x] = ok ? std::min(std::max(ur, 0.0f), max_x) : 0.0f;
+      rv[x] = ok ? std::min(std::max(vr, 0.0f), max_y) : 0.0f;
+    }
+    for (int x = 0; x < width; ++x) {
+      const int rx0 = std::min(static_cast<int>(ru[x]), width - 2);
+      const int ry0 = std::min(static_cast<int>(rv[x]), height - 2);
+      const int sx0 = std::min(static_cast<int>(su[x]), width - 2);
+      const int sy0 = std::min(static_cast<int>(sv[x]), height - 2);
+      const float rfx = ru[x] - rx0, rfy = rv[x] - ry0;
+      const float sfx = su[x] - sx0, sfy = sv[x] - sy0;
       const float* r0 = reference + static_cast<size_t>(ry0) * stride + rx0 * kChannels;
       const float* s0 = source + static_cast<size_t>(sy0) * stride + sx0 * kChannels;
       float difference = 0.0f;
@@ -1032,8 +1103,7 @@ void PlaneDifferences(const NeighbourImages& neighbour, const float* depth, int 
         const float s_bottom = s0[c + stride] + sfx * (s0[c + stride + kChannels] - s0[c + stride]);
         difference += std::abs((s_top + sfy * (s_bottom - s_top)) - (r_top + rfy * (r_bottom - r_top)));
       }
-      difference_row[x] = difference * kInvChannels;
-      valid_row[x] = 1.0f;
+      difference_row[x] = difference * kInvChannels * valid_row[x];
     }
   }
 }
@@ -1069,10 +1139,10 @@ void ComputeCostVolume(const std::vector<NeighbourImages>& neighbours, const Pla
     std::fill(ws->weight.begin(), ws->weight.end(), 0.0f);
     for (int n = 0; n < num_neighbours; ++n) {
       if (neighbours[n].reference.channels() == 3) {
-        PlaneDifferences<3>(neighbours[n], ws->plane_depth.data(), width, height,
+        PlaneDifferences<3>(neighbours[n], ws->plane_depth.data(), width, height, &ws->row,
                             ws->difference.data(), ws->valid.data());
       } else {
-        PlaneDifferences<1>(neighbours[n], ws->plane_depth.data(), width, height,
+        PlaneDifferences<1>(neighbours[n], ws->plane_depth.data(), width, height, &ws->row,
                             ws->difference.data(), ws->valid.data());
       }
       BoxSum(ws->difference.data(), width, height, radius, &ws->box_row, ws->aggregated.data());
@@ -1114,7 +1184,6 @@ void SolveTvL1(const PlaneSet& planes, const cv::Mat& edge_weight,
   ws->py.assign(pixels, 0.0f);
   ws->cost_min.resize(pixels);
   ws->cost_max.resize(pixels);
-  ws->best.resize(pixels);
   for (int pixel = 0; pixel < pixels; ++pixel) {
     const float* c = cost + static_cast<size_t>(pixel) * L;
     int best = 0;
@@ -1126,7 +1195,6 @@ void SolveTvL1(const PlaneSet& planes, const cv::Mat& edge_weight,
       }
       hi = std::max(hi, c[i]);
     }
-    ws->best[pixel] = best;
     ws->cost_min[pixel] = lo;
     ws->cost_max[pixel] = hi;
     ws->a[pixel] = planes.U(pixel, best);
@@ -1433,10 +1501,12 @@ void InitializerOptions::Check() const {
   }
 }
 
-InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr,
-                                     const PinholeCamera& camera_lr,
-                                     const std::vector<FrameRecord>& frames,
-                                     const InitializerOptions& options) {
+namespace {
+
+InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images_lr,
+                                              const PinholeCamera& camera_lr,
+                                              const std::vector<FrameRecord>& frames,
+                                              const InitializerOptions& options) {
   options.Check();
   {
     const std::string problem = camera_lr.Problem();
@@ -1454,9 +1524,10 @@ InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr,
     const cv::Mat& image = images_lr[t];
     if (image.empty() || image.depth() != CV_32F ||
         (image.channels() != 1 && image.channels() != 3) || image.cols != camera_lr.width ||
-        image.rows != camera_lr.height) {
-      throw InputError("initializer: image " + std::to_string(t) + " must be float 1- or 3-channel " +
-                       std::to_string(camera_lr.width) + "x" + std::to_string(camera_lr.height));
+        image.rows != camera_lr.height || image.channels() != images_lr[0].channels()) {
+      throw InputError("initializer: image " + std::to_string(t) + " must be float " +
+                       std::to_string(camera_lr.width) + "x" + std::to_string(camera_lr.height) +
+                       " with 1 or 3 channels, like image 0");
     }
     if (!(frames[t].exposure > 0.0) || (t > 0 && !(frames[t].stamp > frames[t - 1].stamp))) {
       throw InputError("initializer: frame " + std::to_string(t) +
@@ -1493,14 +1564,10 @@ InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr,
                               std::to_string(options.min_inliers) +
                               "); is the image blank or untextured?");
   }
-  {
-    int total = 0;
-    for (int d : tracking.detected) total += d;
-    summary << Format("tracking: %.0f tracks, %.0f in frame 0, %.0f reach frame 1, %.0f reach the "
-                      "last frame; %.1f ms\n",
-                      tracking.tracks.size(), tracking.detected[0], tracking.alive[1],
-                      tracking.alive[num_frames - 1], NowMs() - stage_ms);
-  }
+  summary << Format("tracking: %.0f tracks, %.0f in frame 0, %.0f followed into frame 1, %.0f into "
+                    "the last frame; %.1f ms\n",
+                    tracking.tracks.size(), tracking.detected[0], tracking.alive[1],
+                    tracking.alive[num_frames - 1], NowMs() - stage_ms);
 
   // 2.-3. Frames 0-1, then every later frame by PnP, then all together.
   stage_ms = NowMs();
@@ -1520,7 +1587,7 @@ InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr,
   int observations = 0;
   const double rms = BundleAdjust(camera_lr, options, threads, tracking.tracks, &structure,
                                   &observations);
-  summary << Format("bundle adjustment: %.0f points, %.0f observations, robust rms %.3f px; %.1f ms\n",
+  summary << Format("bundle adjustment: %.0f points, %.0f observations, rms %.3f px; %.1f ms\n",
                     structure.points_world.size(), observations, rms, NowMs() - stage_ms);
   // The tracks follow the blurred patterns, i.e. the blur centroids: the
   // poses so far are those of mid-exposure, t_c - exposure / 2 (exact for
@@ -1693,6 +1760,23 @@ InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr,
   result.depth_lr = depth;
   result.summary = summary.str();
   return result;
+}
+
+}  // namespace
+
+InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr,
+                                     const PinholeCamera& camera_lr,
+                                     const std::vector<FrameRecord>& frames,
+                                     const InitializerOptions& options) {
+  try {
+    return InitializeStructureUnguarded(images_lr, camera_lr, frames, options);
+  } catch (const cv::Exception& error) {
+    // OpenCV's geometry routines assert on degenerate input the checks above
+    // did not foresee: report it as a failed initialisation, in one line.
+    std::string message = error.err.empty() ? std::string(error.what()) : error.err;
+    std::replace(message.begin(), message.end(), '\n', ' ');
+    throw InitializationError("initialisation: degenerate geometry (OpenCV: " + message + ")");
+  }
 }
 
 }  // namespace deblur_sr_mvs

@@ -429,12 +429,16 @@ std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr,
   std::vector<Vector6d> total(num_frames, Vector6d::Zero());
   if (num_frames < 2 || pairs.empty()) return total;
   const int unknowns = 6 * (num_frames - 1);  // frame 0 is the gauge
-  cv::Mat predicted, residual, weight;
-  std::vector<cv::Mat> jacobians, projected(6);
+  const int num_pairs = static_cast<int>(pairs.size());
+  std::vector<Eigen::Matrix<double, 6, 6>> blocks(num_pairs);
+  std::vector<Eigen::Matrix<double, 6, 1>> rhss(num_pairs);
   for (int iteration = 0; iteration < options.pose_iterations; ++iteration) {
-    Eigen::MatrixXd hessian = Eigen::MatrixXd::Zero(unknowns, unknowns);
-    Eigen::VectorXd gradient = Eigen::VectorXd::Zero(unknowns);
-    for (const PairMatching& pair : pairs) {
+    // Per pair (in parallel): r(eps) = r0 - A (eps_t - eps_s), A^T W A and A^T W r0.
+#pragma omp parallel for schedule(dynamic, 1)
+    for (int p = 0; p < num_pairs; ++p) {
+      const PairMatching& pair = pairs[p];
+      cv::Mat predicted, residual, weight;
+      std::vector<cv::Mat> jacobians, projected(6);
       const WarpLinearization lin =
           LinearizeWarp(camera_hr, inverse_depths[pair.t], (*T_world_cam)[pair.t],
                         (*T_world_cam)[pair.s], latents[pair.s], &jacobians);
@@ -442,7 +446,6 @@ std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr,
       residual = *pair.observation - predicted;
       L1Weights(residual, ObservationMask(pair, lin.valid), options.residual_epsilon, &weight);
       for (int j = 0; j < 6; ++j) Predict(pair, jacobians[j], &projected[j]);
-      // r(eps) = r0 - A (eps_t - eps_s): A^T W A and A^T W r0 of the pair.
       Eigen::Matrix<double, 6, 6> block = Eigen::Matrix<double, 6, 6>::Zero();
       Eigen::Matrix<double, 6, 1> rhs = Eigen::Matrix<double, 6, 1>::Zero();
       const size_t values = residual.total() * residual.channels();
@@ -457,8 +460,15 @@ std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr,
           for (int k = j; k < 6; ++k) block(j, k) += w[i] * a[j] * a[k];
         }
       }
-      block = block.selfadjointView<Eigen::Upper>();
-      const int bt = pair.t - 1, bs = pair.s - 1;  // block indices (-1: fixed frame 0)
+      blocks[p] = block.selfadjointView<Eigen::Upper>();
+      rhss[p] = rhs;
+    }
+    Eigen::MatrixXd hessian = Eigen::MatrixXd::Zero(unknowns, unknowns);
+    Eigen::VectorXd gradient = Eigen::VectorXd::Zero(unknowns);
+    for (int p = 0; p < num_pairs; ++p) {
+      const Eigen::Matrix<double, 6, 6>& block = blocks[p];
+      const Eigen::Matrix<double, 6, 1>& rhs = rhss[p];
+      const int bt = pairs[p].t - 1, bs = pairs[p].s - 1;  // block indices (-1: fixed frame 0)
       if (bt >= 0) {
         hessian.block<6, 6>(6 * bt, 6 * bt) += block;
         gradient.segment<6>(6 * bt) += rhs;

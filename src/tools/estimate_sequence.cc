@@ -11,6 +11,7 @@
 #include <cstdlib>
 #include <iostream>
 #include <sstream>
+#include <limits>
 #include <string>
 
 #include "deblur_sr_mvs/core/errors.h"
@@ -27,9 +28,10 @@ constexpr char kUsage[] =
     "usage: estimate_sequence --input SEQ --output OUT [--mode joint|baseline] [--scale S]\n"
     "                         [--iterations N] [--samples M] [--lambda-s X] [--lambda-d X]\n"
     "                         [--lambda-i X] [--threads N] [--neighbours R] [--fixed-poses]\n"
+    "                         [--structure-matching restored|blurred] [--output-scale K]\n"
     "                         [--quiet]\n"
     "Defaults are the paper's: joint, scale 2, 3 iterations, M 50, lambda_s 30,\n"
-    "lambda_d 1 (see README), lambda_i 0.45; threads 0 = all cores.\n";
+    "lambda_d 0.1 (see README), lambda_i 0.45; threads 0 = all cores.\n";
 
 double ParseNumber(const std::string& flag, const std::string& text) {
   char* end = nullptr;
@@ -73,6 +75,7 @@ std::string Report(const dsm::EstimatorOptions& options, const std::string& inpu
        << ", \"lambda_i\": " << JsonNumber(options.image.lambda_i)
        << ", \"neighbour_radius\": " << options.neighbour_radius
        << ", \"update_poses\": " << (options.update_poses ? "true" : "false")
+       << ", \"structure_matching\": \"" << dsm::ToString(options.structure_matching) << "\""
        << ", \"threads\": " << options.num_threads << "},\n";
   json << "  \"energies\": [\n";
   for (size_t i = 0; i < result.energies.size(); ++i) {
@@ -103,6 +106,7 @@ int Run(int argc, char** argv) {
   std::string input, output;
   dsm::EstimatorOptions options;
   bool quiet = false;
+  int output_scale = 1;  // bicubic up-sampling of the outputs ("w/o SR + Bic.")
   for (int i = 1; i < argc; ++i) {
     const std::string flag = argv[i];
     if (flag == "--help" || flag == "-h") {
@@ -130,9 +134,12 @@ int Run(int argc, char** argv) {
     else if (flag == "--lambda-i") options.image.lambda_i = ParseNumber(flag, value);
     else if (flag == "--threads") options.num_threads = ParseInt(flag, value);
     else if (flag == "--neighbours") options.neighbour_radius = ParseInt(flag, value);
+    else if (flag == "--output-scale") output_scale = ParseInt(flag, value);
+    else if (flag == "--structure-matching") options.structure_matching = dsm::ParseStructureMatching(value);
     else throw dsm::InputError("unknown flag " + flag + " (see --help)");
   }
   if (input.empty() || output.empty()) throw dsm::InputError("--input and --output are required (see --help)");
+  if (output_scale < 1 || output_scale > 4) throw dsm::InputError("--output-scale must be in [1, 4]");
   options.Check();
 
   const auto start = std::chrono::steady_clock::now();
@@ -169,11 +176,25 @@ int Run(int argc, char** argv) {
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
   dsm::SequenceResult out;
-  out.calibration = dsm::CameraCalibration::FromCamera(result.camera_hr, sequence.calibration.camera_name);
+  out.calibration = dsm::CameraCalibration::FromCamera(result.camera_hr.Upscaled(output_scale),
+                                                       sequence.calibration.camera_name);
   out.frames = sequence.frames;
   for (size_t t = 0; t < result.latent.size(); ++t) {
-    out.latent.push_back(dsm::ToImage8(result.latent[t]));
-    out.depth.push_back(result.depth[t]);
+    if (output_scale > 1) {
+      // "Proposed (w/o SR) + Bic.": the estimate at the input resolution,
+      // bicubic up-sampled (depth as inverse depth, NaN kept out).
+      out.latent.push_back(dsm::ToImage8(dsm::UpsampleBicubic(result.latent[t], output_scale)));
+      cv::Mat inverse;
+      cv::divide(1.0, result.depth[t], inverse);
+      cv::patchNaNs(inverse, 0.0);
+      cv::Mat inverse_up = dsm::UpsampleBicubic(inverse, output_scale), depth_up;
+      cv::divide(1.0, inverse_up, depth_up);
+      depth_up.setTo(std::numeric_limits<float>::quiet_NaN(), inverse_up <= 0.0f);
+      out.depth.push_back(depth_up);
+    } else {
+      out.latent.push_back(dsm::ToImage8(result.latent[t]));
+      out.depth.push_back(result.depth[t]);
+    }
     out.poses.push_back({sequence.frames[t].stamp, result.T_world_cam[t]});
   }
   out.report_json = Report(options, input, result, wall);

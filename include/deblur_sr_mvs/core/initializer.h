@@ -22,7 +22,7 @@ struct InitializerOptions {
   double feature_quality = 0.005;        // Shi-Tomasi quality, fraction of the best corner
   double min_feature_distance_px = 3.0;  // min spacing of corners (LR px)
   int feature_block_size = 5;            // corner-detector window (LR px)
-  int klt_window_radius_px = 7;          // LK window half-size (LR px): spans the blur
+  int klt_window_radius_px = 5;          // LK window half-size (LR px)
   int klt_levels = 3;                    // LK pyramid levels (motion up to ~2^levels px)
   double klt_max_residual = 0.08;        // mean |intensity difference| ([0,1]) of a kept match
   double max_forward_backward_px = 0.5;  // forward-backward LK disagreement to drop a track
@@ -35,7 +35,7 @@ struct InitializerOptions {
   double min_triangulation_parallax_px = 2.0;  // rotation-free displacement to add a point (px)
   double pnp_threshold_px = 2.0;      // PnP RANSAC threshold and BA outlier cut (LR px)
   int min_pnp_inliers = 12;           // PnP inliers needed per later frame
-  double ba_loss_px = 1.0;            // Huber scale of the bundle adjustment (LR px)
+  double ba_loss_px = 1.0;            // Cauchy scale of the two-view refinement and BA (LR px)
   int ba_max_iterations = 50;         // Levenberg-Marquardt iterations per BA round
   // Prior on each frame-to-frame rotation, as the image shift f * angle (LR
   // px) that costs as much as one 1-px reprojection error: resolves the

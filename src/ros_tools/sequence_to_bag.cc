@@ -1,0 +1,408 @@
+// sequence_to_bag: a sequence folder (SPEC section 3) -> a rosbag (SPEC section 4).
+//
+//   sequence_to_bag --input SEQ --output BAG [--frame-id ID] [--image-topic T]
+//                   [--info-topic T] [--exposure-topic T] [--gt-namespace NS]
+//                   [--world-frame F] [--no-ground-truth] [--compression none|bz2|lz4]
+//
+// Every message of frame i carries the header {stamp = t_c of frames.csv,
+// frame_id = --frame-id}, and its bag time is that stamp, so `rosbag play`
+// replays the sequence at its own rate:
+//
+//   /camera/image_raw    sensor_msgs/Image          mono8 (gray) or rgb8 (colour;
+//                                                   the PNGs are BGR in OpenCV)
+//   /camera/camera_info  sensor_msgs/CameraInfo     camera.yaml (width, height,
+//                                                   K, D, R, P, distortion_model)
+//   /camera/exposure     sensor_msgs/TimeReference  time_ref = shutter open time
+//                                                   t_o, so exposure = stamp - time_ref
+//   and, when the sequence has gt/ (unless --no-ground-truth):
+//   /gt/image            sensor_msgs/Image          sharp HR image (mono8/rgb8)
+//   /gt/depth            sensor_msgs/Image          32FC1 depth in m, 0/NaN unknown
+//   /gt/camera_info      sensor_msgs/CameraInfo     gt/camera.yaml (HR)
+//   /gt/pose             geometry_msgs/PoseStamped  T_world_camera, frame_id
+//                                                   --world-frame, stamp of poses.txt
+//
+// camera_name of camera.yaml (which CameraInfo has no field for) travels in
+// the connection header of the camera_info connections (field camera_name).
+// ROS time has nanosecond resolution and cannot be negative: stamps are
+// rounded to the nanosecond, and a sequence whose stamps or shutter-open
+// times are negative, or whose stamps collide after rounding, is rejected.
+//
+// Exit code 0 on success, 2 with one line on stderr on bad input.
+#include <cmath>
+#include <cstdint>
+#include <exception>
+#include <filesystem>
+#include <iostream>
+#include <limits>
+#include <string>
+
+#include <boost/make_shared.hpp>
+#include <console_bridge/console.h>
+#include <cv_bridge/cv_bridge.h>
+#include <geometry_msgs/PoseStamped.h>
+#include <opencv2/imgproc.hpp>
+#include <ros/message_traits.h>
+#include <ros/time.h>
+#include <rosbag/bag.h>
+#include <rosbag/exceptions.h>
+#include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/Image.h>
+#include <sensor_msgs/TimeReference.h>
+#include <sensor_msgs/image_encodings.h>
+
+#include "deblur_sr_mvs/core/errors.h"
+#include "deblur_sr_mvs/core/sequence_io.h"
+
+namespace {
+
+namespace fs = std::filesystem;
+using deblur_sr_mvs::CameraCalibration;
+using deblur_sr_mvs::InputError;
+using deblur_sr_mvs::Sequence;
+
+constexpr char kUsage[] =
+    "usage: sequence_to_bag --input SEQ --output BAG [--frame-id ID]\n"
+    "                       [--image-topic T] [--info-topic T] [--exposure-topic T]\n"
+    "                       [--gt-namespace NS] [--world-frame F] [--no-ground-truth]\n"
+    "                       [--compression none|bz2|lz4]\n"
+    "\n"
+    "Writes a sequence folder (camera.yaml, frames.csv, images/, optional gt/) as a\n"
+    "rosbag. Every message of a frame is stamped with the frame's stamp (shutter\n"
+    "close time t_c); the bag time is the stamp.\n"
+    "\n"
+    "  --input SEQ             sequence folder to read\n"
+    "  --output BAG            bag file to write (replaced when it exists)\n"
+    "  --frame-id ID           header.frame_id of the camera messages (default camera)\n"
+    "  --image-topic T         sensor_msgs/Image, mono8 or rgb8 (default /camera/image_raw)\n"
+    "  --info-topic T          sensor_msgs/CameraInfo (default /camera/camera_info)\n"
+    "  --exposure-topic T      sensor_msgs/TimeReference: time_ref = shutter open time,\n"
+    "                          exposure = header.stamp - time_ref (default /camera/exposure)\n"
+    "  --gt-namespace NS       ground-truth topics NS/image, NS/depth (32FC1),\n"
+    "                          NS/camera_info, NS/pose (PoseStamped) (default /gt)\n"
+    "  --world-frame F         frame_id of the ground-truth poses (default world)\n"
+    "  --no-ground-truth       do not write gt/ even when the sequence has it\n"
+    "  --compression C         chunk compression: none, bz2 or lz4 (default none)\n"
+    "  --help                  this text\n";
+
+struct Options {
+  std::string input;
+  std::string output;
+  std::string frame_id = "camera";
+  std::string image_topic = "/camera/image_raw";
+  std::string info_topic = "/camera/camera_info";
+  std::string exposure_topic = "/camera/exposure";
+  std::string gt_namespace = "/gt";
+  std::string world_frame = "world";
+  bool ground_truth = true;
+  rosbag::compression::CompressionType compression = rosbag::compression::Uncompressed;
+};
+
+// what() as one line: OpenCV and rosbag messages may span several.
+std::string OneLine(std::string text) {
+  for (char& c : text) {
+    if (c == '\n' || c == '\r') c = ' ';
+  }
+  while (!text.empty() && text.back() == ' ') text.pop_back();
+  return text;
+}
+
+std::string StampText(double stamp) {
+  char buffer[64];
+  std::snprintf(buffer, sizeof(buffer), "%.9f", stamp);
+  return buffer;
+}
+
+Options ParseOptions(int argc, char** argv, bool* help) {
+  Options options;
+  *help = false;
+  for (int i = 1; i < argc; ++i) {
+    const std::string flag = argv[i];
+    if (flag == "--help" || flag == "-h") {
+      *help = true;
+      return options;
+    }
+    if (flag == "--no-ground-truth") {
+      options.ground_truth = false;
+      continue;
+    }
+    if (flag.rfind("--", 0) != 0) throw InputError("unexpected argument \"" + flag + "\" (see --help)");
+    std::string* target = nullptr;
+    if (flag == "--input") target = &options.input;
+    if (flag == "--output") target = &options.output;
+    if (flag == "--frame-id") target = &options.frame_id;
+    if (flag == "--image-topic") target = &options.image_topic;
+    if (flag == "--info-topic") target = &options.info_topic;
+    if (flag == "--exposure-topic") target = &options.exposure_topic;
+    if (flag == "--gt-namespace") target = &options.gt_namespace;
+    if (flag == "--world-frame") target = &options.world_frame;
+    const bool is_compression = flag == "--compression";
+    if (target == nullptr && !is_compression) throw InputError("unknown flag " + flag + " (see --help)");
+    if (i + 1 >= argc) throw InputError(flag + ": missing value");
+    const std::string value = argv[++i];
+    if (is_compression) {
+      if (value == "none") {
+        options.compression = rosbag::compression::Uncompressed;
+      } else if (value == "bz2") {
+        options.compression = rosbag::compression::BZ2;
+      } else if (value == "lz4") {
+        options.compression = rosbag::compression::LZ4;
+      } else {
+        throw InputError("--compression: expected none, bz2 or lz4, got \"" + value + "\"");
+      }
+    } else {
+      *target = value;
+    }
+  }
+  if (options.input.empty()) throw InputError("--input is required (see --help)");
+  if (options.output.empty()) throw InputError("--output is required (see --help)");
+  for (const std::string* topic : {&options.image_topic, &options.info_topic,
+                                   &options.exposure_topic, &options.gt_namespace}) {
+    if (topic->empty()) throw InputError("topic names must not be empty");
+  }
+  while (options.gt_namespace.size() > 1 && options.gt_namespace.back() == '/') {
+    options.gt_namespace.pop_back();
+  }
+  return options;
+}
+
+// ROS time: unsigned 32-bit seconds + nanoseconds, rounded to the nanosecond.
+ros::Time ToRosTime(double seconds, const std::string& what) {
+  if (!std::isfinite(seconds) || seconds < 0.0) {
+    throw InputError(what + " " + StampText(seconds) +
+                     " s is negative: ROS time cannot represent it (shift the stamps)");
+  }
+  if (seconds >= static_cast<double>(std::numeric_limits<std::uint32_t>::max())) {
+    throw InputError(what + " " + StampText(seconds) + " s is beyond the range of ROS time");
+  }
+  return ros::Time().fromSec(seconds);
+}
+
+sensor_msgs::CameraInfo ToCameraInfo(const CameraCalibration& calibration,
+                                     const std_msgs::Header& header) {
+  const deblur_sr_mvs::PinholeCamera& camera = calibration.camera;
+  sensor_msgs::CameraInfo info;
+  info.header = header;
+  info.width = static_cast<std::uint32_t>(camera.width);
+  info.height = static_cast<std::uint32_t>(camera.height);
+  info.distortion_model = calibration.distortion_model;
+  info.D = calibration.distortion;
+  info.K = {camera.fx, 0.0, camera.cx, 0.0, camera.fy, camera.cy, 0.0, 0.0, 1.0};
+  Eigen::Matrix<double, 3, 4> projection = calibration.projection;
+  if (projection.isZero(0.0)) {  // unset: [K | 0], as WriteCameraYaml writes it
+    projection.leftCols<3>() = camera.K();
+  }
+  for (int row = 0; row < 3; ++row) {
+    for (int col = 0; col < 3; ++col) info.R[row * 3 + col] = calibration.rectification(row, col);
+    for (int col = 0; col < 4; ++col) info.P[row * 4 + col] = projection(row, col);
+  }
+  return info;
+}
+
+// 8-bit gray -> mono8, 8-bit colour (OpenCV BGR) -> rgb8, the usual order of
+// ROS camera drivers; 32FC1 (depth) as is.
+sensor_msgs::ImagePtr ToImageMessage(const cv::Mat& image, const std_msgs::Header& header,
+                                     const std::string& what) {
+  namespace enc = sensor_msgs::image_encodings;
+  switch (image.type()) {
+    case CV_8UC1:
+      return cv_bridge::CvImage(header, enc::MONO8, image).toImageMsg();
+    case CV_8UC3: {
+      cv::Mat rgb;
+      cv::cvtColor(image, rgb, cv::COLOR_BGR2RGB);
+      return cv_bridge::CvImage(header, enc::RGB8, rgb).toImageMsg();
+    }
+    case CV_32FC1:
+      return cv_bridge::CvImage(header, enc::TYPE_32FC1, image).toImageMsg();
+    default:
+      throw InputError(what + ": unsupported image type (expected 8-bit gray or colour)");
+  }
+}
+
+// A connection header that rosbag stores as given: the fields it needs to
+// read the messages back, plus our own (e.g. camera_name).
+template <class Message>
+boost::shared_ptr<ros::M_string> ConnectionHeader(const ros::M_string& extra) {
+  auto header = boost::make_shared<ros::M_string>(extra);
+  (*header)["type"] = ros::message_traits::DataType<Message>::value();
+  (*header)["md5sum"] = ros::message_traits::MD5Sum<Message>::value();
+  (*header)["message_definition"] = ros::message_traits::Definition<Message>::value();
+  (*header)["callerid"] = "/sequence_to_bag";
+  (*header)["latching"] = "0";
+  return header;
+}
+
+std::string GtNamespace(const Options& options) {
+  return options.gt_namespace == "/" ? std::string() : options.gt_namespace;
+}
+
+void CheckOutputPath(const std::string& path) {
+  std::error_code error;
+  if (fs::is_directory(path, error)) throw InputError(path + ": is a folder, expected a bag file name");
+  const fs::path parent = fs::path(path).parent_path();
+  if (!parent.empty()) {
+    fs::create_directories(parent, error);
+    if (error) throw InputError(path + ": cannot create folder " + parent.string() + ": " + error.message());
+  }
+}
+
+// Writes every frame's messages (see the top of the file).
+void WriteMessages(const Options& options, const Sequence& sequence,
+                   const std::vector<ros::Time>& stamps, const std::vector<ros::Time>& shutter_open,
+                   const std::vector<ros::Time>& pose_stamps, rosbag::Bag* bag_pointer) {
+  rosbag::Bag& bag = *bag_pointer;
+  bag.setCompression(options.compression);
+  const std::size_t count = sequence.frames.size();
+  const bool with_gt = !pose_stamps.empty();
+  const auto info_header = ConnectionHeader<sensor_msgs::CameraInfo>(
+      {{"camera_name", sequence.calibration.camera_name}});
+  const auto exposure_header = ConnectionHeader<sensor_msgs::TimeReference>(
+      {{"exposure_convention",
+        "header.stamp = shutter close time t_c (the image stamp); time_ref = shutter open time "
+        "t_o; exposure = header.stamp - time_ref"}});
+  boost::shared_ptr<ros::M_string> gt_info_header;
+  if (with_gt) {
+    gt_info_header = ConnectionHeader<sensor_msgs::CameraInfo>(
+        {{"camera_name", sequence.ground_truth->calibration.camera_name}});
+  }
+  const std::string ns = GtNamespace(options);
+
+  for (std::size_t i = 0; i < count; ++i) {
+    const std::string stem = deblur_sr_mvs::FrameStem(sequence.frames[i].index);
+    std_msgs::Header header;
+    header.seq = static_cast<std::uint32_t>(i);
+    header.stamp = stamps[i];
+    header.frame_id = options.frame_id;
+    // rosbag refuses time 0 (ros::TIME_MIN is 1 ns); the header keeps the stamp.
+    const ros::Time bag_time = std::max(stamps[i], ros::TIME_MIN);
+
+    bag.write(options.image_topic, bag_time,
+              ToImageMessage(sequence.images[i], header, "images/" + stem + ".png"));
+    bag.write(options.info_topic, bag_time, ToCameraInfo(sequence.calibration, header), info_header);
+    sensor_msgs::TimeReference exposure;
+    exposure.header = header;
+    exposure.time_ref = shutter_open[i];
+    exposure.source = "shutter_open";
+    bag.write(options.exposure_topic, bag_time, exposure, exposure_header);
+
+    if (!with_gt) continue;
+    const deblur_sr_mvs::SequenceGroundTruth& gt = *sequence.ground_truth;
+    bag.write(ns + "/image", bag_time, ToImageMessage(gt.latent[i], header, "gt/latent/" + stem + ".png"));
+    bag.write(ns + "/depth", bag_time, ToImageMessage(gt.depth[i], header, "gt/depth/" + stem + ".tiff"));
+    bag.write(ns + "/camera_info", bag_time, ToCameraInfo(gt.calibration, header), gt_info_header);
+    geometry_msgs::PoseStamped pose;
+    pose.header.seq = header.seq;
+    pose.header.stamp = pose_stamps[i];
+    pose.header.frame_id = options.world_frame;
+    const Eigen::Vector3d& t = gt.poses[i].T_world_cam.translation();
+    Eigen::Quaterniond q = gt.poses[i].T_world_cam.quaternion();
+    if (q.w() < 0.0) q.coeffs() = -q.coeffs();  // canonical sign, same rotation
+    pose.pose.position.x = t.x();
+    pose.pose.position.y = t.y();
+    pose.pose.position.z = t.z();
+    pose.pose.orientation.x = q.x();
+    pose.pose.orientation.y = q.y();
+    pose.pose.orientation.z = q.z();
+    pose.pose.orientation.w = q.w();
+    bag.write(ns + "/pose", std::max(pose_stamps[i], ros::TIME_MIN), pose);
+  }
+}
+
+void WriteBag(const Options& options, const Sequence& sequence) {
+  const std::size_t count = sequence.frames.size();
+  const bool with_gt = options.ground_truth && sequence.ground_truth.has_value();
+  const std::string frames_csv = (fs::path(options.input) / "frames.csv").string();
+
+  // All stamps first: nothing is written for a sequence ROS time cannot hold.
+  std::vector<ros::Time> stamps(count), shutter_open(count), pose_stamps;
+  for (std::size_t i = 0; i < count; ++i) {
+    const deblur_sr_mvs::FrameRecord& frame = sequence.frames[i];
+    const std::string where = frames_csv + ": frame " + std::to_string(frame.index);
+    stamps[i] = ToRosTime(frame.stamp, where + ": stamp");
+    // t_o = t_c - exposure in integer nanoseconds: exact for epoch stamps too,
+    // where a double holds t_c only to a fraction of a microsecond.
+    const ros::Duration exposure(frame.exposure);
+    if (exposure <= ros::Duration(0)) {
+      throw InputError(where + ": exposure " + StampText(frame.exposure) + " s rounds to 0 ns");
+    }
+    if (exposure > stamps[i] - ros::Time(0)) {
+      throw InputError(where + ": shutter open time (stamp - exposure) = " +
+                       StampText(frame.stamp - frame.exposure) +
+                       " s is negative: ROS time cannot represent it (shift the stamps)");
+    }
+    shutter_open[i] = stamps[i] - exposure;
+    if (i > 0 && !(stamps[i] > stamps[i - 1])) {
+      throw InputError(where + ": stamp " + StampText(frame.stamp) +
+                       " is within 1 ns of the previous one (ROS stamps have 1 ns resolution)");
+    }
+  }
+  if (with_gt) {
+    const std::string poses_txt = (fs::path(options.input) / "gt" / "poses.txt").string();
+    for (std::size_t i = 0; i < count; ++i) {
+      pose_stamps.push_back(ToRosTime(sequence.ground_truth->poses[i].stamp,
+                                      poses_txt + ": pose " + std::to_string(i) + ": stamp"));
+    }
+  }
+
+  CheckOutputPath(options.output);
+  rosbag::Bag bag;
+  bag.open(options.output, rosbag::bagmode::Write);
+  try {
+    WriteMessages(options, sequence, stamps, shutter_open, pose_stamps, &bag);
+    bag.close();
+  } catch (const std::exception& error) {
+    // A half-written bag is worse than none.
+    bag.close();
+    std::error_code ignored;
+    fs::remove(options.output, ignored);
+    if (dynamic_cast<const InputError*>(&error) != nullptr) throw;
+    throw InputError(options.output + ": cannot write the bag: " + error.what());
+  }
+
+  const cv::Mat& first = sequence.images.front();
+  std::cout << "wrote " << options.output << ": " << count << " frames " << first.cols << "x"
+            << first.rows << " " << (first.channels() == 1 ? "mono8" : "rgb8") << " on "
+            << options.image_topic << " + " << options.info_topic << ", exposures on "
+            << options.exposure_topic;
+  if (with_gt) {
+    std::cout << ", ground truth on " << GtNamespace(options) << "/{image,depth,camera_info,pose}";
+  } else if (sequence.ground_truth) {
+    std::cout << " (ground truth left out)";
+  }
+  std::cout << "\n";
+}
+
+int Run(int argc, char** argv) {
+  bool help = false;
+  const Options options = ParseOptions(argc, argv, &help);
+  if (help) {
+    std::cout << kUsage;
+    return 0;
+  }
+  const Sequence sequence = deblur_sr_mvs::ReadSequence(options.input, options.ground_truth);
+  if (sequence.frames.empty()) throw InputError(options.input + ": the sequence has no frames");
+  WriteBag(options, sequence);
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  // rosbag reports through console_bridge as well as by exceptions; keep
+  // stderr to the one line below.
+  console_bridge::setLogLevel(console_bridge::CONSOLE_BRIDGE_LOG_NONE);
+  try {
+    return Run(argc, argv);
+  } catch (const InputError& error) {
+    std::cerr << "sequence_to_bag: " << OneLine(error.what()) << "\n";
+    return 2;
+  } catch (const rosbag::BagException& error) {
+    std::cerr << "sequence_to_bag: rosbag error: " << OneLine(error.what()) << "\n";
+    return 2;
+  } catch (const cv_bridge::Exception& error) {
+    std::cerr << "sequence_to_bag: cv_bridge error: " << OneLine(error.what()) << "\n";
+    return 2;
+  } catch (const std::exception& error) {
+    std::cerr << "sequence_to_bag: error: " << OneLine(error.what()) << "\n";
+    return 2;
+  }
+}
