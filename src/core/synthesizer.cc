@@ -199,6 +199,26 @@ StereoScene LoadMiddleburyScene(const std::string& folder) {
   return scene;
 }
 
+StereoScene ZoomScene(const StereoScene& scene, double zoom) {
+  if (!(zoom >= 1.0 && zoom <= 4.0)) {
+    throw InputError("scene zoom must be in [1, 4], got " + std::to_string(zoom));
+  }
+  StereoScene zoomed = scene;
+  zoomed.focal_px = scene.focal_px * zoom;
+  for (int v = 0; v < 2; ++v) {
+    const SceneView& in = scene.views[v];
+    SceneView& out = zoomed.views[v];
+    const cv::Size size(static_cast<int>(std::lround(in.image.cols * zoom)),
+                        static_cast<int>(std::lround(in.image.rows * zoom)));
+    cv::resize(in.image, out.image, size, 0, 0, cv::INTER_CUBIC);
+    cv::resize(in.depth, out.depth, size, 0, 0, cv::INTER_NEAREST);
+    // Pixel centres: X' + 0.5 = zoom (X + 0.5).
+    out.camera = PinholeCamera(size.width, size.height, in.camera.fx * zoom, in.camera.fy * zoom,
+                               zoom * (in.camera.cx + 0.5) - 0.5, zoom * (in.camera.cy + 0.5) - 0.5);
+  }
+  return zoomed;
+}
+
 // --------------------------------------------------------------- renderer
 
 void SceneRenderer::Points::Reserve(std::size_t n) {

@@ -29,7 +29,7 @@ constexpr char kUsage[] =
     "                           [--exposure-ratio R] [--path lateral|arc|forward]\n"
     "                           [--noise SIGMA] [--seed N] [--blur-px PX] [--subframes S]\n"
     "                           [--fps F] [--arc-fixation F] [--forward-cap F]\n"
-    "                           [--hr-width W --hr-height H]\n"
+    "                           [--hr-width W --hr-height H] [--scene-zoom Z]\n"
     "\n"
     "Renders a camera path through a Middlebury scene (view1/view5, disp1/disp5,\n"
     "dmin.txt), averages sub-frames over each exposure, box-downsamples by the\n"
@@ -48,6 +48,8 @@ constexpr char kUsage[] =
     "  --fps F               frame rate, stamps are (i + 1) / F (default 30)\n"
     "  --arc-fixation F      arc: fixation point at F x the median depth (default 2)\n"
     "  --forward-cap F       forward: total travel <= F x the nearest depth (default 0.4)\n"
+    "  --scene-zoom Z          see the scene with Z times the focal length and size\n"
+    "                          (1-4, default 1; bicubic texture), e.g. for 640x480 HR\n"
     "  --hr-width W, --hr-height H\n"
     "                        HR size (default: automatic covered crop)\n"
     "  --help                this text\n";
@@ -120,6 +122,7 @@ void RemoveStaleFrames(const std::string& folder) {
 int Run(int argc, char** argv) {
   deblur_sr_mvs::SynthesisOptions options;
   std::string scene_folder, output_folder;
+  double scene_zoom = 1.0;  // --scene-zoom
   for (int i = 1; i < argc; ++i) {
     const std::string flag = argv[i];
     if (flag == "--help" || flag == "-h") {
@@ -130,7 +133,7 @@ int Run(int argc, char** argv) {
     static const char* const kFlags[] = {
         "--scene", "--output", "--frames", "--scale", "--exposure-ratio", "--path",
         "--noise", "--seed", "--blur-px", "--subframes", "--fps", "--arc-fixation",
-        "--forward-cap", "--hr-width", "--hr-height"};
+        "--forward-cap", "--hr-width", "--hr-height", "--scene-zoom"};
     if (std::find(std::begin(kFlags), std::end(kFlags), flag) == std::end(kFlags)) {
       throw InputError("unknown flag " + flag + " (see --help)");
     }
@@ -166,6 +169,8 @@ int Run(int argc, char** argv) {
       options.hr_width = ParseInt(flag, value);
     } else if (flag == "--hr-height") {
       options.hr_height = ParseInt(flag, value);
+    } else if (flag == "--scene-zoom") {
+      scene_zoom = ParseDouble(flag, value);
     } else {
       throw InputError("unknown flag " + flag + " (see --help)");
     }
@@ -174,7 +179,8 @@ int Run(int argc, char** argv) {
   if (output_folder.empty()) throw InputError("--output is required (see --help)");
   options.Check();
 
-  const deblur_sr_mvs::StereoScene scene = deblur_sr_mvs::LoadMiddleburyScene(scene_folder);
+  deblur_sr_mvs::StereoScene scene = deblur_sr_mvs::LoadMiddleburyScene(scene_folder);
+  if (scene_zoom != 1.0) scene = deblur_sr_mvs::ZoomScene(scene, scene_zoom);
   {
     // Fail before the rendering, not after it, when the output cannot be made.
     std::error_code error;

@@ -52,6 +52,13 @@ struct StereoScene {
 // one line naming the file and the problem.
 StereoScene LoadMiddleburyScene(const std::string& folder);
 
+// The same scene seen by cameras with `zoom` times the focal length and image
+// size (images bicubic-resampled, depth nearest-resampled; depths, poses and
+// baseline unchanged). Lets the synthesizer make larger frames (e.g. 640x480
+// HR for speed benchmarks) from the third-size scenes; the texture is then
+// softer than a real camera's. zoom must be in [1, 4].
+StereoScene ZoomScene(const StereoScene& scene, double zoom);
+
 // --------------------------------------------------------------- renderer
 
 struct RenderOptions {
