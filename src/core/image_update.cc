@@ -55,8 +55,23 @@ void TvWeights(const cv::Mat& image, double epsilon, cv::Mat* weights) {
   }
 }
 
-// out += scale * D^T diag(v) D x: the weighted (anisotropic-in-weight) graph
-// Laplacian of forward differences with Neumann boundary.
+struct TermState {
+  cv::Mat residual;  // LR
+  cv::Mat weight;    // LR, per value: term weight * mask / max(|r|, eps)
+};
+
+}  // namespace
+
+void ImageUpdateOptions::Check() const {
+  if (!(lambda_i >= 0.0)) throw InputError("image update: lambda_i must be >= 0");
+  if (irls_iterations < 1 || cg_iterations < 1) {
+    throw InputError("image update: irls_iterations and cg_iterations must be >= 1");
+  }
+  if (!(residual_epsilon > 0.0) || !(tv_epsilon > 0.0)) {
+    throw InputError("image update: residual_epsilon and tv_epsilon must be > 0");
+  }
+}
+
 void AddWeightedLaplacian(const cv::Mat& x, const cv::Mat& v, double scale, cv::Mat* out,
                           int threads) {
   const int channels = x.channels();
@@ -80,23 +95,6 @@ void AddWeightedLaplacian(const cv::Mat& x, const cv::Mat& v, double scale, cv::
         po[i] += s * acc;
       }
     }
-  }
-}
-
-struct TermState {
-  cv::Mat residual;  // LR
-  cv::Mat weight;    // LR, per value: term weight * mask / max(|r|, eps)
-};
-
-}  // namespace
-
-void ImageUpdateOptions::Check() const {
-  if (!(lambda_i >= 0.0)) throw InputError("image update: lambda_i must be >= 0");
-  if (irls_iterations < 1 || cg_iterations < 1) {
-    throw InputError("image update: irls_iterations and cg_iterations must be >= 1");
-  }
-  if (!(residual_epsilon > 0.0) || !(tv_epsilon > 0.0)) {
-    throw InputError("image update: residual_epsilon and tv_epsilon must be > 0");
   }
 }
 

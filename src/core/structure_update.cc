@@ -9,6 +9,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "deblur_sr_mvs/core/errors.h"
+#include "deblur_sr_mvs/core/image_update.h"
 
 namespace deblur_sr_mvs {
 namespace {
@@ -94,29 +95,6 @@ void PredictAdjoint(const PairMatching& pair, const cv::Mat& observation_grid, c
     pair.blur->ApplyAdjoint(observation_grid, out);
   } else {
     observation_grid.copyTo(*out);
-  }
-}
-
-// out += scale * D^T diag(v) D x for a single-channel x: the weighted
-// Laplacian of forward differences with Neumann boundary (IRLS form of TV).
-void AddWeightedLaplacian(const cv::Mat& x_image, const cv::Mat& v_image, double scale,
-                          cv::Mat* out) {
-  const int width = x_image.cols, height = x_image.rows;
-  const float* v = v_image.ptr<float>();
-  const float* x = x_image.ptr<float>();
-  float* o = out->ptr<float>();
-  const float s = static_cast<float>(scale);
-#pragma omp parallel for schedule(static)
-  for (int yy = 0; yy < height; ++yy) {
-    for (int xx = 0; xx < width; ++xx) {
-      const int i = yy * width + xx;
-      float acc = 0.0f;
-      if (xx + 1 < width) acc += v[i] * (x[i] - x[i + 1]);
-      if (xx > 0) acc += v[i - 1] * (x[i] - x[i - 1]);
-      if (yy + 1 < height) acc += v[i] * (x[i] - x[i + width]);
-      if (yy > 0) acc += v[i - width] * (x[i] - x[i - width]);
-      o[i] += s * acc;
-    }
   }
 }
 
@@ -333,7 +311,7 @@ void UpdateDepth(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world
       ContractChannels(self->derivative, back, &nd_self, false);
       cv::scaleAdd(nd_self, self->weight, *out, *out);
     }
-    AddWeightedLaplacian(in, tv_weight, options.lambda_d * c2, out);
+    AddWeightedLaplacian(in, tv_weight, options.lambda_d * c2, out, 1);
     cv::scaleAdd(in, damping, *out, *out);
   };
 
@@ -387,7 +365,7 @@ void UpdateDepth(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world
       ContractChannels(self->derivative, back, &nd_self, false);
       cv::scaleAdd(nd_self, self->weight, rhs, rhs);
     }
-    AddWeightedLaplacian(*inverse_depth, tv_weight, -options.lambda_d * c2, &rhs);
+    AddWeightedLaplacian(*inverse_depth, tv_weight, -options.lambda_d * c2, &rhs, 1);
     // CG on the normal equations from a zero step.
     step.setTo(0.0);
     rhs.copyTo(r);

@@ -14,6 +14,7 @@
 #include <limits>
 #include <string>
 
+#include "deblur_sr_mvs/core/tool_main.h"
 #include "deblur_sr_mvs/core/errors.h"
 #include "deblur_sr_mvs/core/estimator.h"
 #include "deblur_sr_mvs/core/image_ops.h"
@@ -210,12 +211,5 @@ int Run(int argc, char** argv) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  try {
-    return Run(argc, argv);
-  } catch (const dsm::InputError& error) {
-    std::cerr << "estimate_sequence: " << error.what() << "\n";
-  } catch (const std::exception& error) {
-    std::cerr << "estimate_sequence: " << error.what() << "\n";
-  }
-  return 2;
+  return deblur_sr_mvs::ToolMain("estimate_sequence", Run, argc, argv);
 }

@@ -11,6 +11,7 @@
 #include <string>
 #include <system_error>
 
+#include "deblur_sr_mvs/core/tool_main.h"
 #include "deblur_sr_mvs/core/errors.h"
 #include "deblur_sr_mvs/core/evaluation.h"
 #include "deblur_sr_mvs/core/result_io.h"
@@ -113,23 +114,9 @@ int Run(int argc, char** argv) {
   return 0;
 }
 
-// One line, whatever the exception text (cv::Exception messages span lines).
-std::string OneLine(const std::string& text) {
-  std::string out;
-  for (const char c : text) out += (c == '\n' || c == '\r') ? ' ' : c;
-  while (!out.empty() && out.back() == ' ') out.pop_back();
-  return out;
-}
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  try {
-    return Run(argc, argv);
-  } catch (const dsm::InputError& error) {
-    std::cerr << "evaluate_sequence: " << OneLine(error.what()) << "\n";
-  } catch (const std::exception& error) {
-    std::cerr << "evaluate_sequence: " << OneLine(error.what()) << "\n";
-  }
-  return 2;
+  return deblur_sr_mvs::ToolMain("evaluate_sequence", Run, argc, argv);
 }

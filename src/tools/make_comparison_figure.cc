@@ -10,6 +10,7 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "deblur_sr_mvs/core/tool_main.h"
 #include "deblur_sr_mvs/core/errors.h"
 #include "deblur_sr_mvs/core/image_ops.h"
 #include "deblur_sr_mvs/core/metrics.h"
@@ -97,12 +98,5 @@ int Run(int argc, char** argv) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  try {
-    return Run(argc, argv);
-  } catch (const dsm::InputError& error) {
-    std::cerr << "make_comparison_figure: " << error.what() << "\n";
-  } catch (const std::exception& error) {
-    std::cerr << "make_comparison_figure: " << error.what() << "\n";
-  }
-  return 2;
+  return deblur_sr_mvs::ToolMain("make_comparison_figure", Run, argc, argv);
 }

@@ -18,6 +18,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/superres.hpp>
 
+#include "deblur_sr_mvs/core/tool_main.h"
 #include "deblur_sr_mvs/core/errors.h"
 #include "deblur_sr_mvs/core/image_ops.h"
 #include "deblur_sr_mvs/core/result_io.h"
@@ -247,23 +248,9 @@ int Run(int argc, char** argv) {
   return 0;
 }
 
-// One line, whatever the exception text (cv::Exception messages span lines).
-std::string OneLine(const std::string& text) {
-  std::string out;
-  for (const char c : text) out += (c == '\n' || c == '\r') ? ' ' : c;
-  while (!out.empty() && out.back() == ' ') out.pop_back();
-  return out;
-}
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  try {
-    return Run(argc, argv);
-  } catch (const dsm::InputError& error) {
-    std::cerr << "superres_btvl1: " << OneLine(error.what()) << "\n";
-  } catch (const std::exception& error) {
-    std::cerr << "superres_btvl1: " << OneLine(error.what()) << "\n";
-  }
-  return 2;
+  return deblur_sr_mvs::ToolMain("superres_btvl1", Run, argc, argv);
 }

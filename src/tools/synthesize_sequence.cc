@@ -18,6 +18,7 @@
 #include <iterator>
 #include <string>
 
+#include "deblur_sr_mvs/core/tool_main.h"
 #include "deblur_sr_mvs/core/synthesizer.h"
 
 namespace {
@@ -224,25 +225,8 @@ int Run(int argc, char** argv) {
   return 0;
 }
 
-// what() as one line: OpenCV exceptions span several.
-std::string OneLine(std::string text) {
-  for (char& c : text) {
-    if (c == '\n' || c == '\r') c = ' ';
-  }
-  while (!text.empty() && text.back() == ' ') text.pop_back();
-  return text;
-}
-
 }  // namespace
 
 int main(int argc, char** argv) {
-  try {
-    return Run(argc, argv);
-  } catch (const InputError& error) {
-    std::cerr << "synthesize_sequence: " << OneLine(error.what()) << "\n";
-    return 2;
-  } catch (const std::exception& error) {
-    std::cerr << "synthesize_sequence: error: " << OneLine(error.what()) << "\n";
-    return 2;
-  }
+  return deblur_sr_mvs::ToolMain("synthesize_sequence", Run, argc, argv);
 }

@@ -43,6 +43,12 @@ double ImageEnergy(const std::vector<LinearL1Term>& terms, double lambda_i, cons
 // (Neumann boundary), summed over channels.
 double TotalVariation(const cv::Mat& image);
 
+// out += scale * D^T diag(v) D x per channel: the weighted Laplacian of
+// forward differences with Neumann boundary, the IRLS form of a TV term with
+// weights v (same size and channels as x).
+void AddWeightedLaplacian(const cv::Mat& x, const cv::Mat& v, double scale, cv::Mat* out,
+                          int threads);
+
 // Minimises the energy over `image` (HR, CV_32FC(C), updated in place from
 // its current value). Returns the energy after the update.
 double UpdateImage(const std::vector<LinearL1Term>& terms, const ImageUpdateOptions& options,
