@@ -1,7 +1,10 @@
 // End-to-end properties of the estimator on a small synthesized sequence.
 #include "deblur_sr_mvs/core/estimator.h"
 
+#include <sys/wait.h>
+
 #include <cstdlib>
+#include <fstream>
 #include <string>
 
 #include <opencv2/imgproc.hpp>
@@ -180,6 +183,35 @@ TEST(Estimator, JointBeatsBicubicAndBaselineFromScratch) {
   EXPECT_LT(ate_baseline, 0.02 * path);
   // Monocular scale: the first two cameras are 1 unit apart.
   EXPECT_NEAR((joint.T_world_cam[1].translation() - joint.T_world_cam[0].translation()).norm(), 1.0, 1e-9);
+}
+
+}  // namespace
+}  // namespace deblur_sr_mvs
+
+namespace deblur_sr_mvs {
+namespace {
+
+// estimate_sequence: bad input gives exit code 2 and exactly one line on stderr.
+TEST(EstimateSequenceTool, BadInputGivesOneLineAndExitCode2) {
+  const std::string tool = std::string(DSM_TOOL_DIR) + "/estimate_sequence";
+  const std::string log = testing::TempDir() + "/dsm_estimate_error.txt";
+  const std::vector<std::string> bad_arguments = {
+      "--input /nonexistent/seq --output " + testing::TempDir() + "/out",
+      "--input x --output y --mode fancy",
+      "--input x --output y --samples 0",
+      "--input x --output y --lambda-d abc",
+      "--output y",
+  };
+  for (const std::string& arguments : bad_arguments) {
+    const int status = std::system((tool + " " + arguments + " 2> " + log + " > /dev/null").c_str());
+    ASSERT_TRUE(WIFEXITED(status)) << arguments;
+    EXPECT_EQ(WEXITSTATUS(status), 2) << arguments;
+    std::ifstream in(log);
+    std::string line;
+    int lines = 0;
+    while (std::getline(in, line)) ++lines;
+    EXPECT_EQ(lines, 1) << arguments;
+  }
 }
 
 }  // namespace
