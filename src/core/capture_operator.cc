@@ -56,7 +56,9 @@ __attribute__((optimize("no-tree-vectorize"))) void MultiplyFixed(const SparseMa
 // at = a^T (both row-major, compressed) with `threads` threads: per-thread
 // column histograms of contiguous row blocks, one prefix sum, then each thread
 // scatters its block to disjoint slots. Row indices come out sorted.
-void TransposeParallel(const SparseMatrixRM& a, SparseMatrixRM* at, int threads) {
+}  // namespace
+
+void TransposeSparse(const SparseMatrixRM& a, SparseMatrixRM* at, int threads) {
   const int rows = static_cast<int>(a.rows());
   const int cols = static_cast<int>(a.cols());
   const int* outer = a.outerIndexPtr();
@@ -99,6 +101,8 @@ void TransposeParallel(const SparseMatrixRM& a, SparseMatrixRM* at, int threads)
     }
   }
 }
+
+namespace {
 
 void MultiplyAnyChannels(const SparseMatrixRM& a, const float* x, float* y, int channels,
                          int threads) {
@@ -163,8 +167,43 @@ void CaptureOperator::Apply(const cv::Mat& hr, cv::Mat* lr) const {
   Multiply(forward_, hr_size_, lr_size_, hr, lr, num_threads_, "Apply");
 }
 
+void MultiplySparse(const SparseMatrixRM& a, const cv::Mat& in, cv::Mat* out, int threads) {
+  if (in.depth() != CV_32F || in.rows * in.cols != a.cols()) {
+    throw InputError("MultiplySparse: input must be a float image with one pixel per column");
+  }
+  const int channels = in.channels();
+  const cv::Mat source = in.isContinuous() ? in : in.clone();
+  out->create(static_cast<int>(a.rows()), 1, CV_32FC(channels));
+  MultiplyAnyChannels(a, source.ptr<float>(), out->ptr<float>(), channels, ResolveThreads(threads));
+}
+
 void CaptureOperator::ApplyAdjoint(const cv::Mat& lr, cv::Mat* hr) const {
-  Multiply(adjoint_, lr_size_, hr_size_, lr, hr, num_threads_, "ApplyAdjoint");
+  if (adjoint_.nonZeros() > 0 || forward_.nonZeros() == 0) {
+    Multiply(adjoint_, lr_size_, hr_size_, lr, hr, num_threads_, "ApplyAdjoint");
+    return;
+  }
+  // No transposed copy: scatter each row of Psi into the HR image.
+  if (lr.depth() != CV_32F || lr.size() != lr_size_) {
+    throw InputError("capture operator ApplyAdjoint: expected a float image of the LR size");
+  }
+  const int channels = lr.channels();
+  if (channels < 1 || channels > 4) throw InputError("capture operator: images must have 1 to 4 channels");
+  const cv::Mat source = lr.isContinuous() ? lr : lr.clone();
+  hr->create(hr_size_, CV_32FC(channels));
+  hr->setTo(0.0);
+  const int* outer = forward_.outerIndexPtr();
+  const int* inner = forward_.innerIndexPtr();
+  const float* values = forward_.valuePtr();
+  const float* x = source.ptr<float>();
+  float* y = hr->ptr<float>();
+  const int rows = static_cast<int>(forward_.rows());
+  for (int r = 0; r < rows; ++r) {
+    const float* xr = x + static_cast<std::ptrdiff_t>(r) * channels;
+    for (int k = outer[r]; k < outer[r + 1]; ++k) {
+      float* yc = y + static_cast<std::ptrdiff_t>(inner[k]) * channels;
+      for (int c = 0; c < channels; ++c) yc[c] += values[k] * xr[c];
+    }
+  }
 }
 
 CaptureOperatorBuilder::CaptureOperatorBuilder(const CaptureOperatorOptions& options)
@@ -445,7 +484,11 @@ void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOpera
   }
   timings_.assembly_ms = NowMs() - stage_start;
   stage_start = NowMs();
-  TransposeParallel(forward, &op->adjoint_, threads);
+  if (options_.transposed_copy) {
+    TransposeSparse(forward, &op->adjoint_, threads);
+  } else {
+    op->adjoint_ = SparseMatrixRM();
+  }
   timings_.adjoint_ms = NowMs() - stage_start;
 }
 

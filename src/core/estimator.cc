@@ -221,7 +221,7 @@ class OperatorCache {
 
  private:
   static size_t Bytes(const Entry& e) {
-    return static_cast<size_t>(e.op.matrix().nonZeros()) * 16 + e.mask.total();
+    return static_cast<size_t>(e.op.matrix().nonZeros()) * 8 + e.mask.total();
   }
   void Touch(const std::pair<int, int>& key) {
     order_.remove(key);
@@ -374,10 +374,12 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
   // work, which matters when the cores are shared); every operator runs on
   // the thread that uses it.
   op_options.num_threads = 1;
+  op_options.transposed_copy = false;  // half the memory, same speed on one thread
   omp_set_max_active_levels(1);
-  // Enough for every operator of a 10-frame 640x480 window would be ~2 GiB;
-  // keep the peak bounded and rebuild what was evicted.
-  OperatorCache cache(op_options, threads, camera_hr, options_.visibility, size_t(1) << 30);
+  // Every operator of a 10-frame 640x480 window (30 operators of ~38 MiB)
+  // fits; larger windows evict the least recently used ones and rebuild them,
+  // which keeps the peak memory bounded.
+  OperatorCache cache(op_options, threads, camera_hr, options_.visibility, size_t(3) << 29);
 
   // Runs body(t) for every frame on `threads` threads; the first exception
   // thrown by any frame is rethrown here (exceptions must not leave an

@@ -153,6 +153,15 @@ double UpdateImage(const std::vector<LinearL1Term>& terms, const ImageUpdateOpti
     }
   }
   std::vector<TermState> states(terms.size());
+  // Psi^T as row-major copies made here, once per update: a gather is much
+  // faster than scattering through Psi, and the copies live only as long as
+  // this update (the operators' owners need not keep them).
+  std::vector<SparseMatrixRM> adjoints(terms.size());
+  for (size_t k = 0; k < terms.size(); ++k) TransposeSparse(terms[k].op->matrix(), &adjoints[k], threads);
+  auto apply_adjoint = [&](size_t k, const cv::Mat& lr, cv::Mat* hr) {
+    MultiplySparse(adjoints[k], lr, hr, threads);
+    *hr = hr->reshape(lr.channels(), image->rows);
+  };
   cv::Mat tv_weights, rhs, residual, direction, normal_direction, temp_lr, temp_hr;
 
   // Normal operator N x = sum_k A_k^T W_k A_k x + lambda_i D^T V D x.
@@ -162,7 +171,7 @@ double UpdateImage(const std::vector<LinearL1Term>& terms, const ImageUpdateOpti
     for (size_t k = 0; k < terms.size(); ++k) {
       terms[k].op->Apply(x, &temp_lr);
       cv::multiply(temp_lr, states[k].weight, temp_lr);
-      terms[k].op->ApplyAdjoint(temp_lr, &temp_hr);
+      apply_adjoint(k, temp_lr, &temp_hr);
       Axpy(1.0, temp_hr, out, threads);
     }
     if (options.lambda_i > 0.0) AddWeightedLaplacian(x, tv_weights, options.lambda_i, out, threads);
@@ -199,7 +208,7 @@ double UpdateImage(const std::vector<LinearL1Term>& terms, const ImageUpdateOpti
     rhs.setTo(0.0);
     for (size_t k = 0; k < terms.size(); ++k) {
       cv::multiply(*terms[k].observation, states[k].weight, temp_lr);
-      terms[k].op->ApplyAdjoint(temp_lr, &temp_hr);
+      apply_adjoint(k, temp_lr, &temp_hr);
       Axpy(1.0, temp_hr, &rhs, threads);
     }
     apply_normal(*image, &residual);

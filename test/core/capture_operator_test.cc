@@ -251,3 +251,23 @@ TEST(EdgeWeight, FlatIsOneAndEdgesAreSmall) {
 
 }  // namespace
 }  // namespace deblur_sr_mvs
+
+namespace deblur_sr_mvs {
+namespace {
+
+// Without the transposed copy Psi^T scatters through Psi: same result.
+TEST(CaptureOperator, AdjointWithoutTransposedCopyIsTheSame) {
+  CaptureOperatorOptions options;
+  options.samples = 13;
+  const CaptureOperator with_copy = BuildCaptureOperator(MovingGeometry(60, 40), options);
+  options.transposed_copy = false;
+  const CaptureOperator without_copy = BuildCaptureOperator(MovingGeometry(60, 40), options);
+  const cv::Mat y = RandomImage(with_copy.lr_size(), 3, 21);
+  cv::Mat a, b;
+  with_copy.ApplyAdjoint(y, &a);
+  without_copy.ApplyAdjoint(y, &b);
+  EXPECT_LT(cv::norm(a, b, cv::NORM_INF), 1e-5);
+}
+
+}  // namespace
+}  // namespace deblur_sr_mvs

@@ -35,6 +35,10 @@ struct CaptureOperatorOptions {
   bool reproject_depth = true;
   // OpenMP threads for building and applying; 0 uses the OpenMP default.
   int num_threads = 0;
+  // Keep a transposed copy for a parallel Psi^T (twice the memory). Without
+  // it Psi^T scatters through Psi on one thread, as fast as the copy on one
+  // thread: callers that run one operator per thread leave it off.
+  bool transposed_copy = true;
   // Throws InputError with a one-line reason when a value is unusable.
   void Check() const;
 };
@@ -54,6 +58,12 @@ struct CaptureGeometry {
   // The camera whose latent image the operator samples; empty = P_t itself.
   std::optional<SE3> T_world_source;
 };
+
+// at = a^T for compressed row-major matrices, on `threads` threads (0: all).
+void TransposeSparse(const SparseMatrixRM& a, SparseMatrixRM* at, int threads);
+// out = a * in for an interleaved C-channel float image `in` with one pixel per
+// column of `a`; `out` becomes a (rows x 1) C-channel image (reshape as needed).
+void MultiplySparse(const SparseMatrixRM& a, const cv::Mat& in, cv::Mat* out, int threads);
 
 // Poses T_world_tau_m of the M virtual cameras over the exposure.
 std::vector<SE3> VirtualCameraPoses(const CaptureGeometry& geometry, int samples);
@@ -83,7 +93,7 @@ class CaptureOperator {
   cv::Size hr_size_;
   int num_threads_ = 0;
   SparseMatrixRM forward_;
-  SparseMatrixRM adjoint_;  // forward_ transposed, row-major: a parallel gather
+  SparseMatrixRM adjoint_;  // forward_ transposed (optional): a parallel gather
   std::vector<float> coverage_;
 };
 
