@@ -35,7 +35,8 @@ def fmt(value, digits):
 
 def main():
     work = sys.argv[1]
-    scenes = sorted(d for d in os.listdir(work) if os.path.isdir(os.path.join(work, d)))
+    scenes = sorted(d for d in os.listdir(work)
+                    if os.path.isdir(os.path.join(work, d)) and not d.startswith("speed_"))
     evals, reports = {}, {}
     for scene in scenes:
         for method, _ in METHODS:
@@ -90,6 +91,21 @@ def main():
             memory = r.get("peak_memory_mib")
             cells.append(f"{fmt(wall, 1)} s" + (f", {fmt(memory, 0)} MiB" if memory else ""))
         out.append(f"| {label} | " + " | ".join(cells) + " |")
+    speed = load(os.path.join(work, "speed_640x480", "joint", "report.json"))
+    speed_eval = load(os.path.join(work, "speed_640x480", "joint", "eval.json"))
+    if speed:
+        out.append("")
+        out.append("Speed at the issue's size: 10 frames 320x240 -> 640x480, M 50, max_iter 3, "
+                   "both cores (Dolls seen with 1.8x focal length):\n")
+        out.append("| wall | peak memory | stages (s) | image PSNR (bicubic) |")
+        out.append("|---:|---:|---|---:|")
+        stages = ", ".join(f"{k} {v:.1f}" for k, v in speed.get("stage_seconds", {}).items())
+        psnr = ""
+        if speed_eval:
+            m = speed_eval["mean"]
+            psnr = f"{fmt(m.get('image_psnr_db'), 2)} ({fmt(m.get('bicubic_psnr_db'), 2)})"
+        out.append(f"| {fmt(speed.get('wall_seconds'), 1)} s | {fmt(speed.get('peak_memory_mib'), 0)} MiB | "
+                   f"{stages} | {psnr} |")
     print("\n".join(out))
 
 
