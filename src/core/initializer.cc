@@ -1213,12 +1213,9 @@ void SolveTvL1(const PlaneSet& planes, const cv::Mat& edge_weight,
   const float tau = 0.25f;
   const int iterations = std::max(2, options.tv_iterations);
   const float inv_step = 1.0f / planes.step;
-  for (int iteration = 0; iteration < iterations; ++iteration) {
-    const double progress = static_cast<double>(iteration) / (iterations - 1);
-    const float theta =
-        static_cast<float>(theta_start * std::pow(theta_end / theta_start, progress));
-    const bool last = iteration + 1 == iterations;
-    // Dual ascent on p, projected onto |p| <= w g.
+  // One primal-dual step of the ROF coupling (Chambolle-Pock): dual ascent on
+  // p projected onto |p| <= w g, then the proximal step of (u - a)^2 / (2 theta).
+  auto rof_step = [&](float theta) {
     for (int y = 0; y < height; ++y) {
       for (int x = 0; x < width; ++x) {
         const int pixel = y * width + x;
@@ -1237,7 +1234,6 @@ void SolveTvL1(const PlaneSet& planes, const cv::Mat& edge_weight,
         ws->py[pixel] = qy;
       }
     }
-    // Primal descent: proximal step of (u - a)^2 / (2 theta).
     for (int y = 0; y < height; ++y) {
       for (int x = 0; x < width; ++x) {
         const int pixel = y * width + x;
@@ -1252,6 +1248,13 @@ void SolveTvL1(const PlaneSet& planes, const cv::Mat& edge_weight,
         ws->u_bar[pixel] = 2.0f * updated - previous;
       }
     }
+  };
+  for (int iteration = 0; iteration < iterations; ++iteration) {
+    const double progress = static_cast<double>(iteration) / (iterations - 1);
+    const float theta =
+        static_cast<float>(theta_start * std::pow(theta_end / theta_start, progress));
+    const bool last = iteration + 1 == iterations;
+    rof_step(theta);
     // Point-wise a: only hypotheses whose coupling cost stays below the
     // cost range can win, which bounds the search window.
     for (int pixel = 0; pixel < pixels; ++pixel) {
@@ -1290,39 +1293,7 @@ void SolveTvL1(const PlaneSet& planes, const cv::Mat& edge_weight,
     }
   }
   // A few ROF steps so that u settles on the refined a.
-  const float theta = static_cast<float>(theta_end);
-  for (int iteration = 0; iteration < 10; ++iteration) {
-    for (int y = 0; y < height; ++y) {
-      for (int x = 0; x < width; ++x) {
-        const int pixel = y * width + x;
-        const float gx = x + 1 < width ? ws->u_bar[pixel + 1] - ws->u_bar[pixel] : 0.0f;
-        const float gy = y + 1 < height ? ws->u_bar[pixel + width] - ws->u_bar[pixel] : 0.0f;
-        float qx = ws->px[pixel] + sigma * gx;
-        float qy = ws->py[pixel] + sigma * gy;
-        const float norm = std::sqrt(qx * qx + qy * qy);
-        if (norm > weight[pixel]) {
-          qx *= weight[pixel] / norm;
-          qy *= weight[pixel] / norm;
-        }
-        ws->px[pixel] = qx;
-        ws->py[pixel] = qy;
-      }
-    }
-    for (int y = 0; y < height; ++y) {
-      for (int x = 0; x < width; ++x) {
-        const int pixel = y * width + x;
-        float divergence = 0.0f;
-        divergence += (x + 1 < width ? ws->px[pixel] : 0.0f) - (x > 0 ? ws->px[pixel - 1] : 0.0f);
-        divergence +=
-            (y + 1 < height ? ws->py[pixel] : 0.0f) - (y > 0 ? ws->py[pixel - width] : 0.0f);
-        const float previous = ws->u[pixel];
-        const float updated =
-            (previous + tau * (divergence + ws->a[pixel] / theta)) / (1.0f + tau / theta);
-        ws->u[pixel] = updated;
-        ws->u_bar[pixel] = 2.0f * updated - previous;
-      }
-    }
-  }
+  for (int iteration = 0; iteration < 10; ++iteration) rof_step(static_cast<float>(theta_end));
 }
 
 // Equal-blur image pairs for every frame and neighbour (the Psi_t o B_s and
