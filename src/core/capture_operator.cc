@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "deblur_sr_mvs/core/errors.h"
+#include "deblur_sr_mvs/core/runtime.h"
 #include "deblur_sr_mvs/core/warp.h"
 
 namespace deblur_sr_mvs {
@@ -22,15 +23,6 @@ constexpr float kInsideTolerance = 1e-4f;
 // (extreme blur) a scatter array plus a sort is cheaper.
 constexpr int kMaxLocalGrid = 4096;
 
-double NowMs() {
-  return std::chrono::duration<double, std::milli>(
-             std::chrono::steady_clock::now().time_since_epoch())
-      .count();
-}
-
-int ResolveThreads(int requested) {
-  return requested > 0 ? requested : std::max(1, omp_get_max_threads());
-}
 
 // y = A x for a row-major sparse A and interleaved C-channel images. Not
 // auto-vectorised: gathers of scattered columns are slower than scalar loads.

@@ -47,6 +47,7 @@
 
 #include "deblur_sr_mvs/core/capture_operator.h"
 #include "deblur_sr_mvs/core/errors.h"
+#include "deblur_sr_mvs/core/runtime.h"
 #include "deblur_sr_mvs/core/image_ops.h"
 #include "deblur_sr_mvs/core/visibility.h"
 #include "deblur_sr_mvs/core/warp.h"
@@ -54,15 +55,6 @@
 namespace deblur_sr_mvs {
 namespace {
 
-double NowMs() {
-  return std::chrono::duration<double, std::milli>(
-             std::chrono::steady_clock::now().time_since_epoch())
-      .count();
-}
-
-int ResolveThreads(int requested) {
-  return requested > 0 ? requested : std::max(1, omp_get_max_threads());
-}
 
 std::string Format(const char* format, double a = 0, double b = 0, double c = 0, double d = 0,
                    double e = 0, double f = 0) {
