@@ -279,6 +279,7 @@ void EstimatorOptions::Check() const {
   if (neighbour_radius < 1 || neighbour_radius > 5) throw InputError("neighbour_radius must be in [1, 5]");
   if (!(lambda_s >= 0.0) || !std::isfinite(lambda_s)) throw InputError("lambda_s must be >= 0");
   if (num_threads < 0) throw InputError("threads must be >= 0");
+  if (fixed_leading_poses < 1) throw InputError("fixed_leading_poses must be >= 1");
   image.Check();
   structure.Check();
   visibility.Check();
@@ -287,6 +288,14 @@ void EstimatorOptions::Check() const {
 
 Estimator::Estimator(const EstimatorOptions& options) : options_(options) { options_.Check(); }
 
+std::vector<cv::Mat> UpsampleInitialDepth(const std::vector<cv::Mat>& depth_lr, int scale) {
+  std::vector<cv::Mat> depth_hr;
+  for (const cv::Mat& depth : depth_lr) {
+    depth_hr.push_back(DepthFromInverse(UpsampleBicubic(InverseDepthFromDepth(depth), scale)));
+  }
+  return depth_hr;
+}
+
 EstimatorResult Estimator::Run(const EstimatorInput& input, const ProgressCallback& progress) {
   const double start = Now();
   if (progress) progress(0.0, "initialisation");
@@ -294,13 +303,8 @@ EstimatorResult Estimator::Run(const EstimatorInput& input, const ProgressCallba
   init_options.num_threads = options_.num_threads;
   const InitialStructure initial =
       InitializeStructure(input.images, input.camera, input.frames, init_options);
-  std::vector<cv::Mat> depth_hr;
-  for (const cv::Mat& depth_lr : initial.depth_lr) {
-    // LR depths up-sampled to HR by bicubic interpolation (Sec. optInitialization),
-    // on inverse depth so that holes and edges behave.
-    const cv::Mat rho_hr = UpsampleBicubic(InverseDepthFromDepth(depth_lr), options_.scale);
-    depth_hr.push_back(DepthFromInverse(rho_hr));
-  }
+  ThrowIfCancelled();
+  const std::vector<cv::Mat> depth_hr = UpsampleInitialDepth(initial.depth_lr, options_.scale);
   const double init_seconds = Now() - start;
   EstimatorResult result = RunFromStructure(input, depth_hr, initial.T_world_cam, progress);
   result.timings.insert(result.timings.begin(), StageTiming{"initialization", init_seconds});
@@ -390,6 +394,7 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
     for (int t = 0; t < num_frames; ++t) {
       try {
+        ThrowIfCancelled();
         body(t);
       } catch (...) {
         std::lock_guard<std::mutex> lock(error_mutex);
@@ -467,6 +472,7 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
   const int total_steps = std::max(1, 2 * options_.max_iterations + 1);
   int steps_done = 0;
   auto report = [&](double within, const std::string& what) {
+    ThrowIfCancelled();
     if (progress) progress(std::min(1.0, (steps_done + within) / total_steps), what);
   };
 
@@ -568,7 +574,8 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
       std::vector<std::shared_ptr<const OperatorCache::Entry>> held;
       for (int t = 0; t < num_frames; ++t) pairs_of(t, &pairs, &held);
       std::vector<SE3> updated = poses;
-      UpdatePoses(camera_hr, inverse_depth, latents, pairs, structure_options, &updated);
+      UpdatePoses(camera_hr, inverse_depth, latents, pairs, structure_options, &updated,
+                  options_.fixed_leading_poses);
       for (int t = 1; t < num_frames; ++t) {
         frames[t].T_world_cam = updated[t];
         ++pose_version[t];

@@ -401,12 +401,13 @@ std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr,
                                   const std::vector<cv::Mat>& latents,
                                   const std::vector<PairMatching>& pairs,
                                   const StructureUpdateOptions& options,
-                                  std::vector<SE3>* T_world_cam) {
+                                  std::vector<SE3>* T_world_cam, int num_fixed) {
   options.Check();
   const int num_frames = static_cast<int>(T_world_cam->size());
   std::vector<Vector6d> total(num_frames, Vector6d::Zero());
-  if (num_frames < 2 || pairs.empty()) return total;
-  const int unknowns = 6 * (num_frames - 1);  // frame 0 is the gauge
+  num_fixed = std::max(1, num_fixed);  // at least frame 0: the gauge
+  if (num_frames <= num_fixed || pairs.empty()) return total;
+  const int unknowns = 6 * (num_frames - num_fixed);
   const int num_pairs = static_cast<int>(pairs.size());
   std::vector<Eigen::Matrix<double, 6, 6>> blocks(num_pairs);
   std::vector<Eigen::Matrix<double, 6, 1>> rhss(num_pairs);
@@ -446,7 +447,8 @@ std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr,
     for (int p = 0; p < num_pairs; ++p) {
       const Eigen::Matrix<double, 6, 6>& block = blocks[p];
       const Eigen::Matrix<double, 6, 1>& rhs = rhss[p];
-      const int bt = pairs[p].t - 1, bs = pairs[p].s - 1;  // block indices (-1: fixed frame 0)
+      // Block indices (negative: a fixed frame).
+      const int bt = pairs[p].t - num_fixed, bs = pairs[p].s - num_fixed;
       if (bt >= 0) {
         hessian.block<6, 6>(6 * bt, 6 * bt) += block;
         gradient.segment<6>(6 * bt) += rhs;
@@ -467,8 +469,8 @@ std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr,
     }
     const Eigen::VectorXd step = damped.ldlt().solve(gradient);
     if (!step.allFinite()) break;
-    for (int f = 1; f < num_frames; ++f) {
-      const Vector6d eps = step.segment<6>(6 * (f - 1));
+    for (int f = num_fixed; f < num_frames; ++f) {
+      const Vector6d eps = step.segment<6>(6 * (f - num_fixed));
       (*T_world_cam)[f] = SE3::Exp(eps) * (*T_world_cam)[f];
       total[f] += eps;
     }

@@ -3,7 +3,9 @@
 // update, visibility update).
 #pragma once
 
+#include <atomic>
 #include <functional>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -55,6 +57,10 @@ struct EstimatorOptions {
   VisibilityOptions visibility;
   InitializerOptions initializer;
   bool update_poses = true;   // false keeps the initial poses
+  // Leading frames whose poses the structure update holds (>= 1: frame 0 is
+  // the gauge). The stream holds the frames shared with the previous window,
+  // which then also fixes the scale.
+  int fixed_leading_poses = 1;
   bool update_structure = true;  // false: images only (depth and poses fixed)
   StructureMatching structure_matching = StructureMatching::kRestored;
   int num_threads = 0;        // OpenMP threads for every stage; 0 = default
@@ -96,6 +102,17 @@ struct EstimatorResult {
 // Progress: (fraction done in [0, 1], what is running).
 using ProgressCallback = std::function<void(double, const std::string&)>;
 
+// Thrown by Estimator::Run/RunFromStructure when the cancel flag was raised
+// (the node's shutdown): the run stops at the next frame or stage boundary.
+class EstimationCancelled : public std::runtime_error {
+ public:
+  EstimationCancelled() : std::runtime_error("estimation cancelled") {}
+};
+
+// LR depth maps of the initialisation up-sampled to HR (Sec.
+// optInitialization): bicubic on inverse depth, so that holes and edges behave.
+std::vector<cv::Mat> UpsampleInitialDepth(const std::vector<cv::Mat>& depth_lr, int scale);
+
 class Estimator {
  public:
   explicit Estimator(const EstimatorOptions& options);
@@ -111,8 +128,18 @@ class Estimator {
                                    const std::vector<SE3>& T_world_cam,
                                    const ProgressCallback& progress = nullptr);
 
+  // While *flag is true, runs throw EstimationCancelled at the next frame or
+  // stage boundary. The flag must outlive the runs; nullptr: never cancelled.
+  void SetCancelFlag(const std::atomic<bool>* flag) { cancel_ = flag; }
+  const EstimatorOptions& options() const { return options_; }
+
  private:
+  void ThrowIfCancelled() const {
+    if (cancel_ != nullptr && cancel_->load()) throw EstimationCancelled();
+  }
+
   EstimatorOptions options_;
+  const std::atomic<bool>* cancel_ = nullptr;
 };
 
 }  // namespace deblur_sr_mvs

@@ -88,13 +88,14 @@ void UpdateDepth(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world
                  double parallax_scale, const StructureUpdateOptions& options,
                  cv::Mat* inverse_depth);
 
-// Gauss-Newton/IRLS update of all poses but the first from all pairs, with
-// depth fixed. Returns the applied tangent steps (6 per frame; frame 0 zero).
+// Gauss-Newton/IRLS update of all poses but the first `num_fixed` (>= 1; frame
+// 0 is the gauge) from all pairs, with depth fixed. Returns the applied
+// tangent steps (6 per frame; zero for the fixed frames).
 std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr,
                                   const std::vector<cv::Mat>& inverse_depths,
                                   const std::vector<cv::Mat>& latents,
                                   const std::vector<PairMatching>& pairs,
                                   const StructureUpdateOptions& options,
-                                  std::vector<SE3>* T_world_cam);
+                                  std::vector<SE3>* T_world_cam, int num_fixed = 1);
 
 }  // namespace deblur_sr_mvs
