@@ -14,7 +14,7 @@ ros_pkgs=(catkin catkin-tools ros-core rosbash rospack-tools ros-message-generat
           libcv-bridge-dev libimage-transport-dev
           libdynamic-reconfigure-config-init-mutex-dev python3-dynamic-reconfigure
           librostest-dev python3-rostest librosbag-dev libnav-msgs-dev python3-nav-msgs
-          libdiagnostic-updater-dev libnodeletlib-dev libnodelet-dev
+          libdiagnostic-updater-dev libnodeletlib-dev libnodelet-dev libnodeletlib-tools
           libcamera-calibration-parsers-dev libopencv-superres-dev)
 
 pkgs=("${core_pkgs[@]}")

@@ -47,64 +47,6 @@ std::vector<StreamWindow> FrameWindower::Add(StreamFrame frame) {
   return windows;
 }
 
-// -------------------------------------------------------- PendingWindowQueue
-
-PendingWindowQueue::PendingWindowQueue(int capacity) : capacity_(std::max(1, capacity)) {}
-
-int PendingWindowQueue::Push(StreamWindow window) {
-  int dropped = 0;
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    if (stopped_) return 0;
-    queue_.push_back(std::move(window));
-    while (queue_.size() > static_cast<size_t>(capacity_)) {
-      queue_.pop_front();
-      ++dropped;
-    }
-    dropped_ += dropped;
-  }
-  ready_.notify_one();
-  return dropped;
-}
-
-bool PendingWindowQueue::Pop(StreamWindow* window) {
-  std::unique_lock<std::mutex> lock(mutex_);
-  ready_.wait(lock, [this] { return stopped_ || !queue_.empty(); });
-  if (stopped_) return false;
-  *window = std::move(queue_.front());
-  queue_.pop_front();
-  return true;
-}
-
-void PendingWindowQueue::Stop() {
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    stopped_ = true;
-    queue_.clear();
-  }
-  ready_.notify_all();
-}
-
-void PendingWindowQueue::SetCapacity(int capacity) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  capacity_ = std::max(1, capacity);
-}
-
-void PendingWindowQueue::Clear() {
-  std::lock_guard<std::mutex> lock(mutex_);
-  queue_.clear();
-}
-
-size_t PendingWindowQueue::size() const {
-  std::lock_guard<std::mutex> lock(mutex_);
-  return queue_.size();
-}
-
-uint64_t PendingWindowQueue::dropped() const {
-  std::lock_guard<std::mutex> lock(mutex_);
-  return dropped_;
-}
-
 // ------------------------------------------------------------------ alignment
 
 namespace {

@@ -12,6 +12,7 @@
 #include <mutex>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -59,30 +60,68 @@ class FrameWindower {
   std::deque<StreamFrame> buffer_;
 };
 
-// Thread-safe bounded FIFO of pending windows: Push drops the oldest entries
-// beyond the capacity and counts them; Pop blocks until an entry arrives or
-// Stop() is called.
-class PendingWindowQueue {
+// Thread-safe bounded FIFO (the pending windows): Push drops the oldest
+// entries beyond the capacity and counts them; Pop blocks until an entry
+// arrives or Stop() is called.
+template <typename T>
+class DropOldestQueue {
  public:
-  explicit PendingWindowQueue(int capacity);
-  // Returns how many windows this push dropped (0 or more).
-  int Push(StreamWindow window);
-  // False once stopped (then *window is untouched).
-  bool Pop(StreamWindow* window);
-  void Stop();
-  void SetCapacity(int capacity);  // applies from the next push
-  void Clear();                    // drops everything pending (not counted)
-  size_t size() const;
-  uint64_t dropped() const;
+  explicit DropOldestQueue(int capacity) : capacity_(capacity < 1 ? 1 : capacity) {}
+  // Returns how many entries this push dropped (ignored after Stop()).
+  int Push(T value) {
+    int dropped = 0;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (stopped_) return 0;
+      queue_.push_back(std::move(value));
+      while (queue_.size() > static_cast<size_t>(capacity_)) {
+        queue_.pop_front();
+        ++dropped;
+      }
+      dropped_ += dropped;
+    }
+    ready_.notify_one();
+    return dropped;
+  }
+  // False once stopped (then *value is untouched).
+  bool Pop(T* value) {
+    std::unique_lock<std::mutex> lock(mutex_);
+    ready_.wait(lock, [this] { return stopped_ || !queue_.empty(); });
+    if (stopped_) return false;
+    *value = std::move(queue_.front());
+    queue_.pop_front();
+    return true;
+  }
+  void Stop() {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      stopped_ = true;
+      queue_.clear();
+    }
+    ready_.notify_all();
+  }
+  void SetCapacity(int capacity) {  // applies from the next push
+    std::lock_guard<std::mutex> lock(mutex_);
+    capacity_ = capacity < 1 ? 1 : capacity;
+  }
+  size_t size() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return queue_.size();
+  }
+  uint64_t dropped() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return dropped_;
+  }
 
  private:
   mutable std::mutex mutex_;
   std::condition_variable ready_;
-  std::deque<StreamWindow> queue_;
+  std::deque<T> queue_;
   int capacity_;
   uint64_t dropped_ = 0;
   bool stopped_ = false;
 };
+using PendingWindowQueue = DropOldestQueue<StreamWindow>;
 
 // target ~= similarity applied to source: the transform that maps the
 // `source` camera poses onto `target` (same frames, >= 2 of them). Rotation

@@ -1,0 +1,120 @@
+// deblur_sr_mvs/EstimatorNodelet: the streaming joint estimator on a camera
+// (SPEC section 5). The subscriber callbacks only check and buffer frames;
+// complete windows go to a bounded queue that one worker thread empties by
+// running the estimator (core/stream.h) and publishing its outputs.
+#pragma once
+
+#include <atomic>
+#include <deque>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+
+#include <boost/thread/recursive_mutex.hpp>
+#include <diagnostic_updater/diagnostic_updater.h>
+#include <dynamic_reconfigure/server.h>
+#include <image_transport/camera_common.h>
+#include <image_transport/image_transport.h>
+#include <nav_msgs/Path.h>
+#include <nodelet/nodelet.h>
+#include <ros/ros.h>
+#include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/Image.h>
+#include <tf2_ros/transform_broadcaster.h>
+
+#include "deblur_sr_mvs/EstimatorConfig.h"
+#include "deblur_sr_mvs/EstimatorStatus.h"
+#include "deblur_sr_mvs/core/stream.h"
+#include "deblur_sr_mvs/ros/conversions.h"
+#include "deblur_sr_mvs/ros/node_parameters.h"
+
+namespace deblur_sr_mvs {
+
+class EstimatorNodelet : public nodelet::Nodelet {
+ public:
+  EstimatorNodelet();
+  ~EstimatorNodelet() override;
+
+ private:
+  // A complete window and what the worker needs to publish it.
+  struct PendingWindow {
+    StreamWindow frames;
+    PinholeCamera camera;                 // LR intrinsics from camera_info
+    ros_glue::ImageFamily family = ros_glue::ImageFamily::kMono8;
+    std::string camera_frame;             // child frame of the outputs
+    uint64_t epoch = 0;                   // stream restarts so far
+    ros::WallTime completed;              // arrival of the window's last frame
+  };
+
+  void onInit() override;
+  void ConnectCallback();
+  void ImageCallback(const sensor_msgs::ImageConstPtr& image);
+  void InfoCallback(const sensor_msgs::CameraInfoConstPtr& info);
+  // Checks one matched image + camera_info and buffers it (input_mutex_ held).
+  void AcceptFrame(const sensor_msgs::ImageConstPtr& image, const sensor_msgs::CameraInfoConstPtr& info);
+  void RejectFrame(const std::string& why);
+  void RestartStream(const std::string& why);  // input_mutex_ held
+  void WorkerLoop();
+  void ProcessWindow(PendingWindow window);
+  void PublishStatus(EstimatorStatus status);
+  void ReconfigureCallback(EstimatorConfig& config, uint32_t level);
+  void Diagnose(diagnostic_updater::DiagnosticStatusWrapper& status);
+
+  // ---- Set in onInit, then read-only.
+  std::string image_topic_, info_topic_;
+  std::shared_ptr<image_transport::ImageTransport> transport_;
+  image_transport::CameraPublisher restored_publisher_, depth_publisher_;
+  ros::Publisher pose_publisher_, path_publisher_, points_publisher_, status_publisher_;
+  std::unique_ptr<tf2_ros::TransformBroadcaster> tf_broadcaster_;
+  std::unique_ptr<diagnostic_updater::Updater> diagnostics_;
+  ros::WallTimer diagnostics_timer_;
+  boost::recursive_mutex reconfigure_mutex_;
+  std::unique_ptr<dynamic_reconfigure::Server<EstimatorConfig>> reconfigure_server_;
+  bool configured_ = false;  // parameters valid: the node works
+
+  // ---- Subscriptions (connect_mutex_).
+  std::mutex connect_mutex_;
+  bool subscribed_ = false;
+  bool lazy_subscription_ = true;
+  image_transport::Subscriber image_subscriber_;
+  ros::Subscriber info_subscriber_;
+
+  // ---- Input side (input_mutex_): parameters, matching, windowing.
+  std::mutex input_mutex_;
+  ros_glue::NodeParameters params_;
+  uint64_t params_version_ = 0;
+  std::deque<sensor_msgs::ImageConstPtr> unmatched_images_;
+  std::deque<sensor_msgs::CameraInfoConstPtr> recent_infos_;
+  std::unique_ptr<FrameWindower> windower_;
+  bool have_stream_ = false;
+  ros::Time last_stamp_, epoch_origin_;
+  PinholeCamera stream_camera_;
+  ros_glue::ImageFamily stream_family_ = ros_glue::ImageFamily::kMono8;
+  std::string stream_camera_frame_;
+  uint64_t epoch_ = 0;
+  uint64_t next_frame_id_ = 1;
+  std::map<std::string, uint64_t> rejections_;  // reason -> count
+
+  // ---- Worker side (the worker thread only).
+  std::unique_ptr<DropOldestQueue<PendingWindow>> queue_;
+  std::thread worker_;
+  std::unique_ptr<StreamEstimator> stream_;
+  uint64_t worker_params_version_ = 0;
+  uint64_t worker_epoch_ = 0;
+  nav_msgs::Path path_;
+  uint32_t window_index_ = 0;
+
+  // ---- Shared counters and health.
+  std::atomic<bool> shutting_down_{false};
+  std::atomic<uint64_t> frames_received_{0}, frames_rejected_{0}, frames_published_{0};
+  std::atomic<uint64_t> windows_processed_{0}, windows_failed_{0}, resets_{0};
+  std::mutex health_mutex_;
+  double last_latency_ = 0.0, last_processing_ = 0.0;
+  std::string last_problem_;
+  uint64_t diagnosed_windows_ = 0, diagnosed_drops_ = 0;
+  ros::WallTime diagnosed_at_;
+};
+
+}  // namespace deblur_sr_mvs

@@ -1,0 +1,475 @@
+#include "deblur_sr_mvs/ros/estimator_nodelet.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include <geometry_msgs/PoseStamped.h>
+#include <geometry_msgs/TransformStamped.h>
+#include <pluginlib/class_list_macros.hpp>
+#include <sensor_msgs/PointCloud2.h>
+
+#include "deblur_sr_mvs/core/initializer.h"
+
+namespace deblur_sr_mvs {
+
+namespace {
+
+constexpr size_t kMaxUnmatchedImages = 5;   // images waiting for their camera_info
+constexpr size_t kMaxRecentInfos = 10;      // camera_infos waiting for their image
+const std::string kNoCameraInfo = "no camera_info with the image's stamp on ";
+constexpr char kScaleNote[] =
+    "monocular: poses and depths are in units of the distance between the first two cameras "
+    "of the trajectory segment, not metres";
+
+bool AllFinite(const cv::Mat& image) { return cv::checkRange(image, true, nullptr, -1e30, 1e30); }
+
+}  // namespace
+
+EstimatorNodelet::EstimatorNodelet() = default;
+
+EstimatorNodelet::~EstimatorNodelet() {
+  shutting_down_ = true;
+  {
+    std::lock_guard<std::mutex> lock(connect_mutex_);
+    image_subscriber_.shutdown();
+    info_subscriber_.shutdown();
+  }
+  diagnostics_timer_.stop();
+  if (queue_) queue_->Stop();
+  if (worker_.joinable()) worker_.join();
+}
+
+void EstimatorNodelet::onInit() {
+  ros::NodeHandle& node = getNodeHandle();
+  ros::NodeHandle& private_node = getPrivateNodeHandle();
+
+  status_publisher_ = node.advertise<EstimatorStatus>("status", 10, true);
+  try {
+    params_ = ros_glue::ReadNodeParameters(private_node);
+  } catch (const std::exception& error) {
+    NODELET_FATAL("deblur_sr_mvs: bad parameter: %s; the node stays idle", error.what());
+    EstimatorStatus status;
+    status.header.stamp = ros::Time::now();
+    status.success = false;
+    status.message = std::string("bad parameter: ") + error.what();
+    status.scale_note = kScaleNote;
+    status_publisher_.publish(status);
+    return;
+  }
+  configured_ = true;
+  windower_ = std::make_unique<FrameWindower>(params_.stream);
+  queue_ = std::make_unique<DropOldestQueue<PendingWindow>>(params_.stream.max_pending_windows);
+  stream_ = std::make_unique<StreamEstimator>(params_.estimator);
+  stream_->SetCancelFlag(&shutting_down_);
+
+  transport_ = std::make_shared<image_transport::ImageTransport>(node);
+  image_topic_ = node.resolveName("image");
+  info_topic_ = image_transport::getCameraInfoTopic(image_topic_);
+  image_transport::SubscriberStatusCallback image_connect = [this](const image_transport::SingleSubscriberPublisher&) {
+    ConnectCallback();
+  };
+  ros::SubscriberStatusCallback ros_connect = [this](const ros::SingleSubscriberPublisher&) {
+    ConnectCallback();
+  };
+  std::unique_lock<std::mutex> lock(connect_mutex_);  // no connect callback before all exist
+  lazy_subscription_ = params_.lazy_subscription;
+  restored_publisher_ =
+      transport_->advertiseCamera("restored/image", 2, image_connect, image_connect, ros_connect, ros_connect);
+  depth_publisher_ =
+      transport_->advertiseCamera("depth/image", 2, image_connect, image_connect, ros_connect, ros_connect);
+  pose_publisher_ = node.advertise<geometry_msgs::PoseStamped>("pose", 10, ros_connect, ros_connect);
+  path_publisher_ = node.advertise<nav_msgs::Path>("path", 1, ros_connect, ros_connect);
+  points_publisher_ = node.advertise<sensor_msgs::PointCloud2>("points", 2, ros_connect, ros_connect);
+  if (params_.publish_tf) tf_broadcaster_ = std::make_unique<tf2_ros::TransformBroadcaster>();
+
+  diagnostics_ = std::make_unique<diagnostic_updater::Updater>(node, private_node);
+  diagnostics_->setHardwareID("deblur_sr_mvs estimator on " + image_topic_);
+  diagnostics_->add("Window estimation", this, &EstimatorNodelet::Diagnose);
+  diagnosed_at_ = ros::WallTime::now();
+  diagnostics_timer_ = node.createWallTimer(ros::WallDuration(1.0), [this](const ros::WallTimerEvent&) {
+    if (!shutting_down_) diagnostics_->update();
+  });
+
+  reconfigure_server_ =
+      std::make_unique<dynamic_reconfigure::Server<EstimatorConfig>>(reconfigure_mutex_, private_node);
+  reconfigure_server_->updateConfig(ros_glue::ConfigOf(params_));
+  reconfigure_server_->setCallback(
+      [this](EstimatorConfig& config, uint32_t level) { ReconfigureCallback(config, level); });
+
+  worker_ = std::thread(&EstimatorNodelet::WorkerLoop, this);
+  NODELET_INFO("deblur_sr_mvs: windows of %d frames (overlap %d), x%d, exposure %.4f s; input %s + %s%s",
+               params_.stream.window_size, params_.stream.window_overlap, params_.estimator.scale,
+               params_.exposure_time, image_topic_.c_str(), info_topic_.c_str(),
+               params_.lazy_subscription ? " (subscribed while outputs have subscribers)" : "");
+  lock.unlock();
+  ConnectCallback();  // eager mode subscribes at once
+}
+
+void EstimatorNodelet::ConnectCallback() {
+  std::lock_guard<std::mutex> lock(connect_mutex_);
+  if (!configured_ || shutting_down_) return;
+  const bool wanted =
+      !lazy_subscription_ || restored_publisher_.getNumSubscribers() > 0 ||
+      depth_publisher_.getNumSubscribers() > 0 || pose_publisher_.getNumSubscribers() > 0 ||
+      path_publisher_.getNumSubscribers() > 0 || points_publisher_.getNumSubscribers() > 0 ||
+      status_publisher_.getNumSubscribers() > 0;
+  if (wanted && !subscribed_) {
+    ros::NodeHandle& node = getNodeHandle();
+    image_transport::TransportHints hints("raw", ros::TransportHints(), getPrivateNodeHandle());
+    image_subscriber_ = transport_->subscribe("image", 2, &EstimatorNodelet::ImageCallback, this, hints);
+    info_subscriber_ = node.subscribe(info_topic_, 10, &EstimatorNodelet::InfoCallback, this);
+    subscribed_ = true;
+  } else if (!wanted && subscribed_) {
+    image_subscriber_.shutdown();
+    info_subscriber_.shutdown();
+    subscribed_ = false;
+  }
+}
+
+void EstimatorNodelet::ImageCallback(const sensor_msgs::ImageConstPtr& image) {
+  if (shutting_down_) return;
+  ++frames_received_;
+  std::lock_guard<std::mutex> lock(input_mutex_);
+  for (auto it = recent_infos_.begin(); it != recent_infos_.end(); ++it) {
+    if ((*it)->header.stamp == image->header.stamp) {
+      const sensor_msgs::CameraInfoConstPtr info = *it;
+      recent_infos_.erase(recent_infos_.begin(), it + 1);
+      // Older images still waiting will not get their camera_info now.
+      while (!unmatched_images_.empty() && unmatched_images_.front()->header.stamp < image->header.stamp) {
+        unmatched_images_.pop_front();
+        RejectFrame(kNoCameraInfo + info_topic_ + ": frame not used (the node never guesses intrinsics)");
+      }
+      AcceptFrame(image, info);
+      return;
+    }
+  }
+  unmatched_images_.push_back(image);
+  while (unmatched_images_.size() > kMaxUnmatchedImages) {
+    unmatched_images_.pop_front();
+    RejectFrame(kNoCameraInfo + info_topic_ + ": frame not used (the node never guesses intrinsics)");
+  }
+}
+
+void EstimatorNodelet::InfoCallback(const sensor_msgs::CameraInfoConstPtr& info) {
+  if (shutting_down_) return;
+  std::lock_guard<std::mutex> lock(input_mutex_);
+  for (auto it = unmatched_images_.begin(); it != unmatched_images_.end(); ++it) {
+    if ((*it)->header.stamp == info->header.stamp) {
+      const sensor_msgs::ImageConstPtr image = *it;
+      // Older unmatched images will never get their camera_info.
+      for (auto old = unmatched_images_.begin(); old != it; ++old) {
+        RejectFrame(kNoCameraInfo + info_topic_ + ": frame not used (the node never guesses intrinsics)");
+      }
+      unmatched_images_.erase(unmatched_images_.begin(), it + 1);
+      AcceptFrame(image, info);
+      return;
+    }
+  }
+  recent_infos_.push_back(info);
+  while (recent_infos_.size() > kMaxRecentInfos) recent_infos_.pop_front();
+}
+
+void EstimatorNodelet::RejectFrame(const std::string& why) {
+  ++frames_rejected_;
+  const uint64_t count = ++rejections_[why];
+  if (count == 1) {
+    NODELET_WARN("deblur_sr_mvs: %s", why.c_str());
+  } else {
+    NODELET_WARN_THROTTLE(10.0, "deblur_sr_mvs: %s (%lu times so far)", why.c_str(),
+                          static_cast<unsigned long>(count));
+  }
+  std::lock_guard<std::mutex> lock(health_mutex_);
+  last_problem_ = why;
+}
+
+void EstimatorNodelet::RestartStream(const std::string& why) {
+  NODELET_WARN("deblur_sr_mvs: %s: the trajectory restarts", why.c_str());
+  windower_->Reset();
+  have_stream_ = false;
+  ++epoch_;
+  ++resets_;
+  std::lock_guard<std::mutex> lock(health_mutex_);
+  last_problem_ = why;
+}
+
+void EstimatorNodelet::AcceptFrame(const sensor_msgs::ImageConstPtr& image,
+                                   const sensor_msgs::CameraInfoConstPtr& info) {
+  ros_glue::ImageFamily family;
+  cv::Mat image01;
+  PinholeCamera camera;
+  try {
+    image01 = ros_glue::ImageToFloat01(*image, &family);
+    camera = ros_glue::CameraFromInfo(*info, image01.cols, image01.rows, params_.distortion);
+  } catch (const std::exception& error) {
+    RejectFrame(error.what());
+    return;
+  }
+  const ros::Time stamp = image->header.stamp;
+  if (have_stream_ && stamp == last_stamp_) {
+    RejectFrame("duplicate image stamp " + std::to_string(stamp.toSec()) + ": frame not used");
+    return;
+  }
+  if (have_stream_ && stamp < last_stamp_) {
+    RestartStream("image stamp went back by " + std::to_string((last_stamp_ - stamp).toSec()) +
+                  " s (bag loop or clock reset?)");
+  }
+  const bool colour = family == ros_glue::ImageFamily::kRgb8 || family == ros_glue::ImageFamily::kBgr8;
+  const bool stream_colour = stream_family_ == ros_glue::ImageFamily::kRgb8 ||
+                             stream_family_ == ros_glue::ImageFamily::kBgr8;
+  if (have_stream_ && (camera.width != stream_camera_.width || camera.height != stream_camera_.height ||
+                       camera.fx != stream_camera_.fx || camera.fy != stream_camera_.fy ||
+                       camera.cx != stream_camera_.cx || camera.cy != stream_camera_.cy ||
+                       colour != stream_colour)) {
+    RestartStream("image size, intrinsics or colour changed");
+  }
+  if (!have_stream_) {
+    have_stream_ = true;
+    epoch_origin_ = stamp;
+    stream_camera_ = camera;
+    stream_camera_frame_ = !params_.camera_frame.empty() ? params_.camera_frame
+                           : image->header.frame_id.empty() ? std::string("camera_estimated")
+                                                            : image->header.frame_id + "_estimated";
+  }
+  stream_family_ = family;
+  last_stamp_ = stamp;
+
+  StreamFrame frame;
+  frame.id = next_frame_id_++;
+  frame.stamp_ns = static_cast<int64_t>(stamp.toNSec());
+  frame.stamp_close = (stamp - epoch_origin_).toSec() + params_.CloseOffset();
+  frame.exposure = params_.exposure_time;
+  frame.image = image01;
+  for (StreamWindow& frames : windower_->Add(std::move(frame))) {
+    PendingWindow window;
+    window.frames = std::move(frames);
+    window.camera = stream_camera_;
+    window.family = stream_family_;
+    window.camera_frame = stream_camera_frame_;
+    window.epoch = epoch_;
+    window.completed = ros::WallTime::now();
+    if (queue_->Push(std::move(window)) > 0) {
+      NODELET_WARN_THROTTLE(5.0,
+                            "deblur_sr_mvs: the worker is busy: dropped the oldest pending window "
+                            "(%lu dropped so far; raise max_pending_windows or lower the rate)",
+                            static_cast<unsigned long>(queue_->dropped()));
+    }
+  }
+}
+
+void EstimatorNodelet::ReconfigureCallback(EstimatorConfig& config, uint32_t /*level*/) {
+  std::lock_guard<std::mutex> lock(input_mutex_);
+  try {
+    params_ = ros_glue::WithConfig(params_, config);
+  } catch (const std::exception& error) {
+    NODELET_WARN("deblur_sr_mvs: reconfigure rejected: %s; keeping the previous values", error.what());
+    config = ros_glue::ConfigOf(params_);
+    return;
+  }
+  windower_->SetOptions(params_.stream);
+  ++params_version_;
+}
+
+void EstimatorNodelet::WorkerLoop() {
+  PendingWindow window;
+  while (!shutting_down_ && queue_->Pop(&window)) {
+    ProcessWindow(std::move(window));
+    window = PendingWindow();
+  }
+}
+
+void EstimatorNodelet::ProcessWindow(PendingWindow window) {
+  ros_glue::NodeParameters params;
+  uint64_t version;
+  {
+    std::lock_guard<std::mutex> lock(input_mutex_);
+    params = params_;
+    version = params_version_;
+  }
+  if (version != worker_params_version_) {
+    stream_->SetOptions(params.estimator);
+    worker_params_version_ = version;
+  }
+  if (window.epoch != worker_epoch_) {
+    stream_->Reset();
+    path_.poses.clear();
+    worker_epoch_ = window.epoch;
+  }
+  ++window_index_;
+
+  EstimatorStatus status;
+  status.header.frame_id = params.world_frame;
+  status.header.stamp.fromNSec(static_cast<uint64_t>(window.frames.back().stamp_ns));
+  status.window_index = window_index_;
+  for (const StreamFrame& frame : window.frames) {
+    status.frame_stamps.push_back(ros::Time().fromNSec(static_cast<uint64_t>(frame.stamp_ns)));
+  }
+
+  // The exposure cannot exceed the frame interval (the shutter would still be
+  // open when the next frame starts): clamp it and say so.
+  bool clamped = false;
+  for (size_t i = 0; i < window.frames.size(); ++i) {
+    const size_t j = i > 0 ? i - 1 : 1;
+    const double interval = std::abs(window.frames[i].stamp_close - window.frames[j].stamp_close);
+    if (window.frames[i].exposure > interval) {
+      window.frames[i].exposure = interval;
+      clamped = true;
+    }
+  }
+
+  const ros::WallTime start = ros::WallTime::now();
+  WindowEstimate estimate;
+  try {
+    estimate = stream_->Process(window.frames, window.camera);
+  } catch (const EstimationCancelled&) {
+    return;  // shutting down: publish nothing more
+  } catch (const std::exception& error) {
+    ++windows_failed_;
+    status.success = false;
+    status.message = std::string("window skipped: ") + error.what();
+    NODELET_WARN("deblur_sr_mvs: %s", status.message.c_str());
+    {
+      std::lock_guard<std::mutex> lock(health_mutex_);
+      last_problem_ = status.message;
+    }
+    PublishStatus(status);
+    return;
+  }
+  if (shutting_down_) return;
+  const EstimatorResult& result = estimate.result;
+
+  // Never publish garbage: every pose finite, every image finite.
+  bool finite = true;
+  for (const SE3& pose : result.T_world_cam) {
+    finite = finite && pose.translation().allFinite() && pose.rotation().allFinite();
+  }
+  for (const cv::Mat& latent : result.latent) finite = finite && AllFinite(latent);
+  if (!finite) {
+    ++windows_failed_;
+    status.success = false;
+    status.message = "window skipped: the estimate is not finite";
+    NODELET_WARN("deblur_sr_mvs: %s", status.message.c_str());
+    stream_->Reset();
+    PublishStatus(status);
+    return;
+  }
+
+  if (!estimate.continued) path_.poses.clear();
+  const int scale = params.estimator.scale;
+  for (size_t i = static_cast<size_t>(estimate.first_new); i < window.frames.size(); ++i) {
+    if (shutting_down_ || !ros::ok()) return;
+    std_msgs::Header header;
+    header.stamp.fromNSec(static_cast<uint64_t>(estimate.stamps_ns[i]));
+    header.frame_id = window.camera_frame;
+    const sensor_msgs::CameraInfo info = ros_glue::ScaledCameraInfo(window.camera, scale, header);
+    restored_publisher_.publish(ros_glue::Float01ToImage(result.latent[i], window.family, header), info);
+    depth_publisher_.publish(ros_glue::DepthToImage(result.depth[i], header), info);
+
+    geometry_msgs::PoseStamped pose;
+    pose.header.stamp = header.stamp;
+    pose.header.frame_id = params.world_frame;
+    pose.pose = ros_glue::PoseToMsg(result.T_world_cam[i]);
+    pose_publisher_.publish(pose);
+    path_.poses.push_back(pose);
+    if (tf_broadcaster_) {
+      geometry_msgs::TransformStamped transform;
+      transform.header = pose.header;
+      transform.child_frame_id = window.camera_frame;
+      transform.transform.translation.x = pose.pose.position.x;
+      transform.transform.translation.y = pose.pose.position.y;
+      transform.transform.translation.z = pose.pose.position.z;
+      transform.transform.rotation = pose.pose.orientation;
+      tf_broadcaster_->sendTransform(transform);
+    }
+    if (points_publisher_.getNumSubscribers() > 0) {
+      points_publisher_.publish(ros_glue::DepthToPoints(result.depth[i], result.latent[i], result.camera_hr,
+                                                        params.points_stride, header));
+    }
+    ++frames_published_;
+  }
+  while (path_.poses.size() > static_cast<size_t>(params.max_path_length)) {
+    path_.poses.erase(path_.poses.begin());
+  }
+  path_.header.frame_id = params.world_frame;
+  path_.header.stamp = status.header.stamp;
+  path_publisher_.publish(path_);
+
+  const double processing = (ros::WallTime::now() - start).toSec();
+  const double latency = (ros::WallTime::now() - window.completed).toSec();
+  ++windows_processed_;
+  {
+    std::lock_guard<std::mutex> lock(health_mutex_);
+    last_latency_ = latency;
+    last_processing_ = processing;
+  }
+  status.success = true;
+  status.continued = estimate.continued;
+  status.first_new = estimate.first_new;
+  status.message = estimate.note + (clamped ? "; exposure_time clamped to the frame interval" : "");
+  for (const EnergyRecord& energy : result.energies) {
+    status.energy_stages.push_back(energy.stage);
+    status.energy_iterations.push_back(energy.iteration);
+    status.energies.push_back(energy.total);
+  }
+  for (const StageTiming& timing : result.timings) {
+    status.stage_names.push_back(timing.stage);
+    status.stage_seconds.push_back(timing.seconds);
+  }
+  status.processing_seconds = processing;
+  status.latency_seconds = latency;
+  PublishStatus(status);
+}
+
+void EstimatorNodelet::PublishStatus(EstimatorStatus status) {
+  if (shutting_down_ || !ros::ok()) return;
+  status.frames_received = frames_received_;
+  status.frames_rejected = frames_rejected_;
+  status.frames_published = frames_published_;
+  status.windows_dropped = queue_->dropped();
+  status.windows_failed = windows_failed_;
+  status.resets = resets_;
+  status.scale_note = kScaleNote;
+  status_publisher_.publish(status);
+}
+
+void EstimatorNodelet::Diagnose(diagnostic_updater::DiagnosticStatusWrapper& status) {
+  const ros::WallTime now = ros::WallTime::now();
+  const uint64_t windows = windows_processed_;
+  const uint64_t drops = queue_->dropped();
+  const double elapsed = std::max(1e-6, (now - diagnosed_at_).toSec());
+  const double rate = (windows - diagnosed_windows_) / elapsed;
+  const bool new_drops = drops > diagnosed_drops_;
+  std::string problem;
+  double latency, processing;
+  {
+    std::lock_guard<std::mutex> lock(health_mutex_);
+    problem = last_problem_;
+    latency = last_latency_;
+    processing = last_processing_;
+  }
+  if (new_drops) {
+    status.summary(diagnostic_msgs::DiagnosticStatus::WARN, "dropping windows: the worker cannot keep up");
+  } else if (frames_received_ > 0 && frames_published_ == 0 && frames_rejected_ > 0) {
+    status.summary(diagnostic_msgs::DiagnosticStatus::ERROR, "every frame rejected: " + problem);
+  } else {
+    status.summary(diagnostic_msgs::DiagnosticStatus::OK, "running");
+  }
+  status.add("window rate (Hz)", rate);
+  status.add("last latency (s)", latency);
+  status.add("last window processing (s)", processing);
+  status.add("windows processed", windows);
+  status.add("windows dropped", drops);
+  status.add("windows failed", static_cast<uint64_t>(windows_failed_));
+  status.add("frames received", static_cast<uint64_t>(frames_received_));
+  status.add("frames rejected", static_cast<uint64_t>(frames_rejected_));
+  status.add("frames published", static_cast<uint64_t>(frames_published_));
+  status.add("stream resets", static_cast<uint64_t>(resets_));
+  status.add("pending windows", queue_->size());
+  status.add("last problem", problem);
+  diagnosed_at_ = now;
+  diagnosed_windows_ = windows;
+  diagnosed_drops_ = drops;
+}
+
+}  // namespace deblur_sr_mvs
+
+PLUGINLIB_EXPORT_CLASS(deblur_sr_mvs::EstimatorNodelet, nodelet::Nodelet)

@@ -1,0 +1,280 @@
+// rostest of the estimator node (test/ros/estimator_node.test): a small
+// synthesized sequence is published as a camera (rgb8 image + camera_info)
+// and everything the node publishes is checked against the frames and the
+// ground truth. A second nodelet, loaded in this process, checks shutdown
+// while a window is being estimated.
+#include <atomic>
+#include <chrono>
+#include <cstdlib>
+#include <map>
+#include <mutex>
+#include <set>
+#include <thread>
+
+#include <gtest/gtest.h>
+#include <nav_msgs/Path.h>
+#include <nodelet/loader.h>
+#include <geometry_msgs/PoseStamped.h>
+#include <ros/ros.h>
+#include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/Image.h>
+#include <sensor_msgs/PointCloud2.h>
+#include <tf2_ros/transform_listener.h>
+
+#include "deblur_sr_mvs/EstimatorStatus.h"
+#include "deblur_sr_mvs/core/image_ops.h"
+#include "deblur_sr_mvs/core/metrics.h"
+#include "deblur_sr_mvs/core/sequence_io.h"
+#include "deblur_sr_mvs/ros/conversions.h"
+
+namespace deblur_sr_mvs {
+namespace {
+
+constexpr int kFrames = 6;  // windows of 4 overlapping by 2: frames 0-3 and 2-5
+
+const Sequence& TestSequence() {
+  static const Sequence sequence = [] {
+    const std::string folder = "/tmp/dsm_rostest_sequence_" + std::to_string(getpid());
+    const std::string command = std::string(DSM_SYNTHESIZE_SEQUENCE) + " --scene " + DSM_SOURCE_DIR +
+                                "/data/middlebury/Dolls --output " + folder + " --frames " +
+                                std::to_string(kFrames) +
+                                " --subframes 60 --fps 30 --exposure-ratio 0.8"
+                                " --hr-width 192 --hr-height 144 > /dev/null";
+    EXPECT_EQ(std::system(command.c_str()), 0);
+    return ReadSequence(folder, true);
+  }();
+  return sequence;
+}
+
+// Stamps of the published frames: far from 0 so that a bag-like clock works.
+ros::Time FrameStamp(int t) { return ros::Time(100.0) + ros::Duration(TestSequence().frames[t].stamp); }
+
+sensor_msgs::ImagePtr Rgb8Message(const cv::Mat& bgr, const ros::Time& stamp) {
+  std_msgs::Header header;
+  header.stamp = stamp;
+  header.frame_id = "test_camera";
+  cv::Mat float01 = ToFloat01(bgr);
+  return boost::make_shared<sensor_msgs::Image>(
+      ros_glue::Float01ToImage(float01, ros_glue::ImageFamily::kRgb8, header));
+}
+
+sensor_msgs::CameraInfoPtr InfoMessage(const ros::Time& stamp) {
+  const PinholeCamera& camera = TestSequence().calibration.camera;
+  std_msgs::Header header;
+  header.stamp = stamp;
+  header.frame_id = "test_camera";
+  auto info = boost::make_shared<sensor_msgs::CameraInfo>(ros_glue::ScaledCameraInfo(camera, 1, header));
+  return info;
+}
+
+template <typename Predicate>
+bool WaitFor(Predicate done, double seconds) {
+  const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(seconds);
+  while (ros::ok() && ros::WallTime::now() < deadline) {
+    if (done()) return true;
+    ros::WallDuration(0.02).sleep();
+  }
+  return done();
+}
+
+struct Outputs {
+  std::mutex mutex;
+  std::vector<sensor_msgs::ImageConstPtr> restored, depth;
+  std::vector<sensor_msgs::CameraInfoConstPtr> restored_info, depth_info;
+  std::vector<geometry_msgs::PoseStampedConstPtr> poses;
+  std::vector<EstimatorStatusConstPtr> statuses;
+  nav_msgs::PathConstPtr path;
+  int clouds = 0;
+  size_t Count() {
+    std::lock_guard<std::mutex> lock(mutex);
+    return restored.size() + depth.size() + poses.size();
+  }
+};
+
+class EstimatorNodeTest : public testing::Test {
+ protected:
+  void SetUp() override {
+    ASSERT_FALSE(TestSequence().images.empty());
+    node_ = ros::NodeHandle("deblur_sr_mvs");
+    auto keep = [](auto* list, std::mutex* mutex) {
+      return [list, mutex](const auto& message) {
+        std::lock_guard<std::mutex> lock(*mutex);
+        list->push_back(message);
+      };
+    };
+    subscribers_.push_back(node_.subscribe<sensor_msgs::Image>("restored/image", 20,
+                                                                keep(&out_.restored, &out_.mutex)));
+    subscribers_.push_back(node_.subscribe<sensor_msgs::CameraInfo>(
+        "restored/camera_info", 20, keep(&out_.restored_info, &out_.mutex)));
+    subscribers_.push_back(node_.subscribe<sensor_msgs::Image>("depth/image", 20, keep(&out_.depth, &out_.mutex)));
+    subscribers_.push_back(node_.subscribe<sensor_msgs::CameraInfo>("depth/camera_info", 20,
+                                                                     keep(&out_.depth_info, &out_.mutex)));
+    subscribers_.push_back(node_.subscribe<geometry_msgs::PoseStamped>("pose", 20, keep(&out_.poses, &out_.mutex)));
+    subscribers_.push_back(node_.subscribe<EstimatorStatus>("status", 20, keep(&out_.statuses, &out_.mutex)));
+    subscribers_.push_back(node_.subscribe<nav_msgs::Path>("path", 5, [this](const nav_msgs::PathConstPtr& path) {
+      std::lock_guard<std::mutex> lock(out_.mutex);
+      out_.path = path;
+    }));
+    subscribers_.push_back(node_.subscribe<sensor_msgs::PointCloud2>(
+        "points", 5, [this](const sensor_msgs::PointCloud2ConstPtr&) {
+          std::lock_guard<std::mutex> lock(out_.mutex);
+          ++out_.clouds;
+        }));
+    image_publisher_ = ros::NodeHandle().advertise<sensor_msgs::Image>("/camera/image", 10);
+    info_publisher_ = ros::NodeHandle().advertise<sensor_msgs::CameraInfo>("/camera/camera_info", 10);
+    // The node subscribes lazily: once our subscriptions reach it.
+    ASSERT_TRUE(WaitFor([&] { return image_publisher_.getNumSubscribers() > 0 &&
+                                     info_publisher_.getNumSubscribers() > 0; }, 30.0))
+        << "the node never subscribed to /camera/image and /camera/camera_info";
+  }
+
+  ros::NodeHandle node_;
+  std::vector<ros::Subscriber> subscribers_;
+  ros::Publisher image_publisher_, info_publisher_;
+  Outputs out_;
+};
+
+TEST_F(EstimatorNodeTest, PublishesEveryFrameConsistentlyAndBeatsBicubic) {
+  const Sequence& sequence = TestSequence();
+  tf2_ros::Buffer tf_buffer;
+  tf2_ros::TransformListener tf_listener(tf_buffer);
+
+  // Images without camera_info first: the node must not guess intrinsics.
+  for (int i = 0; i < 3; ++i) {
+    image_publisher_.publish(Rgb8Message(sequence.images[0], ros::Time(10.0 + i)));
+    ros::WallDuration(0.05).sleep();
+  }
+  ros::WallDuration(1.0).sleep();
+  EXPECT_EQ(out_.Count(), 0u) << "outputs without camera_info";
+
+  // Then the sequence as a camera would send it.
+  for (int t = 0; t < kFrames; ++t) {
+    info_publisher_.publish(InfoMessage(FrameStamp(t)));
+    image_publisher_.publish(Rgb8Message(sequence.images[t], FrameStamp(t)));
+    ros::WallDuration(0.1).sleep();
+  }
+  ASSERT_TRUE(WaitFor([&] {
+    std::lock_guard<std::mutex> lock(out_.mutex);
+    return out_.poses.size() >= kFrames && out_.restored.size() >= kFrames && out_.depth.size() >= kFrames &&
+           out_.statuses.size() >= 2;
+  }, 120.0)) << "outputs for all " << kFrames << " frames did not arrive";
+  ros::WallDuration(0.5).sleep();  // anything extra would arrive now
+
+  std::lock_guard<std::mutex> lock(out_.mutex);
+  ASSERT_EQ(out_.restored.size(), static_cast<size_t>(kFrames)) << "each frame exactly once";
+  ASSERT_EQ(out_.depth.size(), static_cast<size_t>(kFrames));
+  ASSERT_EQ(out_.poses.size(), static_cast<size_t>(kFrames));
+
+  const PinholeCamera hr = sequence.calibration.camera.Upscaled(2);
+  double psnr_restored = 0.0, psnr_bicubic = 0.0;
+  for (int t = 0; t < kFrames; ++t) {
+    const ros::Time stamp = FrameStamp(t);
+    const sensor_msgs::Image& restored = *out_.restored[t];
+    EXPECT_EQ(restored.header.stamp, stamp) << "frame " << t;
+    EXPECT_EQ(restored.header.frame_id, "test_camera_estimated");
+    EXPECT_EQ(restored.encoding, "rgb8");
+    EXPECT_EQ(static_cast<int>(restored.width), hr.width);
+    EXPECT_EQ(static_cast<int>(restored.height), hr.height);
+    const sensor_msgs::CameraInfo& info = *out_.restored_info[t];
+    EXPECT_EQ(info.header.stamp, stamp);
+    EXPECT_EQ(static_cast<int>(info.width), hr.width);
+    EXPECT_DOUBLE_EQ(info.K[0], hr.fx);
+    EXPECT_DOUBLE_EQ(info.K[2], hr.cx);
+    EXPECT_DOUBLE_EQ(info.K[4], hr.fy);
+    EXPECT_DOUBLE_EQ(info.K[5], hr.cy);
+    EXPECT_DOUBLE_EQ(info.P[2], hr.cx);
+
+    const sensor_msgs::Image& depth = *out_.depth[t];
+    EXPECT_EQ(depth.header.stamp, stamp);
+    EXPECT_EQ(depth.encoding, "32FC1");
+    EXPECT_EQ(static_cast<int>(depth.width), hr.width);
+    EXPECT_EQ(out_.depth_info[t]->header.stamp, stamp);
+    const float* values = reinterpret_cast<const float*>(depth.data.data());
+    int valid = 0;
+    for (int i = 0; i < hr.width * hr.height; ++i) valid += std::isfinite(values[i]) && values[i] > 0;
+    EXPECT_GT(valid, hr.width * hr.height / 2) << "frame " << t;
+
+    EXPECT_EQ(out_.poses[t]->header.stamp, stamp);
+    EXPECT_EQ(out_.poses[t]->header.frame_id, "world");
+    EXPECT_TRUE(tf_buffer.canTransform("world", "test_camera_estimated", stamp, ros::Duration(2.0)))
+        << "tf world -> test_camera_estimated at frame " << t;
+
+    ros_glue::ImageFamily family;
+    const cv::Mat restored01 = ros_glue::ImageToFloat01(restored, &family);
+    psnr_restored += Psnr(ToImage8(restored01), sequence.ground_truth->latent[t], 255.0);
+    psnr_bicubic += Psnr(ToImage8(UpsampleBicubic(ToFloat01(sequence.images[t]), 2)),
+                         sequence.ground_truth->latent[t], 255.0);
+  }
+  psnr_restored /= kFrames;
+  psnr_bicubic /= kFrames;
+  std::cout << "restored " << psnr_restored << " dB, bicubic " << psnr_bicubic << " dB\n";
+  EXPECT_GT(psnr_restored, psnr_bicubic + 1.0);
+
+  // Status: two successful windows, the second tied to the first.
+  const EstimatorStatus& first = *out_.statuses[0];
+  const EstimatorStatus& second = *out_.statuses[1];
+  EXPECT_TRUE(first.success) << first.message;
+  EXPECT_TRUE(second.success) << second.message;
+  EXPECT_FALSE(first.continued);
+  EXPECT_TRUE(second.continued) << second.message;
+  EXPECT_EQ(second.first_new, 2u);
+  EXPECT_EQ(second.frame_stamps.size(), 4u);
+  EXPECT_FALSE(second.energies.empty());
+  EXPECT_EQ(second.frames_rejected, 3u) << "the images without camera_info";
+  EXPECT_EQ(second.frames_published, static_cast<uint64_t>(kFrames));
+  EXPECT_FALSE(second.scale_note.empty());
+  ASSERT_TRUE(out_.path != nullptr);
+  EXPECT_EQ(out_.path->poses.size(), static_cast<size_t>(kFrames));
+  EXPECT_GT(out_.clouds, 0);
+}
+
+// A nodelet loaded here is unloaded (as on SIGINT or manager shutdown) while
+// it estimates a window: unloading returns promptly and nothing is published
+// afterwards.
+TEST(EstimatorNodeletShutdown, UnloadWhileAWindowIsEstimated) {
+  const Sequence& sequence = TestSequence();
+  ros::NodeHandle node;
+  ros::param::set("/shutdown_test/estimator/exposure_time", 0.8 / 30.0);
+  ros::param::set("/shutdown_test/estimator/window_size", 4);
+  ros::param::set("/shutdown_test/estimator/lazy_subscription", false);
+  nodelet::Loader loader(false);
+  nodelet::M_string remappings{{"/shutdown_test/image", "/shutdown_camera/image"},
+                               {"/shutdown_test/camera_info", "/shutdown_camera/camera_info"}};
+  ASSERT_TRUE(loader.load("/shutdown_test/estimator", "deblur_sr_mvs/EstimatorNodelet", remappings, {}));
+  std::atomic<int> published{0};
+  ros::Subscriber status = node.subscribe<EstimatorStatus>(
+      "/shutdown_test/status", 5, [&](const EstimatorStatusConstPtr&) { ++published; });
+  ros::Subscriber restored = node.subscribe<sensor_msgs::Image>(
+      "/shutdown_test/restored/image", 5, [&](const sensor_msgs::ImageConstPtr&) { ++published; });
+  ros::Publisher images = node.advertise<sensor_msgs::Image>("/shutdown_camera/image", 10);
+  ros::Publisher infos = node.advertise<sensor_msgs::CameraInfo>("/shutdown_camera/camera_info", 10);
+  ASSERT_TRUE(WaitFor([&] { return images.getNumSubscribers() > 0 && infos.getNumSubscribers() > 0; }, 30.0));
+  for (int t = 0; t < 4; ++t) {
+    infos.publish(InfoMessage(FrameStamp(t)));
+    images.publish(Rgb8Message(sequence.images[t], FrameStamp(t)));
+    ros::WallDuration(0.05).sleep();
+  }
+  ros::WallDuration(0.5).sleep();  // the worker is now estimating (it takes seconds)
+  const int before = published;
+  const auto start = std::chrono::steady_clock::now();
+  ASSERT_TRUE(loader.unload("/shutdown_test/estimator"));
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  std::cout << "unload took " << seconds << " s\n";
+  EXPECT_LT(seconds, 10.0) << "the worker did not stop";
+  ros::WallDuration(1.0).sleep();
+  EXPECT_EQ(published.load(), before) << "published after unload";
+}
+
+}  // namespace
+}  // namespace deblur_sr_mvs
+
+int main(int argc, char** argv) {
+  testing::InitGoogleTest(&argc, argv);
+  ros::init(argc, argv, "estimator_node_test");
+  ros::AsyncSpinner spinner(2);
+  spinner.start();
+  const int result = RUN_ALL_TESTS();
+  spinner.stop();
+  ros::shutdown();
+  return result;
+}
