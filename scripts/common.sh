@@ -21,3 +21,29 @@ dsm_build_plain() {
 
 # The tools of the plain build.
 dsm_tool() { echo "$DSM_PLAIN_BUILD/$1"; }
+
+# catkin workspace build (Release) of the whole package, ROS parts included;
+# the repository is linked into the workspace. Log: $DSM_CACHE/catkin_make.log.
+# Usage: dsm_build_catkin [tests]
+dsm_build_catkin() {
+  mkdir -p "$DSM_WORKSPACE/src"
+  ln -sfn "$DSM_REPO" "$DSM_WORKSPACE/src/deblur_sr_mvs"
+  (cd "$DSM_WORKSPACE" && catkin_make -j"$DSM_JOBS" \
+    -DPYTHON_EXECUTABLE=/usr/bin/python3 -DPython3_EXECUTABLE=/usr/bin/python3 \
+    -DCMAKE_BUILD_TYPE=Release >"$DSM_CACHE/catkin_make.log" 2>&1) ||
+    { tail -n 40 "$DSM_CACHE/catkin_make.log"; echo "catkin build failed (log: $DSM_CACHE/catkin_make.log)" >&2; return 1; }
+  if [ "${1:-}" = "tests" ]; then
+    (cd "$DSM_WORKSPACE" && catkin_make -j"$DSM_JOBS" tests >>"$DSM_CACHE/catkin_make.log" 2>&1) ||
+      { tail -n 40 "$DSM_CACHE/catkin_make.log"; echo "catkin test build failed" >&2; return 1; }
+  fi
+}
+
+# Sources the workspace (devel/setup.bash fails under `set -u`).
+dsm_source_workspace() {
+  local had_u=0
+  case $- in *u*) had_u=1; set +u ;; esac
+  # shellcheck disable=SC1091
+  source "$DSM_WORKSPACE/devel/setup.bash"
+  [ "$had_u" -eq 1 ] && set -u
+  return 0
+}

@@ -1,33 +1,102 @@
 #!/usr/bin/env bash
-# The main job on bundled data: synthesizes the bundled Dolls sequence (10
-# blurry LR frames with ground truth), runs the joint estimator on it, evaluates
-# it against the ground truth and writes what a person wants to look at:
-#   demo_output/dolls_sequence/   the input sequence (images/, frames.csv, gt/)
-#   demo_output/dolls_result/     restored HR images (latent/), depth (depth/,
-#                                 depth_color/), poses.txt, report.json
-#   demo_output/dolls_comparison.png  input | bicubic | restored | truth, depth, trajectory
-#   demo_output/metrics.md        the paper's two tables for this run
-# The ROS node on a bag replaces the offline estimator here with issue 4.
+# The main job on bundled data, the way a user runs it: a bag through the ROS
+# node. Synthesizes the bundled Dolls sequence (10 blurry LR frames with ground
+# truth), writes it as a bag, starts a private ROS master, plays the bag
+# through launch/play_bag.launch (headless), records the node's outputs,
+# converts them back into a result folder, evaluates it against the ground
+# truth and writes what a person wants to look at:
+#   demo_output/dolls.bag                 the input bag (camera + ground truth)
+#   demo_output/node_outputs.bag          what the node published
+#   demo_output/dolls_result/             restored HR images (latent/), depth (depth/,
+#                                         depth_color/), poses.txt, report.json (windows)
+#   demo_output/dolls_comparison.png      input | bicubic | restored | truth, depth, trajectory
+#   demo_output/metrics.md                the paper's two tables, plus the node's timing
 # Usage: scripts/demo.sh [OUTPUT_DIR]   (default: demo_output/)
 set -eo pipefail
 source "$(dirname "$0")/common.sh"
 
 out="${1:-$DSM_REPO/demo_output}"
-"$DSM_REPO/scripts/install_deps.sh" --core-only
-echo "== building (Release) in $DSM_PLAIN_BUILD"
+frames=10
+"$DSM_REPO/scripts/install_deps.sh"
+echo "== building (Release): tools in $DSM_PLAIN_BUILD, node in $DSM_WORKSPACE"
 dsm_build_plain >/dev/null
+dsm_build_catkin
+dsm_source_workspace
+ros_bin="$DSM_WORKSPACE/devel/lib/deblur_sr_mvs"
 
 mkdir -p "$out"
-echo "== synthesizing the Dolls sequence into $out/dolls_sequence"
-rm -rf "$out/dolls_sequence" "$out/dolls_result"
+out="$(cd "$out" && pwd)"
+seq_dir="$out/dolls_sequence"
+echo "== synthesizing the Dolls sequence ($frames frames) and its bag"
+rm -rf "$seq_dir" "$out/dolls_result" "$out/dolls.bag" "$out/node_outputs.bag"
 "$(dsm_tool synthesize_sequence)" --scene "$DSM_REPO/data/middlebury/Dolls" \
-  --output "$out/dolls_sequence" --frames 10 --scale 2 --seed 0
-echo "== joint estimation (paper's parameters: M 50, max_iter 3, x2)"
-"$(dsm_tool estimate_sequence)" --input "$out/dolls_sequence" --output "$out/dolls_result"
+  --output "$seq_dir" --frames "$frames" --scale 2 --seed 0
+"$ros_bin/sequence_to_bag" --input "$seq_dir" --output "$out/dolls.bag"
+exposure="$(awk -F, 'NR == 2 { print $3 }' "$seq_dir/frames.csv")"
+
+# A private master, so that a running robot system is not disturbed.
+export ROS_MASTER_URI="http://localhost:${DSM_DEMO_PORT:-11399}"
+pids=()
+cleanup() {
+  for ((i = ${#pids[@]} - 1; i >= 0; i--)); do kill -INT "${pids[i]}" 2>/dev/null || true; done
+  for pid in "${pids[@]}"; do wait "$pid" 2>/dev/null || true; done
+}
+trap cleanup EXIT
+echo "== ROS master at $ROS_MASTER_URI"
+roscore -p "${DSM_DEMO_PORT:-11399}" >"$out/roscore.log" 2>&1 &
+pids+=($!)
+for _ in $(seq 100); do rostopic list >/dev/null 2>&1 && break; sleep 0.2; done
+rostopic list >/dev/null 2>&1 || { echo "demo: the ROS master did not start (log: $out/roscore.log)" >&2; exit 1; }
+
+ns=/deblur_sr_mvs
+/usr/lib/rosbag/record -O "$out/node_outputs.bag" __name:=demo_recorder \
+  $ns/restored/image $ns/restored/camera_info $ns/depth/image $ns/depth/camera_info \
+  $ns/pose $ns/path $ns/status /tf >"$out/record.log" 2>&1 &
+pids+=($!)
+echo "== roslaunch deblur_sr_mvs play_bag.launch bag:=$out/dolls.bag exposure_time:=$exposure"
+roslaunch deblur_sr_mvs play_bag.launch bag:="$out/dolls.bag" exposure_time:="$exposure" \
+  delay:=3 >"$out/node.log" 2>&1 &
+pids+=($!)
+
+echo "== waiting for the node to publish all $frames frames (log: $out/node.log)"
+published=0
+for _ in $(seq 300); do
+  published="$(timeout 5 rostopic echo -n 1 $ns/status/frames_published 2>/dev/null | head -n 1 || true)"
+  [ -n "$published" ] && [ "$published" -ge "$frames" ] && break
+  sleep 2
+done
+if [ -z "$published" ] || [ "$published" -lt "$frames" ]; then
+  tail -n 20 "$out/node.log"
+  echo "demo: the node published ${published:-0} of $frames frames (log: $out/node.log)" >&2
+  exit 1
+fi
+sleep 1  # the recorder writes the last messages
+cleanup
+pids=()
+trap - EXIT
+
+echo "== converting the recorded outputs into $out/dolls_result"
+"$ros_bin/bag_to_result" --input "$out/node_outputs.bag" --sequence "$seq_dir" --output "$out/dolls_result"
 echo "== evaluation against the ground truth"
-"$(dsm_tool evaluate_sequence)" --result "$out/dolls_result" --sequence "$out/dolls_sequence" \
-  --method joint --json "$out/metrics.json" > "$out/metrics.md"
-sed -n '1,12p' "$out/metrics.md"
-"$(dsm_tool make_comparison_figure)" --sequence "$out/dolls_sequence" --result "$out/dolls_result" \
+"$(dsm_tool evaluate_sequence)" --result "$out/dolls_result" --sequence "$seq_dir" \
+  --method "joint (ROS node)" --json "$out/metrics.json" > "$out/metrics.md"
+/usr/bin/python3 - "$out/dolls_result/report.json" >> "$out/metrics.md" <<'EOF'
+import json, sys
+report = json.load(open(sys.argv[1]))
+windows = report["windows"]
+print("\n## The node on the bag\n")
+print("| window | frames | new | processing (s) | latency (s) | result |")
+print("|---|---|---|---|---|---|")
+for w in windows:
+    print(f"| {w['window_index']} | {w['frames']} | {w['frames'] - w['first_new']} | "
+          f"{w['processing_seconds']:.2f} | {w['latency_seconds']:.2f} | {w['message']} |")
+total = sum(w["processing_seconds"] for w in windows)
+print(f"\nFrames published: {report.get('frames_published')}, rejected: {report.get('frames_rejected')}, "
+      f"windows dropped: {report.get('windows_dropped')}, failed: {report.get('windows_failed')}.")
+print(f"Throughput: {report.get('frames_published', 0) / max(total, 1e-9):.2f} frames/s of estimation "
+      f"({total:.1f} s for {len(windows)} windows). {report.get('scale_note', '')}.")
+EOF
+cat "$out/metrics.md"
+"$(dsm_tool make_comparison_figure)" --sequence "$seq_dir" --result "$out/dolls_result" \
   --output "$out/dolls_comparison.png"
 echo "demo: done; open $out/dolls_comparison.png and $out/metrics.md"

@@ -36,15 +36,8 @@ echo "== plain CMake build (core, tools, gtests) in $DSM_PLAIN_BUILD"
 dsm_build_plain
 run_ctest "$DSM_PLAIN_BUILD"
 
-echo "== catkin workspace build in $DSM_WORKSPACE"
-mkdir -p "$DSM_WORKSPACE/src"
-ln -sfn "$DSM_REPO" "$DSM_WORKSPACE/src/deblur_sr_mvs"
-(cd "$DSM_WORKSPACE" && catkin_make -j"$DSM_JOBS" \
-  -DPYTHON_EXECUTABLE=/usr/bin/python3 -DPython3_EXECUTABLE=/usr/bin/python3 \
-  -DCMAKE_BUILD_TYPE=Release >"$DSM_CACHE/catkin_make.log" 2>&1) ||
-  { tail -n 40 "$DSM_CACHE/catkin_make.log"; echo "test.sh: catkin build failed (log: $DSM_CACHE/catkin_make.log)"; exit 1; }
-(cd "$DSM_WORKSPACE" && catkin_make -j"$DSM_JOBS" tests >>"$DSM_CACHE/catkin_make.log" 2>&1) ||
-  { tail -n 40 "$DSM_CACHE/catkin_make.log"; echo "test.sh: catkin test build failed"; exit 1; }
+echo "== catkin workspace build in $DSM_WORKSPACE (node, nodelet, bag tools, rostests)"
+dsm_build_catkin tests || exit 1
 run_ctest "$DSM_WORKSPACE/build"
 
 echo "$passed passed, $failed failed"
