@@ -73,11 +73,14 @@ void EstimatorNodelet::onInit() {
   };
   std::unique_lock<std::mutex> lock(connect_mutex_);  // no connect callback before all exist
   lazy_subscription_ = params_.lazy_subscription;
+  // A window publishes its frames in a burst: the queues hold a whole window
+  // (at most 64 frames) so that a subscriber keeping up on average loses none.
+  constexpr int kQueue = 64;
   restored_publisher_ =
-      transport_->advertiseCamera("restored/image", 2, image_connect, image_connect, ros_connect, ros_connect);
+      transport_->advertiseCamera("restored/image", kQueue, image_connect, image_connect, ros_connect, ros_connect);
   depth_publisher_ =
-      transport_->advertiseCamera("depth/image", 2, image_connect, image_connect, ros_connect, ros_connect);
-  pose_publisher_ = node.advertise<geometry_msgs::PoseStamped>("pose", 10, ros_connect, ros_connect);
+      transport_->advertiseCamera("depth/image", kQueue, image_connect, image_connect, ros_connect, ros_connect);
+  pose_publisher_ = node.advertise<geometry_msgs::PoseStamped>("pose", kQueue, ros_connect, ros_connect);
   path_publisher_ = node.advertise<nav_msgs::Path>("path", 1, ros_connect, ros_connect);
   points_publisher_ = node.advertise<sensor_msgs::PointCloud2>("points", 2, ros_connect, ros_connect);
   if (params_.publish_tf) tf_broadcaster_ = std::make_unique<tf2_ros::TransformBroadcaster>();

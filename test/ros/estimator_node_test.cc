@@ -19,8 +19,11 @@
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/PointCloud2.h>
+#include <diagnostic_msgs/DiagnosticArray.h>
+#include <dynamic_reconfigure/client.h>
 #include <tf2_ros/transform_listener.h>
 
+#include "deblur_sr_mvs/EstimatorConfig.h"
 #include "deblur_sr_mvs/EstimatorStatus.h"
 #include "deblur_sr_mvs/core/image_ops.h"
 #include "deblur_sr_mvs/core/metrics.h"
@@ -31,13 +34,14 @@ namespace deblur_sr_mvs {
 namespace {
 
 constexpr int kFrames = 6;  // windows of 4 overlapping by 2: frames 0-3 and 2-5
+constexpr int kExtraFrames = 2;  // frames 6-7: a third window after a reconfigure
 
 const Sequence& TestSequence() {
   static const Sequence sequence = [] {
     const std::string folder = "/tmp/dsm_rostest_sequence_" + std::to_string(getpid());
     const std::string command = std::string(DSM_SYNTHESIZE_SEQUENCE) + " --scene " + DSM_SOURCE_DIR +
                                 "/data/middlebury/Dolls --output " + folder + " --frames " +
-                                std::to_string(kFrames) +
+                                std::to_string(kFrames + kExtraFrames) +
                                 " --subframes 60 --fps 30 --exposure-ratio 0.8"
                                 " --hr-width 192 --hr-height 144 > /dev/null";
     EXPECT_EQ(std::system(command.c_str()), 0);
@@ -85,6 +89,7 @@ struct Outputs {
   std::vector<EstimatorStatusConstPtr> statuses;
   nav_msgs::PathConstPtr path;
   int clouds = 0;
+  diagnostic_msgs::DiagnosticStatus diagnostics;
   size_t Count() {
     std::lock_guard<std::mutex> lock(mutex);
     return restored.size() + depth.size() + poses.size();
@@ -120,12 +125,30 @@ class EstimatorNodeTest : public testing::Test {
           std::lock_guard<std::mutex> lock(out_.mutex);
           ++out_.clouds;
         }));
+    subscribers_.push_back(ros::NodeHandle().subscribe<diagnostic_msgs::DiagnosticArray>(
+        "/diagnostics", 10, [this](const diagnostic_msgs::DiagnosticArrayConstPtr& array) {
+          std::lock_guard<std::mutex> lock(out_.mutex);
+          for (const auto& status : array->status) {
+            if (status.name.find("Window estimation") != std::string::npos) out_.diagnostics = status;
+          }
+        }));
     image_publisher_ = ros::NodeHandle().advertise<sensor_msgs::Image>("/camera/image", 10);
     info_publisher_ = ros::NodeHandle().advertise<sensor_msgs::CameraInfo>("/camera/camera_info", 10);
     // The node subscribes lazily: once our subscriptions reach it.
     ASSERT_TRUE(WaitFor([&] { return image_publisher_.getNumSubscribers() > 0 &&
                                      info_publisher_.getNumSubscribers() > 0; }, 30.0))
         << "the node never subscribed to /camera/image and /camera/camera_info";
+  }
+
+  std::string Summary() {
+    std::lock_guard<std::mutex> lock(out_.mutex);
+    std::string text = std::to_string(out_.restored.size()) + " restored, " +
+                       std::to_string(out_.depth.size()) + " depth, " + std::to_string(out_.poses.size()) +
+                       " poses, statuses:";
+    for (const auto& status : out_.statuses) {
+      text += " [window " + std::to_string(status->window_index) + ": " + status->message + "]";
+    }
+    return text;
   }
 
   ros::NodeHandle node_;
@@ -157,7 +180,7 @@ TEST_F(EstimatorNodeTest, PublishesEveryFrameConsistentlyAndBeatsBicubic) {
     std::lock_guard<std::mutex> lock(out_.mutex);
     return out_.poses.size() >= kFrames && out_.restored.size() >= kFrames && out_.depth.size() >= kFrames &&
            out_.statuses.size() >= 2;
-  }, 120.0)) << "outputs for all " << kFrames << " frames did not arrive";
+  }, 120.0)) << "outputs for all " << kFrames << " frames did not arrive: " << Summary();
   ros::WallDuration(0.5).sleep();  // anything extra would arrive now
 
   std::lock_guard<std::mutex> lock(out_.mutex);
@@ -228,6 +251,55 @@ TEST_F(EstimatorNodeTest, PublishesEveryFrameConsistentlyAndBeatsBicubic) {
   EXPECT_GT(out_.clouds, 0);
 }
 
+// Runs after the test above (gtest keeps the order): the node has estimated
+// frames 0-5. A reconfigure is checked, then applied to the next window.
+TEST_F(EstimatorNodeTest, ReconfigureAppliesFromTheNextWindowAndDiagnosticsReport) {
+  const Sequence& sequence = TestSequence();
+  dynamic_reconfigure::Client<EstimatorConfig> client("/deblur_sr_mvs/estimator");
+  EstimatorConfig config;
+  ASSERT_TRUE(client.getCurrentConfiguration(config, ros::Duration(10.0)));
+  EXPECT_EQ(config.window_size, 4);
+  EXPECT_EQ(config.iterations, 1);
+  // Inconsistent: overlap must stay below the window size. Rejected whole.
+  EstimatorConfig bad = config;
+  bad.window_overlap = 4;
+  bad.lambda_i = 0.2;
+  ASSERT_TRUE(client.setConfiguration(bad));
+  ASSERT_TRUE(client.getCurrentConfiguration(config, ros::Duration(10.0)));
+  EXPECT_EQ(config.window_overlap, 2);
+  EXPECT_DOUBLE_EQ(config.lambda_i, 0.45);
+  // Valid: no structure iterations from the next window on.
+  config.iterations = 0;
+  ASSERT_TRUE(client.setConfiguration(config));
+
+  for (int t = kFrames; t < kFrames + kExtraFrames; ++t) {
+    info_publisher_.publish(InfoMessage(FrameStamp(t)));
+    image_publisher_.publish(Rgb8Message(sequence.images[t], FrameStamp(t)));
+    ros::WallDuration(0.1).sleep();
+  }
+  ASSERT_TRUE(WaitFor([&] {
+    std::lock_guard<std::mutex> lock(out_.mutex);
+    return !out_.statuses.empty() && out_.statuses.back()->window_index == 3 &&
+           out_.poses.size() >= static_cast<size_t>(kExtraFrames);
+  }, 120.0));
+  // /diagnostics (1 Hz) carries the node's window statistics.
+  ASSERT_TRUE(WaitFor([&] {
+    std::lock_guard<std::mutex> lock(out_.mutex);
+    return !out_.diagnostics.values.empty();
+  }, 10.0));
+  std::lock_guard<std::mutex> lock(out_.mutex);
+  const EstimatorStatus& third = *out_.statuses.back();
+  EXPECT_TRUE(third.success) << third.message;
+  EXPECT_TRUE(third.continued) << third.message;
+  for (uint32_t iteration : third.energy_iterations) EXPECT_EQ(iteration, 0u) << "iterations = 0 applied";
+  EXPECT_EQ(out_.poses.back()->header.stamp, FrameStamp(kFrames + kExtraFrames - 1));
+
+  EXPECT_EQ(out_.diagnostics.hardware_id, "deblur_sr_mvs estimator on /camera/image");
+  bool has_latency = false;
+  for (const auto& value : out_.diagnostics.values) has_latency = has_latency || value.key == "last latency (s)";
+  EXPECT_TRUE(has_latency);
+}
+
 // A nodelet loaded here is unloaded (as on SIGINT or manager shutdown) while
 // it estimates a window: unloading returns promptly and nothing is published
 // afterwards.
@@ -256,6 +328,7 @@ TEST(EstimatorNodeletShutdown, UnloadWhileAWindowIsEstimated) {
   }
   ros::WallDuration(0.5).sleep();  // the worker is now estimating (it takes seconds)
   const int before = published;
+  EXPECT_EQ(before, 0) << "the window finished before the unload: cancellation was not exercised";
   const auto start = std::chrono::steady_clock::now();
   ASSERT_TRUE(loader.unload("/shutdown_test/estimator"));
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
