@@ -9,6 +9,10 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include <unistd.h>
+
+#include <filesystem>
+
 #include <gtest/gtest.h>
 
 #include "deblur_sr_mvs/core/image_ops.h"
@@ -21,12 +25,14 @@ namespace {
 // Synthesizes (once per test binary) a short Dolls sequence with ground truth.
 const Sequence& SmallSequence() {
   static const Sequence sequence = [] {
-    const std::string folder = testing::TempDir() + "/dsm_estimator_seq";
+    const std::string folder = testing::TempDir() + "/dsm_estimator_seq_" + std::to_string(::getpid());
     const std::string command = std::string(DSM_TOOL_DIR) + "/synthesize_sequence --scene " +
                                 DSM_SOURCE_DIR + "/data/middlebury/Dolls --output " + folder +
                                 " --frames 5 --subframes 100 > /dev/null";
     EXPECT_EQ(std::system(command.c_str()), 0);
-    return ReadSequence(folder, true);
+    Sequence read = ReadSequence(folder, true);
+    std::filesystem::remove_all(folder);  // per process (ctest runs tests in parallel)
+    return read;
   }();
   return sequence;
 }
@@ -194,7 +200,7 @@ namespace {
 // estimate_sequence: bad input gives exit code 2 and exactly one line on stderr.
 TEST(EstimateSequenceTool, BadInputGivesOneLineAndExitCode2) {
   const std::string tool = std::string(DSM_TOOL_DIR) + "/estimate_sequence";
-  const std::string log = testing::TempDir() + "/dsm_estimate_error.txt";
+  const std::string log = testing::TempDir() + "/dsm_estimate_error_" + std::to_string(::getpid()) + ".txt";
   const std::vector<std::string> bad_arguments = {
       "--input /nonexistent/seq --output " + testing::TempDir() + "/out",
       "--input x --output y --mode fancy",

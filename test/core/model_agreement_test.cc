@@ -8,6 +8,10 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include <unistd.h>
+
+#include <filesystem>
+
 #include <gtest/gtest.h>
 
 #include "deblur_sr_mvs/core/capture_operator.h"
@@ -20,12 +24,13 @@ namespace deblur_sr_mvs {
 namespace {
 
 TEST(ModelAgreement, CaptureOperatorReproducesSynthesizedBlur) {
-  const std::string folder = testing::TempDir() + "/dsm_model_agreement";
+  const std::string folder = testing::TempDir() + "/dsm_model_agreement_" + std::to_string(::getpid());
   const std::string command = std::string(DSM_TOOL_DIR) + "/synthesize_sequence --scene " +
                               DSM_SOURCE_DIR + "/data/middlebury/Dolls --output " + folder +
                               " --frames 4 > /dev/null";
   ASSERT_EQ(std::system(command.c_str()), 0);
   const Sequence sequence = ReadSequence(folder, true);
+  std::filesystem::remove_all(folder);
   ASSERT_TRUE(sequence.ground_truth.has_value());
   const int scale = sequence.ground_truth->calibration.camera.width / sequence.calibration.camera.width;
   ASSERT_EQ(scale, 2);

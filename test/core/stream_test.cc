@@ -7,6 +7,10 @@
 #include <iostream>
 #include <thread>
 
+#include <unistd.h>
+
+#include <filesystem>
+
 #include <gtest/gtest.h>
 
 #include "deblur_sr_mvs/core/errors.h"
@@ -148,12 +152,14 @@ TEST(AlignPoseSequence, RejectsCamerasThatDoNotMove) {
 // Synthesizes (once per binary) a small 8-frame Dolls sequence.
 const Sequence& SmallSequence() {
   static const Sequence sequence = [] {
-    const std::string folder = testing::TempDir() + "/dsm_stream_seq";
+    const std::string folder = testing::TempDir() + "/dsm_stream_seq_" + std::to_string(::getpid());
     const std::string command = std::string(DSM_TOOL_DIR) + "/synthesize_sequence --scene " +
                                 DSM_SOURCE_DIR + "/data/middlebury/Dolls --output " + folder +
                                 " --frames 8 --subframes 100 --hr-width 240 --hr-height 180 > /dev/null";
     EXPECT_EQ(std::system(command.c_str()), 0);
-    return ReadSequence(folder, true);
+    Sequence read = ReadSequence(folder, true);
+    std::filesystem::remove_all(folder);  // per process (ctest runs tests in parallel)
+    return read;
   }();
   return sequence;
 }

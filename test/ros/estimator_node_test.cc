@@ -6,6 +6,7 @@
 #include <atomic>
 #include <chrono>
 #include <cstdlib>
+#include <filesystem>
 #include <map>
 #include <mutex>
 #include <set>
@@ -45,7 +46,9 @@ const Sequence& TestSequence() {
                                 " --subframes 60 --fps 30 --exposure-ratio 0.8"
                                 " --hr-width 192 --hr-height 144 > /dev/null";
     EXPECT_EQ(std::system(command.c_str()), 0);
-    return ReadSequence(folder, true);
+    Sequence read = ReadSequence(folder, true);
+    std::filesystem::remove_all(folder);
+    return read;
   }();
   return sequence;
 }
