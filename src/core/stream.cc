@@ -85,6 +85,29 @@ SE3 TransformPose(const Sim3& similarity, const SE3& T_world_cam) {
                  similarity.translation);
 }
 
+std::string ProblemWithEstimate(const EstimatorResult& result, double max_step_ratio) {
+  for (const SE3& pose : result.T_world_cam) {
+    if (!pose.translation().allFinite() || !pose.rotation().allFinite()) return "a pose is not finite";
+  }
+  for (const cv::Mat& latent : result.latent) {
+    if (!cv::checkRange(latent, true, nullptr, -1e30, 1e30)) return "a restored image is not finite";
+  }
+  std::vector<double> steps;
+  for (size_t i = 1; i < result.T_world_cam.size(); ++i) {
+    steps.push_back((result.T_world_cam[i].translation() - result.T_world_cam[i - 1].translation()).norm());
+  }
+  if (steps.empty()) return "";
+  std::vector<double> sorted = steps;
+  std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+  const double median = sorted[sorted.size() / 2];
+  const double largest = *std::max_element(steps.begin(), steps.end());
+  if (largest > max_step_ratio * median || (median == 0.0 && largest > 0.0)) {
+    return "pose jump: a camera step of " + std::to_string(largest) + " against a median step of " +
+           std::to_string(median);
+  }
+  return "";
+}
+
 // ------------------------------------------------------------ StreamEstimator
 
 StreamEstimator::StreamEstimator(const EstimatorOptions& options) : estimator_(options) {}

@@ -14,14 +14,14 @@ namespace deblur_sr_mvs {
 
 namespace {
 
+constexpr double kMaxFutureSeconds = 10.0;   // stamps further ahead of the clock are rejected
+constexpr double kMinImageDeviation = 1.0 / 512;  // below: a constant image (no texture at all)
 constexpr size_t kMaxUnmatchedImages = 5;   // images waiting for their camera_info
 constexpr size_t kMaxRecentInfos = 10;      // camera_infos waiting for their image
 const std::string kNoCameraInfo = "no camera_info with the image's stamp on ";
 constexpr char kScaleNote[] =
     "monocular: poses and depths are in units of the distance between the first two cameras "
     "of the trajectory segment, not metres";
-
-bool AllFinite(const cv::Mat& image) { return cv::checkRange(image, true, nullptr, -1e30, 1e30); }
 
 }  // namespace
 
@@ -140,7 +140,7 @@ void EstimatorNodelet::ImageCallback(const sensor_msgs::ImageConstPtr& image) {
       // Older images still waiting will not get their camera_info now.
       while (!unmatched_images_.empty() && unmatched_images_.front()->header.stamp < image->header.stamp) {
         unmatched_images_.pop_front();
-        RejectFrame(kNoCameraInfo + info_topic_ + ": frame not used (the node never guesses intrinsics)");
+        RejectFrame("no camera_info", kNoCameraInfo + info_topic_ + ": frame not used (the node never guesses intrinsics)");
       }
       AcceptFrame(image, info);
       return;
@@ -149,7 +149,7 @@ void EstimatorNodelet::ImageCallback(const sensor_msgs::ImageConstPtr& image) {
   unmatched_images_.push_back(image);
   while (unmatched_images_.size() > kMaxUnmatchedImages) {
     unmatched_images_.pop_front();
-    RejectFrame(kNoCameraInfo + info_topic_ + ": frame not used (the node never guesses intrinsics)");
+    RejectFrame("no camera_info", kNoCameraInfo + info_topic_ + ": frame not used (the node never guesses intrinsics)");
   }
 }
 
@@ -161,7 +161,7 @@ void EstimatorNodelet::InfoCallback(const sensor_msgs::CameraInfoConstPtr& info)
       const sensor_msgs::ImageConstPtr image = *it;
       // Older unmatched images will never get their camera_info.
       for (auto old = unmatched_images_.begin(); old != it; ++old) {
-        RejectFrame(kNoCameraInfo + info_topic_ + ": frame not used (the node never guesses intrinsics)");
+        RejectFrame("no camera_info", kNoCameraInfo + info_topic_ + ": frame not used (the node never guesses intrinsics)");
       }
       unmatched_images_.erase(unmatched_images_.begin(), it + 1);
       AcceptFrame(image, info);
@@ -172,13 +172,14 @@ void EstimatorNodelet::InfoCallback(const sensor_msgs::CameraInfoConstPtr& info)
   while (recent_infos_.size() > kMaxRecentInfos) recent_infos_.pop_front();
 }
 
-void EstimatorNodelet::RejectFrame(const std::string& why) {
+void EstimatorNodelet::RejectFrame(const std::string& category, const std::string& why) {
   ++frames_rejected_;
-  const uint64_t count = ++rejections_[why];
+  // Counted per category (a fixed set), so that hours of bad input cannot grow the map.
+  const uint64_t count = ++rejections_[category];
   if (count == 1) {
     NODELET_WARN("deblur_sr_mvs: %s", why.c_str());
   } else {
-    NODELET_WARN_THROTTLE(10.0, "deblur_sr_mvs: %s (%lu times so far)", why.c_str(),
+    NODELET_WARN_THROTTLE(10.0, "deblur_sr_mvs: %s (%s: %lu frames so far)", why.c_str(), category.c_str(),
                           static_cast<unsigned long>(count));
   }
   std::lock_guard<std::mutex> lock(health_mutex_);
@@ -204,17 +205,40 @@ void EstimatorNodelet::AcceptFrame(const sensor_msgs::ImageConstPtr& image,
     image01 = ros_glue::ImageToFloat01(*image, &family);
     camera = ros_glue::CameraFromInfo(*info, image01.cols, image01.rows, params_.distortion);
   } catch (const std::exception& error) {
-    RejectFrame(error.what());
+    RejectFrame("bad image or camera_info", error.what());
     return;
   }
   const ros::Time stamp = image->header.stamp;
-  if (have_stream_ && stamp == last_stamp_) {
-    RejectFrame("duplicate image stamp " + std::to_string(stamp.toSec()) + ": frame not used");
+  if (stamp.isZero()) {
+    RejectFrame("zero stamp", "image stamp is 0: frame not used (the stamps define the exposure timing)");
     return;
+  }
+  const ros::Time now = ros::Time::now();
+  if (!now.isZero() && stamp > now + ros::Duration(kMaxFutureSeconds)) {
+    RejectFrame("future stamp", "image stamp is " + std::to_string((stamp - now).toSec()) +
+                                    " s in the future (clock skew?): frame not used");
+    return;
+  }
+  if (have_stream_ && stamp == last_stamp_) {
+    RejectFrame("duplicate stamp", "duplicate image stamp " + std::to_string(stamp.toSec()) + ": frame not used");
+    return;
+  }
+  {
+    cv::Scalar mean, deviation;
+    cv::meanStdDev(image01, mean, deviation);
+    double spread = 0.0;
+    for (int c = 0; c < image01.channels(); ++c) spread = std::max(spread, deviation[c]);
+    if (spread < kMinImageDeviation) {
+      RejectFrame("constant image", "image is constant (black, saturated or covered): frame not used");
+      return;
+    }
   }
   if (have_stream_ && stamp < last_stamp_) {
     RestartStream("image stamp went back by " + std::to_string((last_stamp_ - stamp).toSec()) +
                   " s (bag loop or clock reset?)");
+  } else if (have_stream_ && (stamp - last_stamp_).toSec() > params_.max_frame_gap) {
+    RestartStream("gap of " + std::to_string((stamp - last_stamp_).toSec()) + " s between frames (> max_frame_gap " +
+                  std::to_string(params_.max_frame_gap) + " s)");
   }
   const bool colour = family == ros_glue::ImageFamily::kRgb8 || family == ros_glue::ImageFamily::kBgr8;
   const bool stream_colour = stream_family_ == ros_glue::ImageFamily::kRgb8 ||
@@ -340,18 +364,20 @@ void EstimatorNodelet::ProcessWindow(PendingWindow window) {
   if (shutting_down_) return;
   const EstimatorResult& result = estimate.result;
 
-  // Never publish garbage: every pose finite, every image finite.
-  bool finite = true;
-  for (const SE3& pose : result.T_world_cam) {
-    finite = finite && pose.translation().allFinite() && pose.rotation().allFinite();
-  }
-  for (const cv::Mat& latent : result.latent) finite = finite && AllFinite(latent);
-  if (!finite) {
+  // Never publish garbage: non-finite values or a pose jump skip the window
+  // and restart the trajectory.
+  const std::string problem = ProblemWithEstimate(result, params.max_step_ratio);
+  if (!problem.empty()) {
     ++windows_failed_;
     status.success = false;
-    status.message = "window skipped: the estimate is not finite";
+    status.message = "window skipped: " + problem + "; the trajectory restarts";
     NODELET_WARN("deblur_sr_mvs: %s", status.message.c_str());
     stream_->Reset();
+    path_.poses.clear();
+    {
+      std::lock_guard<std::mutex> lock(health_mutex_);
+      last_problem_ = status.message;
+    }
     PublishStatus(status);
     return;
   }

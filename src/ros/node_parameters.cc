@@ -17,6 +17,8 @@ void NodeParameters::Check() const {
     throw InputError("exposure_time must be in (0, 10] s (the shutter time of the camera), got " +
                      std::to_string(exposure_time));
   }
+  if (!(max_frame_gap > 0.0) || !std::isfinite(max_frame_gap)) throw InputError("max_frame_gap must be > 0 s");
+  if (!(max_step_ratio > 1.0) || !std::isfinite(max_step_ratio)) throw InputError("max_step_ratio must be > 1");
   stream.Check();
   estimator.Check();
   if (world_frame.empty()) throw InputError("world_frame must not be empty");
@@ -54,6 +56,8 @@ NodeParameters ReadNodeParameters(const ros::NodeHandle& node) {
   std::string stamp_position = "end";
   Read(node, "stamp_position", &stamp_position);
   params.stamp_position = ParseStampPosition(stamp_position);
+  Read(node, "max_frame_gap", &params.max_frame_gap);
+  Read(node, "max_step_ratio", &params.max_step_ratio);
   Read(node, "window_size", &params.stream.window_size);
   Read(node, "window_overlap", &params.stream.window_overlap);
   Read(node, "max_pending_windows", &params.stream.max_pending_windows);

@@ -5,6 +5,7 @@
 #include <atomic>
 #include <cstdlib>
 #include <iostream>
+#include <limits>
 #include <thread>
 
 #include <unistd.h>
@@ -147,6 +148,23 @@ TEST(AlignPoseSequence, RejectsCamerasThatDoNotMove) {
   EXPECT_THROW(AlignPoseSequence(still, SomePoses()), InputError);
   EXPECT_THROW(AlignPoseSequence(SomePoses(), still), InputError);
   EXPECT_THROW(AlignPoseSequence({SE3()}, {SE3()}), InputError);
+}
+
+EstimatorResult ResultWithSteps(const std::vector<double>& xs) {
+  EstimatorResult result;
+  for (double x : xs) result.T_world_cam.emplace_back(Eigen::Matrix3d::Identity(), Eigen::Vector3d(x, 0, 0));
+  result.latent.push_back(cv::Mat(4, 4, CV_32FC1, cv::Scalar(0.5f)));
+  return result;
+}
+
+TEST(ProblemWithEstimate, AcceptsSmoothMotionRejectsJumpsAndNonFinite) {
+  EXPECT_EQ(ProblemWithEstimate(ResultWithSteps({0, 1, 2.1, 3.0, 4.2}), 8.0), "");
+  EXPECT_NE(ProblemWithEstimate(ResultWithSteps({0, 1, 2, 30, 31}), 8.0), "");
+  EXPECT_NE(ProblemWithEstimate(ResultWithSteps({0, 0, 0, 5}), 8.0), "");
+  EXPECT_NE(ProblemWithEstimate(ResultWithSteps({0, 1, std::nan(""), 3}), 8.0), "");
+  EstimatorResult bad_image = ResultWithSteps({0, 1, 2});
+  bad_image.latent[0].at<float>(1, 1) = std::numeric_limits<float>::infinity();
+  EXPECT_NE(ProblemWithEstimate(bad_image, 8.0), "");
 }
 
 // Synthesizes (once per binary) a small 8-frame Dolls sequence.

@@ -146,6 +146,12 @@ struct WindowEstimate {
   std::string note;                   // how the window was tied to the previous one
 };
 
+// Why an estimate must not be published, or "" when it may: a pose or a
+// latent pixel that is not finite, or a pose jump (a camera step larger than
+// max_step_ratio times the window's median step, or any step while the
+// median is zero).
+std::string ProblemWithEstimate(const EstimatorResult& result, double max_step_ratio);
+
 // Runs the estimator window after window and ties the windows together.
 // Not thread-safe (one worker thread owns it).
 class StreamEstimator {

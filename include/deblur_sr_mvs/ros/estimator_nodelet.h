@@ -54,7 +54,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
   void InfoCallback(const sensor_msgs::CameraInfoConstPtr& info);
   // Checks one matched image + camera_info and buffers it (input_mutex_ held).
   void AcceptFrame(const sensor_msgs::ImageConstPtr& image, const sensor_msgs::CameraInfoConstPtr& info);
-  void RejectFrame(const std::string& why);
+  void RejectFrame(const std::string& category, const std::string& why);
   void RestartStream(const std::string& why);  // input_mutex_ held
   void WorkerLoop();
   void ProcessWindow(PendingWindow window);
@@ -95,7 +95,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
   std::string stream_camera_frame_;
   uint64_t epoch_ = 0;
   uint64_t next_frame_id_ = 1;
-  std::map<std::string, uint64_t> rejections_;  // reason -> count
+  std::map<std::string, uint64_t> rejections_;  // category (a fixed set) -> count
 
   // ---- Worker side (the worker thread only).
   std::unique_ptr<DropOldestQueue<PendingWindow>> queue_;
