@@ -25,6 +25,7 @@ while [ $# -gt 0 ]; do
   esac
 done
 
+[[ "$minutes" =~ ^[0-9]+$ ]] || { echo "node_longrun: --minutes must be a whole number" >&2; exit 2; }
 "$DSM_REPO/scripts/install_deps.sh" >/dev/null
 dsm_build_plain >/dev/null
 dsm_build_catkin
@@ -54,20 +55,25 @@ roslaunch deblur_sr_mvs play_bag.launch bag:="$out/dolls.bag" exposure_time:="$e
 pids+=($!)
 
 ns=/deblur_sr_mvs
-field() { timeout 5 rostopic echo -n 1 "$ns/status/$1" 2>/dev/null | head -n 1 || true; }
+# The latest (latched) status, one field per line as "name: value".
+status_fields() { timeout 5 rostopic echo -n 1 --noarr "$ns/status" 2>/dev/null || true; }
+field() { awk -v k="$1" -F': ' '$1 == k { print $2; exit }' <<<"$status"; }
 echo "seconds,rss_kib,windows,dropped,failed,resets,published,latency_s" >"$out/samples.csv"
 start=$(date +%s)
 end=$((start + minutes * 60))
 node_pid=""
 echo "node_longrun: $minutes min, bag rate $rate, samples every 10 s -> $out/samples.csv"
+next=$((start + 10))
 while [ "$(date +%s)" -lt "$end" ]; do
-  sleep 10
+  sleep "$(( next > $(date +%s) ? next - $(date +%s) : 0 ))"
+  next=$((next + 10))
   [ -n "$node_pid" ] || node_pid="$(pgrep -f "$ros_bin/estimator_node" | head -n 1 || true)"
   if [ -z "$node_pid" ] || ! kill -0 "$node_pid" 2>/dev/null; then
     echo "node_longrun: the node is not running (crash?)" >&2
     break
   fi
   rss="$(ps -o rss= -p "$node_pid" | tr -d ' ')"
+  status="$(status_fields)"
   echo "$(( $(date +%s) - start )),$rss,$(field window_index),$(field windows_dropped),$(field windows_failed),$(field resets),$(field frames_published),$(field latency_seconds)" >>"$out/samples.csv"
 done
 
