@@ -280,6 +280,7 @@ void EstimatorOptions::Check() const {
   if (!(lambda_s >= 0.0) || !std::isfinite(lambda_s)) throw InputError("lambda_s must be >= 0");
   if (num_threads < 0) throw InputError("threads must be >= 0");
   if (fixed_leading_poses < 1) throw InputError("fixed_leading_poses must be >= 1");
+  if (!(max_seconds >= 0.0) || !std::isfinite(max_seconds)) throw InputError("max_seconds must be >= 0");
   image.Check();
   structure.Check();
   visibility.Check();
@@ -335,6 +336,12 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
     if (image.depth() != CV_32F || image.cols != input.camera.width || image.rows != input.camera.height ||
         image.channels() != input.images[0].channels()) {
       throw InputError("estimator: every frame must be a float image of the camera size");
+    }
+    if (!cv::checkRange(image)) throw InputError("estimator: a frame has NaN or infinite pixels");
+  }
+  for (const SE3& pose : T_world_cam_in) {
+    if (!pose.translation().allFinite() || !pose.rotation().allFinite()) {
+      throw InputError("estimator: an initial pose is not finite");
     }
   }
 
@@ -468,7 +475,20 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
     return record;
   };
 
+  const double run_start = Now();
+  auto out_of_time = [&](int iterations_done) {
+    if (options_.max_seconds <= 0.0 || Now() - run_start <= options_.max_seconds) return false;
+    result.notes.push_back("time cap of " + std::to_string(options_.max_seconds) + " s reached after " +
+                           std::to_string(iterations_done) + " iteration(s)");
+    return true;
+  };
+  auto require_finite = [&](const char* where) {
+    if (!std::isfinite(result.energies.back().total)) {
+      throw EstimationDiverged(std::string("the energy is not finite ") + where);
+    }
+  };
   result.energies.push_back(total_energy(0, "initialization"));
+  require_finite("at the initial structure");
   const int total_steps = std::max(1, 2 * options_.max_iterations + 1);
   int steps_done = 0;
   auto report = [&](double within, const std::string& what) {
@@ -594,10 +614,14 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
 
   if (!joint) {
     for (int iteration = 1; iteration <= options_.max_iterations && options_.update_structure; ++iteration) {
+      if (out_of_time(iteration - 1)) break;
       structure_phase(iteration, /*isolated=*/true);
     }
   } else if (!options_.update_structure) {
-    for (int iteration = 1; iteration <= options_.max_iterations; ++iteration) image_phase(iteration);
+    for (int iteration = 1; iteration <= options_.max_iterations; ++iteration) {
+      if (out_of_time(iteration - 1)) break;
+      image_phase(iteration);
+    }
   } else if (options_.max_iterations > 0) {
     // Algorithm 1: image update, then max_iter times structure update followed
     // by the image update that judges it (the last one gives the output
@@ -606,8 +630,10 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
     // images, and the iterations stop: the recorded energy after each kept
     // iteration never increases.
     image_phase(1);
+    require_finite("after the first image update");
     double accepted = result.energies.back().total;
     for (int iteration = 1; iteration <= options_.max_iterations; ++iteration) {
+      if (out_of_time(iteration - 1)) break;
       const std::vector<cv::Mat> saved_latents = CloneAll(latents);
       const std::vector<cv::Mat> saved_inverse_depth = CloneAll(inverse_depth);
       const std::vector<cv::Mat> saved_edge_weight = CloneAll(edge_weight);
@@ -628,8 +654,12 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
         ++depth_version[t];
         ++pose_version[t];
       }
+      const double rejected = result.energies.back().total;
       EnergyRecord restored = total_energy(iteration, "restored");
       result.energies.push_back(restored);
+      result.notes.push_back("iteration " + std::to_string(iteration) +
+                             (std::isfinite(rejected) ? " raised the energy" : " lost the energy (not finite)") +
+                             ": undone, iterations stopped");
       break;
     }
   }

@@ -715,9 +715,17 @@ void TwoViewInitialisation(const PinholeCamera& camera, const InitializerOptions
                               " features tracked from frame 0 to frame 1 (need " +
                               std::to_string(options.min_inliers) + ")");
   }
-  // Informative only: with a narrow field of view even a pure translation is
-  // nearly explained by a rotation (see RotationPrior).
+  // With a narrow field of view even a pure translation is nearly explained by
+  // a rotation (see RotationPrior), so what no rotation explains is small; but
+  // a pure rotation (or a static camera) leaves only tracking noise, and then
+  // nothing carries depth or scale.
   const double rotation_free_parallax = RotationFreeParallax(camera, points0, points1);
+  if (rotation_free_parallax < options.min_rotation_free_parallax_px) {
+    throw InitializationError(Format(
+        "initialisation: frames 0-1 have no parallax: a rotation explains their motion to %.3f px "
+        "(need %.2f px); the camera must translate, not only rotate",
+        rotation_free_parallax, options.min_rotation_free_parallax_px));
+  }
   const cv::Mat K = CameraMatrix(camera);
   cv::Mat inlier_mask;
   cv::Mat E = cv::findEssentialMat(points0, points1, K, cv::RANSAC, options.ransac_confidence,
@@ -1433,6 +1441,7 @@ void InitializerOptions::Check() const {
   }
   if (min_inliers < 8) fail("min_inliers", "must be >= 8, got " + std::to_string(min_inliers));
   if (!(min_parallax_px >= 0.0)) fail("min_parallax_px", "must be >= 0");
+  if (!(min_rotation_free_parallax_px >= 0.0)) fail("min_rotation_free_parallax_px", "must be >= 0");
   if (!(min_triangulation_parallax_px >= 0.0)) {
     fail("min_triangulation_parallax_px", "must be >= 0");
   }

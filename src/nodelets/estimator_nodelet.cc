@@ -434,6 +434,7 @@ void EstimatorNodelet::ProcessWindow(PendingWindow window) {
   status.continued = estimate.continued;
   status.first_new = estimate.first_new;
   status.message = estimate.note + (clamped ? "; exposure_time clamped to the frame interval" : "");
+  for (const std::string& note : result.notes) status.message += "; " + note;
   for (const EnergyRecord& energy : result.energies) {
     status.energy_stages.push_back(energy.stage);
     status.energy_iterations.push_back(energy.iteration);

@@ -71,6 +71,7 @@ NodeParameters ReadNodeParameters(const ros::NodeHandle& node) {
   Read(node, "lambda_d", &params.estimator.structure.lambda_d);
   Read(node, "lambda_i", &params.estimator.image.lambda_i);
   Read(node, "threads", &params.estimator.num_threads);
+  Read(node, "max_window_seconds", &params.estimator.max_seconds);
   Read(node, "world_frame", &params.world_frame);
   Read(node, "camera_frame", &params.camera_frame);
   Read(node, "publish_tf", &params.publish_tf);

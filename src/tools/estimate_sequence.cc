@@ -99,6 +99,9 @@ std::string Report(const dsm::EstimatorOptions& options, const std::string& inpu
     if (c == '\n') c = ';';
   }
   json << "  \"initializer\": \"" << summary << "\",\n";
+  json << "  \"solver_notes\": [";
+  for (size_t i = 0; i < result.notes.size(); ++i) json << (i ? ", " : "") << "\"" << result.notes[i] << "\"";
+  json << "],\n";
   json << "  \"monocular_scale\": \"arbitrary: the first two cameras are 1 unit apart\"\n}\n";
   return json.str();
 }

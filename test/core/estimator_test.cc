@@ -5,6 +5,7 @@
 
 #include <cstdlib>
 #include <fstream>
+#include <iostream>
 #include <string>
 
 #include <opencv2/imgproc.hpp>
@@ -12,6 +13,7 @@
 #include <unistd.h>
 
 #include <filesystem>
+#include <limits>
 
 #include <gtest/gtest.h>
 
@@ -218,6 +220,72 @@ TEST(EstimateSequenceTool, BadInputGivesOneLineAndExitCode2) {
     while (std::getline(in, line)) ++lines;
     EXPECT_EQ(lines, 1) << arguments;
   }
+}
+
+TEST(EstimatorSafety, ExtremeBlurStillRestoresAndStaysFinite) {
+  // Exposure = the whole frame interval and 30 px of motion blur per frame.
+  const std::string folder = testing::TempDir() + "/dsm_extreme_blur_" + std::to_string(::getpid());
+  const std::string command = std::string(DSM_TOOL_DIR) + "/synthesize_sequence --scene " + DSM_SOURCE_DIR +
+                              "/data/middlebury/Dolls --output " + folder +
+                              " --frames 4 --subframes 100 --exposure-ratio 1.0 --blur-px 30"
+                              " --hr-width 240 --hr-height 180 > /dev/null";
+  ASSERT_EQ(std::system(command.c_str()), 0);
+  const Sequence sequence = ReadSequence(folder, true);
+  std::filesystem::remove_all(folder);
+  EstimatorOptions options;
+  options.samples = 20;
+  options.max_iterations = 1;
+  const EstimatorResult result = Estimator(options).Run(InputOf(sequence));
+  for (const cv::Mat& latent : result.latent) EXPECT_TRUE(cv::checkRange(latent));
+  for (const SE3& pose : result.T_world_cam) EXPECT_TRUE(pose.translation().allFinite());
+  std::vector<cv::Mat> bicubic;
+  for (const cv::Mat& image : sequence.images) bicubic.push_back(UpsampleBicubic(ToFloat01(image), 2));
+  const double restored = MeanPsnr(result.latent, sequence.ground_truth->latent);
+  const double baseline = MeanPsnr(bicubic, sequence.ground_truth->latent);
+  std::cout << "extreme blur: bicubic " << baseline << " dB, restored " << restored << " dB\n";
+  EXPECT_GT(restored, baseline);
+}
+
+TEST(EstimatorSafety, TimeCapStopsBetweenIterationsAndSaysSo) {
+  const Sequence& sequence = SmallSequence();
+  std::vector<SE3> poses;
+  for (const StampedPose& p : sequence.ground_truth->poses) poses.push_back(p.T_world_cam);
+  EstimatorOptions options;
+  options.samples = 10;
+  options.max_iterations = 3;
+  options.max_seconds = 1e-9;  // already over when the first iteration would start
+  const EstimatorResult result =
+      Estimator(options).RunFromStructure(InputOf(sequence), sequence.ground_truth->depth, poses);
+  ASSERT_EQ(result.notes.size(), 1u);
+  EXPECT_NE(result.notes[0].find("time cap"), std::string::npos) << result.notes[0];
+  for (const EnergyRecord& energy : result.energies) EXPECT_LE(energy.iteration, 1) << energy.stage;
+  for (const cv::Mat& latent : result.latent) EXPECT_TRUE(cv::checkRange(latent));
+}
+
+TEST(EstimatorSafety, NonFiniteInputIsRejectedWithOneLine) {
+  const Sequence& sequence = SmallSequence();
+  std::vector<SE3> poses;
+  for (const StampedPose& p : sequence.ground_truth->poses) poses.push_back(p.T_world_cam);
+  EstimatorOptions options;
+  options.samples = 10;
+  options.max_iterations = 1;
+  EstimatorInput input = InputOf(sequence);
+  input.images[1] = input.images[1].clone();
+  input.images[1].at<cv::Vec3f>(3, 4)[0] = std::numeric_limits<float>::quiet_NaN();
+  EXPECT_THROW(Estimator(options).RunFromStructure(input, sequence.ground_truth->depth, poses), InputError);
+  std::vector<SE3> bad_poses = poses;
+  bad_poses[2] = SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(std::nan(""), 0, 0));
+  EXPECT_THROW(Estimator(options).RunFromStructure(InputOf(sequence), sequence.ground_truth->depth, bad_poses),
+               InputError);
+}
+
+TEST(EstimatorSafety, BadOptionsAreRejected) {
+  EstimatorOptions options;
+  options.max_seconds = -1.0;
+  EXPECT_THROW(options.Check(), InputError);
+  options = EstimatorOptions();
+  options.fixed_leading_poses = 0;
+  EXPECT_THROW(options.Check(), InputError);
 }
 
 }  // namespace

@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include <Eigen/Geometry>
 #include <gtest/gtest.h>
 #include <opencv2/imgproc.hpp>
 
@@ -226,6 +227,39 @@ TEST(InitializerTest, StaticCameraGivesInitializationError) {
   try {
     InitializeStructure(images, sequence.calibration.camera, frames, InitializerOptions());
     ADD_FAILURE() << "a camera that does not move cannot be initialised";
+  } catch (const InitializationError& error) {
+    const std::string message = error.what();
+    ExpectOneLine(message);
+    EXPECT_TRUE(message.find("parallax") != std::string::npos ||
+                message.find("degenerate") != std::string::npos)
+        << message;
+  }
+}
+
+TEST(InitializerTest, PureRotationGivesInitializationError) {
+  // Frames related by rotations only (homographies K R K^-1): no translation,
+  // so no parallax and no depth. The initialiser must say so, not invent depth.
+  const Sequence& sequence = DollsSequence();
+  const PinholeCamera& camera = sequence.calibration.camera;
+  const Eigen::Matrix3d K = (Eigen::Matrix3d() << camera.fx, 0, camera.cx, 0, camera.fy, camera.cy, 0, 0, 1)
+                                .finished();
+  const cv::Mat first = ToFloat01(sequence.images[2]);
+  std::vector<cv::Mat> images;
+  for (int t = 0; t < 3; ++t) {
+    const Eigen::Matrix3d R = Eigen::AngleAxisd(0.01 * t, Eigen::Vector3d(0.2, 1.0, 0.1).normalized()).matrix();
+    const Eigen::Matrix3d H = K * R * K.inverse();
+    cv::Mat homography(3, 3, CV_64F);
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) homography.at<double>(r, c) = H(r, c);
+    }
+    cv::Mat warped;
+    cv::warpPerspective(first, warped, homography, first.size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
+    images.push_back(warped);
+  }
+  const std::vector<FrameRecord> frames(sequence.frames.begin(), sequence.frames.begin() + 3);
+  try {
+    InitializeStructure(images, camera, frames, InitializerOptions());
+    ADD_FAILURE() << "a purely rotating camera cannot be initialised";
   } catch (const InitializationError& error) {
     const std::string message = error.what();
     ExpectOneLine(message);

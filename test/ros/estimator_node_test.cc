@@ -13,6 +13,7 @@
 #include <thread>
 
 #include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
 #include <nav_msgs/Path.h>
 #include <nodelet/loader.h>
 #include <geometry_msgs/PoseStamped.h>
@@ -339,6 +340,140 @@ TEST(EstimatorNodeletShutdown, UnloadWhileAWindowIsEstimated) {
   EXPECT_LT(seconds, 10.0) << "the worker did not stop";
   ros::WallDuration(1.0).sleep();
   EXPECT_EQ(published.load(), before) << "published after unload";
+}
+
+// Hostile input to a nodelet loaded here with cheap settings: every bad frame
+// is rejected and counted, every discontinuity restarts the trajectory, a
+// window without parallax is skipped with a reason, and nothing is published
+// for any of them.
+TEST(EstimatorNodeletHostileInput, RejectsCountsRestartsAndSkips) {
+  const Sequence& sequence = TestSequence();
+  const std::string ns = "/hostile";
+  ros::NodeHandle node;
+  ros::param::set(ns + "/estimator/exposure_time", 0.8 / 30.0);
+  ros::param::set(ns + "/estimator/window_size", 3);
+  ros::param::set(ns + "/estimator/samples", 8);
+  ros::param::set(ns + "/estimator/iterations", 0);
+  ros::param::set(ns + "/estimator/max_pending_windows", 10);
+  ros::param::set(ns + "/estimator/lazy_subscription", false);
+  nodelet::Loader loader(false);
+  nodelet::M_string remappings{{ns + "/image", "/hostile_camera/image"},
+                               {ns + "/camera_info", "/hostile_camera/camera_info"}};
+  ASSERT_TRUE(loader.load(ns + "/estimator", "deblur_sr_mvs/EstimatorNodelet", remappings, {}));
+  std::mutex mutex;
+  std::vector<EstimatorStatusConstPtr> statuses;
+  std::vector<sensor_msgs::ImageConstPtr> restored;
+  diagnostic_msgs::DiagnosticStatus diagnostics;
+  ros::Subscriber status_sub = node.subscribe<EstimatorStatus>(ns + "/status", 20, [&](const EstimatorStatusConstPtr& m) {
+    std::lock_guard<std::mutex> lock(mutex);
+    statuses.push_back(m);
+  });
+  ros::Subscriber restored_sub = node.subscribe<sensor_msgs::Image>(
+      ns + "/restored/image", 20, [&](const sensor_msgs::ImageConstPtr& m) {
+        std::lock_guard<std::mutex> lock(mutex);
+        restored.push_back(m);
+      });
+  ros::Subscriber diagnostics_sub = node.subscribe<diagnostic_msgs::DiagnosticArray>(
+      "/diagnostics", 20, [&](const diagnostic_msgs::DiagnosticArrayConstPtr& array) {
+        std::lock_guard<std::mutex> lock(mutex);
+        for (const auto& status : array->status) {
+          if (status.hardware_id.find("/hostile_camera/image") != std::string::npos) diagnostics = status;
+        }
+      });
+  ros::Publisher images = node.advertise<sensor_msgs::Image>("/hostile_camera/image", 50);
+  ros::Publisher infos = node.advertise<sensor_msgs::CameraInfo>("/hostile_camera/camera_info", 50);
+  ASSERT_TRUE(WaitFor([&] { return images.getNumSubscribers() > 0 && infos.getNumSubscribers() > 0; }, 30.0));
+
+  auto send = [&](const sensor_msgs::ImagePtr& image, sensor_msgs::CameraInfoPtr info = nullptr) {
+    if (!info) info = InfoMessage(image->header.stamp);
+    info->header.stamp = image->header.stamp;
+    infos.publish(info);
+    images.publish(image);
+    ros::WallDuration(0.05).sleep();
+  };
+  const double base = 1000.0;
+  const double dt = 1.0 / 30.0;
+  auto frame = [&](int t, double stamp) { return Rgb8Message(sequence.images[t], ros::Time(stamp)); };
+  const cv::Mat black(sequence.images[0].size(), sequence.images[0].type(), cv::Scalar::all(0));
+  const cv::Mat white(sequence.images[0].size(), sequence.images[0].type(), cv::Scalar::all(255));
+
+  send(frame(0, base + 0.02));                                        // ok
+  send(frame(0, base + 0.02));                                        // rejected: duplicate stamp
+  send(Rgb8Message(black, ros::Time(base + 0.021)));                  // rejected: constant (black)
+  send(Rgb8Message(white, ros::Time(base + 0.022)));                  // rejected: constant (saturated)
+  send(frame(1, 0.0));                                                // rejected: zero stamp
+  send(frame(1, ros::Time::now().toSec() + 1000.0));                  // rejected: far in the future
+  sensor_msgs::CameraInfoPtr distorted = InfoMessage(ros::Time(base + 0.025));
+  distorted->D = {-0.3, 0.1, 0.0, 0.0, 0.0};
+  send(frame(1, base + 0.025), distorted);                            // rejected: distortion
+  sensor_msgs::ImagePtr bgra = frame(1, base + 0.03);
+  bgra->encoding = "bgra8";
+  send(bgra);                                                         // rejected: encoding
+  // Frames 20 ms apart: shorter than the 26.7 ms exposure, which is clamped.
+  send(frame(1, base + 0.04));                                        // ok
+  send(frame(2, base + 0.06));                                        // ok: window 1 (frames 0-2)
+  send(frame(3, base - 10.0));                                        // ok, stamp went back: restart 1
+  send(frame(4, base + 100.0));                                       // ok, 110 s gap: restart 2
+  send(frame(4, base + 100.0 + dt));                                  // the same image again:
+  send(frame(4, base + 100.0 + 2 * dt));                              //   window 2 has no parallax
+  cv::Mat small;
+  cv::resize(sequence.images[5], small, cv::Size(), 0.5, 0.5, cv::INTER_AREA);
+  sensor_msgs::ImagePtr small_image = Rgb8Message(small, ros::Time(base + 100.0 + 3 * dt));
+  sensor_msgs::CameraInfoPtr small_info = InfoMessage(small_image->header.stamp);
+  small_info->width = small.cols;
+  small_info->height = small.rows;
+  send(small_image, small_info);                                      // ok, size changed: restart 3
+  for (int i = 0; i < 20; ++i) {                                      // camera_info without images
+    infos.publish(InfoMessage(ros::Time(base + 200.0 + i)));
+  }
+
+  ASSERT_TRUE(WaitFor([&] {
+    std::lock_guard<std::mutex> lock(mutex);
+    return statuses.size() >= 2;
+  }, 120.0)) << "two windows were expected";
+  ros::WallDuration(2.5).sleep();  // diagnostics publish at 1 Hz
+  std::lock_guard<std::mutex> lock(mutex);
+  ASSERT_EQ(statuses.size(), 2u);
+  EXPECT_TRUE(statuses[0]->success) << statuses[0]->message;
+  EXPECT_NE(statuses[0]->message.find("clamped"), std::string::npos) << statuses[0]->message;
+  EXPECT_EQ(restored.size(), 3u) << "only window 1 publishes";
+  const EstimatorStatus& skipped = *statuses[1];
+  EXPECT_FALSE(skipped.success);
+  EXPECT_NE(skipped.message.find("window skipped"), std::string::npos) << skipped.message;
+  EXPECT_EQ(skipped.frames_rejected, 7u);
+  EXPECT_EQ(skipped.windows_failed, 1u);
+  EXPECT_EQ(skipped.resets, 2u);  // the size change comes after this window
+  std::map<std::string, std::string> values;
+  for (const auto& value : diagnostics.values) values[value.key] = value.value;
+  EXPECT_EQ(values["stream resets"], "3");
+  EXPECT_EQ(values["frames rejected"], "7");
+  EXPECT_EQ(values["windows failed"], "1");
+  EXPECT_EQ(diagnostics.level, diagnostic_msgs::DiagnosticStatus::OK) << diagnostics.message;
+}
+
+// A bad static parameter: the nodelet says which in one line, publishes that
+// on its latched status and stays idle (it never guesses an exposure).
+TEST(EstimatorNodeletHostileInput, BadParameterKeepsTheNodeIdleAndSaysWhy) {
+  ros::param::set("/badparam/estimator/exposure_time", -0.01);
+  nodelet::Loader loader(false);
+  ASSERT_TRUE(loader.load("/badparam/estimator", "deblur_sr_mvs/EstimatorNodelet", nodelet::M_string(), {}));
+  std::mutex mutex;
+  EstimatorStatusConstPtr status;
+  ros::NodeHandle node;
+  ros::Subscriber sub = node.subscribe<EstimatorStatus>("/badparam/status", 1, [&](const EstimatorStatusConstPtr& m) {
+    std::lock_guard<std::mutex> lock(mutex);
+    status = m;
+  });
+  ASSERT_TRUE(WaitFor([&] {
+    std::lock_guard<std::mutex> lock(mutex);
+    return status != nullptr;
+  }, 20.0));
+  EXPECT_FALSE(status->success);
+  EXPECT_NE(status->message.find("exposure_time"), std::string::npos) << status->message;
+  EXPECT_EQ(status->message.find('\n'), std::string::npos);
+  ros::Publisher images = node.advertise<sensor_msgs::Image>("/badparam/image", 5);
+  ros::WallDuration(1.0).sleep();
+  EXPECT_EQ(images.getNumSubscribers(), 0u) << "an idle node subscribes to nothing";
 }
 
 }  // namespace

@@ -64,6 +64,11 @@ struct EstimatorOptions {
   bool update_structure = true;  // false: images only (depth and poses fixed)
   StructureMatching structure_matching = StructureMatching::kRestored;
   int num_threads = 0;        // OpenMP threads for every stage; 0 = default
+  // Wall-time cap of one run (s): no outer iteration starts after it, the
+  // last accepted state is returned and the cap is noted (0: no cap). Every
+  // inner stage is capped by its own iteration counts (image.*, structure.*,
+  // initializer.*).
+  double max_seconds = 0.0;
   void Check() const;         // throws InputError naming the bad value
 };
 
@@ -97,6 +102,9 @@ struct EstimatorResult {
   std::vector<EnergyRecord> energies;
   std::vector<StageTiming> timings;
   std::string initializer_summary;
+  // What the solver had to do beyond the plan: an iteration undone because it
+  // raised (or lost) the energy, the time cap.
+  std::vector<std::string> notes;
 };
 
 // Progress: (fraction done in [0, 1], what is running).
@@ -107,6 +115,13 @@ using ProgressCallback = std::function<void(double, const std::string&)>;
 class EstimationCancelled : public std::runtime_error {
  public:
   EstimationCancelled() : std::runtime_error("estimation cancelled") {}
+};
+
+// Thrown when the energy is not finite before any iteration could be undone
+// (e.g. a degenerate initial structure): the window cannot be estimated.
+class EstimationDiverged : public std::runtime_error {
+ public:
+  explicit EstimationDiverged(const std::string& what) : std::runtime_error(what) {}
 };
 
 // LR depth maps of the initialisation up-sampled to HR (Sec.

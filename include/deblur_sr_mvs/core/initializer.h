@@ -32,6 +32,11 @@ struct InitializerOptions {
   double ransac_confidence = 0.999;   // RANSAC confidence (E and PnP)
   int min_inliers = 30;               // features / inliers needed on frames 0-1
   double min_parallax_px = 1.0;       // median 0-1 displacement the rotation leaves, needed (LR px)
+  // Median 0-1 displacement that NO rotation explains (LR px): the only depth
+  // evidence. A pure rotation leaves only tracking noise (0.04 px in
+  // InitializerTest.PureRotation...); the bundled scenes' translations leave
+  // 0.19 (Aloe) to 0.78 px (Reindeer). Below it the frames cannot be initialised.
+  double min_rotation_free_parallax_px = 0.1;
   double min_triangulation_parallax_px = 2.0;  // rotation-free displacement to add a point (px)
   double pnp_threshold_px = 2.0;      // PnP RANSAC threshold and BA outlier cut (LR px)
   int min_pnp_inliers = 12;           // PnP inliers needed per later frame

@@ -28,7 +28,8 @@ struct NodeParameters {
   double max_frame_gap = 1.0;
   // --- Windows and the worker.
   StreamOptions stream;            // window_size, window_overlap, max_pending_windows
-  // --- The estimator (mode, scale, samples, iterations, lambdas, threads).
+  // --- The estimator (mode, scale, samples, iterations, lambdas, threads,
+  //     max_window_seconds -> estimator.max_seconds).
   EstimatorOptions estimator;
   // --- Outputs.
   std::string world_frame = "world";
