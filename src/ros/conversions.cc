@@ -55,6 +55,9 @@ cv::Mat ImageToFloat01(const sensor_msgs::Image& image, ImageFamily* family_out)
     throw InputError("image data is shorter than width x height x pixel size (step " +
                      std::to_string(image.step) + ", " + std::to_string(image.data.size()) + " bytes)");
   }
+  if (family == ImageFamily::kMono16 && image.step % 2 != 0) {
+    throw InputError("mono16 image with an odd step (" + std::to_string(image.step) + " bytes)");
+  }
   const int type = family == ImageFamily::kMono8    ? CV_8UC1
                    : family == ImageFamily::kMono16 ? CV_16UC1
                                                     : CV_8UC3;

@@ -76,6 +76,11 @@ TEST(ImageConversion, RejectsBadImagesWithOneLine) {
   sensor_msgs::Image truncated = MakeImage("rgb8", 8, 8, 3);
   truncated.data.resize(10);
   EXPECT_THROW(ImageToFloat01(truncated, nullptr), InputError);
+  // Found by fuzz_image_message: OpenCV threw its own multi-line error.
+  sensor_msgs::Image odd_step = MakeImage("mono16", 4, 4, 2);
+  odd_step.step = 9;
+  odd_step.data.resize(9 * 4);
+  EXPECT_THROW(ImageToFloat01(odd_step, nullptr), InputError);
   sensor_msgs::Image short_step = MakeImage("rgb8", 8, 8, 3);
   short_step.step = 8;
   EXPECT_THROW(ImageToFloat01(short_step, nullptr), InputError);
