@@ -13,7 +13,7 @@ export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1"
 plain="$DSM_CACHE/build-asan"
 echo "== plain build with ASan + UBSan in $plain"
 cmake -S "$DSM_REPO" -B "$plain" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DDSM_SANITIZE=ON >/dev/null
-cmake --build "$plain" -j "$DSM_JOBS" >/dev/null
+cmake --build "$plain" -j "$DSM_JOBS" >"$DSM_CACHE/build-asan.log" 2>&1 || { tail -n 30 "$DSM_CACHE/build-asan.log"; exit 1; }
 (cd "$plain" && ASAN_OPTIONS=detect_leaks=1 ctest -j "$DSM_JOBS" --output-on-failure 2>&1 | tail -n 5)
 
 ws="$DSM_CACHE/catkin_ws_asan"

@@ -389,6 +389,9 @@ void SceneRenderer::Render(const PinholeCamera& camera, const SE3& T_world_cam,
       if (!(z >= kNearPlaneM && u > -1.0f && v > -1.0f && u < width && v < height)) continue;
       const int x0 = static_cast<int>(u + 1.0f) - 1;  // floor for u > -1
       const int y0 = static_cast<int>(v + 1.0f) - 1;
+      // u + 1 can round up to width + 1 in float for u just below width
+      // (found by AddressSanitizer): such a splat has no share inside.
+      if (x0 >= width || y0 >= height) continue;
       if (secondary && !useful[static_cast<std::size_t>(y0 + 1) * (width + 1) + (x0 + 1)]) {
         continue;
       }

@@ -9,6 +9,7 @@
 #include <sensor_msgs/PointCloud2.h>
 
 #include "deblur_sr_mvs/core/initializer.h"
+#include "deblur_sr_mvs/core/tool_main.h"
 
 namespace deblur_sr_mvs {
 
@@ -172,8 +173,9 @@ void EstimatorNodelet::InfoCallback(const sensor_msgs::CameraInfoConstPtr& info)
   while (recent_infos_.size() > kMaxRecentInfos) recent_infos_.pop_front();
 }
 
-void EstimatorNodelet::RejectFrame(const std::string& category, const std::string& why) {
+void EstimatorNodelet::RejectFrame(const std::string& category, const std::string& reason) {
   ++frames_rejected_;
+  const std::string why = OneLine(reason);
   // Counted per category (a fixed set), so that hours of bad input cannot grow the map.
   const uint64_t count = ++rejections_[category];
   if (count == 1) {
@@ -352,7 +354,7 @@ void EstimatorNodelet::ProcessWindow(PendingWindow window) {
   } catch (const std::exception& error) {
     ++windows_failed_;
     status.success = false;
-    status.message = std::string("window skipped: ") + error.what();
+    status.message = "window skipped: " + OneLine(error.what());
     NODELET_WARN("deblur_sr_mvs: %s", status.message.c_str());
     {
       std::lock_guard<std::mutex> lock(health_mutex_);

@@ -442,7 +442,10 @@ TEST(EstimatorNodeletHostileInput, RejectsCountsRestartsAndSkips) {
   EXPECT_NE(skipped.message.find("window skipped"), std::string::npos) << skipped.message;
   EXPECT_EQ(skipped.frames_rejected, 7u);
   EXPECT_EQ(skipped.windows_failed, 1u);
-  EXPECT_EQ(skipped.resets, 2u);  // the size change comes after this window
+  // Counters are read when the status is published: the size change after
+  // this window may already be counted when estimation is slow (sanitizers).
+  EXPECT_GE(skipped.resets, 2u);
+  EXPECT_LE(skipped.resets, 3u);
   std::map<std::string, std::string> values;
   for (const auto& value : diagnostics.values) values[value.key] = value.value;
   EXPECT_EQ(values["stream resets"], "3");
