@@ -52,6 +52,7 @@ void Read(const ros::NodeHandle& node, const std::string& name, T* value) {
 
 NodeParameters ReadNodeParameters(const ros::NodeHandle& node) {
   NodeParameters params;
+  params.estimator.max_seconds = 60.0;  // the node's default cap (config/default.yaml)
   Read(node, "exposure_time", &params.exposure_time);
   std::string stamp_position = "end";
   Read(node, "stamp_position", &stamp_position);
