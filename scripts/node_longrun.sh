@@ -101,6 +101,11 @@ rss = [num(r, "rss_kib") for r in rows]
 lat = [num(r, "latency_s") for r in rows if num(r, "latency_s") is not None]
 warm = [v for s, v in zip(t, rss) if s is not None and s >= 120 and v]
 growth = (warm[-1] - warm[0]) / warm[0] * 100 if len(warm) >= 2 else float("nan")
+# RSS moves by +-5 % from window to window (allocations per window): compare
+# the means of the first and the last 5 minutes after warm-up as well.
+span = 30  # samples of 10 s
+mean_growth = ((sum(warm[-span:]) / len(warm[-span:])) / (sum(warm[:span]) / len(warm[:span])) - 1) * 100 \
+    if len(warm) >= 2 * span else float("nan")
 half = len(lat) // 2
 lat_first = sum(lat[:half]) / max(half, 1)
 lat_second = sum(lat[half:]) / max(len(lat) - half, 1)
@@ -115,6 +120,9 @@ checks = {
     "no error output in the node log": not errors,
 }
 print(f"Long run: {minutes} min, bag rate {rate}, {len(rows)} samples")
+print()
+print(f"RSS after warm-up: {min(warm, default=0)/1024:.0f}-{max(warm, default=0)/1024:.0f} MiB; "
+      f"mean of the last 5 min vs the first 5 min: {mean_growth:+.1f} %")
 print()
 print("| RSS after warm-up first / last (MiB) | growth | latency mean 1st / 2nd half (s) | windows processed | dropped | failed | resets | frames published | SIGINT to exit (s) |")
 print("|---|---|---|---|---|---|---|---|---|")
