@@ -47,3 +47,27 @@ dsm_source_workspace() {
   [ "$had_u" -eq 1 ] && set -u
   return 0
 }
+
+# Background processes of a script's ROS run (master, recorder, launch),
+# stopped newest first with SIGINT by dsm_stop_processes (also on exit).
+dsm_pids=()
+dsm_stop_processes() {
+  local i pid
+  for ((i = ${#dsm_pids[@]} - 1; i >= 0; i--)); do kill -INT "${dsm_pids[i]}" 2>/dev/null || true; done
+  for pid in "${dsm_pids[@]}"; do wait "$pid" 2>/dev/null || true; done
+  dsm_pids=()
+}
+
+# A private ROS master on PORT (so that a running system is not disturbed),
+# log in LOG; sets ROS_MASTER_URI and waits until the master answers.
+# Usage: dsm_start_master PORT LOG
+dsm_start_master() {
+  export ROS_MASTER_URI="http://localhost:$1"
+  trap dsm_stop_processes EXIT
+  roscore -p "$1" >"$2" 2>&1 &
+  dsm_pids+=($!)
+  local _
+  for _ in $(seq 100); do rostopic list >/dev/null 2>&1 && return 0; sleep 0.2; done
+  echo "the ROS master did not start (log: $2)" >&2
+  return 1
+}

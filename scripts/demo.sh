@@ -35,28 +35,18 @@ rm -rf "$seq_dir" "$out/dolls_result" "$out/dolls.bag" "$out/node_outputs.bag"
 exposure="$(awk -F, 'NR == 2 { print $3 }' "$seq_dir/frames.csv")"
 
 # A private master, so that a running robot system is not disturbed.
-export ROS_MASTER_URI="http://localhost:${DSM_DEMO_PORT:-11399}"
-pids=()
-cleanup() {
-  for ((i = ${#pids[@]} - 1; i >= 0; i--)); do kill -INT "${pids[i]}" 2>/dev/null || true; done
-  for pid in "${pids[@]}"; do wait "$pid" 2>/dev/null || true; done
-}
-trap cleanup EXIT
+dsm_start_master "${DSM_DEMO_PORT:-11399}" "$out/roscore.log"
 echo "== ROS master at $ROS_MASTER_URI"
-roscore -p "${DSM_DEMO_PORT:-11399}" >"$out/roscore.log" 2>&1 &
-pids+=($!)
-for _ in $(seq 100); do rostopic list >/dev/null 2>&1 && break; sleep 0.2; done
-rostopic list >/dev/null 2>&1 || { echo "demo: the ROS master did not start (log: $out/roscore.log)" >&2; exit 1; }
 
 ns=/deblur_sr_mvs
 /usr/lib/rosbag/record -O "$out/node_outputs.bag" __name:=demo_recorder \
   $ns/restored/image $ns/restored/camera_info $ns/depth/image $ns/depth/camera_info \
   $ns/pose $ns/path $ns/status /tf >"$out/record.log" 2>&1 &
-pids+=($!)
+dsm_pids+=($!)
 echo "== roslaunch deblur_sr_mvs play_bag.launch bag:=$out/dolls.bag exposure_time:=$exposure"
 roslaunch deblur_sr_mvs play_bag.launch bag:="$out/dolls.bag" exposure_time:="$exposure" \
   delay:=3 >"$out/node.log" 2>&1 &
-pids+=($!)
+dsm_pids+=($!)
 
 echo "== waiting for the node to publish all $frames frames (log: $out/node.log)"
 published=0
@@ -71,8 +61,7 @@ if [ -z "$published" ] || [ "$published" -lt "$frames" ]; then
   exit 1
 fi
 sleep 1  # the recorder writes the last messages
-cleanup
-pids=()
+dsm_stop_processes
 trap - EXIT
 
 echo "== converting the recorded outputs into $out/dolls_result"

@@ -53,24 +53,15 @@ window_size="$(awk -F': *' '$1 == "window_size" { v = $2 } END { sub(/ .*/, "", 
 overlap="$(awk -F': *' '$1 == "window_overlap" { v = $2 } END { sub(/ .*/, "", v); print v }' "$params")"
 windows=$(( (frames - overlap) / (window_size - overlap) ))
 
-export ROS_MASTER_URI="http://localhost:${DSM_BENCH_PORT:-11398}"
-pids=()
-cleanup() {
-  for ((i = ${#pids[@]} - 1; i >= 0; i--)); do kill -INT "${pids[i]}" 2>/dev/null || true; done
-  for pid in "${pids[@]}"; do wait "$pid" 2>/dev/null || true; done
-}
-trap cleanup EXIT
-roscore -p "${DSM_BENCH_PORT:-11398}" >"$out/roscore.log" 2>&1 &
-pids+=($!)
-for _ in $(seq 100); do rostopic list >/dev/null 2>&1 && break; sleep 0.2; done
+dsm_start_master "${DSM_BENCH_PORT:-11398}" "$out/roscore.log"
 ns=/deblur_sr_mvs
 rm -f "$out/status.bag"
 /usr/lib/rosbag/record -O "$out/status.bag" __name:=benchmark_recorder $ns/status >/dev/null 2>&1 &
-pids+=($!)
+dsm_pids+=($!)
 start=$(date +%s.%N)
 roslaunch deblur_sr_mvs play_bag.launch bag:="$out/input.bag" exposure_time:="$exposure" \
   rate:="$rate" delay:=3 params:="$params" >"$out/node.log" 2>&1 &
-pids+=($!)
+dsm_pids+=($!)
 
 echo "node_benchmark: $frames frames at rate $rate, windows of $window_size (overlap $overlap): expecting $windows windows"
 echo "seconds,rss_kib" >"$out/rss.csv"
@@ -89,8 +80,7 @@ for _ in $(seq 3600); do
   sleep 2
 done
 sleep 1
-cleanup
-pids=()
+dsm_stop_processes
 trap - EXIT
 
 /usr/bin/python3 - "$out" "$frames" "$rate" "$windows" <<'EOF' | tee "$out/summary.md"

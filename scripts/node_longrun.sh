@@ -40,19 +40,10 @@ if [ ! -f "$out/dolls.bag" ]; then
 fi
 exposure="$(awk -F, 'NR == 2 { print $3 }' "$out/sequence/frames.csv")"
 
-export ROS_MASTER_URI="http://localhost:${DSM_LONGRUN_PORT:-11397}"
-pids=()
-cleanup() {
-  for ((i = ${#pids[@]} - 1; i >= 0; i--)); do kill -INT "${pids[i]}" 2>/dev/null || true; done
-  for pid in "${pids[@]}"; do wait "$pid" 2>/dev/null || true; done
-}
-trap cleanup EXIT
-roscore -p "${DSM_LONGRUN_PORT:-11397}" >"$out/roscore.log" 2>&1 &
-pids+=($!)
-for _ in $(seq 100); do rostopic list >/dev/null 2>&1 && break; sleep 0.2; done
+dsm_start_master "${DSM_LONGRUN_PORT:-11397}" "$out/roscore.log"
 roslaunch deblur_sr_mvs play_bag.launch bag:="$out/dolls.bag" exposure_time:="$exposure" \
   rate:="$rate" loop:=true delay:=2 >"$out/node.log" 2>&1 &
-pids+=($!)
+dsm_pids+=($!)
 
 ns=/deblur_sr_mvs
 # The latest (latched) status, one field per line as "name: value".
@@ -85,8 +76,7 @@ if [ -n "$node_pid" ] && kill -0 "$node_pid" 2>/dev/null; then
   while kill -0 "$node_pid" 2>/dev/null; do sleep 0.02; done
   shutdown_s="$(echo "$(date +%s.%N) - $t0" | bc)"
 fi
-cleanup
-pids=()
+dsm_stop_processes
 trap - EXIT
 
 /usr/bin/python3 - "$out" "$minutes" "$rate" "${shutdown_s:-none}" <<'PY' | tee "$out/summary.md"
