@@ -71,3 +71,14 @@ dsm_start_master() {
   echo "the ROS master did not start (log: $2)" >&2
   return 1
 }
+
+# Everything a ROS run of the package needs: Debian packages, the plain build
+# (tools), the catkin build (node, ROS tools), the sourced workspace; sets
+# DSM_ROS_BIN to the ROS tools' folder.
+dsm_prepare_ros_run() {
+  "$DSM_REPO/scripts/install_deps.sh" >/dev/null
+  dsm_build_plain >/dev/null
+  dsm_build_catkin
+  dsm_source_workspace
+  DSM_ROS_BIN="$DSM_WORKSPACE/devel/lib/deblur_sr_mvs"
+}

@@ -17,12 +17,9 @@ source "$(dirname "$0")/common.sh"
 
 out="${1:-$DSM_REPO/demo_output}"
 frames=10
-"$DSM_REPO/scripts/install_deps.sh"
-echo "== building (Release): tools in $DSM_PLAIN_BUILD, node in $DSM_WORKSPACE"
-dsm_build_plain >/dev/null
-dsm_build_catkin
-dsm_source_workspace
-ros_bin="$DSM_WORKSPACE/devel/lib/deblur_sr_mvs"
+echo "== installing missing packages, building (Release): tools in $DSM_PLAIN_BUILD, node in $DSM_WORKSPACE"
+dsm_prepare_ros_run
+ros_bin="$DSM_ROS_BIN"
 
 mkdir -p "$out"
 out="$(cd "$out" && pwd)"

@@ -27,11 +27,8 @@ while [ $# -gt 0 ]; do
   esac
 done
 
-"$DSM_REPO/scripts/install_deps.sh" >/dev/null
-dsm_build_plain >/dev/null
-dsm_build_catkin
-dsm_source_workspace
-ros_bin="$DSM_WORKSPACE/devel/lib/deblur_sr_mvs"
+dsm_prepare_ros_run
+ros_bin="$DSM_ROS_BIN"
 mkdir -p "$out"
 out="$(cd "$out" && pwd)"
 

@@ -26,11 +26,8 @@ while [ $# -gt 0 ]; do
 done
 
 [[ "$minutes" =~ ^[0-9]+$ ]] || { echo "node_longrun: --minutes must be a whole number" >&2; exit 2; }
-"$DSM_REPO/scripts/install_deps.sh" >/dev/null
-dsm_build_plain >/dev/null
-dsm_build_catkin
-dsm_source_workspace
-ros_bin="$DSM_WORKSPACE/devel/lib/deblur_sr_mvs"
+dsm_prepare_ros_run
+ros_bin="$DSM_ROS_BIN"
 mkdir -p "$out"
 out="$(cd "$out" && pwd)"
 if [ ! -f "$out/dolls.bag" ]; then

@@ -47,6 +47,12 @@ EstimatorInput InputOf(const Sequence& sequence) {
   return input;
 }
 
+std::vector<SE3> TruePoses(const Sequence& sequence) {
+  std::vector<SE3> poses;
+  for (const StampedPose& p : sequence.ground_truth->poses) poses.push_back(p.T_world_cam);
+  return poses;
+}
+
 double MeanPsnr(const std::vector<cv::Mat>& estimates01, const std::vector<cv::Mat>& truth8) {
   double sum = 0.0;
   for (size_t t = 0; t < estimates01.size(); ++t) {
@@ -67,8 +73,7 @@ TEST(Estimator, ImageUpdateWithTrueStructureBeatsBicubic) {
   const Sequence& sequence = SmallSequence();
   ASSERT_TRUE(sequence.ground_truth.has_value());
   const EstimatorInput input = InputOf(sequence);
-  std::vector<SE3> poses;
-  for (const StampedPose& p : sequence.ground_truth->poses) poses.push_back(p.T_world_cam);
+  const std::vector<SE3> poses = TruePoses(sequence);
   EstimatorOptions options;
   options.update_structure = false;
   options.max_iterations = 1;
@@ -248,8 +253,7 @@ TEST(EstimatorSafety, ExtremeBlurStillRestoresAndStaysFinite) {
 
 TEST(EstimatorSafety, TimeCapStopsBetweenIterationsAndSaysSo) {
   const Sequence& sequence = SmallSequence();
-  std::vector<SE3> poses;
-  for (const StampedPose& p : sequence.ground_truth->poses) poses.push_back(p.T_world_cam);
+  const std::vector<SE3> poses = TruePoses(sequence);
   EstimatorOptions options;
   options.samples = 10;
   options.max_iterations = 3;
@@ -264,8 +268,7 @@ TEST(EstimatorSafety, TimeCapStopsBetweenIterationsAndSaysSo) {
 
 TEST(EstimatorSafety, NonFiniteInputIsRejectedWithOneLine) {
   const Sequence& sequence = SmallSequence();
-  std::vector<SE3> poses;
-  for (const StampedPose& p : sequence.ground_truth->poses) poses.push_back(p.T_world_cam);
+  const std::vector<SE3> poses = TruePoses(sequence);
   EstimatorOptions options;
   options.samples = 10;
   options.max_iterations = 1;
