@@ -257,13 +257,19 @@ const char* ToString(EstimatorMode mode) {
 }
 
 const char* ToString(StructureMatching matching) {
-  return matching == StructureMatching::kBlurred ? "blurred" : "restored";
+  switch (matching) {
+    case StructureMatching::kBlurred: return "blurred";
+    case StructureMatching::kRestored: return "restored";
+    case StructureMatching::kRestoredAndInput: return "both";
+  }
+  return "?";
 }
 
 StructureMatching ParseStructureMatching(const std::string& text) {
   if (text == "blurred") return StructureMatching::kBlurred;
   if (text == "restored") return StructureMatching::kRestored;
-  throw InputError("structure matching must be 'blurred' or 'restored', got '" + text + "'");
+  if (text == "both") return StructureMatching::kRestoredAndInput;
+  throw InputError("structure matching must be 'both', 'restored' or 'blurred', got '" + text + "'");
 }
 
 EstimatorMode ParseEstimatorMode(const std::string& text) {
@@ -277,6 +283,9 @@ void EstimatorOptions::Check() const {
   if (samples < 1 || samples > 1000) throw InputError("samples must be in [1, 1000], got " + std::to_string(samples));
   if (max_iterations < 0 || max_iterations > 100) throw InputError("iterations must be in [0, 100]");
   if (neighbour_radius < 1 || neighbour_radius > 5) throw InputError("neighbour_radius must be in [1, 5]");
+  if (pose_neighbour_radius < 1 || pose_neighbour_radius > 5) {
+    throw InputError("pose_neighbour_radius must be in [1, 5]");
+  }
   if (!(lambda_s >= 0.0) || !std::isfinite(lambda_s)) throw InputError("lambda_s must be >= 0");
   if (num_threads < 0) throw InputError("threads must be >= 0");
   if (fixed_leading_poses < 1) throw InputError("fixed_leading_poses must be >= 1");
@@ -533,28 +542,43 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
     structure_options.num_threads = threads;
     std::vector<SE3> poses(num_frames);
     for (int t = 0; t < num_frames; ++t) poses[t] = frames[t].T_world_cam;
-    // The pairs (t <- s) of frame t; `held` keeps their operators alive.
-    auto pairs_of = [&](int t, std::vector<PairMatching>* pairs,
+    // The pairs (t <- s) of frame t with s in `sources`; `held` keeps their
+    // operators alive.
+    const bool blurred_matching = joint && options_.structure_matching == StructureMatching::kBlurred;
+    const bool input_matching = joint && options_.structure_matching == StructureMatching::kRestoredAndInput;
+    auto pairs_of = [&](int t, const std::vector<int>& sources, std::vector<PairMatching>* pairs,
                         std::vector<std::shared_ptr<const OperatorCache::Entry>>* held) {
-      for (int s : neighbours[t]) {
+      for (int s : sources) {
         PairMatching pair;
         pair.t = t;
         pair.s = s;
-        if (joint && options_.structure_matching == StructureMatching::kBlurred) {
+        if (blurred_matching) {
           held->push_back(cache.Get(frames, depth_version, pose_version, t, s, &timer));
           pair.mask = held->back()->mask;
           held->push_back(cache.Get(frames, depth_version, pose_version, t, t, &timer));
           pair.blur = &held->back()->op;
           pair.observation = &observations[t];
-        } else {
-          // Restored (or, in the baseline, bicubic) HR images of t and s.
-          pair.observation = &latents[t];
-          const SE3 T_s_t = frames[s].T_world_cam.Inverse() * frames[t].T_world_cam;
-          pair.mask = ComputeVisibility(camera_hr, frames[t].depth_hr, T_s_t, options_.visibility);
+          pairs->push_back(pair);
+          continue;
         }
+        // Restored (or, in the baseline, bicubic) HR images of t and s.
+        pair.observation = &latents[t];
+        const SE3 T_s_t = frames[s].T_world_cam.Inverse() * frames[t].T_world_cam;
+        pair.mask = ComputeVisibility(camera_hr, frames[t].depth_hr, T_s_t, options_.visibility);
         pairs->push_back(pair);
+        if (input_matching) {
+          // The same pair on the up-sampled inputs, which do not depend on
+          // the current structure (see StructureMatching).
+          pair.observation = &bicubic[t];
+          pair.source = &bicubic[s];
+          pairs->push_back(pair);
+        }
       }
     };
+    // Pose pairs reach further than N(t) (longer baselines); the blurred
+    // form needs the operators of N(t) only.
+    const int pose_radius = blurred_matching ? options_.neighbour_radius
+                                             : std::max(options_.neighbour_radius, options_.pose_neighbour_radius);
     for_each_frame([&](int t) {
       if (omp_get_thread_num() == 0) {
         report(double(t) / (num_frames + 1),
@@ -564,9 +588,8 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
       const cv::Mat saved = inverse_depth[t].clone();
       std::vector<PairMatching> pairs;
       std::vector<std::shared_ptr<const OperatorCache::Entry>> held;
-      pairs_of(t, &pairs, &held);
+      pairs_of(t, neighbours[t], &pairs, &held);
       SelfConsistencyLinearization self;
-      const bool blurred_matching = joint && options_.structure_matching == StructureMatching::kBlurred;
       if (blurred_matching) {
         const auto self_op = cache.Get(frames, depth_version, pose_version, t, t, &timer);
         self.observation = &observations[t];
@@ -577,8 +600,10 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
         self.weight = options_.lambda_s;
         self.scale = scale;
       }
+      const double depth_begin = Now();
       UpdateDepth(camera_hr, poses, latents, pairs, blurred_matching ? &self : nullptr, edge_weight[t],
                   parallax_scale(), structure_options, &inverse_depth[t]);
+      timer.Add("depth updates (thread seconds)", Now() - depth_begin);
       frames[t].depth_hr = DepthFromInverse(inverse_depth[t]);
       ++depth_version[t];
       if (isolated && !(frame_energy(t, nullptr) <= before)) {
@@ -592,10 +617,12 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
       const double before = isolated ? total_energy(iteration, "structure").total : 0.0;
       std::vector<PairMatching> pairs;
       std::vector<std::shared_ptr<const OperatorCache::Entry>> held;
-      for (int t = 0; t < num_frames; ++t) pairs_of(t, &pairs, &held);
+      for (int t = 0; t < num_frames; ++t) pairs_of(t, Neighbours(t, num_frames, pose_radius), &pairs, &held);
       std::vector<SE3> updated = poses;
+      const double pose_begin = Now();
       UpdatePoses(camera_hr, inverse_depth, latents, pairs, structure_options, &updated,
                   options_.fixed_leading_poses);
+      timer.Add("pose updates", Now() - pose_begin);
       for (int t = 1; t < num_frames; ++t) {
         frames[t].T_world_cam = updated[t];
         ++pose_version[t];

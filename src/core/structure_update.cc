@@ -142,6 +142,52 @@ void ExpandChannels(const cv::Mat& g, const cv::Mat& in, cv::Mat* out) {
   }
 }
 
+// The warp W^{t->s} of eq:warpingFunction for one pair of poses, per pixel.
+class PairWarp {
+ public:
+  PairWarp(const PinholeCamera& camera, const SE3& T_world_t, const SE3& T_world_s)
+      : camera_(camera), T_world_t_(T_world_t), T_s_world_(T_world_s.Inverse()) {
+    const SE3 T_s_t = T_s_world_ * T_world_t;
+    const Eigen::Matrix3d k = camera.K();
+    h_ = k * T_s_t.rotation() * k.inverse();
+    kt_ = k * T_s_t.translation();
+    max_u_ = camera.width - 1.0;
+    max_v_ = camera.height - 1.0;
+  }
+  // (u, v) in s of pixel (x, y) of t at inverse depth rho and d(u, v)/d rho;
+  // false when rho is unusable or the point falls behind or outside s.
+  bool Project(int x, int y, double rho, double* u, double* v, double* du, double* dv) const {
+    if (!(rho > 0.0) || !std::isfinite(rho)) return false;
+    // q ~ K X_s scaled by rho: q = H [x y 1] + rho K t.
+    const Eigen::Vector3d q = h_ * Eigen::Vector3d(x, y, 1.0) + rho * kt_;
+    if (!(q.z() > 1e-9)) return false;
+    *u = q.x() / q.z();
+    *v = q.y() / q.z();
+    if (*u < 0.0 || *v < 0.0 || *u > max_u_ || *v > max_v_) return false;
+    *du = (kt_.x() - *u * kt_.z()) / q.z();
+    *dv = (kt_.y() - *v * kt_.z()) / q.z();
+    return true;
+  }
+  // d(u, v)/d eps_t for P_t = exp(eps_t) P_t0 (d/d eps_s is minus it):
+  // X_w = P_t X_t, X_s = R_s^T (X_w - c_s), d X_s / d eps_t = R_s^T [I, -[X_w]x].
+  Eigen::Matrix<double, 2, 6> DPixelDPose(int x, int y, double rho) const {
+    const Eigen::Vector3d point_w = T_world_t_ * (camera_.Ray(x, y) / rho);
+    const Eigen::Vector3d point_s = T_s_world_ * point_w;
+    const double z = point_s.z();
+    Eigen::Matrix<double, 2, 3> d_pixel;
+    d_pixel << camera_.fx / z, 0.0, -camera_.fx * point_s.x() / (z * z), 0.0, camera_.fy / z,
+        -camera_.fy * point_s.y() / (z * z);
+    return d_pixel * T_s_world_.rotation() * DLeftPerturbedPointDEps(point_w);
+  }
+
+ private:
+  PinholeCamera camera_;
+  SE3 T_world_t_, T_s_world_;
+  Eigen::Matrix3d h_;
+  Eigen::Vector3d kt_;
+  double max_u_ = 0.0, max_v_ = 0.0;
+};
+
 }  // namespace
 
 cv::Mat BlurDerivativeWrtInverseDepth(const CaptureGeometry& geometry, int samples,
@@ -191,6 +237,7 @@ cv::Mat BlurDerivativeWrtInverseDepth(const CaptureGeometry& geometry, int sampl
 
 void StructureUpdateOptions::Check() const {
   if (!(lambda_d >= 0.0)) throw InputError("structure update: lambda_d must be >= 0");
+  if (pose_pixel_stride < 1 || pose_pixel_stride > 8) throw InputError("structure update: pose_pixel_stride must be in [1, 8]");
   if (depth_irls_iterations < 0 || depth_cg_iterations < 1 || pose_iterations < 0) {
     throw InputError("structure update: iteration counts must be >= 0 (CG >= 1)");
   }
@@ -216,30 +263,18 @@ WarpLinearization LinearizeWarp(const PinholeCamera& camera_hr, const cv::Mat& i
   }
   cv::Mat gx, gy;
   Gradients(latent_s, &gx, &gy);
-  const SE3 T_s_t = T_world_s.Inverse() * T_world_t;
-  const Eigen::Matrix3d k = camera_hr.K();
-  const Eigen::Matrix3d h = k * T_s_t.rotation() * k.inverse();
-  const Eigen::Vector3d kt = k * T_s_t.translation();
-  const Eigen::Matrix3d R_s_world = T_world_s.rotation().transpose();
-  const double max_u = width - 1.0, max_v = height - 1.0;
+  const PairWarp warp(camera_hr, T_world_t, T_world_s);
 #pragma omp parallel for schedule(static)
   for (int y = 0; y < height; ++y) {
     const float* rho_row = inverse_depth_t.ptr<float>(y);
     std::vector<float> value(channels), grad_x(channels), grad_y(channels);
     for (int x = 0; x < width; ++x) {
-      const double rho = rho_row[x];
-      if (!(rho > 0.0) || !std::isfinite(rho)) continue;
-      // q ~ K X_s scaled by rho: q = H [x y 1] + rho K t  (eq:warpingFunction).
-      const Eigen::Vector3d q = h * Eigen::Vector3d(x, y, 1.0) + rho * kt;
-      if (!(q.z() > 1e-9)) continue;
-      const double u = q.x() / q.z(), v = q.y() / q.z();
-      if (u < 0.0 || v < 0.0 || u > max_u || v > max_v) continue;
+      double u, v, du, dv;
+      if (!warp.Project(x, y, rho_row[x], &u, &v, &du, &dv)) continue;
       lin.valid.at<uchar>(y, x) = 255;
       SampleBilinear(latent_s, static_cast<float>(u), static_cast<float>(v), value.data());
       SampleBilinear(gx, static_cast<float>(u), static_cast<float>(v), grad_x.data());
       SampleBilinear(gy, static_cast<float>(u), static_cast<float>(v), grad_y.data());
-      const double du = (kt.x() - u * kt.z()) / q.z();
-      const double dv = (kt.y() - v * kt.z()) / q.z();
       float* warped = lin.warped.ptr<float>(y) + x * channels;
       float* d_rho = lin.d_inverse_depth.ptr<float>(y) + x * channels;
       for (int c = 0; c < channels; ++c) {
@@ -247,16 +282,7 @@ WarpLinearization LinearizeWarp(const PinholeCamera& camera_hr, const cv::Mat& i
         d_rho[c] = static_cast<float>(grad_x[c] * du + grad_y[c] * dv);
       }
       if (pose_jacobians == nullptr) continue;
-      // X_w = P_t X_t; X_s = R_s^T (X_w - c_s); d X_s / d eps_t = R_s^T [I, -[X_w]x].
-      const Eigen::Vector3d point_t = camera_hr.Ray(x, y) / rho;
-      const Eigen::Vector3d point_w = T_world_t * point_t;
-      const Eigen::Vector3d point_s = T_world_s.Inverse() * point_w;
-      const double z = point_s.z();
-      Eigen::Matrix<double, 2, 3> d_pixel;
-      d_pixel << camera_hr.fx / z, 0.0, -camera_hr.fx * point_s.x() / (z * z), 0.0,
-          camera_hr.fy / z, -camera_hr.fy * point_s.y() / (z * z);
-      const Eigen::Matrix<double, 2, 6> d_pixel_d_eps =
-          d_pixel * R_s_world * DLeftPerturbedPointDEps(point_w);
+      const Eigen::Matrix<double, 2, 6> d_pixel_d_eps = warp.DPixelDPose(x, y, rho_row[x]);
       for (int j = 0; j < 6; ++j) {
         float* out = (*pose_jacobians)[j].ptr<float>(y) + x * channels;
         for (int c = 0; c < channels; ++c) {
@@ -322,7 +348,7 @@ void UpdateDepth(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world
       const PairMatching& pair = pairs[p];
       PairState& state = states[p];
       state.lin = LinearizeWarp(camera_hr, *inverse_depth, T_world_cam[pair.t], T_world_cam[pair.s],
-                                latents[pair.s], nullptr);
+                                pair.source != nullptr ? *pair.source : latents[pair.s], nullptr);
       Predict(pair, state.lin.warped, &predicted);
       state.residual = *pair.observation - predicted;
       L1Weights(state.residual, ObservationMask(pair, state.lin.valid), options.residual_epsilon,
@@ -396,6 +422,92 @@ void UpdateDepth(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world
   }
 }
 
+namespace {
+
+// A^T W A and A^T W r0 of one pair for the pose update, where
+// r(eps) = r0 - A (eps_t - eps_s) and W holds the IRLS weights of r0.
+struct PairNormalEquations {
+  Eigen::Matrix<double, 6, 6> block = Eigen::Matrix<double, 6, 6>::Zero();
+  Eigen::Matrix<double, 6, 1> rhs = Eigen::Matrix<double, 6, 1>::Zero();
+};
+
+// An HR pair pixel by pixel, without intermediate images: I_t against
+// I_s(W^{t->s}) with the gradients of I_s given.
+PairNormalEquations HrPairNormalEquations(const PinholeCamera& camera_hr, const cv::Mat& inverse_depth_t,
+                                          const SE3& T_world_t, const SE3& T_world_s, const cv::Mat& source,
+                                          const cv::Mat& source_gx, const cv::Mat& source_gy,
+                                          const cv::Mat& observation, const cv::Mat& mask, double epsilon,
+                                          int stride) {
+  const int channels = source.channels();
+  const PairWarp warp(camera_hr, T_world_t, T_world_s);
+  PairNormalEquations eq;
+  std::vector<float> value(channels), grad_x(channels), grad_y(channels);
+  for (int y = 0; y < camera_hr.height; y += stride) {
+    const float* rho_row = inverse_depth_t.ptr<float>(y);
+    const float* observed = observation.ptr<float>(y);
+    const uchar* mask_row = mask.empty() ? nullptr : mask.ptr<uchar>(y);
+    for (int x = (y / stride) % stride; x < camera_hr.width; x += stride) {
+      if (mask_row != nullptr && mask_row[x] == 0) continue;
+      double u, v, du, dv;
+      if (!warp.Project(x, y, rho_row[x], &u, &v, &du, &dv)) continue;
+      SampleBilinear(source, static_cast<float>(u), static_cast<float>(v), value.data());
+      SampleBilinear(source_gx, static_cast<float>(u), static_cast<float>(v), grad_x.data());
+      SampleBilinear(source_gy, static_cast<float>(u), static_cast<float>(v), grad_y.data());
+      // Channel c has the row a_c = g_c^T J (g_c: image gradient, J: d pixel
+      // / d eps_t), so sum_c w_c a_c^T a_c = J^T S J with the 2x2
+      // S = sum_c w_c g_c g_c^T, and sum_c w_c r_c a_c^T = J^T b.
+      double s00 = 0.0, s01 = 0.0, s11 = 0.0, b0 = 0.0, b1 = 0.0;
+      for (int c = 0; c < channels; ++c) {
+        const double r0 = observed[x * channels + c] - value[c];
+        const double w = 1.0 / std::max(std::abs(r0), epsilon);
+        const double gx = grad_x[c], gy = grad_y[c];
+        s00 += w * gx * gx;
+        s01 += w * gx * gy;
+        s11 += w * gy * gy;
+        b0 += w * r0 * gx;
+        b1 += w * r0 * gy;
+      }
+      const Eigen::Matrix<double, 2, 6> d_pixel = warp.DPixelDPose(x, y, rho_row[x]);
+      Eigen::Matrix<double, 2, 6> s_times_j;
+      s_times_j.row(0) = s00 * d_pixel.row(0) + s01 * d_pixel.row(1);
+      s_times_j.row(1) = s01 * d_pixel.row(0) + s11 * d_pixel.row(1);
+      eq.block.noalias() += d_pixel.transpose() * s_times_j;
+      eq.rhs.noalias() += d_pixel.transpose() * Eigen::Vector2d(b0, b1);
+    }
+  }
+  return eq;
+}
+
+// A pair through the capture operator (LR residuals): the HR Jacobian images
+// are mapped by Psi_t.
+PairNormalEquations BlurredPairNormalEquations(const PinholeCamera& camera_hr, const cv::Mat& inverse_depth_t,
+                                               const SE3& T_world_t, const SE3& T_world_s,
+                                               const cv::Mat& source, const PairMatching& pair,
+                                               double epsilon) {
+  std::vector<cv::Mat> jacobians, projected(6);
+  const WarpLinearization lin = LinearizeWarp(camera_hr, inverse_depth_t, T_world_t, T_world_s, source, &jacobians);
+  cv::Mat predicted, weight;
+  Predict(pair, lin.warped, &predicted);
+  const cv::Mat residual = *pair.observation - predicted;
+  L1Weights(residual, ObservationMask(pair, lin.valid), epsilon, &weight);
+  for (int j = 0; j < 6; ++j) Predict(pair, jacobians[j], &projected[j]);
+  PairNormalEquations eq;
+  const size_t values = residual.total() * residual.channels();
+  const float* w = weight.ptr<float>();
+  const float* r0 = residual.ptr<float>();
+  for (size_t i = 0; i < values; ++i) {
+    if (w[i] == 0.0f) continue;
+    Eigen::Matrix<double, 6, 1> a;
+    for (int j = 0; j < 6; ++j) a(j) = projected[j].ptr<float>()[i];
+    eq.rhs += (w[i] * r0[i]) * a;
+    eq.block.selfadjointView<Eigen::Upper>().rankUpdate(a, w[i]);
+  }
+  eq.block = eq.block.selfadjointView<Eigen::Upper>();
+  return eq;
+}
+
+}  // namespace
+
 std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr,
                                   const std::vector<cv::Mat>& inverse_depths,
                                   const std::vector<cv::Mat>& latents,
@@ -409,44 +521,42 @@ std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr,
   if (num_frames <= num_fixed || pairs.empty()) return total;
   const int unknowns = 6 * (num_frames - num_fixed);
   const int num_pairs = static_cast<int>(pairs.size());
-  std::vector<Eigen::Matrix<double, 6, 6>> blocks(num_pairs);
-  std::vector<Eigen::Matrix<double, 6, 1>> rhss(num_pairs);
+  auto source_of = [&](const PairMatching& pair) -> const cv::Mat& {
+    return pair.source != nullptr ? *pair.source : latents[pair.s];
+  };
+  // Gradients of every image that HR pairs warp, once per image.
+  std::vector<const cv::Mat*> sources;
+  for (const PairMatching& pair : pairs) {
+    if (pair.blur == nullptr && std::find(sources.begin(), sources.end(), &source_of(pair)) == sources.end()) {
+      sources.push_back(&source_of(pair));
+    }
+  }
+  std::vector<cv::Mat> source_gx(sources.size()), source_gy(sources.size());
+#pragma omp parallel for schedule(dynamic, 1)
+  for (int i = 0; i < static_cast<int>(sources.size()); ++i) Gradients(*sources[i], &source_gx[i], &source_gy[i]);
+  std::vector<PairNormalEquations> equations(num_pairs);
   for (int iteration = 0; iteration < options.pose_iterations; ++iteration) {
     // Per pair (in parallel): r(eps) = r0 - A (eps_t - eps_s), A^T W A and A^T W r0.
 #pragma omp parallel for schedule(dynamic, 1)
     for (int p = 0; p < num_pairs; ++p) {
       const PairMatching& pair = pairs[p];
-      cv::Mat predicted, residual, weight;
-      std::vector<cv::Mat> jacobians, projected(6);
-      const WarpLinearization lin =
-          LinearizeWarp(camera_hr, inverse_depths[pair.t], (*T_world_cam)[pair.t],
-                        (*T_world_cam)[pair.s], latents[pair.s], &jacobians);
-      Predict(pair, lin.warped, &predicted);
-      residual = *pair.observation - predicted;
-      L1Weights(residual, ObservationMask(pair, lin.valid), options.residual_epsilon, &weight);
-      for (int j = 0; j < 6; ++j) Predict(pair, jacobians[j], &projected[j]);
-      Eigen::Matrix<double, 6, 6> block = Eigen::Matrix<double, 6, 6>::Zero();
-      Eigen::Matrix<double, 6, 1> rhs = Eigen::Matrix<double, 6, 1>::Zero();
-      const size_t values = residual.total() * residual.channels();
-      const float* w = weight.ptr<float>();
-      const float* r0 = residual.ptr<float>();
-      for (size_t i = 0; i < values; ++i) {
-        if (w[i] == 0.0f) continue;
-        double a[6];
-        for (int j = 0; j < 6; ++j) a[j] = projected[j].ptr<float>()[i];
-        for (int j = 0; j < 6; ++j) {
-          rhs(j) += w[i] * a[j] * r0[i];
-          for (int k = j; k < 6; ++k) block(j, k) += w[i] * a[j] * a[k];
-        }
+      const SE3& T_world_t = (*T_world_cam)[pair.t];
+      const SE3& T_world_s = (*T_world_cam)[pair.s];
+      if (pair.blur != nullptr) {
+        equations[p] = BlurredPairNormalEquations(camera_hr, inverse_depths[pair.t], T_world_t, T_world_s,
+                                                  source_of(pair), pair, options.residual_epsilon);
+      } else {
+        const size_t i = std::find(sources.begin(), sources.end(), &source_of(pair)) - sources.begin();
+        equations[p] = HrPairNormalEquations(camera_hr, inverse_depths[pair.t], T_world_t, T_world_s,
+                                             source_of(pair), source_gx[i], source_gy[i], *pair.observation,
+                                             pair.mask, options.residual_epsilon, options.pose_pixel_stride);
       }
-      blocks[p] = block.selfadjointView<Eigen::Upper>();
-      rhss[p] = rhs;
     }
     Eigen::MatrixXd hessian = Eigen::MatrixXd::Zero(unknowns, unknowns);
     Eigen::VectorXd gradient = Eigen::VectorXd::Zero(unknowns);
     for (int p = 0; p < num_pairs; ++p) {
-      const Eigen::Matrix<double, 6, 6>& block = blocks[p];
-      const Eigen::Matrix<double, 6, 1>& rhs = rhss[p];
+      const Eigen::Matrix<double, 6, 6>& block = equations[p].block;
+      const Eigen::Matrix<double, 6, 1>& rhs = equations[p].rhs;
       // Block indices (negative: a fixed frame).
       const int bt = pairs[p].t - num_fixed, bs = pairs[p].s - num_fixed;
       if (bt >= 0) {

@@ -28,11 +28,12 @@ namespace {
 constexpr char kUsage[] =
     "usage: estimate_sequence --input SEQ --output OUT [--mode joint|baseline] [--scale S]\n"
     "                         [--iterations N] [--samples M] [--lambda-s X] [--lambda-d X]\n"
-    "                         [--lambda-i X] [--threads N] [--neighbours R] [--fixed-poses]\n"
-    "                         [--structure-matching restored|blurred] [--output-scale K]\n"
-    "                         [--quiet]\n"
+    "                         [--lambda-i X] [--threads N] [--neighbours R] [--pose-neighbours R]\n"
+    "                         [--fixed-poses] [--structure-matching both|restored|blurred]\n"
+    "                         [--output-scale K] [--quiet]\n"
     "Defaults are the paper's: joint, scale 2, 3 iterations, M 50, lambda_s 30,\n"
-    "lambda_d 0.1 (see README), lambda_i 0.45; threads 0 = all cores.\n";
+    "lambda_d 0.1 (see README), lambda_i 0.45, neighbours 1; pose-neighbours 2,\n"
+    "structure-matching both (see README); threads 0 = all cores.\n";
 
 double ParseNumber(const std::string& flag, const std::string& text) {
   char* end = nullptr;
@@ -75,6 +76,7 @@ std::string Report(const dsm::EstimatorOptions& options, const std::string& inpu
        << ", \"lambda_d\": " << JsonNumber(options.structure.lambda_d)
        << ", \"lambda_i\": " << JsonNumber(options.image.lambda_i)
        << ", \"neighbour_radius\": " << options.neighbour_radius
+       << ", \"pose_neighbour_radius\": " << options.pose_neighbour_radius
        << ", \"update_poses\": " << (options.update_poses ? "true" : "false")
        << ", \"structure_matching\": \"" << dsm::ToString(options.structure_matching) << "\""
        << ", \"threads\": " << options.num_threads << "},\n";
@@ -138,6 +140,7 @@ int Run(int argc, char** argv) {
     else if (flag == "--lambda-i") options.image.lambda_i = ParseNumber(flag, value);
     else if (flag == "--threads") options.num_threads = ParseInt(flag, value);
     else if (flag == "--neighbours") options.neighbour_radius = ParseInt(flag, value);
+    else if (flag == "--pose-neighbours") options.pose_neighbour_radius = ParseInt(flag, value);
     else if (flag == "--output-scale") output_scale = ParseInt(flag, value);
     else if (flag == "--structure-matching") options.structure_matching = dsm::ParseStructureMatching(value);
     else throw dsm::InputError("unknown flag " + flag + " (see --help)");

@@ -27,11 +27,15 @@ struct StructureUpdateOptions {
   EdgeWeightOptions edge_weight;  // g_t
   int depth_irls_iterations = 3;  // re-linearisations (warps) per update
   int depth_cg_iterations = 15;   // CG steps per reweighted system
-  int pose_iterations = 3;        // Gauss-Newton steps of the joint pose update
+  int pose_iterations = 6;        // Gauss-Newton steps of the joint pose update
   double residual_epsilon = 1e-3; // L1 smoothing (intensity in [0, 1])
   double tv_epsilon = 0.05;       // TV smoothing, parallax px
   double depth_damping = 1e-3;    // Levenberg damping relative to the data diagonal
   double pose_damping = 1e-4;     // likewise for the pose normal equations
+  // HR pairs of the pose update use every stride-th pixel of every
+  // stride-th row (shifted row to row): six unknowns per frame need far
+  // fewer than every pixel, and the update costs 1/stride^2.
+  int pose_pixel_stride = 2;
   int num_threads = 0;
   void Check() const;
 };
@@ -45,6 +49,8 @@ struct PairMatching {
                                           // operator (baseline: HR residuals)
   const cv::Mat* observation = nullptr;   // B_t (LR) or, without blur, the HR image
   cv::Mat mask;                           // Omega_ts on the observation grid (CV_8UC1)
+  const cv::Mat* source = nullptr;        // image of s warped into t; nullptr: latents[s]
+                                          // (HR pairs: another image pair, e.g. the inputs)
 };
 
 // Residual images of the linearisation for one pair at the current structure:
