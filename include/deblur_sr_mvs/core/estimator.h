@@ -46,8 +46,8 @@ enum class StructureMatching {
   // Default: every pair twice, on the restored images (precise) and on the
   // bicubic up-sampled inputs (blurry, but independent of the current
   // structure), as one IRLS problem. On the four benchmark scenes this
-  // lowers the mean ATE from 0.00072 to 0.00064 and the mean depth rel.
-  // error from 0.0173 to 0.0170 against kRestored (BENCHMARKS.md).
+  // lowers the mean ATE from 0.00067 to 0.00056 m and the mean depth rel.
+  // error from 0.0174 to 0.0170 against kRestored (BENCHMARKS.md).
   kRestoredAndInput,
 };
 const char* ToString(StructureMatching matching);
