@@ -26,6 +26,7 @@
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
 
+#include "bag_tool_main.h"
 #include "deblur_sr_mvs/EstimatorStatus.h"
 #include "deblur_sr_mvs/core/image_ops.h"
 #include "deblur_sr_mvs/core/result_io.h"
@@ -193,4 +194,4 @@ int Run(int argc, char** argv) {
 
 }  // namespace
 
-int main(int argc, char** argv) { return dsm::ToolMain("bag_to_result", Run, argc, argv); }
+int main(int argc, char** argv) { return dsm::BagToolMain("bag_to_result", Run, argc, argv); }

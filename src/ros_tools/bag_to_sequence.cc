@@ -58,6 +58,7 @@
 #include <sensor_msgs/TimeReference.h>
 #include <sensor_msgs/image_encodings.h>
 
+#include "bag_tool_main.h"
 #include "deblur_sr_mvs/core/errors.h"
 #include "deblur_sr_mvs/core/sequence_io.h"
 
@@ -67,6 +68,8 @@ namespace fs = std::filesystem;
 namespace enc = sensor_msgs::image_encodings;
 using deblur_sr_mvs::CameraCalibration;
 using deblur_sr_mvs::InputError;
+using deblur_sr_mvs::OneLine;
+using deblur_sr_mvs::ParseFlagNumber;
 using deblur_sr_mvs::Sequence;
 
 constexpr char kUsage[] =
@@ -107,15 +110,6 @@ struct Options {
   }
 };
 
-// what() as one line: OpenCV and rosbag messages may span several.
-std::string OneLine(std::string text) {
-  for (char& c : text) {
-    if (c == '\n' || c == '\r') c = ' ';
-  }
-  while (!text.empty() && text.back() == ' ') text.pop_back();
-  return text;
-}
-
 std::string Seconds(double value) {
   char buffer[64];
   std::snprintf(buffer, sizeof(buffer), "%.9f", value);
@@ -150,17 +144,7 @@ Options ParseOptions(int argc, char** argv, bool* help) {
     if (i + 1 >= argc) throw InputError(flag + ": missing value");
     const std::string value = argv[++i];
     if (is_exposure) {
-      std::size_t used = 0;
-      double seconds = 0.0;
-      try {
-        seconds = std::stod(value, &used);
-      } catch (const std::exception&) {
-        used = 0;
-      }
-      if (used == 0 || used != value.size() || !std::isfinite(seconds) || seconds <= 0.0) {
-        throw InputError("--exposure: expected a positive number of seconds, got \"" + value + "\"");
-      }
-      options.exposure = seconds;
+      options.exposure = ParseFlagNumber(flag, value, 1e-6);  // seconds
     } else {
       *target = value;
     }
@@ -704,23 +688,4 @@ int Run(int argc, char** argv) {
 
 }  // namespace
 
-int main(int argc, char** argv) {
-  // rosbag reports through console_bridge as well as by exceptions; keep
-  // stderr to the one line below.
-  console_bridge::setLogLevel(console_bridge::CONSOLE_BRIDGE_LOG_NONE);
-  try {
-    return Run(argc, argv);
-  } catch (const InputError& error) {
-    std::cerr << "bag_to_sequence: " << OneLine(error.what()) << "\n";
-    return 2;
-  } catch (const rosbag::BagException& error) {
-    std::cerr << "bag_to_sequence: rosbag error: " << OneLine(error.what()) << "\n";
-    return 2;
-  } catch (const cv_bridge::Exception& error) {
-    std::cerr << "bag_to_sequence: cv_bridge error: " << OneLine(error.what()) << "\n";
-    return 2;
-  } catch (const std::exception& error) {
-    std::cerr << "bag_to_sequence: error: " << OneLine(error.what()) << "\n";
-    return 2;
-  }
-}
+int main(int argc, char** argv) { return deblur_sr_mvs::BagToolMain("bag_to_sequence", Run, argc, argv); }

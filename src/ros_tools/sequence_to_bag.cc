@@ -50,6 +50,7 @@
 #include <sensor_msgs/TimeReference.h>
 #include <sensor_msgs/image_encodings.h>
 
+#include "bag_tool_main.h"
 #include "deblur_sr_mvs/core/errors.h"
 #include "deblur_sr_mvs/core/sequence_io.h"
 
@@ -96,15 +97,6 @@ struct Options {
   bool ground_truth = true;
   rosbag::compression::CompressionType compression = rosbag::compression::Uncompressed;
 };
-
-// what() as one line: OpenCV and rosbag messages may span several.
-std::string OneLine(std::string text) {
-  for (char& c : text) {
-    if (c == '\n' || c == '\r') c = ' ';
-  }
-  while (!text.empty() && text.back() == ' ') text.pop_back();
-  return text;
-}
 
 std::string StampText(double stamp) {
   char buffer[64];
@@ -386,23 +378,4 @@ int Run(int argc, char** argv) {
 
 }  // namespace
 
-int main(int argc, char** argv) {
-  // rosbag reports through console_bridge as well as by exceptions; keep
-  // stderr to the one line below.
-  console_bridge::setLogLevel(console_bridge::CONSOLE_BRIDGE_LOG_NONE);
-  try {
-    return Run(argc, argv);
-  } catch (const InputError& error) {
-    std::cerr << "sequence_to_bag: " << OneLine(error.what()) << "\n";
-    return 2;
-  } catch (const rosbag::BagException& error) {
-    std::cerr << "sequence_to_bag: rosbag error: " << OneLine(error.what()) << "\n";
-    return 2;
-  } catch (const cv_bridge::Exception& error) {
-    std::cerr << "sequence_to_bag: cv_bridge error: " << OneLine(error.what()) << "\n";
-    return 2;
-  } catch (const std::exception& error) {
-    std::cerr << "sequence_to_bag: error: " << OneLine(error.what()) << "\n";
-    return 2;
-  }
-}
+int main(int argc, char** argv) { return deblur_sr_mvs::BagToolMain("sequence_to_bag", Run, argc, argv); }

@@ -35,23 +35,6 @@ constexpr char kUsage[] =
     "lambda_d 0.1 (see README), lambda_i 0.45, neighbours 1; pose-neighbours 2,\n"
     "structure-matching both (see README); threads 0 = all cores.\n";
 
-double ParseNumber(const std::string& flag, const std::string& text) {
-  char* end = nullptr;
-  const double value = std::strtod(text.c_str(), &end);
-  if (end == text.c_str() || *end != '\0' || !std::isfinite(value)) {
-    throw dsm::InputError(flag + " expects a number, got '" + text + "'");
-  }
-  return value;
-}
-
-int ParseInt(const std::string& flag, const std::string& text) {
-  const double value = ParseNumber(flag, text);
-  if (value != std::floor(value) || std::abs(value) > 1e9) {
-    throw dsm::InputError(flag + " expects an integer, got '" + text + "'");
-  }
-  return static_cast<int>(value);
-}
-
 double PeakMemoryMiB() {
   rusage usage{};
   getrusage(RUSAGE_SELF, &usage);
@@ -132,16 +115,16 @@ int Run(int argc, char** argv) {
     if (flag == "--input") input = value;
     else if (flag == "--output") output = value;
     else if (flag == "--mode") options.mode = dsm::ParseEstimatorMode(value);
-    else if (flag == "--scale") options.scale = ParseInt(flag, value);
-    else if (flag == "--iterations") options.max_iterations = ParseInt(flag, value);
-    else if (flag == "--samples") options.samples = ParseInt(flag, value);
-    else if (flag == "--lambda-s") options.lambda_s = ParseNumber(flag, value);
-    else if (flag == "--lambda-d") options.structure.lambda_d = ParseNumber(flag, value);
-    else if (flag == "--lambda-i") options.image.lambda_i = ParseNumber(flag, value);
-    else if (flag == "--threads") options.num_threads = ParseInt(flag, value);
-    else if (flag == "--neighbours") options.neighbour_radius = ParseInt(flag, value);
-    else if (flag == "--pose-neighbours") options.pose_neighbour_radius = ParseInt(flag, value);
-    else if (flag == "--output-scale") output_scale = ParseInt(flag, value);
+    else if (flag == "--scale") options.scale = dsm::ParseFlagInt(flag, value);
+    else if (flag == "--iterations") options.max_iterations = dsm::ParseFlagInt(flag, value);
+    else if (flag == "--samples") options.samples = dsm::ParseFlagInt(flag, value);
+    else if (flag == "--lambda-s") options.lambda_s = dsm::ParseFlagNumber(flag, value);
+    else if (flag == "--lambda-d") options.structure.lambda_d = dsm::ParseFlagNumber(flag, value);
+    else if (flag == "--lambda-i") options.image.lambda_i = dsm::ParseFlagNumber(flag, value);
+    else if (flag == "--threads") options.num_threads = dsm::ParseFlagInt(flag, value);
+    else if (flag == "--neighbours") options.neighbour_radius = dsm::ParseFlagInt(flag, value);
+    else if (flag == "--pose-neighbours") options.pose_neighbour_radius = dsm::ParseFlagInt(flag, value);
+    else if (flag == "--output-scale") output_scale = dsm::ParseFlagInt(flag, value);
     else if (flag == "--structure-matching") options.structure_matching = dsm::ParseStructureMatching(value);
     else throw dsm::InputError("unknown flag " + flag + " (see --help)");
   }

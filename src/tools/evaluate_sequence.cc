@@ -40,15 +40,6 @@ constexpr char kUsage[] =
     "  --method NAME    row label (default: the result folder's name)\n"
     "  --help           this text\n";
 
-double ParseFraction(const std::string& flag, const std::string& text) {
-  char* end = nullptr;
-  const double value = std::strtod(text.c_str(), &end);
-  if (text.empty() || end != text.c_str() + text.size() || !(value > 0.0 && value <= 1.0)) {
-    throw dsm::InputError(flag + " must be a number in (0, 1], got '" + text + "'");
-  }
-  return value;
-}
-
 void WriteTextFile(const std::string& path, const std::string& content) {
   std::error_code error;
   const fs::path parent = fs::path(path).parent_path();
@@ -81,7 +72,7 @@ int Run(int argc, char** argv) {
     } else if (flag == "--sequence") {
       sequence_dir = value;
     } else if (flag == "--crop") {
-      options.crop_fraction = ParseFraction(flag, value);
+      options.crop_fraction = dsm::ParseFlagNumber(flag, value, 1e-6, 1.0);
     } else if (flag == "--json") {
       json_path = value;
     } else {

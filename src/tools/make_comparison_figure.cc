@@ -54,11 +54,7 @@ int Run(int argc, char** argv) {
     } else if (flag == "--output") {
       output = value;
     } else if (flag == "--frame") {
-      char* end = nullptr;
-      frame = static_cast<int>(std::strtol(value.c_str(), &end, 10));
-      if (end == value.c_str() || *end != '\0' || frame < 0) {
-        throw dsm::InputError("--frame must be a non-negative integer, got '" + value + "'");
-      }
+      frame = dsm::ParseFlagInt(flag, value, 0);
     } else {
       throw dsm::InputError("unknown flag " + flag);
     }

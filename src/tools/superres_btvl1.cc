@@ -67,16 +67,6 @@ class InMemoryFrameSource : public cv::superres::FrameSource {
   std::size_t next_ = 0;
 };
 
-int ParseInt(const std::string& flag, const std::string& text, int min, int max) {
-  char* end = nullptr;
-  const long value = std::strtol(text.c_str(), &end, 10);
-  if (text.empty() || end != text.c_str() + text.size() || value < min || value > max) {
-    throw dsm::InputError(flag + " must be an integer in [" + std::to_string(min) + ", " +
-                          std::to_string(max) + "], got '" + text + "'");
-  }
-  return static_cast<int>(value);
-}
-
 std::string JsonString(const std::string& text) {
   std::string out = "\"";
   for (const char c : text) {
@@ -154,13 +144,13 @@ int Run(int argc, char** argv) {
     } else if (flag == "--output") {
       output_dir = value;
     } else if (flag == "--scale") {
-      scale = ParseInt(flag, value, 2, 8);  // BTV-L1 asserts scale > 1
+      scale = dsm::ParseFlagInt(flag, value, 2, 8);  // BTV-L1 asserts scale > 1
     } else if (flag == "--iterations") {
-      iterations = ParseInt(flag, value, 1, 100000);
+      iterations = dsm::ParseFlagInt(flag, value, 1, 100000);
     } else if (flag == "--temporal-radius") {
-      temporal_radius = ParseInt(flag, value, 0, 1000);
+      temporal_radius = dsm::ParseFlagInt(flag, value, 0, 1000);
     } else {
-      threads = ParseInt(flag, value, 1, 1024);
+      threads = dsm::ParseFlagInt(flag, value, 1, 1024);
     }
   }
   if (input_dir.empty() || output_dir.empty()) {

@@ -24,6 +24,8 @@
 namespace {
 
 using deblur_sr_mvs::InputError;
+using deblur_sr_mvs::ParseFlagInt;
+using deblur_sr_mvs::ParseFlagNumber;
 
 constexpr char kUsage[] =
     "usage: synthesize_sequence --scene DIR --output SEQ [--frames N] [--scale S]\n"
@@ -54,34 +56,6 @@ constexpr char kUsage[] =
     "  --hr-width W, --hr-height H\n"
     "                        HR size (default: automatic covered crop)\n"
     "  --help                this text\n";
-
-int ParseInt(const std::string& flag, const std::string& text) {
-  std::size_t used = 0;
-  long value = 0;
-  try {
-    value = std::stol(text, &used);
-  } catch (const std::exception&) {
-    used = 0;
-  }
-  if (used == 0 || used != text.size() || value < -1000000000L || value > 1000000000L) {
-    throw InputError(flag + ": expected an integer, got \"" + text + "\"");
-  }
-  return static_cast<int>(value);
-}
-
-double ParseDouble(const std::string& flag, const std::string& text) {
-  std::size_t used = 0;
-  double value = 0.0;
-  try {
-    value = std::stod(text, &used);
-  } catch (const std::exception&) {
-    used = 0;
-  }
-  if (used == 0 || used != text.size()) {
-    throw InputError(flag + ": expected a number, got \"" + text + "\"");
-  }
-  return value;
-}
 
 std::uint64_t ParseSeed(const std::string& flag, const std::string& text) {
   std::size_t used = 0;
@@ -145,33 +119,33 @@ int Run(int argc, char** argv) {
     } else if (flag == "--output") {
       output_folder = value;
     } else if (flag == "--frames") {
-      options.num_frames = ParseInt(flag, value);
+      options.num_frames = ParseFlagInt(flag, value);
     } else if (flag == "--scale") {
-      options.scale = ParseInt(flag, value);
+      options.scale = ParseFlagInt(flag, value);
     } else if (flag == "--exposure-ratio") {
-      options.exposure_ratio = ParseDouble(flag, value);
+      options.exposure_ratio = ParseFlagNumber(flag, value);
     } else if (flag == "--path") {
       options.path = deblur_sr_mvs::ParseCameraPathType(value);
     } else if (flag == "--noise") {
-      options.noise_sigma = ParseDouble(flag, value);
+      options.noise_sigma = ParseFlagNumber(flag, value);
     } else if (flag == "--seed") {
       options.seed = ParseSeed(flag, value);
     } else if (flag == "--blur-px") {
-      options.blur_px = ParseDouble(flag, value);
+      options.blur_px = ParseFlagNumber(flag, value);
     } else if (flag == "--subframes") {
-      options.subframes = ParseInt(flag, value);
+      options.subframes = ParseFlagInt(flag, value);
     } else if (flag == "--fps") {
-      options.fps = ParseDouble(flag, value);
+      options.fps = ParseFlagNumber(flag, value);
     } else if (flag == "--arc-fixation") {
-      options.arc_fixation_factor = ParseDouble(flag, value);
+      options.arc_fixation_factor = ParseFlagNumber(flag, value);
     } else if (flag == "--forward-cap") {
-      options.forward_travel_cap = ParseDouble(flag, value);
+      options.forward_travel_cap = ParseFlagNumber(flag, value);
     } else if (flag == "--hr-width") {
-      options.hr_width = ParseInt(flag, value);
+      options.hr_width = ParseFlagInt(flag, value);
     } else if (flag == "--hr-height") {
-      options.hr_height = ParseInt(flag, value);
+      options.hr_height = ParseFlagInt(flag, value);
     } else if (flag == "--scene-zoom") {
-      scene_zoom = ParseDouble(flag, value);
+      scene_zoom = ParseFlagNumber(flag, value);
     } else {
       throw InputError("unknown flag " + flag + " (see --help)");
     }

@@ -20,6 +20,7 @@
 #include "deblur_sr_mvs/core/image_ops.h"
 #include "deblur_sr_mvs/core/metrics.h"
 #include "deblur_sr_mvs/core/sequence_io.h"
+#include "deblur_sr_mvs/core/tool_main.h"
 
 namespace deblur_sr_mvs {
 namespace {
@@ -224,6 +225,33 @@ TEST(EstimateSequenceTool, BadInputGivesOneLineAndExitCode2) {
     int lines = 0;
     while (std::getline(in, line)) ++lines;
     EXPECT_EQ(lines, 1) << arguments;
+  }
+}
+
+// The flag parsers every tool shares: whole text, finite, in range; the
+// message names the flag, the range and the text.
+TEST(ToolFlags, ParseWholeFiniteValuesInRange) {
+  EXPECT_EQ(ParseFlagInt("--n", "12"), 12);
+  EXPECT_EQ(ParseFlagInt("--n", "-3"), -3);
+  EXPECT_DOUBLE_EQ(ParseFlagNumber("--x", "0.25"), 0.25);
+  EXPECT_DOUBLE_EQ(ParseFlagNumber("--x", "1e-3", 0.0, 1.0), 1e-3);
+  for (const char* bad : {"", "1.5", "12a", "a", " ", "99999999999"}) {
+    EXPECT_THROW(ParseFlagInt("--n", bad), InputError) << bad;
+  }
+  for (const char* bad : {"", "nan", "inf", "1..2", "0.5x"}) {
+    EXPECT_THROW(ParseFlagNumber("--x", bad), InputError) << bad;
+  }
+  try {
+    ParseFlagInt("--scale", "1", 2, 8);
+    FAIL() << "out of range accepted";
+  } catch (const InputError& error) {
+    EXPECT_EQ(std::string(error.what()), "--scale expects an integer in [2, 8], got '1'");
+  }
+  try {
+    ParseFlagNumber("--exposure", "-1", 1e-6);
+    FAIL() << "out of range accepted";
+  } catch (const InputError& error) {
+    EXPECT_EQ(std::string(error.what()), "--exposure expects a number >= 1e-06, got '-1'");
   }
 }
 
