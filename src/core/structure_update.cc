@@ -320,9 +320,14 @@ void UpdateDepth(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world
   cv::Mat moved = cv::Mat::zeros(height, width, CV_32FC1);
 
   // out = sum_p G_p^T Psi^T W Psi (G_p .* in) + lambda c^2 L_v in + damping * in
+  // HR pairs (no capture operator) act pixel by pixel: their part of the
+  // normal matrix is the diagonal sum_p sum_c w g^2, formed once per
+  // reweighting instead of applied pair by pair in every CG step.
+  cv::Mat hr_diagonal(height, width, CV_32FC1), squared;
   auto apply_normal = [&](const cv::Mat& in, cv::Mat* out) {
-    out->setTo(0.0);
+    cv::multiply(hr_diagonal, in, *out);
     for (size_t p = 0; p < pairs.size(); ++p) {
+      if (pairs[p].blur == nullptr) continue;
       ExpandChannels(states[p].lin.d_inverse_depth, in, &expanded);
       Predict(pairs[p], expanded, &predicted);
       cv::multiply(predicted, states[p].weight, predicted);
@@ -366,6 +371,12 @@ void UpdateDepth(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world
                       cv::mean(self_weight)[0] / (self->scale * self->scale);
     }
     damping = options.depth_damping * diagonal_sum / n + 1e-12;
+    hr_diagonal.setTo(0.0);
+    for (size_t p = 0; p < pairs.size(); ++p) {
+      if (pairs[p].blur != nullptr) continue;
+      cv::multiply(states[p].lin.d_inverse_depth, states[p].weight, squared);
+      ContractChannels(states[p].lin.d_inverse_depth, squared, &hr_diagonal, true);
+    }
     // TV weights v = g / max(|grad (c rho)|, eps) (eq:regularizingTerm with g_t).
     const float* rho = inverse_depth->ptr<float>();
     for (int yy = 0; yy < height; ++yy) {
