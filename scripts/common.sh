@@ -7,6 +7,13 @@ DSM_CACHE="${DSM_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/deblur_sr_mvs/$(printf '
 DSM_PLAIN_BUILD="$DSM_CACHE/build-plain"   # plain CMake: core, tools, gtests
 DSM_WORKSPACE="$DSM_CACHE/catkin_ws"       # catkin workspace: everything + ROS
 DSM_JOBS="${DSM_JOBS:-$(nproc)}"
+# ccache (installed by install_deps.sh) makes rebuilds of unchanged files free,
+# also across clones (paths below the base folder are compared relative).
+DSM_CMAKE_LAUNCHER=()
+if command -v ccache >/dev/null 2>&1; then
+  DSM_CMAKE_LAUNCHER=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache)
+  export CCACHE_BASEDIR="${CCACHE_BASEDIR:-$(dirname "$DSM_REPO")}"
+fi
 
 # Debian's python3 and ROS tools first: the machine's default python3 is another one.
 export PATH="/usr/bin:/bin:$PATH"
@@ -15,7 +22,7 @@ export ROS_MASTER_URI="${ROS_MASTER_URI:-http://localhost:11311}"
 
 # Plain CMake build (Release) of the core library, tools and gtests.
 dsm_build_plain() {
-  cmake -S "$DSM_REPO" -B "$DSM_PLAIN_BUILD" -DCMAKE_BUILD_TYPE=Release "$@" >/dev/null
+  cmake -S "$DSM_REPO" -B "$DSM_PLAIN_BUILD" -DCMAKE_BUILD_TYPE=Release "${DSM_CMAKE_LAUNCHER[@]}" "$@" >/dev/null
   cmake --build "$DSM_PLAIN_BUILD" -j "$DSM_JOBS"
 }
 
@@ -30,7 +37,7 @@ dsm_build_catkin() {
   ln -sfn "$DSM_REPO" "$DSM_WORKSPACE/src/deblur_sr_mvs"
   (cd "$DSM_WORKSPACE" && catkin_make -j"$DSM_JOBS" \
     -DPYTHON_EXECUTABLE=/usr/bin/python3 -DPython3_EXECUTABLE=/usr/bin/python3 \
-    -DCMAKE_BUILD_TYPE=Release >"$DSM_CACHE/catkin_make.log" 2>&1) ||
+    -DCMAKE_BUILD_TYPE=Release "${DSM_CMAKE_LAUNCHER[@]}" >"$DSM_CACHE/catkin_make.log" 2>&1) ||
     { tail -n 40 "$DSM_CACHE/catkin_make.log"; echo "catkin build failed (log: $DSM_CACHE/catkin_make.log)" >&2; return 1; }
   if [ "${1:-}" = "tests" ]; then
     (cd "$DSM_WORKSPACE" && catkin_make -j"$DSM_JOBS" tests >>"$DSM_CACHE/catkin_make.log" 2>&1) ||

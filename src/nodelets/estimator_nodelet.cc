@@ -8,8 +8,8 @@
 #include <pluginlib/class_list_macros.hpp>
 #include <sensor_msgs/PointCloud2.h>
 
-#include "deblur_sr_mvs/core/initializer.h"
-#include "deblur_sr_mvs/core/tool_main.h"
+#include "deblur_sr_mvs/core/estimation/initializer.h"
+#include "deblur_sr_mvs/core/common/text.h"
 
 namespace deblur_sr_mvs {
 

@@ -28,10 +28,10 @@
 
 #include "bag_tool_main.h"
 #include "deblur_sr_mvs/EstimatorStatus.h"
-#include "deblur_sr_mvs/core/image_ops.h"
-#include "deblur_sr_mvs/core/result_io.h"
-#include "deblur_sr_mvs/core/sequence_io.h"
-#include "deblur_sr_mvs/core/tool_main.h"
+#include "deblur_sr_mvs/core/imaging/image_ops.h"
+#include "deblur_sr_mvs/core/io/result_io.h"
+#include "deblur_sr_mvs/core/io/sequence_io.h"
+#include "tool_main.h"
 #include "deblur_sr_mvs/ros/conversions.h"
 
 namespace dsm = deblur_sr_mvs;

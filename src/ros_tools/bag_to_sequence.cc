@@ -59,8 +59,9 @@
 #include <sensor_msgs/image_encodings.h>
 
 #include "bag_tool_main.h"
-#include "deblur_sr_mvs/core/errors.h"
-#include "deblur_sr_mvs/core/sequence_io.h"
+#include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/io/sequence_io.h"
+#include "deblur_sr_mvs/core/common/text.h"
 
 namespace {
 
@@ -456,10 +457,6 @@ bool SameCalibration(const sensor_msgs::CameraInfo& a, const sensor_msgs::Camera
   return a.width == b.width && a.height == b.height && a.distortion_model == b.distortion_model &&
          a.D == b.D && a.K == b.K && a.R == b.R && a.P == b.P && a.binning_x == b.binning_x &&
          a.binning_y == b.binning_y && a.roi == b.roi;
-}
-
-std::string SizeText(int width, int height) {
-  return std::to_string(width) + "x" + std::to_string(height);
 }
 
 void CheckSize(const cv::Mat& image, const sensor_msgs::CameraInfo& info, const std::string& where,

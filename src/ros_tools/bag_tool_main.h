@@ -9,8 +9,8 @@
 #include <cv_bridge/cv_bridge.h>
 #include <rosbag/exceptions.h>
 
-#include "deblur_sr_mvs/core/errors.h"
-#include "deblur_sr_mvs/core/tool_main.h"
+#include "deblur_sr_mvs/core/common/errors.h"
+#include "tool_main.h"
 
 namespace deblur_sr_mvs {
 

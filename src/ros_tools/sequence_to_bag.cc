@@ -51,8 +51,8 @@
 #include <sensor_msgs/image_encodings.h>
 
 #include "bag_tool_main.h"
-#include "deblur_sr_mvs/core/errors.h"
-#include "deblur_sr_mvs/core/sequence_io.h"
+#include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/io/sequence_io.h"
 
 namespace {
 

@@ -12,8 +12,8 @@
 
 #include <omp.h>
 
-#include "deblur_sr_mvs/core/capture_operator.h"
-#include "deblur_sr_mvs/core/errors.h"
+#include "deblur_sr_mvs/core/imaging/capture_operator.h"
+#include "deblur_sr_mvs/core/common/errors.h"
 
 namespace dsm = deblur_sr_mvs;
 

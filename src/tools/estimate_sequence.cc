@@ -14,12 +14,12 @@
 #include <limits>
 #include <string>
 
-#include "deblur_sr_mvs/core/tool_main.h"
-#include "deblur_sr_mvs/core/errors.h"
-#include "deblur_sr_mvs/core/estimator.h"
-#include "deblur_sr_mvs/core/image_ops.h"
-#include "deblur_sr_mvs/core/result_io.h"
-#include "deblur_sr_mvs/core/sequence_io.h"
+#include "tool_main.h"
+#include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/estimation/estimator.h"
+#include "deblur_sr_mvs/core/imaging/image_ops.h"
+#include "deblur_sr_mvs/core/io/result_io.h"
+#include "deblur_sr_mvs/core/io/sequence_io.h"
 
 namespace dsm = deblur_sr_mvs;
 

@@ -11,11 +11,11 @@
 #include <string>
 #include <system_error>
 
-#include "deblur_sr_mvs/core/tool_main.h"
-#include "deblur_sr_mvs/core/errors.h"
-#include "deblur_sr_mvs/core/evaluation.h"
-#include "deblur_sr_mvs/core/result_io.h"
-#include "deblur_sr_mvs/core/sequence_io.h"
+#include "tool_main.h"
+#include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/evaluation/evaluation.h"
+#include "deblur_sr_mvs/core/io/result_io.h"
+#include "deblur_sr_mvs/core/io/sequence_io.h"
 
 namespace dsm = deblur_sr_mvs;
 namespace fs = std::filesystem;

@@ -18,8 +18,8 @@
 #include <iterator>
 #include <string>
 
-#include "deblur_sr_mvs/core/tool_main.h"
-#include "deblur_sr_mvs/core/synthesizer.h"
+#include "tool_main.h"
+#include "deblur_sr_mvs/core/evaluation/synthesizer.h"
 
 namespace {
 

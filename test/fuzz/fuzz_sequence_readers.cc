@@ -10,8 +10,8 @@
 #include <fstream>
 #include <string>
 
-#include "deblur_sr_mvs/core/errors.h"
-#include "deblur_sr_mvs/core/sequence_io.h"
+#include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/io/sequence_io.h"
 
 namespace {
 

@@ -27,7 +27,7 @@
 #include <sensor_msgs/TimeReference.h>
 #include <geometry_msgs/PoseStamped.h>
 
-#include "deblur_sr_mvs/core/sequence_io.h"
+#include "deblur_sr_mvs/core/io/sequence_io.h"
 
 namespace deblur_sr_mvs {
 namespace {

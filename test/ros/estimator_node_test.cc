@@ -27,9 +27,9 @@
 
 #include "deblur_sr_mvs/EstimatorConfig.h"
 #include "deblur_sr_mvs/EstimatorStatus.h"
-#include "deblur_sr_mvs/core/image_ops.h"
-#include "deblur_sr_mvs/core/metrics.h"
-#include "deblur_sr_mvs/core/sequence_io.h"
+#include "deblur_sr_mvs/core/imaging/image_ops.h"
+#include "deblur_sr_mvs/core/evaluation/metrics.h"
+#include "deblur_sr_mvs/core/io/sequence_io.h"
 #include "deblur_sr_mvs/ros/conversions.h"
 
 namespace deblur_sr_mvs {

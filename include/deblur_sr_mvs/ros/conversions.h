@@ -11,9 +11,9 @@
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/PointCloud2.h>
 
-#include "deblur_sr_mvs/core/camera.h"
-#include "deblur_sr_mvs/core/errors.h"
-#include "deblur_sr_mvs/core/se3.h"
+#include "deblur_sr_mvs/core/geometry/camera.h"
+#include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/geometry/se3.h"
 
 namespace deblur_sr_mvs {
 namespace ros_glue {

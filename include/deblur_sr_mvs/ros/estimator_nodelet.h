@@ -26,7 +26,7 @@
 
 #include "deblur_sr_mvs/EstimatorConfig.h"
 #include "deblur_sr_mvs/EstimatorStatus.h"
-#include "deblur_sr_mvs/core/stream.h"
+#include "deblur_sr_mvs/core/estimation/stream.h"
 #include "deblur_sr_mvs/ros/conversions.h"
 #include "deblur_sr_mvs/ros/node_parameters.h"
 

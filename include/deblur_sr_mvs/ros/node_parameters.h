@@ -8,8 +8,8 @@
 #include <ros/node_handle.h>
 
 #include "deblur_sr_mvs/EstimatorConfig.h"
-#include "deblur_sr_mvs/core/estimator.h"
-#include "deblur_sr_mvs/core/stream.h"
+#include "deblur_sr_mvs/core/estimation/estimator.h"
+#include "deblur_sr_mvs/core/estimation/stream.h"
 #include "deblur_sr_mvs/ros/conversions.h"
 
 namespace deblur_sr_mvs {

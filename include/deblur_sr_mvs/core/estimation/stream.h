@@ -1,0 +1,181 @@
+// Streaming joint estimation (SPEC section 5), ROS-free so that it is unit
+// tested without a master: frames arrive one at a time, are cut into windows
+// of `window_size` frames that overlap by `window_overlap`, and each window is
+// estimated (Algorithm 1) starting from the previous window's poses, so that
+// the trajectory and its monocular scale are continuous across windows.
+#pragma once
+
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <map>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "deblur_sr_mvs/core/geometry/camera.h"
+#include "deblur_sr_mvs/core/estimation/estimator.h"
+#include "deblur_sr_mvs/core/geometry/sim3.h"
+#include "deblur_sr_mvs/core/geometry/se3.h"
+
+namespace deblur_sr_mvs {
+
+struct StreamOptions {
+  int window_size = 6;          // frames per window (>= 3)
+  // Frames shared by consecutive windows (>= 2: two shared cameras fix the
+  // relative scale of the next window; < window_size so that windows advance).
+  int window_overlap = 2;
+  int max_pending_windows = 2;  // windows waiting for the worker; the oldest is dropped beyond
+  void Check() const;           // throws InputError naming the bad value
+};
+
+// One incoming frame.
+struct StreamFrame {
+  uint64_t id = 0;         // arrival number, strictly increasing
+  int64_t stamp_ns = 0;    // the caller's stamp (e.g. the message header), returned untouched
+  double stamp_close = 0;  // shutter close time t_c (s), as FrameRecord::stamp
+  double exposure = 0;     // t_c - t_o (s)
+  cv::Mat image;           // float in [0, 1], 1 or 3 channels (BGR)
+};
+using StreamWindow = std::vector<StreamFrame>;
+
+// Cuts the frame stream into overlapping windows. Not thread-safe.
+class FrameWindower {
+ public:
+  explicit FrameWindower(const StreamOptions& options);
+  // Adds a frame; returns the windows it completes (none or one, more only
+  // right after SetOptions shrank the window).
+  std::vector<StreamWindow> Add(StreamFrame frame);
+  // New window size / overlap, from the next window on (frames kept).
+  void SetOptions(const StreamOptions& options);
+  void Reset();  // forget buffered frames
+  size_t buffered() const { return buffer_.size(); }
+
+ private:
+  StreamOptions options_;
+  std::deque<StreamFrame> buffer_;
+};
+
+// Thread-safe bounded FIFO (the pending windows): Push drops the oldest
+// entries beyond the capacity and counts them; Pop blocks until an entry
+// arrives or Stop() is called.
+template <typename T>
+class DropOldestQueue {
+ public:
+  explicit DropOldestQueue(int capacity) : capacity_(capacity < 1 ? 1 : capacity) {}
+  // Returns how many entries this push dropped (ignored after Stop()).
+  int Push(T value) {
+    int dropped = 0;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (stopped_) return 0;
+      queue_.push_back(std::move(value));
+      while (queue_.size() > static_cast<size_t>(capacity_)) {
+        queue_.pop_front();
+        ++dropped;
+      }
+      dropped_ += dropped;
+    }
+    ready_.notify_one();
+    return dropped;
+  }
+  // False once stopped (then *value is untouched).
+  bool Pop(T* value) {
+    std::unique_lock<std::mutex> lock(mutex_);
+    ready_.wait(lock, [this] { return stopped_ || !queue_.empty(); });
+    if (stopped_) return false;
+    *value = std::move(queue_.front());
+    queue_.pop_front();
+    return true;
+  }
+  void Stop() {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      stopped_ = true;
+      queue_.clear();
+    }
+    ready_.notify_all();
+  }
+  void SetCapacity(int capacity) {  // applies from the next push
+    std::lock_guard<std::mutex> lock(mutex_);
+    capacity_ = capacity < 1 ? 1 : capacity;
+  }
+  size_t size() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return queue_.size();
+  }
+  uint64_t dropped() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return dropped_;
+  }
+
+ private:
+  mutable std::mutex mutex_;
+  std::condition_variable ready_;
+  std::deque<T> queue_;
+  int capacity_;
+  uint64_t dropped_ = 0;
+  bool stopped_ = false;
+};
+using PendingWindowQueue = DropOldestQueue<StreamWindow>;
+
+// target ~= similarity applied to source: the transform that maps the
+// `source` camera poses onto `target` (same frames, >= 2 of them). Rotation
+// and translation come from the first pair; the scale is the ratio of the
+// path lengths, which must be > 0 in both (else InputError: no parallax).
+Sim3 AlignPoseSequence(const std::vector<SE3>& source, const std::vector<SE3>& target);
+// T_world_cam of a camera after a similarity of the world.
+SE3 TransformPose(const Sim3& similarity, const SE3& T_world_cam);
+
+// The estimate of one window, in the stream's world frame.
+struct WindowEstimate {
+  std::vector<uint64_t> ids;          // frame ids, window order
+  std::vector<int64_t> stamps_ns;     // their caller stamps
+  EstimatorResult result;             // poses/depths in the stream's world and scale
+  // Index of the first frame not returned by an earlier window (the frames
+  // before it were estimated, and given out, with the previous window).
+  int first_new = 0;
+  // False when this window starts a new trajectory segment (the first
+  // window, after Reset(), or when the overlap could not be used): its first
+  // camera is then the world origin and the first two are 1 unit apart.
+  bool continued = false;
+  std::string note;                   // how the window was tied to the previous one
+};
+
+// Why an estimate must not be published, or "" when it may: a pose or a
+// latent pixel that is not finite, or a pose jump (a camera step larger than
+// max_step_ratio times the window's median step, or any step while the
+// median is zero).
+std::string ProblemWithEstimate(const EstimatorResult& result, double max_step_ratio);
+
+// Runs the estimator window after window and ties the windows together.
+// Not thread-safe (one worker thread owns it).
+class StreamEstimator {
+ public:
+  explicit StreamEstimator(const EstimatorOptions& options);
+  // New estimator options from the next window on.
+  void SetOptions(const EstimatorOptions& options);
+  const EstimatorOptions& options() const { return estimator_.options(); }
+  void SetCancelFlag(const std::atomic<bool>* flag);
+
+  // Estimates `window` (frames of `camera_lr`'s size, increasing stamps).
+  // Throws InputError / InitializationError / EstimationCancelled as the
+  // Estimator does; the stream state is then unchanged.
+  WindowEstimate Process(const StreamWindow& window, const PinholeCamera& camera_lr,
+                         const ProgressCallback& progress = nullptr);
+  // The next window starts a new trajectory segment (e.g. the clock jumped back).
+  void Reset();
+
+ private:
+  Estimator estimator_;
+  const std::atomic<bool>* cancel_ = nullptr;
+  std::map<uint64_t, SE3> last_poses_;  // the previous window's poses, by frame id
+  uint64_t last_returned_id_ = 0;
+  bool has_returned_ = false;
+};
+
+}  // namespace deblur_sr_mvs

@@ -1,0 +1,22 @@
+// Plain per-frame records shared by the estimator, the file readers and the
+// evaluation: when a frame was exposed, and a pose at a stamp.
+#pragma once
+
+#include "deblur_sr_mvs/core/geometry/se3.h"
+
+namespace deblur_sr_mvs {
+
+// One row of frames.csv: `index,stamp,exposure`; stamp is the shutter close
+// time t_c in seconds, exposure = t_c - t_o in seconds.
+struct FrameRecord {
+  int index = 0;
+  double stamp = 0.0;
+  double exposure = 0.0;
+};
+
+struct StampedPose {
+  double stamp = 0.0;
+  SE3 T_world_cam;  // camera -> world at the stamp
+};
+
+}  // namespace deblur_sr_mvs

@@ -1,0 +1,131 @@
+// The capture operator Psi_t of eq:blurOperator as a sparse matrix.
+//
+// (Psi_t I)(x) = box-downsample( (1/M) sum_m I( W^{tau_m -> src}(x) ) ):
+// M virtual cameras at tau_m = t_o + ((m - 1/2)/M)(t_c - t_o), m = 1..M (the
+// midpoint of each slice of the exposure; eq:blurOperator has m/M), on the pose
+// path of eq:interpolatingP, each seeing depth D_tau_m reprojected from D_t;
+// their pixels are warped into the camera `src` whose latent image is sampled
+// (src = t for the self-consistency term eq:IPterm, a neighbour s for the
+// matching term eq:matchingTerm), read bilinearly and box-averaged by `scale`.
+// With depth and poses fixed it is linear in I: a (LR pixels x HR pixels)
+// matrix whose rows hold the merged bilinear taps; its transpose is the exact
+// adjoint. Multi-channel images share the operator (interleaved channels).
+#pragma once
+
+#include <optional>
+#include <vector>
+
+#include <Eigen/SparseCore>
+#include <opencv2/core.hpp>
+
+#include "deblur_sr_mvs/core/geometry/camera.h"
+#include "deblur_sr_mvs/core/geometry/se3.h"
+
+namespace deblur_sr_mvs {
+
+using SparseMatrixRM = Eigen::SparseMatrix<float, Eigen::RowMajor, int>;
+
+struct CaptureOperatorOptions {
+  // M, the number of virtual cameras over the exposure (paper: 50).
+  int samples = 50;
+  // Integer super-resolution factor: HR = scale x LR (box filter).
+  int scale = 2;
+  // Depth of each virtual camera by z-buffered reprojection of D_t (paper,
+  // Sec. 3). false approximates D_tau(x) by D_t(x): faster, wrong at
+  // depth edges.
+  bool reproject_depth = true;
+  // OpenMP threads for building and applying; 0 uses the OpenMP default.
+  int num_threads = 0;
+  // Keep a transposed copy for a parallel Psi^T (twice the memory). Without
+  // it Psi^T scatters through Psi on one thread, as fast as the copy on one
+  // thread: callers that run one operator per thread leave it off.
+  bool transposed_copy = true;
+  // Throws InputError with a one-line reason when a value is unusable.
+  void Check() const;
+};
+
+// What fixes Psi_t: D_t, P_t, P_s, the shutter interval (paper Sec. 3).
+struct CaptureGeometry {
+  PinholeCamera camera_hr;   // intrinsics of the latent (HR) images
+  cv::Mat depth_hr;          // D_t: CV_32FC1, HR size, metres; 0 or NaN unknown
+  SE3 T_world_cam;           // P_t: pose at the shutter close time t = t_c
+  SE3 T_world_neighbour;     // P_s: pose of the neighbouring frame for eq:interpolatingP
+  double stamp = 0.0;        // t (= t_c), seconds
+  double neighbour_stamp = 0.0;  // s: the previous frame's stamp; the first frame of
+                                 // a sequence passes the NEXT frame (s > t), and the
+                                 // same formula then extrapolates backwards from P_t
+                                 // at constant velocity.
+  double exposure = 0.0;     // t_c - t_o, seconds, 0 < exposure
+  // The camera whose latent image the operator samples; empty = P_t itself.
+  std::optional<SE3> T_world_source;
+};
+
+// at = a^T for compressed row-major matrices, on `threads` threads (0: all).
+void TransposeSparse(const SparseMatrixRM& a, SparseMatrixRM* at, int threads);
+// out = a * in for an interleaved C-channel float image `in` with one pixel per
+// column of `a`; `out` becomes a (rows x 1) C-channel image (reshape as needed).
+void MultiplySparse(const SparseMatrixRM& a, const cv::Mat& in, cv::Mat* out, int threads);
+
+// Poses T_world_tau_m of the M virtual cameras over the exposure.
+std::vector<SE3> VirtualCameraPoses(const CaptureGeometry& geometry, int samples);
+
+class CaptureOperator {
+ public:
+  CaptureOperator() = default;
+
+  // LR size (rows of the matrix) and HR size (columns).
+  cv::Size lr_size() const { return lr_size_; }
+  cv::Size hr_size() const { return hr_size_; }
+  const SparseMatrixRM& matrix() const { return forward_; }
+  // Fraction of each LR pixel's M * scale^2 samples that landed inside the
+  // source image in front of the camera (the rest were clamped to the
+  // border); 1 everywhere for an interior pixel.
+  const std::vector<float>& coverage() const { return coverage_; }
+
+  // lr = Psi hr. `hr` is CV_32FC(C) of hr_size(); `lr` is (re)allocated as
+  // CV_32FC(C) of lr_size() only when needed.
+  void Apply(const cv::Mat& hr, cv::Mat* lr) const;
+  // hr = Psi^T lr, the exact adjoint of Apply.
+  void ApplyAdjoint(const cv::Mat& lr, cv::Mat* hr) const;
+
+ private:
+  friend class CaptureOperatorBuilder;
+  cv::Size lr_size_;
+  cv::Size hr_size_;
+  int num_threads_ = 0;
+  SparseMatrixRM forward_;
+  SparseMatrixRM adjoint_;  // forward_ transposed (optional): a parallel gather
+  std::vector<float> coverage_;
+};
+
+// Builds capture operators; keeps its scratch buffers between builds so a
+// sequence of frames allocates once.
+class CaptureOperatorBuilder {
+ public:
+  explicit CaptureOperatorBuilder(const CaptureOperatorOptions& options);
+  // Throws InputError on inconsistent geometry (sizes, stamps, exposure).
+  void Build(const CaptureGeometry& geometry, CaptureOperator* op);
+  const CaptureOperatorOptions& options() const { return options_; }
+
+  // Wall time of the stages of the last Build, for profiling and reports.
+  struct Timings {
+    double reprojection_ms = 0.0;  // D_tau_m for every virtual camera
+    double assembly_ms = 0.0;      // warps, bilinear taps, merged rows
+    double adjoint_ms = 0.0;       // the transposed copy
+  };
+  const Timings& last_timings() const { return timings_; }
+
+ private:
+  Timings timings_;
+  CaptureOperatorOptions options_;
+  std::vector<cv::Mat> virtual_depths_;  // D_tau_m, one per sample
+  std::vector<std::vector<int>> block_columns_;  // per-thread CSR pieces
+  std::vector<std::vector<float>> block_values_;
+  std::vector<int> row_nnz_;
+};
+
+// Convenience: one operator with a temporary builder.
+CaptureOperator BuildCaptureOperator(const CaptureGeometry& geometry,
+                                     const CaptureOperatorOptions& options);
+
+}  // namespace deblur_sr_mvs

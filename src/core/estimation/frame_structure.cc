@@ -1,0 +1,34 @@
+#include "deblur_sr_mvs/core/estimation/frame_structure.h"
+
+#include "deblur_sr_mvs/core/common/errors.h"
+
+namespace deblur_sr_mvs {
+
+CaptureGeometry MakeCaptureGeometry(const std::vector<FrameStructure>& frames,
+                                    const PinholeCamera& camera_hr, int t, int source) {
+  const int n = static_cast<int>(frames.size());
+  if (n < 2 || t < 0 || t >= n || source < 0 || source >= n) {
+    throw InputError("MakeCaptureGeometry: needs >= 2 frames and valid indices");
+  }
+  const int neighbour = t > 0 ? t - 1 : t + 1;
+  CaptureGeometry geometry;
+  geometry.camera_hr = camera_hr;
+  geometry.depth_hr = frames[t].depth_hr;
+  geometry.T_world_cam = frames[t].T_world_cam;
+  geometry.T_world_neighbour = frames[neighbour].T_world_cam;
+  geometry.stamp = frames[t].stamp;
+  geometry.neighbour_stamp = frames[neighbour].stamp;
+  geometry.exposure = frames[t].exposure;
+  if (source != t) geometry.T_world_source = frames[source].T_world_cam;
+  return geometry;
+}
+
+std::vector<int> Neighbours(int t, int num_frames, int radius) {
+  std::vector<int> result;
+  for (int s = t - radius; s <= t + radius; ++s) {
+    if (s != t && s >= 0 && s < num_frames) result.push_back(s);
+  }
+  return result;
+}
+
+}  // namespace deblur_sr_mvs

@@ -1,0 +1,1754 @@
+// Initialisation of poses and LR depths (paper Sec. optInitialization).
+//
+// Stages (timed in InitialStructure::summary):
+//  1. tracking: Shi-Tomasi corners followed frame to frame by pyramidal
+//     Lucas-Kanade with a forward-backward check. Consecutive frames of a
+//     smoothly moving camera carry nearly the same blur, so brightness
+//     constancy holds between them far better than descriptor repeatability
+//     does on tiny, smeared LR frames (OpenCV's own LK lives in the video
+//     module, which the package does not link, hence the small tracker here).
+//  2. two-view: essential matrix (RANSAC) and recoverPose on frames 0-1, the
+//     paper's SfM step, plus a pure-translation start; both refined with a
+//     rotation prior that settles the rotation / translation ambiguity of
+//     narrow fields of view (RotationPrior); checks features, inliers and
+//     parallax.
+//  3. poses: triangulation, PnP (RANSAC) per later frame, then a bundle
+//     adjustment of all poses and points (Ceres) with camera 0 fixed and
+//     |c1 - c0| = 1 held by a sphere manifold (the monocular scale, SPEC 2).
+//     Tracks on blurred frames follow blur centroids, so these are
+//     mid-exposure poses; they are moved to the shutter close t_c along
+//     eq:interpolatingP.
+//  4. depths: eq:initializationScene per frame, coarse to fine: a plane
+//     sweep over inverse depth on a half-size pyramid level, of blur-aware L1
+//     patch costs (Psi_s o B_t vs Psi_t o B_s from scale-1 capture operators,
+//     each image read at the point's blur centroid so that the depth lands on
+//     the t_c grid) against up to two neighbours per side, TV-L1 with the
+//     edge weight g_t (eq:regularizingTerm) by the DTAM alternation, then a
+//     full-size pass with operators re-built from that depth, a narrow
+//     per-pixel sweep and sub-plane refinement.
+#include "deblur_sr_mvs/core/estimation/initializer.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <memory>
+#include <sstream>
+
+#include <Eigen/Dense>
+#include <ceres/ceres.h>
+#include <ceres/rotation.h>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "deblur_sr_mvs/core/imaging/capture_operator.h"
+#include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/common/runtime.h"
+#include "deblur_sr_mvs/core/imaging/image_ops.h"
+#include "deblur_sr_mvs/core/geometry/visibility.h"
+#include "deblur_sr_mvs/core/geometry/warp.h"
+
+namespace deblur_sr_mvs {
+namespace {
+
+
+std::string Format(const char* format, double a = 0, double b = 0, double c = 0, double d = 0,
+                   double e = 0, double f = 0) {
+  char buffer[512];
+  std::snprintf(buffer, sizeof(buffer), format, a, b, c, d, e, f);
+  return buffer;
+}
+
+double Median(std::vector<double> values) {
+  if (values.empty()) return 0.0;
+  const size_t middle = values.size() / 2;
+  std::nth_element(values.begin(), values.begin() + middle, values.end());
+  return values[middle];
+}
+
+double Percentile(std::vector<double> values, double fraction) {
+  if (values.empty()) return 0.0;
+  const size_t index = std::min(values.size() - 1,
+                                static_cast<size_t>(fraction * (values.size() - 1) + 0.5));
+  std::nth_element(values.begin(), values.begin() + index, values.end());
+  return values[index];
+}
+
+// Bilinear read of a single-channel float image, border clamped.
+inline float Sample(const cv::Mat& image, float x, float y) {
+  x = std::min(std::max(x, 0.0f), static_cast<float>(image.cols - 1));
+  y = std::min(std::max(y, 0.0f), static_cast<float>(image.rows - 1));
+  const int x0 = std::min(static_cast<int>(x), image.cols - 2);
+  const int y0 = std::min(static_cast<int>(y), image.rows - 2);
+  const float fx = x - x0;
+  const float fy = y - y0;
+  const float* row0 = image.ptr<float>(y0) + x0;
+  const float* row1 = image.ptr<float>(y0 + 1) + x0;
+  return (1.0f - fy) * ((1.0f - fx) * row0[0] + fx * row0[1]) +
+         fy * ((1.0f - fx) * row1[0] + fx * row1[1]);
+}
+
+// ------------------------------------------------------------------ tracking
+
+// Gray image pyramid with central-difference gradients, for the LK tracker.
+struct Pyramid {
+  std::vector<cv::Mat> image, grad_x, grad_y;  // CV_32FC1, level 0 = full size
+};
+
+Pyramid BuildPyramid(const cv::Mat& gray, int levels) {
+  Pyramid pyramid;
+  cv::Mat current = gray;
+  for (int level = 0; level < levels; ++level) {
+    if (level > 0) {
+      if (current.cols < 16 || current.rows < 16) break;
+      cv::Mat down;
+      cv::pyrDown(current, down);
+      current = down;
+    }
+    cv::Mat gx, gy;
+    cv::Sobel(current, gx, CV_32F, 1, 0, 1, 0.5, 0.0, cv::BORDER_REPLICATE);
+    cv::Sobel(current, gy, CV_32F, 0, 1, 1, 0.5, 0.0, cv::BORDER_REPLICATE);
+    pyramid.image.push_back(current);
+    pyramid.grad_x.push_back(gx);
+    pyramid.grad_y.push_back(gy);
+  }
+  return pyramid;
+}
+
+// Pyramidal Lucas-Kanade (Bouguet) for one point: the translation of the
+// window around `from` in `source` that matches `target`, starting from the
+// displacement `guess`. Returns false when the window is untextured, leaves
+// the image or does not converge to a small residual.
+struct LucasKanadeParams {
+  int radius = 7;
+  int iterations = 20;
+  float min_eigen = 1e-4f;      // min eigenvalue of the mean structure tensor
+  float max_residual = 0.08f;   // mean |difference| after convergence (intensity)
+};
+
+bool TrackLucasKanade(const Pyramid& source, const Pyramid& target, const cv::Point2f& from,
+                      const cv::Point2f& guess, const LucasKanadeParams& params,
+                      std::vector<float>* scratch, cv::Point2f* to) {
+  const int levels = static_cast<int>(std::min(source.image.size(), target.image.size()));
+  const int side = 2 * params.radius + 1;
+  scratch->resize(static_cast<size_t>(3) * side * side);
+  float* template_values = scratch->data();
+  float* template_gx = template_values + side * side;
+  float* template_gy = template_gx + side * side;
+  float dx = guess.x / static_cast<float>(1 << (levels - 1));
+  float dy = guess.y / static_cast<float>(1 << (levels - 1));
+  float residual = 0.0f;
+  for (int level = levels - 1; level >= 0; --level) {
+    const float scale = 1.0f / static_cast<float>(1 << level);
+    const float px = from.x * scale;
+    const float py = from.y * scale;
+    const cv::Mat& image0 = source.image[level];
+    const cv::Mat& image1 = target.image[level];
+    double gxx = 0.0, gxy = 0.0, gyy = 0.0;
+    int k = 0;
+    for (int wy = -params.radius; wy <= params.radius; ++wy) {
+      for (int wx = -params.radius; wx <= params.radius; ++wx, ++k) {
+        const float x = px + wx;
+        const float y = py + wy;
+        template_values[k] = Sample(image0, x, y);
+        template_gx[k] = Sample(source.grad_x[level], x, y);
+        template_gy[k] = Sample(source.grad_y[level], x, y);
+        gxx += template_gx[k] * template_gx[k];
+        gxy += template_gx[k] * template_gy[k];
+        gyy += template_gy[k] * template_gy[k];
+      }
+    }
+    const double area = static_cast<double>(side) * side;
+    const double trace = (gxx + gyy) / area;
+    const double det = (gxx * gyy - gxy * gxy) / (area * area);
+    const double min_eigen = 0.5 * (trace - std::sqrt(std::max(0.0, trace * trace - 4.0 * det)));
+    if (level == 0 && min_eigen < params.min_eigen) return false;
+    if (min_eigen < 1e-9) {
+      if (level > 0) {
+        dx *= 2.0f;
+        dy *= 2.0f;
+        continue;
+      }
+      return false;
+    }
+    const double inv_det = 1.0 / (gxx * gyy - gxy * gxy);
+    for (int iteration = 0; iteration < params.iterations; ++iteration) {
+      double bx = 0.0, by = 0.0;
+      double abs_sum = 0.0;
+      k = 0;
+      for (int wy = -params.radius; wy <= params.radius; ++wy) {
+        for (int wx = -params.radius; wx <= params.radius; ++wx, ++k) {
+          const float difference =
+              Sample(image1, px + dx + wx, py + dy + wy) - template_values[k];
+          bx += difference * template_gx[k];
+          by += difference * template_gy[k];
+          abs_sum += std::abs(difference);
+        }
+      }
+      residual = static_cast<float>(abs_sum / area);
+      const double step_x = -(gyy * bx - gxy * by) * inv_det;
+      const double step_y = -(gxx * by - gxy * bx) * inv_det;
+      dx += static_cast<float>(step_x);
+      dy += static_cast<float>(step_y);
+      if (step_x * step_x + step_y * step_y < 1e-4) break;
+    }
+    if (level > 0) {
+      dx *= 2.0f;
+      dy *= 2.0f;
+    }
+  }
+  to->x = from.x + dx;
+  to->y = from.y + dy;
+  const float margin = static_cast<float>(params.radius) * 0.5f;
+  const float width = static_cast<float>(source.image[0].cols);
+  const float height = static_cast<float>(source.image[0].rows);
+  if (!(to->x >= margin && to->y >= margin && to->x <= width - 1 - margin &&
+        to->y <= height - 1 - margin)) {
+    return false;
+  }
+  return residual <= params.max_residual;
+}
+
+// A feature followed over consecutive frames [first_frame, first_frame + n).
+struct Track {
+  int first_frame = 0;
+  std::vector<cv::Point2f> points;
+  int point_id = -1;  // index into the 3D points, -1 until triangulated
+  int LastFrame() const { return first_frame + static_cast<int>(points.size()) - 1; }
+  bool Sees(int frame) const { return frame >= first_frame && frame <= LastFrame(); }
+  const cv::Point2f& At(int frame) const { return points[frame - first_frame]; }
+};
+
+struct TrackingResult {
+  std::vector<Track> tracks;
+  std::vector<int> detected;  // new corners per frame
+  std::vector<int> alive;     // tracks followed into each frame from the previous one
+};
+
+TrackingResult TrackFeatures(const std::vector<cv::Mat>& gray, const InitializerOptions& options,
+                             int threads) {
+  const int num_frames = static_cast<int>(gray.size());
+  LucasKanadeParams params;
+  params.radius = options.klt_window_radius_px;
+  params.max_residual = static_cast<float>(options.klt_max_residual);
+  std::vector<Pyramid> pyramids(num_frames);
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
+  for (int t = 0; t < num_frames; ++t) pyramids[t] = BuildPyramid(gray[t], options.klt_levels);
+
+  TrackingResult result;
+  result.detected.assign(num_frames, 0);
+  result.alive.assign(num_frames, 0);
+  std::vector<int> active;  // tracks that reached the current frame
+  const float min_distance = static_cast<float>(options.min_feature_distance_px);
+  for (int t = 0; t < num_frames; ++t) {
+    if (t > 0) {
+      // Follow the active tracks into t, predicting with their last velocity.
+      std::vector<char> keep(active.size(), 0);
+      std::vector<cv::Point2f> next(active.size());
+#pragma omp parallel num_threads(threads)
+      {
+        std::vector<float> scratch;
+#pragma omp for schedule(dynamic, 16)
+        for (int a = 0; a < static_cast<int>(active.size()); ++a) {
+          const Track& track = result.tracks[active[a]];
+          const cv::Point2f from = track.points.back();
+          cv::Point2f guess(0.0f, 0.0f);
+          if (track.points.size() >= 2) guess = from - track.points[track.points.size() - 2];
+          cv::Point2f forward, backward;
+          if (!TrackLucasKanade(pyramids[t - 1], pyramids[t], from, guess, params, &scratch,
+                                &forward)) {
+            continue;
+          }
+          if (!TrackLucasKanade(pyramids[t], pyramids[t - 1], forward, from - forward, params,
+                                &scratch, &backward)) {
+            continue;
+          }
+          const cv::Point2f error = backward - from;
+          if (error.dot(error) > options.max_forward_backward_px * options.max_forward_backward_px) {
+            continue;
+          }
+          keep[a] = 1;
+          next[a] = forward;
+        }
+      }
+      std::vector<int> still_active;
+      for (size_t a = 0; a < active.size(); ++a) {
+        if (!keep[a]) continue;
+        result.tracks[active[a]].points.push_back(next[a]);
+        still_active.push_back(active[a]);
+      }
+      active.swap(still_active);
+    }
+    result.alive[t] = static_cast<int>(active.size());
+    // Replenish with corners away from the tracks that reached t.
+    if (t + 1 < num_frames) {
+      cv::Mat mask(gray[t].size(), CV_8UC1, cv::Scalar(255));
+      for (int index : active) {
+        cv::circle(mask, result.tracks[index].points.back(), static_cast<int>(min_distance + 0.5f),
+                   cv::Scalar(0), -1);
+      }
+      const int wanted = options.max_features - static_cast<int>(active.size());
+      if (wanted > 0) {
+        std::vector<cv::Point2f> corners;
+        cv::Mat gray8;
+        gray[t].convertTo(gray8, CV_8U, 255.0);
+        cv::goodFeaturesToTrack(gray8, corners, wanted, options.feature_quality, min_distance,
+                                mask, options.feature_block_size);
+        const float border = static_cast<float>(options.klt_window_radius_px);
+        for (const cv::Point2f& corner : corners) {
+          if (corner.x < border || corner.y < border || corner.x > gray[t].cols - 1 - border ||
+              corner.y > gray[t].rows - 1 - border) {
+            continue;
+          }
+          Track track;
+          track.first_frame = t;
+          track.points.push_back(corner);
+          active.push_back(static_cast<int>(result.tracks.size()));
+          result.tracks.push_back(track);
+          ++result.detected[t];
+        }
+      }
+    }
+  }
+  return result;
+}
+
+// ------------------------------------------------------------- geometry
+
+// A frame's pose as T_cam_world in angle-axis + translation, Ceres' layout.
+struct PoseParameters {
+  double rotation[3] = {0.0, 0.0, 0.0};
+  double translation[3] = {0.0, 0.0, 0.0};
+};
+
+PoseParameters ToParameters(const SE3& T_cam_world) {
+  PoseParameters parameters;
+  const Eigen::AngleAxisd angle_axis(T_cam_world.rotation());
+  const Eigen::Vector3d rotation = angle_axis.angle() * angle_axis.axis();
+  for (int k = 0; k < 3; ++k) {
+    parameters.rotation[k] = rotation[k];
+    parameters.translation[k] = T_cam_world.translation()[k];
+  }
+  return parameters;
+}
+
+SE3 FromParameters(const PoseParameters& parameters) {
+  const Eigen::Vector3d rotation(parameters.rotation);
+  const double angle = rotation.norm();
+  const Eigen::Matrix3d R =
+      angle < 1e-15 ? Eigen::Matrix3d::Identity()
+                    : Eigen::AngleAxisd(angle, rotation / angle).toRotationMatrix();
+  return SE3(R, Eigen::Vector3d(parameters.translation));
+}
+
+SE3 FromOpenCv(const cv::Mat& rvec, const cv::Mat& tvec) {
+  cv::Mat R;
+  cv::Rodrigues(rvec, R);
+  Eigen::Matrix3d rotation;
+  Eigen::Vector3d translation;
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) rotation(r, c) = R.at<double>(r, c);
+    translation[r] = tvec.at<double>(r);
+  }
+  return SE3(rotation, translation);
+}
+
+void ToOpenCv(const SE3& T_cam_world, cv::Mat* rvec, cv::Mat* tvec) {
+  cv::Mat R(3, 3, CV_64F);
+  *tvec = cv::Mat(3, 1, CV_64F);
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) R.at<double>(r, c) = T_cam_world.rotation()(r, c);
+    tvec->at<double>(r) = T_cam_world.translation()[r];
+  }
+  cv::Rodrigues(R, *rvec);
+}
+
+struct ReprojectionResidual {
+  ReprojectionResidual(const cv::Point2f& observed, const PinholeCamera& camera)
+      : u(observed.x), v(observed.y), fx(camera.fx), fy(camera.fy), cx(camera.cx), cy(camera.cy) {}
+  template <typename T>
+  bool operator()(const T* rotation, const T* translation, const T* point_world,
+                  T* residual) const {
+    T p[3];
+    ceres::AngleAxisRotatePoint(rotation, point_world, p);
+    for (int k = 0; k < 3; ++k) p[k] += translation[k];
+    if (p[2] < T(1e-9)) p[2] = T(1e-9);
+    residual[0] = T(fx) * p[0] / p[2] + T(cx) - T(u);
+    residual[1] = T(fy) * p[1] / p[2] + T(cy) - T(v);
+    return true;
+  }
+  double u, v, fx, fy, cx, cy;
+};
+
+// Reprojection error (px) of a world point in a camera; infinity when behind.
+double ReprojectionError(const PinholeCamera& camera, const SE3& T_cam_world,
+                         const Eigen::Vector3d& point_world, const cv::Point2f& observed) {
+  const Eigen::Vector3d p = T_cam_world * point_world;
+  if (!(p.z() > 1e-9)) return std::numeric_limits<double>::infinity();
+  const Eigen::Vector2d projected = camera.Project(p);
+  return std::hypot(projected.x() - observed.x, projected.y() - observed.y);
+}
+
+// Linear (DLT) triangulation from every observation of the track in a frame
+// with a known pose.
+bool TriangulateTrack(const PinholeCamera& camera, const std::vector<SE3>& T_cam_world,
+                      const std::vector<char>& has_pose, const Track& track, int last_frame,
+                      Eigen::Vector3d* point_world) {
+  Eigen::Matrix<double, Eigen::Dynamic, 4> A(2 * track.points.size(), 4);
+  int rows = 0;
+  for (int frame = track.first_frame; frame <= std::min(track.LastFrame(), last_frame); ++frame) {
+    if (!has_pose[frame]) continue;
+    const Eigen::Vector3d ray = camera.Ray(track.At(frame).x, track.At(frame).y);
+    Eigen::Matrix<double, 3, 4> P;
+    P.leftCols<3>() = T_cam_world[frame].rotation();
+    P.col(3) = T_cam_world[frame].translation();
+    A.row(rows++) = ray.x() * P.row(2) - P.row(0);
+    A.row(rows++) = ray.y() * P.row(2) - P.row(1);
+  }
+  if (rows < 4) return false;
+  Eigen::JacobiSVD<Eigen::MatrixXd> svd(A.topRows(rows), Eigen::ComputeFullV);
+  const Eigen::Vector4d homogeneous = svd.matrixV().col(3);
+  if (std::abs(homogeneous[3]) < 1e-12) return false;
+  *point_world = homogeneous.head<3>() / homogeneous[3];
+  return point_world->allFinite();
+}
+
+// Image displacement (px) of a track between frames a and b that rotation
+// alone does not explain: the parallax that carries depth information.
+double TranslationalParallax(const PinholeCamera& camera, const SE3& T_b_a, const cv::Point2f& pa,
+                             const cv::Point2f& pb) {
+  const Eigen::Vector3d rotated = T_b_a.rotation() * camera.Ray(pa.x, pa.y);
+  if (!(rotated.z() > 1e-9)) return 0.0;
+  const Eigen::Vector2d predicted = camera.Project(rotated);
+  return std::hypot(predicted.x() - pb.x, predicted.y() - pb.y);
+}
+
+struct SparseStructure {
+  std::vector<SE3> T_cam_world;
+  std::vector<Eigen::Vector3d> points_world;
+  std::vector<char> point_inlier;
+  std::vector<std::string> log;
+};
+
+void TriangulateNewPoints(const PinholeCamera& camera, const InitializerOptions& options,
+                          int frame, const std::vector<char>& has_pose,
+                          std::vector<Track>* tracks, SparseStructure* structure) {
+  for (Track& track : *tracks) {
+    if (track.point_id >= 0 || !track.Sees(frame) || track.first_frame >= frame) continue;
+    const SE3 T_b_a =
+        structure->T_cam_world[frame] * structure->T_cam_world[track.first_frame].Inverse();
+    if (TranslationalParallax(camera, T_b_a, track.At(track.first_frame), track.At(frame)) <
+        options.min_triangulation_parallax_px) {
+      continue;
+    }
+    Eigen::Vector3d point;
+    if (!TriangulateTrack(camera, structure->T_cam_world, has_pose, track, frame, &point)) continue;
+    bool good = true;
+    for (int f = track.first_frame; f <= std::min(frame, track.LastFrame()) && good; ++f) {
+      if (!has_pose[f]) continue;
+      good = ReprojectionError(camera, structure->T_cam_world[f], point, track.At(f)) <=
+             options.ransac_threshold_px * 2.0;
+    }
+    if (!good) continue;
+    track.point_id = static_cast<int>(structure->points_world.size());
+    structure->points_world.push_back(point);
+    structure->point_inlier.push_back(1);
+  }
+}
+
+cv::Mat CameraMatrix(const PinholeCamera& camera) {
+  return (cv::Mat_<double>(3, 3) << camera.fx, 0.0, camera.cx, 0.0, camera.fy, camera.cy, 0.0,
+          0.0, 1.0);
+}
+
+// Rotation-only fit of matched pixels (Kabsch on bearings, refit on the
+// better half): the median residual (px) is the parallax that no camera
+// rotation explains, i.e. what translation contributes.
+double RotationFreeParallax(const PinholeCamera& camera, const std::vector<cv::Point2f>& points0,
+                            const std::vector<cv::Point2f>& points1) {
+  const int n = static_cast<int>(points0.size());
+  std::vector<Eigen::Vector3d> b0(n), b1(n);
+  for (int k = 0; k < n; ++k) {
+    b0[k] = camera.Ray(points0[k].x, points0[k].y).normalized();
+    b1[k] = camera.Ray(points1[k].x, points1[k].y).normalized();
+  }
+  std::vector<char> use(n, 1);
+  std::vector<double> residuals(n);
+  for (int round = 0; round < 3; ++round) {
+    Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
+    for (int k = 0; k < n; ++k) {
+      if (use[k]) H += b1[k] * b0[k].transpose();
+    }
+    Eigen::JacobiSVD<Eigen::Matrix3d> svd(H, Eigen::ComputeFullU | Eigen::ComputeFullV);
+    Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
+    D(2, 2) = (svd.matrixU() * svd.matrixV().transpose()).determinant() < 0.0 ? -1.0 : 1.0;
+    const Eigen::Matrix3d R = svd.matrixU() * D * svd.matrixV().transpose();  // b1 ~ R b0
+    for (int k = 0; k < n; ++k) {
+      const Eigen::Vector3d rotated = R * camera.Ray(points0[k].x, points0[k].y);
+      residuals[k] = rotated.z() > 1e-9 ? (camera.Project(rotated) -
+                                           Eigen::Vector2d(points1[k].x, points1[k].y))
+                                              .norm()
+                                        : 1e9;
+    }
+    const double median = Median(residuals);
+    for (int k = 0; k < n; ++k) use[k] = residuals[k] <= median;
+  }
+  return Median(residuals);
+}
+
+// Reprojection into camera 1 of the point at inverse depth rho on the ray of
+// pixel x0 of camera 0: p1 ~ R ray0 + rho t (no division by rho, so points
+// at infinity are fine).
+struct TwoViewResidual {
+  TwoViewResidual(const Eigen::Vector3d& ray0_in, const cv::Point2f& observed,
+                  const PinholeCamera& camera)
+      : ray0(ray0_in), u(observed.x), v(observed.y), fx(camera.fx), fy(camera.fy),
+        cx(camera.cx), cy(camera.cy) {}
+  template <typename T>
+  bool operator()(const T* rotation, const T* translation, const T* inverse_depth,
+                  T* residual) const {
+    const T ray[3] = {T(ray0.x()), T(ray0.y()), T(ray0.z())};
+    T p[3];
+    ceres::AngleAxisRotatePoint(rotation, ray, p);
+    for (int k = 0; k < 3; ++k) p[k] += inverse_depth[0] * translation[k];
+    if (p[2] < T(1e-9)) p[2] = T(1e-9);
+    residual[0] = T(fx) * p[0] / p[2] + T(cx) - T(u);
+    residual[1] = T(fy) * p[1] / p[2] + T(cy) - T(v);
+    return true;
+  }
+  Eigen::Vector3d ray0;
+  double u, v, fx, fy, cx, cy;
+};
+
+// Prior on the rotation between two consecutive cameras: f |log R| / sigma.
+// With a narrow field of view (the Middlebury views span ~13 degrees) a small
+// rotation and a sideways translation move the image almost identically; the
+// reconstructions along that valley fit the tracks to far below their noise
+// (bas-relief ambiguity) but bend the inverse depths affinely. The prior picks
+// the least-rotating member there and is negligible where the rotation is
+// observable (wide fields of view).
+struct RotationPrior {
+  RotationPrior(double focal_px, double sigma_px) : scale(focal_px / sigma_px) {}
+  template <typename T>
+  bool operator()(const T* rotation_a, const T* rotation_b, T* residual) const {
+    // R_b R_a^T as quaternions.
+    T qa[4], qb[4], qa_inverse[4], q[4];
+    ceres::AngleAxisToQuaternion(rotation_a, qa);
+    ceres::AngleAxisToQuaternion(rotation_b, qb);
+    qa_inverse[0] = qa[0];
+    for (int k = 1; k < 4; ++k) qa_inverse[k] = -qa[k];
+    ceres::QuaternionProduct(qb, qa_inverse, q);
+    T angle_axis[3];
+    ceres::QuaternionToAngleAxis(q, angle_axis);
+    for (int k = 0; k < 3; ++k) residual[k] = T(scale) * angle_axis[k];
+    return true;
+  }
+  double scale;
+};
+
+// Same prior for frame 1 against the fixed identity rotation of frame 0.
+struct AbsoluteRotationPrior {
+  explicit AbsoluteRotationPrior(double scale_in) : scale(scale_in) {}
+  template <typename T>
+  bool operator()(const T* rotation, T* residual) const {
+    for (int k = 0; k < 3; ++k) residual[k] = T(scale) * rotation[k];
+    return true;
+  }
+  double scale;
+};
+
+// Inverse depth along ray0 that best explains x1 for the pose (R, t):
+// least squares of x1 x (R ray0 + rho t) = 0.
+double TriangulateInverseDepth(const Eigen::Matrix3d& R, const Eigen::Vector3d& t,
+                               const Eigen::Vector3d& ray0, const Eigen::Vector3d& ray1) {
+  const Eigen::Vector3d a = ray1.cross(R * ray0);
+  const Eigen::Vector3d b = ray1.cross(t);
+  const double bb = b.squaredNorm();
+  return bb > 1e-18 ? -a.dot(b) / bb : 0.0;
+}
+
+struct TwoViewSolution {
+  Eigen::Vector3d rotation = Eigen::Vector3d::Zero();  // angle-axis of R_cam1_cam0
+  Eigen::Vector3d translation = Eigen::Vector3d::UnitX();
+  std::vector<double> inverse_depth;
+  double cost = std::numeric_limits<double>::infinity();
+};
+
+// Refines frames 0-1 from a starting pose: pose 1 (|t| = 1) and one inverse
+// depth per match, Cauchy reprojection loss (tracks on occlusion edges are
+// gross outliers that a Huber loss lets pull the pose into the pan +
+// forward-motion basin) plus the rotation prior.
+TwoViewSolution RefineTwoView(const PinholeCamera& camera, const InitializerOptions& options,
+                              int threads, const std::vector<Eigen::Vector3d>& rays0,
+                              const std::vector<cv::Point2f>& points1,
+                              const Eigen::Matrix3d& R_start, const Eigen::Vector3d& t_start) {
+  TwoViewSolution solution;
+  const Eigen::AngleAxisd angle_axis(R_start);
+  solution.rotation = angle_axis.angle() * angle_axis.axis();
+  solution.translation = t_start.normalized();
+  const int n = static_cast<int>(rays0.size());
+  solution.inverse_depth.resize(n);
+  std::vector<double> positive;
+  for (int k = 0; k < n; ++k) {
+    const Eigen::Vector3d ray1 = camera.Ray(points1[k].x, points1[k].y);
+    solution.inverse_depth[k] =
+        TriangulateInverseDepth(R_start, solution.translation, rays0[k], ray1);
+    if (solution.inverse_depth[k] > 0.0) positive.push_back(solution.inverse_depth[k]);
+  }
+  // Points that start behind camera 0 start at the median instead.
+  const double fallback = positive.empty() ? 1e-2 : Median(positive);
+  for (double& rho : solution.inverse_depth) {
+    if (!(rho > 0.0)) rho = fallback;
+  }
+  ceres::Problem problem;
+  for (int k = 0; k < n; ++k) {
+    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<TwoViewResidual, 2, 3, 3, 1>(
+                                 new TwoViewResidual(rays0[k], points1[k], camera)),
+                             new ceres::CauchyLoss(options.ba_loss_px), solution.rotation.data(),
+                             solution.translation.data(), &solution.inverse_depth[k]);
+  }
+  problem.AddResidualBlock(new ceres::AutoDiffCostFunction<AbsoluteRotationPrior, 3, 3>(
+                               new AbsoluteRotationPrior(camera.fx / options.rotation_prior_px)),
+                           nullptr, solution.rotation.data());
+  problem.SetManifold(solution.translation.data(), new ceres::SphereManifold<3>());
+  ceres::Solver::Options solver_options;
+  solver_options.linear_solver_type = ceres::DENSE_SCHUR;
+  solver_options.max_num_iterations = options.ba_max_iterations;
+  solver_options.num_threads = threads;
+  solver_options.logging_type = ceres::SILENT;
+  ceres::Solver::Summary summary;
+  ceres::Solve(solver_options, &problem, &summary);
+  solution.cost = summary.final_cost;
+  // (t, rho) and (-t, -rho) fit equally: keep the points in front.
+  int in_front = 0;
+  for (double rho : solution.inverse_depth) in_front += rho > 0.0 ? 1 : -1;
+  if (in_front < 0) {
+    solution.translation = -solution.translation;
+    for (double& rho : solution.inverse_depth) rho = -rho;
+  }
+  return solution;
+}
+
+// Direction of a pure translation (R = I) between two views: ray1 lies in
+// the plane of ray0 and t, so t is orthogonal to every n = ray0 x ray1. Two
+// matches fix it (t = n_i x n_j); RANSAC over such pairs, inliers within
+// `threshold_px` of their epipolar line, then least squares over the
+// inliers. The sign puts most points in front.
+Eigen::Vector3d PureTranslationEpipole(const PinholeCamera& camera,
+                                       const std::vector<cv::Point2f>& points0,
+                                       const std::vector<cv::Point2f>& points1,
+                                       double threshold_px) {
+  const int n = static_cast<int>(points0.size());
+  std::vector<Eigen::Vector3d> rays0(n), rays1(n), normals(n);
+  for (int k = 0; k < n; ++k) {
+    rays0[k] = camera.Ray(points0[k].x, points0[k].y);
+    rays1[k] = camera.Ray(points1[k].x, points1[k].y);
+    normals[k] = rays0[k].cross(rays1[k]);
+  }
+  const double focal = 0.5 * (camera.fx + camera.fy);
+  // Distance (px) of x1 from the epipolar line t x ray0.
+  auto residual = [&](const Eigen::Vector3d& t, int k) {
+    const Eigen::Vector3d line = t.cross(rays0[k]);
+    const double norm = line.head<2>().norm();
+    return norm > 1e-15 ? focal * std::abs(line.dot(rays1[k])) / norm
+                        : std::numeric_limits<double>::infinity();
+  };
+  cv::RNG rng(0x5eed);  // fixed: the same frames give the same start
+  Eigen::Vector3d best_t = Eigen::Vector3d::UnitX();
+  int best_count = -1;
+  for (int iteration = 0; iteration < 300 && n >= 2; ++iteration) {
+    const int i = rng.uniform(0, n);
+    const int j = rng.uniform(0, n);
+    if (i == j) continue;
+    const Eigen::Vector3d t = normals[i].cross(normals[j]);
+    if (!(t.norm() > 1e-15)) continue;
+    int count = 0;
+    for (int k = 0; k < n; ++k) count += residual(t.normalized(), k) <= threshold_px ? 1 : 0;
+    if (count > best_count) {
+      best_count = count;
+      best_t = t.normalized();
+    }
+  }
+  Eigen::Matrix3d normal_matrix = Eigen::Matrix3d::Zero();
+  for (int k = 0; k < n; ++k) {
+    if (residual(best_t, k) <= threshold_px) normal_matrix += normals[k] * normals[k].transpose();
+  }
+  Eigen::Vector3d t = best_t;
+  if (best_count >= 2) {
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen(normal_matrix);
+    t = eigen.eigenvectors().col(0);
+  }
+  int in_front = 0;
+  for (int k = 0; k < n; ++k) {
+    const double rho = TriangulateInverseDepth(Eigen::Matrix3d::Identity(), t, rays0[k], rays1[k]);
+    in_front += rho > 0.0 ? 1 : -1;
+  }
+  return in_front < 0 ? Eigen::Vector3d(-t) : t;
+}
+
+// Frames 0-1: the paper's SfM step. Essential matrix (RANSAC) + recoverPose
+// give one start; because a narrow field of view leaves the rotation /
+// translation split nearly unobservable (see RotationPrior), a second start
+// assumes no rotation and takes the epipole from the linear pure-translation
+// constraint (x0 x x1) . t = 0. Both are refined (RefineTwoView) and the lower
+// final cost wins. Throws InitializationError with the reason when the pair
+// does not allow it.
+void TwoViewInitialisation(const PinholeCamera& camera, const InitializerOptions& options,
+                           int threads, std::vector<Track>* tracks, SparseStructure* structure) {
+  std::vector<cv::Point2f> points0, points1;
+  std::vector<int> track_index;
+  for (size_t i = 0; i < tracks->size(); ++i) {
+    const Track& track = (*tracks)[i];
+    if (track.first_frame == 0 && track.Sees(1)) {
+      points0.push_back(track.At(0));
+      points1.push_back(track.At(1));
+      track_index.push_back(static_cast<int>(i));
+    }
+  }
+  const int matches = static_cast<int>(points0.size());
+  if (matches < options.min_inliers) {
+    throw InitializationError("initialisation: frames 0-1: only " + std::to_string(matches) +
+                              " features tracked from frame 0 to frame 1 (need " +
+                              std::to_string(options.min_inliers) + ")");
+  }
+  // With a narrow field of view even a pure translation is nearly explained by
+  // a rotation (see RotationPrior), so what no rotation explains is small; but
+  // a pure rotation (or a static camera) leaves only tracking noise, and then
+  // nothing carries depth or scale.
+  const double rotation_free_parallax = RotationFreeParallax(camera, points0, points1);
+  if (rotation_free_parallax < options.min_rotation_free_parallax_px) {
+    throw InitializationError(Format(
+        "initialisation: frames 0-1 have no parallax: a rotation explains their motion to %.3f px "
+        "(need %.2f px); the camera must translate, not only rotate",
+        rotation_free_parallax, options.min_rotation_free_parallax_px));
+  }
+  const cv::Mat K = CameraMatrix(camera);
+  cv::Mat inlier_mask;
+  cv::Mat E = cv::findEssentialMat(points0, points1, K, cv::RANSAC, options.ransac_confidence,
+                                   options.ransac_threshold_px, inlier_mask);
+  if (E.rows > 3 && E.cols == 3) E = E.rowRange(0, 3).clone();  // ambiguous minimal sets
+  if (E.rows != 3 || E.cols != 3) {
+    throw InitializationError("initialisation: frames 0-1 give no essential matrix (" +
+                              std::to_string(matches) + " matches; degenerate geometry)");
+  }
+  const int ransac_inliers = cv::countNonZero(inlier_mask);
+  if (ransac_inliers < options.min_inliers) {
+    throw InitializationError("initialisation: frames 0-1: only " +
+                              std::to_string(ransac_inliers) + " of " + std::to_string(matches) +
+                              " matches consistent with one relative pose (need " +
+                              std::to_string(options.min_inliers) + ")");
+  }
+  // The default far-point cut (50 baselines) would drop most points: the
+  // baseline of two consecutive frames is ~1 % of the scene depth.
+  cv::Mat R_cv, t_cv, triangulated_points;
+  cv::Mat pose_mask = inlier_mask.clone();
+  const int pose_inliers = cv::recoverPose(E, points0, points1, K, R_cv, t_cv,
+                                           /*distanceThresh=*/1e6, pose_mask, triangulated_points);
+  Eigen::Matrix3d R_essential;
+  Eigen::Vector3d t_essential;
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) R_essential(r, c) = R_cv.at<double>(r, c);
+    t_essential[r] = t_cv.at<double>(r);
+  }
+
+  // Both starts are refined on all matches (Cauchy loss), so that their final
+  // costs compare; points that stay off are not triangulated below.
+  std::vector<Eigen::Vector3d> rays0(matches);
+  for (int k = 0; k < matches; ++k) rays0[k] = camera.Ray(points0[k].x, points0[k].y);
+  const Eigen::Vector3d t_translation =
+      PureTranslationEpipole(camera, points0, points1, options.ransac_threshold_px);
+  const TwoViewSolution from_essential =
+      RefineTwoView(camera, options, threads, rays0, points1, R_essential, t_essential);
+  const TwoViewSolution from_translation = RefineTwoView(
+      camera, options, threads, rays0, points1, Eigen::Matrix3d::Identity(), t_translation);
+  const bool essential_wins = from_essential.cost <= from_translation.cost;
+  const TwoViewSolution& best = essential_wins ? from_essential : from_translation;
+
+  const Eigen::Vector3d& aa = best.rotation;
+  const double angle = aa.norm();
+  const Eigen::Matrix3d R =
+      angle < 1e-15 ? Eigen::Matrix3d::Identity()
+                    : Eigen::AngleAxisd(angle, aa / angle).toRotationMatrix();
+  // T_cam1_cam0 with |t| = 1: world = camera 0, centres 1 apart.
+  structure->T_cam_world[0] = SE3();
+  structure->T_cam_world[1] = SE3(R, best.translation.normalized());
+  // Parallax of the chosen solution: the displacement its rotation leaves.
+  // A static camera or a pure rotation leaves none: the scale (|c1 - c0| = 1)
+  // and the depths would be undefined.
+  std::vector<double> parallaxes;
+  for (int k = 0; k < matches; ++k) {
+    parallaxes.push_back(
+        TranslationalParallax(camera, structure->T_cam_world[1], points0[k], points1[k]));
+  }
+  const double parallax = Median(parallaxes);
+  if (parallax < options.min_parallax_px) {
+    throw InitializationError(Format(
+        "initialisation: frames 0-1 have too little parallax (median %.2f px not explained by "
+        "rotation, need %.2f px); the camera must translate between them",
+        parallax, options.min_parallax_px));
+  }
+  int triangulated = 0;
+  for (int k = 0; k < matches; ++k) {
+    const double rho = best.inverse_depth[k];
+    if (!(rho > 1e-9)) continue;
+    const Eigen::Vector3d point = rays0[k] / rho;
+    Track& track = (*tracks)[track_index[k]];
+    if (ReprojectionError(camera, structure->T_cam_world[1], point, track.At(1)) >
+        2.0 * options.ransac_threshold_px) {
+      continue;
+    }
+    track.point_id = static_cast<int>(structure->points_world.size());
+    structure->points_world.push_back(point);
+    structure->point_inlier.push_back(1);
+    ++triangulated;
+  }
+  if (triangulated < options.min_inliers) {
+    throw InitializationError("initialisation: only " + std::to_string(triangulated) +
+                              " points of frames 0-1 triangulate in front of both cameras "
+                              "(degenerate geometry)");
+  }
+  structure->log.push_back(Format(
+      "two-view 0-1: %.0f matches, %.0f RANSAC inliers, %.0f pass cheirality, parallax %.2f px "
+      "(%.2f px not explained by any rotation), %.0f points",
+      matches, ransac_inliers, pose_inliers, parallax, rotation_free_parallax, triangulated));
+  structure->log.push_back(Format(
+      "two-view 0-1: refined cost from E %.4g (rotation %.3f deg), from pure translation %.4g "
+      "(rotation %.3f deg)",
+      from_essential.cost, from_essential.rotation.norm() * 180.0 / M_PI, from_translation.cost,
+      from_translation.rotation.norm() * 180.0 / M_PI));
+}
+
+// Camera pose of `frame` from its 2D-3D correspondences (PnP, RANSAC), started
+// from a constant-velocity prediction.
+void LocaliseFrame(const PinholeCamera& camera, const InitializerOptions& options, int frame,
+                   const std::vector<Track>& tracks, SparseStructure* structure) {
+  std::vector<cv::Point3f> object;
+  std::vector<cv::Point2f> image;
+  for (const Track& track : tracks) {
+    if (track.point_id < 0 || !track.Sees(frame) || !structure->point_inlier[track.point_id]) {
+      continue;
+    }
+    const Eigen::Vector3d& p = structure->points_world[track.point_id];
+    object.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()),
+                        static_cast<float>(p.z()));
+    image.push_back(track.At(frame));
+  }
+  if (static_cast<int>(object.size()) < options.min_pnp_inliers) {
+    throw InitializationError("initialisation: frame " + std::to_string(frame) + " sees only " +
+                              std::to_string(object.size()) + " triangulated points (need " +
+                              std::to_string(options.min_pnp_inliers) + ")");
+  }
+  const SE3& T_prev = structure->T_cam_world[frame - 1];
+  const SE3& T_prev2 = structure->T_cam_world[frame - 2];
+  const SE3 predicted = (T_prev * T_prev2.Inverse()) * T_prev;
+  cv::Mat rvec, tvec;
+  ToOpenCv(predicted, &rvec, &tvec);
+  std::vector<int> inliers;
+  const bool ok = cv::solvePnPRansac(object, image, CameraMatrix(camera), cv::noArray(), rvec,
+                                     tvec, /*useExtrinsicGuess=*/true, 200,
+                                     static_cast<float>(options.pnp_threshold_px),
+                                     options.ransac_confidence, inliers, cv::SOLVEPNP_ITERATIVE);
+  if (!ok || static_cast<int>(inliers.size()) < options.min_pnp_inliers) {
+    throw InitializationError("initialisation: frame " + std::to_string(frame) + ": PnP found " +
+                              std::to_string(inliers.size()) + " of " +
+                              std::to_string(object.size()) + " inliers (need " +
+                              std::to_string(options.min_pnp_inliers) + ")");
+  }
+  std::vector<cv::Point3f> object_inliers;
+  std::vector<cv::Point2f> image_inliers;
+  for (int index : inliers) {
+    object_inliers.push_back(object[index]);
+    image_inliers.push_back(image[index]);
+  }
+  cv::solvePnPRefineLM(object_inliers, image_inliers, CameraMatrix(camera), cv::noArray(), rvec,
+                       tvec);
+  structure->T_cam_world[frame] = FromOpenCv(rvec, tvec);
+  structure->log.push_back(Format("pnp frame %.0f: %.0f of %.0f inliers", frame, inliers.size(),
+                                  object.size()));
+}
+
+// All poses and points by reprojection error (Cauchy loss) plus the
+// frame-to-frame RotationPrior, camera 0 fixed and |t_1| = |c_1 - c_0| = 1 on
+// a sphere: the gauge of SPEC section 2. Two rounds, dropping observations
+// beyond the outlier threshold in between. Returns the RMS reprojection error
+// (px) of the observations within the threshold.
+double BundleAdjust(const PinholeCamera& camera, const InitializerOptions& options, int threads,
+                    const std::vector<Track>& tracks, SparseStructure* structure,
+                    int* num_observations) {
+  const int num_frames = static_cast<int>(structure->T_cam_world.size());
+  std::vector<PoseParameters> poses(num_frames);
+  for (int t = 0; t < num_frames; ++t) poses[t] = ToParameters(structure->T_cam_world[t]);
+  std::vector<std::array<double, 3>> points(structure->points_world.size());
+  for (size_t i = 0; i < points.size(); ++i) {
+    for (int k = 0; k < 3; ++k) points[i][k] = structure->points_world[i][k];
+  }
+  const double outlier_px = options.pnp_threshold_px;
+  double rms = 0.0;
+  for (int round = 0; round < 2; ++round) {
+    ceres::Problem problem;
+    int observations = 0;
+    for (const Track& track : tracks) {
+      if (track.point_id < 0 || !structure->point_inlier[track.point_id]) continue;
+      for (int f = track.first_frame; f <= track.LastFrame(); ++f) {
+        if (round > 0 && ReprojectionError(camera, FromParameters(poses[f]),
+                                           Eigen::Vector3d(points[track.point_id].data()),
+                                           track.At(f)) > outlier_px) {
+          continue;
+        }
+        problem.AddResidualBlock(
+            new ceres::AutoDiffCostFunction<ReprojectionResidual, 2, 3, 3, 3>(
+                new ReprojectionResidual(track.At(f), camera)),
+            new ceres::CauchyLoss(options.ba_loss_px), poses[f].rotation, poses[f].translation,
+            points[track.point_id].data());
+        ++observations;
+      }
+    }
+    if (problem.NumResidualBlocks() == 0) break;
+    for (int t = 1; t < num_frames; ++t) {
+      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<RotationPrior, 3, 3, 3>(
+                                   new RotationPrior(camera.fx, options.rotation_prior_px)),
+                               nullptr, poses[t - 1].rotation, poses[t].rotation);
+    }
+    if (problem.HasParameterBlock(poses[0].rotation)) {
+      problem.SetParameterBlockConstant(poses[0].rotation);
+      problem.SetParameterBlockConstant(poses[0].translation);
+    }
+    if (num_frames > 1 && problem.HasParameterBlock(poses[1].translation)) {
+      problem.SetManifold(poses[1].translation, new ceres::SphereManifold<3>());
+    }
+    ceres::Solver::Options solver_options;
+    solver_options.linear_solver_type = ceres::DENSE_SCHUR;
+    solver_options.max_num_iterations = options.ba_max_iterations;
+    solver_options.num_threads = threads;
+    solver_options.logging_type = ceres::SILENT;
+    ceres::Solver::Summary summary;
+    ceres::Solve(solver_options, &problem, &summary);
+    double squares = 0.0;
+    int inliers = 0;
+    for (const Track& track : tracks) {
+      if (track.point_id < 0 || !structure->point_inlier[track.point_id]) continue;
+      for (int f = track.first_frame; f <= track.LastFrame(); ++f) {
+        const double error = ReprojectionError(camera, FromParameters(poses[f]),
+                                               Eigen::Vector3d(points[track.point_id].data()),
+                                               track.At(f));
+        if (error <= outlier_px) {
+          squares += error * error;
+          ++inliers;
+        }
+      }
+    }
+    rms = std::sqrt(squares / std::max(1, inliers));
+    *num_observations = observations;
+  }
+  for (int t = 0; t < num_frames; ++t) structure->T_cam_world[t] = FromParameters(poses[t]);
+  // Points whose observations mostly disagree leave the depth-range statistics.
+  for (const Track& track : tracks) {
+    if (track.point_id < 0) continue;
+    Eigen::Vector3d point(points[track.point_id].data());
+    structure->points_world[track.point_id] = point;
+    int bad = 0;
+    for (int f = track.first_frame; f <= track.LastFrame(); ++f) {
+      if (ReprojectionError(camera, structure->T_cam_world[f], point, track.At(f)) > outlier_px) {
+        ++bad;
+      }
+    }
+    if (2 * bad > static_cast<int>(track.points.size())) structure->point_inlier[track.point_id] = 0;
+  }
+  return rms;
+}
+
+// ---------------------------------------------------------------- depths
+
+// One neighbour s of a frame t in eq:initializationScene: the two images that
+// carry the same blur (B_t through s's blur, B_s through t's blur) and where
+// a point of t's grid appears in each.
+struct NeighbourImages {
+  int frame = 0;
+  cv::Mat reference;  // Psi_s o B_t on t's grid (or B_t when not blur-aware)
+  cv::Mat source;     // Psi_t o B_s on s's grid (or B_s)
+  // From t's shutter-close camera to where the reference / source show a
+  // point: their blur centroids (BuildBlurredPairs).
+  std::unique_ptr<PixelTransferF> to_reference, to_source;
+};
+
+// Per-thread buffers of the sweep and the TV-L1 solver, reused across frames.
+struct DepthWorkspace {
+  std::vector<float> cost;        // pixel-major: cost[pixel * planes + plane]
+  std::vector<float> plane_depth;  // depth of one hypothesis per pixel
+  std::vector<float> difference;   // per neighbour, one plane
+  std::vector<float> row;          // warped coordinates of one row
+  std::vector<float> valid;
+  std::vector<float> box_row, aggregated, aggregated_valid;
+  std::vector<float> sum, weight;
+  std::vector<float> a, u, u_bar, px, py, tv_weight;
+  std::vector<float> cost_min, cost_max;
+};
+
+// Sum over a (2r+1)^2 window, separable, zero outside the image.
+void BoxSum(const float* in, int width, int height, int radius, std::vector<float>* row_buffer,
+            float* out) {
+  row_buffer->resize(static_cast<size_t>(width) * height);
+  float* rows = row_buffer->data();
+  for (int y = 0; y < height; ++y) {
+    const float* line = in + static_cast<size_t>(y) * width;
+    float* dst = rows + static_cast<size_t>(y) * width;
+    float running = 0.0f;
+    for (int x = 0; x <= std::min(radius, width - 1); ++x) running += line[x];
+    for (int x = 0; x < width; ++x) {
+      dst[x] = running;
+      const int add = x + radius + 1;
+      const int remove = x - radius;
+      if (add < width) running += line[add];
+      if (remove >= 0) running -= line[remove];
+    }
+  }
+  for (int x = 0; x < width; ++x) {
+    float running = 0.0f;
+    for (int y = 0; y <= std::min(radius, height - 1); ++y) running += rows[y * width + x];
+    for (int y = 0; y < height; ++y) {
+      out[static_cast<size_t>(y) * width + x] = running;
+      const int add = y + radius + 1;
+      const int remove = y - radius;
+      if (add < height) running += rows[add * width + x];
+      if (remove >= 0) running -= rows[remove * width + x];
+    }
+  }
+}
+
+// Inverse-depth hypotheses of one sweep: plane i of pixel x has the
+// normalised inverse depth u = base[x] + (i - centre) * step, and
+// rho = rho_min + u * (rho_max - rho_min). Pass 0 has base = 0, centre = 0
+// (fronto-parallel planes over the whole range); later passes a narrow band
+// around the previous estimate.
+struct PlaneSet {
+  int planes = 0;
+  float centre = 0.0f;
+  float step = 0.0f;
+  const std::vector<float>* base = nullptr;
+  double rho_min = 0.0;
+  double rho_max = 1.0;
+  float U(int pixel, int plane) const {
+    return (*base)[pixel] + (static_cast<float>(plane) - centre) * step;
+  }
+  double Rho(float u) const { return rho_min + u * (rho_max - rho_min); }
+};
+
+// Per pixel of t (depth `depth`, 0 = none): the colour-averaged |difference|
+// of reference and source at the point's blur centroids, and whether the
+// source sees it. The reference is read clamped: its offset from the pixel is
+// a fraction of the blur, and the capture operator replicates the border too.
+template <int kChannels>
+void PlaneDifferences(const NeighbourImages& neighbour, const float* depth, int width, int height,
+                      std::vector<float>* scratch, float* difference_out, float* valid_out) {
+  const float max_x = static_cast<float>(width - 1);
+  const float max_y = static_cast<float>(height - 1);
+  constexpr float kInvChannels = 1.0f / kChannels;
+  const float* reference = neighbour.reference.ptr<float>();
+  const float* source = neighbour.source.ptr<float>();
+  const int stride = width * kChannels;
+  const PixelTransferF& to_reference = *neighbour.to_reference;
+  const PixelTransferF& to_source = *neighbour.to_source;
+  // Coordinates of a row first (a branch-free loop the compiler vectorises),
+  // then the bilinear reads.
+  scratch->resize(static_cast<size_t>(4) * width);
+  float* ru = scratch->data();
+  float* rv = ru + width;
+  float* su = rv + width;
+  float* sv = su + width;
+  for (int y = 0; y < height; ++y) {
+    float base_ref[3], base_src[3];
+    to_reference.RowBase(static_cast<float>(y), base_ref);
+    to_source.RowBase(static_cast<float>(y), base_src);
+    const float* row_depth = depth + static_cast<size_t>(y) * width;
+    float* difference_row = difference_out + static_cast<size_t>(y) * width;
+    float* valid_row = valid_out + static_cast<size_t>(y) * width;
+#pragma omp simd
+    for (int x = 0; x < width; ++x) {
+      const float d = row_depth[x];
+      const float xf = static_cast<float>(x);
+      const float zs = d * (to_source.h[6] * xf + base_src[2]) + to_source.t[2];
+      const float zr = d * (to_reference.h[6] * xf + base_ref[2]) + to_reference.t[2];
+      const float inv_zs = 1.0f / zs;
+      const float inv_zr = 1.0f / zr;
+      const float us = (d * (to_source.h[0] * xf + base_src[0]) + to_source.t[0]) * inv_zs;
+      const float vs = (d * (to_source.h[3] * xf + base_src[1]) + to_source.t[1]) * inv_zs;
+      const float ur = (d * (to_reference.h[0] * xf + base_ref[0]) + to_reference.t[0]) * inv_zr;
+      const float vr = (d * (to_reference.h[3] * xf + base_ref[1]) + to_reference.t[1]) * inv_zr;
+      const bool ok = (d > 0.0f) & (zs > 1e-9f) & (zr > 1e-9f) & (us >= 0.0f) & (vs >= 0.0f) &
+                      (us <= max_x) & (vs <= max_y);
+      valid_row[x] = ok ? 1.0f : 0.0f;
+      su[x] = ok ? us : 0.0f;
+      sv[x] = ok ? vs : 0.0f;
+      ru[x] = ok ? std::min(std::max(ur, 0.0f), max_x) : 0.0f;
+      rv[x] = ok ? std::min(std::max(vr, 0.0f), max_y) : 0.0f;
+    }
+    for (int x = 0; x < width; ++x) {
+      const int rx0 = std::min(static_cast<int>(ru[x]), width - 2);
+      const int ry0 = std::min(static_cast<int>(rv[x]), height - 2);
+      const int sx0 = std::min(static_cast<int>(su[x]), width - 2);
+      const int sy0 = std::min(static_cast<int>(sv[x]), height - 2);
+      const float rfx = ru[x] - rx0, rfy = rv[x] - ry0;
+      const float sfx = su[x] - sx0, sfy = sv[x] - sy0;
+      const float* r0 = reference + static_cast<size_t>(ry0) * stride + rx0 * kChannels;
+      const float* s0 = source + static_cast<size_t>(sy0) * stride + sx0 * kChannels;
+      float difference = 0.0f;
+      for (int c = 0; c < kChannels; ++c) {
+        const float r_top = r0[c] + rfx * (r0[c + kChannels] - r0[c]);
+        const float r_bottom = r0[c + stride] + rfx * (r0[c + stride + kChannels] - r0[c + stride]);
+        const float s_top = s0[c] + sfx * (s0[c + kChannels] - s0[c]);
+        const float s_bottom = s0[c + stride] + sfx * (s0[c + stride + kChannels] - s0[c + stride]);
+        difference += std::abs((s_top + sfy * (s_bottom - s_top)) - (r_top + rfy * (r_bottom - r_top)));
+      }
+      difference_row[x] = difference * kInvChannels * valid_row[x];
+    }
+  }
+}
+
+// The data term of eq:initializationScene for every pixel and hypothesis:
+// per neighbour the L1 difference of the equally blurred images averaged over
+// colour and over a (2r+1)^2 patch (robust to the residual blur mismatch and
+// noise), truncated at `truncation` (occlusions), then averaged over the
+// neighbours that see the pixel. No neighbour: `truncation`.
+void ComputeCostVolume(const std::vector<NeighbourImages>& neighbours, const PlaneSet& planes,
+                       const InitializerOptions& options, int width, int height,
+                       DepthWorkspace* ws) {
+  const int pixels = width * height;
+  const int num_neighbours = static_cast<int>(neighbours.size());
+  const int radius = options.patch_radius_px;
+  const float truncation = static_cast<float>(options.cost_truncation);
+  const float min_valid = 0.5f * (2 * radius + 1) * (2 * radius + 1);
+  ws->cost.assign(static_cast<size_t>(pixels) * planes.planes, truncation);
+  ws->difference.resize(pixels);
+  ws->valid.resize(pixels);
+  ws->aggregated.resize(pixels);
+  ws->aggregated_valid.resize(pixels);
+  ws->sum.resize(pixels);
+  ws->weight.resize(pixels);
+  ws->plane_depth.resize(pixels);
+  for (int plane = 0; plane < planes.planes; ++plane) {
+    // Depth of every pixel's hypothesis, shared by the neighbours.
+    for (int pixel = 0; pixel < pixels; ++pixel) {
+      const double rho = planes.Rho(planes.U(pixel, plane));
+      ws->plane_depth[pixel] = rho > 1e-12 ? static_cast<float>(1.0 / rho) : 0.0f;
+    }
+    std::fill(ws->sum.begin(), ws->sum.end(), 0.0f);
+    std::fill(ws->weight.begin(), ws->weight.end(), 0.0f);
+    for (int n = 0; n < num_neighbours; ++n) {
+      if (neighbours[n].reference.channels() == 3) {
+        PlaneDifferences<3>(neighbours[n], ws->plane_depth.data(), width, height, &ws->row,
+                            ws->difference.data(), ws->valid.data());
+      } else {
+        PlaneDifferences<1>(neighbours[n], ws->plane_depth.data(), width, height, &ws->row,
+                            ws->difference.data(), ws->valid.data());
+      }
+      BoxSum(ws->difference.data(), width, height, radius, &ws->box_row, ws->aggregated.data());
+      BoxSum(ws->valid.data(), width, height, radius, &ws->box_row, ws->aggregated_valid.data());
+      for (int pixel = 0; pixel < pixels; ++pixel) {
+        const float count = ws->aggregated_valid[pixel];
+        if (count < min_valid || ws->valid[pixel] == 0.0f) continue;
+        ws->sum[pixel] += std::min(ws->aggregated[pixel] / count, truncation);
+        ws->weight[pixel] += 1.0f;
+      }
+    }
+    for (int pixel = 0; pixel < pixels; ++pixel) {
+      if (ws->weight[pixel] > 0.0f) {
+        ws->cost[static_cast<size_t>(pixel) * planes.planes + plane] =
+            ws->sum[pixel] / ws->weight[pixel];
+      }
+    }
+  }
+}
+
+// min_u sum_x [ w g(x) |grad u(x)| + C(x, u(x)) ] over the sampled
+// hypotheses: the TV-L1 energy of eq:initializationScene with the edge weight
+// of eq:regularizingTerm. Solved as in DTAM (Newcombe et al. 2011): the
+// auxiliary a(x) carries the (non-convex, sampled) data term and is coupled to
+// u by (u - a)^2 / (2 theta); u is a weighted ROF problem (primal-dual
+// steps), a a point-wise search; theta decreases geometrically. The last a is
+// refined below the plane spacing by a parabola through the neighbouring
+// costs. Returns u in ws->u.
+void SolveTvL1(const PlaneSet& planes, const cv::Mat& edge_weight,
+               const InitializerOptions& options, int width, int height, double theta_start,
+               double theta_end, const std::vector<float>* u_init, DepthWorkspace* ws) {
+  const int pixels = width * height;
+  const int L = planes.planes;
+  const float* cost = ws->cost.data();
+  ws->a.resize(pixels);
+  ws->u.resize(pixels);
+  ws->u_bar.resize(pixels);
+  ws->px.assign(pixels, 0.0f);
+  ws->py.assign(pixels, 0.0f);
+  ws->cost_min.resize(pixels);
+  ws->cost_max.resize(pixels);
+  for (int pixel = 0; pixel < pixels; ++pixel) {
+    const float* c = cost + static_cast<size_t>(pixel) * L;
+    int best = 0;
+    float lo = c[0], hi = c[0];
+    for (int i = 1; i < L; ++i) {
+      if (c[i] < lo) {
+        lo = c[i];
+        best = i;
+      }
+      hi = std::max(hi, c[i]);
+    }
+    ws->cost_min[pixel] = lo;
+    ws->cost_max[pixel] = hi;
+    ws->a[pixel] = planes.U(pixel, best);
+    ws->u[pixel] = u_init != nullptr ? (*u_init)[pixel] : ws->a[pixel];
+  }
+  ws->u_bar = ws->u;
+  const float tv_weight = static_cast<float>(options.depth_tv_weight);
+  std::vector<float>& weight = ws->tv_weight;
+  weight.resize(pixels);
+  for (int y = 0; y < height; ++y) {
+    const float* g = edge_weight.ptr<float>(y);
+    for (int x = 0; x < width; ++x) weight[y * width + x] = tv_weight * g[x];
+  }
+  // Step sizes with sigma * tau * ||grad||^2 <= 1 (||grad||^2 <= 8).
+  const float sigma = 0.5f;
+  const float tau = 0.25f;
+  const int iterations = std::max(2, options.tv_iterations);
+  const float inv_step = 1.0f / planes.step;
+  // One primal-dual step of the ROF coupling (Chambolle-Pock): dual ascent on
+  // p projected onto |p| <= w g, then the proximal step of (u - a)^2 / (2 theta).
+  auto rof_step = [&](float theta) {
+    for (int y = 0; y < height; ++y) {
+      for (int x = 0; x < width; ++x) {
+        const int pixel = y * width + x;
+        const float gx = x + 1 < width ? ws->u_bar[pixel + 1] - ws->u_bar[pixel] : 0.0f;
+        const float gy = y + 1 < height ? ws->u_bar[pixel + width] - ws->u_bar[pixel] : 0.0f;
+        float qx = ws->px[pixel] + sigma * gx;
+        float qy = ws->py[pixel] + sigma * gy;
+        const float norm = std::sqrt(qx * qx + qy * qy);
+        const float limit = weight[pixel];
+        if (norm > limit) {
+          const float shrink = limit / norm;
+          qx *= shrink;
+          qy *= shrink;
+        }
+        ws->px[pixel] = qx;
+        ws->py[pixel] = qy;
+      }
+    }
+    for (int y = 0; y < height; ++y) {
+      for (int x = 0; x < width; ++x) {
+        const int pixel = y * width + x;
+        float divergence = 0.0f;
+        divergence += (x + 1 < width ? ws->px[pixel] : 0.0f) - (x > 0 ? ws->px[pixel - 1] : 0.0f);
+        divergence +=
+            (y + 1 < height ? ws->py[pixel] : 0.0f) - (y > 0 ? ws->py[pixel - width] : 0.0f);
+        const float previous = ws->u[pixel];
+        const float updated =
+            (previous + tau * (divergence + ws->a[pixel] / theta)) / (1.0f + tau / theta);
+        ws->u[pixel] = updated;
+        ws->u_bar[pixel] = 2.0f * updated - previous;
+      }
+    }
+  };
+  for (int iteration = 0; iteration < iterations; ++iteration) {
+    const double progress = static_cast<double>(iteration) / (iterations - 1);
+    const float theta =
+        static_cast<float>(theta_start * std::pow(theta_end / theta_start, progress));
+    const bool last = iteration + 1 == iterations;
+    rof_step(theta);
+    // Point-wise a: only hypotheses whose coupling cost stays below the
+    // cost range can win, which bounds the search window.
+    for (int pixel = 0; pixel < pixels; ++pixel) {
+      const float* c = cost + static_cast<size_t>(pixel) * L;
+      const float u = ws->u[pixel];
+      const float reach = std::sqrt(2.0f * theta * (ws->cost_max[pixel] - ws->cost_min[pixel]));
+      const float centre = (u - (*planes.base)[pixel]) * inv_step + planes.centre;
+      const int lo = std::max(0, static_cast<int>(std::floor(centre - reach * inv_step)));
+      const int hi = std::min(L - 1, static_cast<int>(std::ceil(centre + reach * inv_step)));
+      const float inv_two_theta = 0.5f / theta;
+      int best = std::min(std::max(static_cast<int>(std::lround(centre)), 0), L - 1);
+      float best_energy = std::numeric_limits<float>::infinity();
+      for (int i = lo; i <= hi; ++i) {
+        const float d = u - planes.U(pixel, i);
+        const float energy = d * d * inv_two_theta + c[i];
+        if (energy < best_energy) {
+          best_energy = energy;
+          best = i;
+        }
+      }
+      float a = planes.U(pixel, best);
+      if (last && best > 0 && best + 1 < L) {
+        // Sub-plane refinement: vertex of the parabola through the
+        // neighbouring total energies.
+        const float d_minus = u - planes.U(pixel, best - 1);
+        const float d_plus = u - planes.U(pixel, best + 1);
+        const float e_minus = d_minus * d_minus * inv_two_theta + c[best - 1];
+        const float e_plus = d_plus * d_plus * inv_two_theta + c[best + 1];
+        const float curvature = e_minus - 2.0f * best_energy + e_plus;
+        if (curvature > 1e-9f) {
+          const float shift = std::min(0.5f, std::max(-0.5f, 0.5f * (e_minus - e_plus) / curvature));
+          a += shift * planes.step;
+        }
+      }
+      ws->a[pixel] = a;
+    }
+  }
+  // A few ROF steps so that u settles on the refined a.
+  for (int iteration = 0; iteration < 10; ++iteration) rof_step(static_cast<float>(theta_end));
+}
+
+// Equal-blur image pairs for every frame and neighbour (the Psi_t o B_s and
+// Psi_s o B_t of eq:initializationScene) from scale-1 capture operators built
+// with the current depths. Psi_s o B_t is B_t blurred by s's blur: s's
+// exposure path is moved rigidly to t (same relative motion in the camera
+// frame: neighbour pose P_t P_s^-1 P_n(s), stamps shifted likewise), so t's
+// pixels are swept as s's were.
+void BuildBlurredPairs(const std::vector<cv::Mat>& images, const PinholeCamera& camera,
+                       const std::vector<FrameRecord>& frames, const std::vector<SE3>& T_world_cam,
+                       const std::vector<SE3>& T_world_mid, const std::vector<cv::Mat>& depth,
+                       const InitializerOptions& options, int threads,
+                       std::vector<std::vector<NeighbourImages>>* pairs) {
+  const int num_frames = static_cast<int>(images.size());
+  CaptureOperatorOptions capture_options;
+  capture_options.scale = 1;
+  capture_options.samples = options.capture_samples;
+  capture_options.reproject_depth = options.capture_reproject_depth;
+  capture_options.num_threads = threads;
+  CaptureOperatorBuilder builder(capture_options);
+  CaptureOperator op;
+  // The blur path of frame s: its own pose and its eq:interpolatingP neighbour.
+  auto path_neighbour = [&](int s) { return s > 0 ? s - 1 : std::min(1, num_frames - 1); };
+  // B_frame blurred with the exposure of `kernel_frame`, on frame's grid.
+  auto blur_with = [&](int frame, int kernel_frame, cv::Mat* out) {
+    const int n = path_neighbour(kernel_frame);
+    CaptureGeometry geometry;
+    geometry.camera_hr = camera;
+    geometry.depth_hr = depth[frame];
+    geometry.T_world_cam = T_world_cam[frame];
+    geometry.T_world_neighbour =
+        T_world_cam[frame] * T_world_cam[kernel_frame].Inverse() * T_world_cam[n];
+    geometry.stamp = frames[frame].stamp;
+    geometry.neighbour_stamp = frames[frame].stamp + (frames[n].stamp - frames[kernel_frame].stamp);
+    geometry.exposure = frames[kernel_frame].exposure;
+    builder.Build(geometry, &op);
+    op.Apply(images[frame], out);
+  };
+  // B_a through b's blur is the reference of the pair (a, b) and the source
+  // of (b, a): each is built once.
+  const int k = options.neighbours_per_side;
+  std::vector<std::vector<cv::Mat>> blurred(num_frames, std::vector<cv::Mat>(2 * k + 1));
+  if (options.blur_aware) {
+    for (int a = 0; a < num_frames; ++a) {
+      for (int b = std::max(0, a - k); b <= std::min(num_frames - 1, a + k); ++b) {
+        if (b != a) blur_with(a, b, &blurred[a][b - a + k]);
+      }
+    }
+  }
+  pairs->clear();
+  pairs->resize(num_frames);
+  for (int t = 0; t < num_frames; ++t) {
+    for (int s = t - k; s <= t + k; ++s) {
+      if (s < 0 || s >= num_frames || s == t) continue;
+      NeighbourImages neighbour;
+      neighbour.frame = s;
+      if (options.blur_aware) {
+        neighbour.reference = blurred[t][s - t + k];
+        neighbour.source = blurred[s][t - s + k];
+      } else {
+        neighbour.reference = images[t];
+        neighbour.source = images[s];
+      }
+      // Where a point of t's shutter-close grid appears in each image: at
+      // its blur centroid. In B_t that is its projection at mid-exposure,
+      // V = P_t A_t with A_t = P_t^-1 Q_t (Q: mid-exposure pose); the
+      // re-blur by s's path moves it on by A_s: V_t|s = P_t A_s A_t, and
+      // V_s|t = P_s A_t A_s for the source.
+      const SE3 A_t = T_world_cam[t].Inverse() * T_world_mid[t];
+      const SE3 A_s = T_world_cam[s].Inverse() * T_world_mid[s];
+      const SE3 T_world_ref = options.blur_aware ? T_world_cam[t] * A_s * A_t : T_world_mid[t];
+      const SE3 T_world_src = options.blur_aware ? T_world_cam[s] * A_t * A_s : T_world_mid[s];
+      neighbour.to_reference = std::make_unique<PixelTransferF>(
+          PixelTransfer(camera, T_world_ref.Inverse() * T_world_cam[t]));
+      neighbour.to_source = std::make_unique<PixelTransferF>(
+          PixelTransfer(camera, T_world_src.Inverse() * T_world_cam[t]));
+      (*pairs)[t].push_back(std::move(neighbour));
+    }
+  }
+}
+
+// Pyramid levels for the depth passes: up to `wanted`, the coarsest at least
+// 24 px on its shorter side.
+int PyramidLevels(int width, int height, int wanted) {
+  int levels = 1;
+  while (levels < wanted && (std::min(width, height) >> levels) >= 24) ++levels;
+  return levels;
+}
+
+// Depth (1 / rho) of a normalised inverse-depth map; NaN where rho <= 0.
+void InverseDepthToDepth(const std::vector<float>& u, int width, int height, double rho_min,
+                         double rho_max, cv::Mat* depth) {
+  depth->create(height, width, CV_32FC1);
+  for (int y = 0; y < height; ++y) {
+    float* row = depth->ptr<float>(y);
+    for (int x = 0; x < width; ++x) {
+      const double rho = rho_min + u[y * width + x] * (rho_max - rho_min);
+      row[x] = rho > 1e-12 ? static_cast<float>(1.0 / rho) : std::numeric_limits<float>::quiet_NaN();
+    }
+  }
+}
+
+// u of the previous (half-size) pass up-sampled to width x height: bilinear
+// with the pixel-centre rule of SPEC 3 (cv::resize follows it), the odd last
+// column / row replicated; *depth follows.
+void UpsampleInverseDepth(int width, int height, double rho_min, double rho_max,
+                          std::vector<float>* u, cv::Mat* depth) {
+  const int coarse_width = depth->cols;
+  const int coarse_height = depth->rows;
+  const cv::Mat coarse(coarse_height, coarse_width, CV_32FC1, u->data());
+  cv::Mat fine;
+  cv::resize(coarse, fine, cv::Size(2 * coarse_width, 2 * coarse_height), 0, 0, cv::INTER_LINEAR);
+  if (fine.cols != width || fine.rows != height) {
+    cv::copyMakeBorder(fine.clone(), fine, 0, height - fine.rows, 0, width - fine.cols,
+                       cv::BORDER_REPLICATE);
+  }
+  u->assign(fine.begin<float>(), fine.end<float>());
+  InverseDepthToDepth(*u, width, height, rho_min, rho_max, depth);
+}
+
+}  // namespace
+
+void InitializerOptions::Check() const {
+  auto fail = [](const std::string& field, const std::string& problem) {
+    throw InputError("initializer: " + field + " " + problem);
+  };
+  if (num_threads < 0) fail("num_threads", "must be >= 0, got " + std::to_string(num_threads));
+  if (max_features < 8) fail("max_features", "must be >= 8, got " + std::to_string(max_features));
+  if (!(feature_quality > 0.0 && feature_quality < 1.0)) {
+    fail("feature_quality", "must be in (0, 1)");
+  }
+  if (!(min_feature_distance_px >= 1.0)) fail("min_feature_distance_px", "must be >= 1");
+  if (feature_block_size < 3 || feature_block_size > 31) {
+    fail("feature_block_size", "must be in [3, 31]");
+  }
+  if (klt_window_radius_px < 2 || klt_window_radius_px > 32) {
+    fail("klt_window_radius_px", "must be in [2, 32]");
+  }
+  if (klt_levels < 1 || klt_levels > 6) fail("klt_levels", "must be in [1, 6]");
+  if (!(klt_max_residual > 0.0)) fail("klt_max_residual", "must be > 0");
+  if (!(max_forward_backward_px > 0.0)) fail("max_forward_backward_px", "must be > 0");
+  if (!(ransac_threshold_px > 0.0)) fail("ransac_threshold_px", "must be > 0");
+  if (!(ransac_confidence > 0.0 && ransac_confidence < 1.0)) {
+    fail("ransac_confidence", "must be in (0, 1)");
+  }
+  if (min_inliers < 8) fail("min_inliers", "must be >= 8, got " + std::to_string(min_inliers));
+  if (!(min_parallax_px >= 0.0)) fail("min_parallax_px", "must be >= 0");
+  if (!(min_rotation_free_parallax_px >= 0.0)) fail("min_rotation_free_parallax_px", "must be >= 0");
+  if (!(min_triangulation_parallax_px >= 0.0)) {
+    fail("min_triangulation_parallax_px", "must be >= 0");
+  }
+  if (!(pnp_threshold_px > 0.0)) fail("pnp_threshold_px", "must be > 0");
+  if (min_pnp_inliers < 6) fail("min_pnp_inliers", "must be >= 6");
+  if (!(ba_loss_px > 0.0)) fail("ba_loss_px", "must be > 0");
+  if (!(rotation_prior_px > 0.0)) fail("rotation_prior_px", "must be > 0");
+  if (ba_max_iterations < 0) fail("ba_max_iterations", "must be >= 0");
+  if (capture_samples < 1 || capture_samples > 1000) fail("capture_samples", "must be in [1, 1000]");
+  if (neighbours_per_side < 1 || neighbours_per_side > 5) {
+    fail("neighbours_per_side", "must be in [1, 5]");
+  }
+  if (num_planes < 4 || num_planes > 512) fail("num_planes", "must be in [4, 512]");
+  if (refine_planes < 3 || refine_planes > 256) fail("refine_planes", "must be in [3, 256]");
+  if (depth_levels < 1 || depth_levels > 5) fail("depth_levels", "must be in [1, 5]");
+  if (!(refine_band > 0.0)) fail("refine_band", "must be > 0");
+  if (patch_radius_px < 0 || patch_radius_px > 10) fail("patch_radius_px", "must be in [0, 10]");
+  if (!(cost_truncation > 0.0)) fail("cost_truncation", "must be > 0");
+  if (!(depth_range_margin >= 0.0)) fail("depth_range_margin", "must be >= 0");
+  if (!(depth_tv_weight >= 0.0)) fail("depth_tv_weight", "must be >= 0");
+  if (tv_iterations < 2) fail("tv_iterations", "must be >= 2");
+  if (!(theta_start > 0.0 && theta_end > 0.0 && theta_end <= theta_start)) {
+    fail("theta_start/theta_end", "must satisfy 0 < theta_end <= theta_start");
+  }
+  try {
+    edge_weight.Check();
+  } catch (const InputError& error) {
+    fail("edge_weight", std::string("invalid: ") + error.what());
+  }
+}
+
+namespace {
+
+InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images_lr,
+                                              const PinholeCamera& camera_lr,
+                                              const std::vector<FrameRecord>& frames,
+                                              const InitializerOptions& options) {
+  options.Check();
+  {
+    const std::string problem = camera_lr.Problem();
+    if (!problem.empty()) throw InputError("initializer: camera: " + problem);
+  }
+  const int num_frames = static_cast<int>(images_lr.size());
+  if (num_frames < 2) {
+    throw InputError("initializer: needs at least 2 frames, got " + std::to_string(num_frames));
+  }
+  if (frames.size() != images_lr.size()) {
+    throw InputError("initializer: " + std::to_string(frames.size()) + " frame records for " +
+                     std::to_string(num_frames) + " images");
+  }
+  for (int t = 0; t < num_frames; ++t) {
+    const cv::Mat& image = images_lr[t];
+    if (image.empty() || image.depth() != CV_32F ||
+        (image.channels() != 1 && image.channels() != 3) || image.cols != camera_lr.width ||
+        image.rows != camera_lr.height || image.channels() != images_lr[0].channels()) {
+      throw InputError("initializer: image " + std::to_string(t) + " must be float " +
+                       std::to_string(camera_lr.width) + "x" + std::to_string(camera_lr.height) +
+                       " with 1 or 3 channels, like image 0");
+    }
+    if (!(frames[t].exposure > 0.0) || (t > 0 && !(frames[t].stamp > frames[t - 1].stamp))) {
+      throw InputError("initializer: frame " + std::to_string(t) +
+                       ": stamps must increase and exposures be > 0");
+    }
+  }
+  if (camera_lr.width < 16 || camera_lr.height < 16) {
+    throw InputError("initializer: images must be at least 16x16");
+  }
+  const int threads = ResolveThreads(options.num_threads);
+  const int width = camera_lr.width;
+  const int height = camera_lr.height;
+  InitialStructure result;
+  std::ostringstream summary;
+  const double start_ms = NowMs();
+
+  // Continuous images (the capture operator reads them flat) and gray copies.
+  std::vector<cv::Mat> images(num_frames), gray(num_frames);
+  for (int t = 0; t < num_frames; ++t) {
+    images[t] = images_lr[t].isContinuous() ? images_lr[t] : images_lr[t].clone();
+    if (images[t].channels() == 3) {
+      cv::cvtColor(images[t], gray[t], cv::COLOR_BGR2GRAY);
+    } else {
+      gray[t] = images[t];
+    }
+  }
+
+  // 1. Tracks.
+  double stage_ms = NowMs();
+  TrackingResult tracking = TrackFeatures(gray, options, threads);
+  if (tracking.detected[0] < options.min_inliers) {
+    throw InitializationError("initialisation: only " + std::to_string(tracking.detected[0]) +
+                              " features found in frame 0 (need " +
+                              std::to_string(options.min_inliers) +
+                              "); is the image blank or untextured?");
+  }
+  summary << Format("tracking: %.0f tracks, %.0f in frame 0, %.0f followed into frame 1, %.0f into "
+                    "the last frame; %.1f ms\n",
+                    tracking.tracks.size(), tracking.detected[0], tracking.alive[1],
+                    tracking.alive[num_frames - 1], NowMs() - stage_ms);
+
+  // 2.-3. Frames 0-1, then every later frame by PnP, then all together.
+  stage_ms = NowMs();
+  SparseStructure structure;
+  structure.T_cam_world.assign(num_frames, SE3());
+  TwoViewInitialisation(camera_lr, options, threads, &tracking.tracks, &structure);
+  std::vector<char> has_pose(num_frames, 0);
+  has_pose[0] = has_pose[1] = 1;
+  for (int t = 2; t < num_frames; ++t) {
+    LocaliseFrame(camera_lr, options, t, tracking.tracks, &structure);
+    has_pose[t] = 1;
+    TriangulateNewPoints(camera_lr, options, t, has_pose, &tracking.tracks, &structure);
+  }
+  for (const std::string& line : structure.log) summary << line << "\n";
+  summary << Format("two-view + pnp: %.1f ms\n", NowMs() - stage_ms);
+  stage_ms = NowMs();
+  int observations = 0;
+  const double rms = BundleAdjust(camera_lr, options, threads, tracking.tracks, &structure,
+                                  &observations);
+  summary << Format("bundle adjustment: %.0f points, %.0f observations, rms %.3f px; %.1f ms\n",
+                    structure.points_world.size(), observations, rms, NowMs() - stage_ms);
+  // The tracks follow the blurred patterns, i.e. the blur centroids: the
+  // poses so far are those of mid-exposure, t_c - exposure / 2 (exact for
+  // motion that is linear in the image over an exposure). The output poses
+  // are at the shutter close t_c (SPEC 3, the stamps): each is moved along
+  // the geodesic through the neighbouring mid-exposure poses
+  // (eq:interpolatingP, extrapolated by half an exposure; frame 0 uses frames
+  // 0-1). World = camera 0 at t_c, |c1 - c0| = 1 (exact, re-applied here).
+  std::vector<SE3> T_world_mid(num_frames);
+  for (int t = 0; t < num_frames; ++t) T_world_mid[t] = structure.T_cam_world[t].Inverse();
+  result.T_world_cam.resize(num_frames);
+  for (int t = 0; t < num_frames; ++t) {
+    const int a = t > 0 ? t - 1 : 0;
+    const int b = t > 0 ? t : 1;
+    const double mid_a = frames[a].stamp - 0.5 * frames[a].exposure;
+    const double mid_b = frames[b].stamp - 0.5 * frames[b].exposure;
+    const double alpha = (frames[t].stamp - mid_a) / (mid_b - mid_a);
+    result.T_world_cam[t] = InterpolatePose(T_world_mid[a], T_world_mid[b], alpha);
+  }
+  {
+    const SE3 T_new_old = result.T_world_cam[0].Inverse();
+    const double baseline =
+        (result.T_world_cam[1].translation() - result.T_world_cam[0].translation()).norm();
+    if (!(baseline > 1e-9)) {
+      throw InitializationError("initialisation: frames 0-1 collapsed onto one centre "
+                                "(degenerate geometry)");
+    }
+    auto normalise = [&](const SE3& T_old_cam) {
+      const SE3 T = T_new_old * T_old_cam;
+      return SE3(T.rotation(), T.translation() / baseline);
+    };
+    for (int t = 0; t < num_frames; ++t) {
+      result.T_world_cam[t] = normalise(result.T_world_cam[t]);
+      T_world_mid[t] = normalise(T_world_mid[t]);
+    }
+    for (auto& point : structure.points_world) point = (T_new_old * point) / baseline;
+  }
+  summary << Format("poses moved from mid-exposure to shutter close: %.3f (frame 0), %.3f (last) "
+                    "baselines\n",
+                    (T_world_mid[0].translation() - result.T_world_cam[0].translation()).norm(),
+                    (T_world_mid[num_frames - 1].translation() -
+                     result.T_world_cam[num_frames - 1].translation())
+                        .norm());
+
+  // 4. Depths. Inverse-depth range per frame from the points it sees.
+  std::vector<double> rho_min(num_frames), rho_max(num_frames), median_depth(num_frames);
+  {
+    std::vector<double> all_depths;
+    std::vector<std::vector<double>> frame_depths(num_frames);
+    for (const Track& track : tracking.tracks) {
+      if (track.point_id < 0 || !structure.point_inlier[track.point_id]) continue;
+      for (int f = track.first_frame; f <= track.LastFrame(); ++f) {
+        const double z =
+            (result.T_world_cam[f].Inverse() * structure.points_world[track.point_id]).z();
+        if (z > 0.0) {
+          frame_depths[f].push_back(z);
+          all_depths.push_back(z);
+        }
+      }
+    }
+    if (all_depths.size() < 8) {
+      throw InitializationError("initialisation: too few triangulated points in front of the "
+                                "cameras (degenerate geometry)");
+    }
+    for (int t = 0; t < num_frames; ++t) {
+      const std::vector<double>& depths =
+          frame_depths[t].size() >= 8 ? frame_depths[t] : all_depths;
+      const double near = Percentile(depths, 0.02);
+      const double far = Percentile(depths, 0.98);
+      median_depth[t] = Median(depths);
+      const double rho_near = 1.0 / near, rho_far = 1.0 / far;
+      // At least +-10 % of the median: a near-planar scene still gets a range.
+      const double margin = std::max(options.depth_range_margin * (rho_near - rho_far),
+                                     0.1 / median_depth[t]);
+      rho_max[t] = rho_near + margin;
+      rho_min[t] = std::max(rho_far - margin, 0.5 * rho_far);
+    }
+  }
+  // Coarse to fine over an image pyramid: pass 0 sweeps the whole range on
+  // the coarsest level (global, so no local minima to escape), each finer pass
+  // re-builds the blur operators with the depths so far (Psi depends on D_t)
+  // and sweeps a narrow band around the up-sampled estimate.
+  const int num_levels = PyramidLevels(width, height, options.depth_levels);
+  std::vector<std::vector<float>> u(num_frames);  // normalised inverse depth
+  std::vector<cv::Mat> depth(num_frames);
+  double blur_ms = 0.0, sweep_ms = 0.0, cost_thread_ms = 0.0, tv_thread_ms = 0.0;
+  std::vector<std::vector<NeighbourImages>> pairs;
+  std::vector<DepthWorkspace> workspaces(threads);
+  double span = 1.0;  // u-range covered by a pass's hypotheses
+  for (int level = 0; level < num_levels; ++level) {
+    const int factor = 1 << (num_levels - 1 - level);
+    const int level_width = width / factor;
+    const int level_height = height / factor;
+    const PinholeCamera level_camera =
+        PinholeCamera(level_width * factor, level_height * factor, camera_lr.fx, camera_lr.fy,
+                      camera_lr.cx, camera_lr.cy)
+            .Downscaled(factor);
+    std::vector<cv::Mat> level_images(num_frames), edge_weight(num_frames);
+    for (int t = 0; t < num_frames; ++t) {
+      const cv::Mat cropped = images[t](cv::Rect(0, 0, level_width * factor, level_height * factor));
+      level_images[t] = factor == 1 ? images[t] : DownsampleBox(cropped.clone(), factor);
+      edge_weight[t] = EdgeWeight(level_images[t], options.edge_weight);
+      if (level == 0) {
+        u[t].clear();
+        depth[t] = cv::Mat(level_height, level_width, CV_32FC1,
+                           cv::Scalar(static_cast<float>(median_depth[t])));
+      } else {
+        UpsampleInverseDepth(level_width, level_height, rho_min[t], rho_max[t], &u[t], &depth[t]);
+      }
+    }
+    stage_ms = NowMs();
+    BuildBlurredPairs(level_images, level_camera, frames, result.T_world_cam, T_world_mid, depth,
+                      options, threads, &pairs);
+    blur_ms += NowMs() - stage_ms;
+    stage_ms = NowMs();
+    if (level > 0) {
+      span = 2.0 * options.refine_band * span /
+             ((level == 1 ? options.num_planes : options.refine_planes) - 1);
+    }
+    const std::vector<float> zero_base(static_cast<size_t>(level_width) * level_height, 0.0f);
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
+    for (int t = 0; t < num_frames; ++t) {
+      DepthWorkspace& ws = workspaces[omp_get_thread_num()];
+      PlaneSet planes;
+      planes.rho_min = rho_min[t];
+      planes.rho_max = rho_max[t];
+      if (level == 0) {
+        planes.planes = options.num_planes;
+        planes.centre = 0.0f;
+        planes.step = 1.0f / (options.num_planes - 1);
+        planes.base = &zero_base;
+      } else {
+        planes.planes = options.refine_planes;
+        planes.centre = 0.5f * (options.refine_planes - 1);
+        planes.step = static_cast<float>(span / (options.refine_planes - 1));
+        planes.base = &u[t];
+      }
+      const double sweep_start = NowMs();
+      ComputeCostVolume(pairs[t], planes, options, level_width, level_height, &ws);
+      const double tv_start = NowMs();
+      SolveTvL1(planes, edge_weight[t], options, level_width, level_height,
+                options.theta_start * span * span, options.theta_end * span * span,
+                level == 0 ? nullptr : &u[t], &ws);
+      const double tv_end = NowMs();
+#pragma omp critical(initializer_timers)
+      {
+        cost_thread_ms += tv_start - sweep_start;
+        tv_thread_ms += tv_end - tv_start;
+      }
+      u[t] = ws.u;
+      InverseDepthToDepth(u[t], level_width, level_height, rho_min[t], rho_max[t], &depth[t]);
+    }
+    sweep_ms += NowMs() - stage_ms;
+    summary << Format("depth pass %.0f: %.0fx%.0f px, %.0f hypotheses over %.4f of the inverse-depth "
+                      "range\n",
+                      level, level_width, level_height,
+                      level == 0 ? options.num_planes : options.refine_planes, span);
+  }
+  // The finest pass may have dropped an odd last column / row: replicate.
+  for (int t = 0; t < num_frames; ++t) {
+    if (depth[t].cols != width || depth[t].rows != height) {
+      cv::copyMakeBorder(depth[t].clone(), depth[t], 0, height - depth[t].rows, 0,
+                         width - depth[t].cols, cv::BORDER_REPLICATE);
+    }
+  }
+  summary << Format("depth: blur-aware pairs %.1f ms, sweep + TV-L1 %.1f ms (thread time: cost "
+                    "volumes %.1f ms, TV-L1 %.1f ms)\n",
+                    blur_ms, sweep_ms, cost_thread_ms, tv_thread_ms);
+  summary << Format("total: %.1f ms", NowMs() - start_ms);
+  result.depth_lr = depth;
+  result.summary = summary.str();
+  return result;
+}
+
+}  // namespace
+
+InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr,
+                                     const PinholeCamera& camera_lr,
+                                     const std::vector<FrameRecord>& frames,
+                                     const InitializerOptions& options) {
+  try {
+    return InitializeStructureUnguarded(images_lr, camera_lr, frames, options);
+  } catch (const cv::Exception& error) {
+    // OpenCV's geometry routines assert on degenerate input the checks above
+    // did not foresee: report it as a failed initialisation, in one line.
+    std::string message = error.err.empty() ? std::string(error.what()) : error.err;
+    std::replace(message.begin(), message.end(), '\n', ' ');
+    throw InitializationError("initialisation: degenerate geometry (OpenCV: " + message + ")");
+  }
+}
+
+}  // namespace deblur_sr_mvs

@@ -1,0 +1,602 @@
+#include "deblur_sr_mvs/core/estimation/structure_update.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <cmath>
+
+#include <Eigen/Dense>
+#include <opencv2/imgproc.hpp>
+
+#include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/estimation/image_update.h"
+
+namespace deblur_sr_mvs {
+namespace {
+
+// Central-difference gradients of a C-channel float image (one-sided at the border).
+void Gradients(const cv::Mat& image, cv::Mat* gx, cv::Mat* gy) {
+  const int channels = image.channels();
+  gx->create(image.size(), image.type());
+  gy->create(image.size(), image.type());
+  const int w = image.cols, h = image.rows;
+  for (int y = 0; y < h; ++y) {
+    const float* row = image.ptr<float>(y);
+    const float* up = image.ptr<float>(std::max(y - 1, 0));
+    const float* down = image.ptr<float>(std::min(y + 1, h - 1));
+    const float y_scale = (y == 0 || y == h - 1) ? 1.0f : 0.5f;
+    float* ox = gx->ptr<float>(y);
+    float* oy = gy->ptr<float>(y);
+    for (int x = 0; x < w; ++x) {
+      const int left = std::max(x - 1, 0), right = std::min(x + 1, w - 1);
+      const float x_scale = (x == 0 || x == w - 1) ? 1.0f : 0.5f;
+      for (int c = 0; c < channels; ++c) {
+        ox[x * channels + c] = x_scale * (row[right * channels + c] - row[left * channels + c]);
+        oy[x * channels + c] = y_scale * (down[x * channels + c] - up[x * channels + c]);
+      }
+    }
+  }
+}
+
+// Bilinear read of C channels at (u, v), which must lie in [0, w-1] x [0, h-1].
+inline void SampleBilinear(const cv::Mat& image, float u, float v, float* out) {
+  const int channels = image.channels();
+  const int x0 = std::min(static_cast<int>(u), image.cols - 2);
+  const int y0 = std::min(static_cast<int>(v), image.rows - 2);
+  const float fx = u - x0, fy = v - y0;
+  const float* a = image.ptr<float>(y0) + x0 * channels;
+  const float* b = image.ptr<float>(y0 + 1) + x0 * channels;
+  for (int c = 0; c < channels; ++c) {
+    const float top = a[c] + fx * (a[c + channels] - a[c]);
+    const float bottom = b[c] + fx * (b[c + channels] - b[c]);
+    out[c] = top + fy * (bottom - top);
+  }
+}
+
+// Per-element IRLS weights of an L1 residual: 1 / max(|r|, eps) inside mask.
+void L1Weights(const cv::Mat& residual, const cv::Mat& mask, double epsilon, cv::Mat* weights) {
+  const int channels = residual.channels();
+  weights->create(residual.size(), residual.type());
+  for (int y = 0; y < residual.rows; ++y) {
+    const float* r = residual.ptr<float>(y);
+    const uchar* m = mask.empty() ? nullptr : mask.ptr<uchar>(y);
+    float* w = weights->ptr<float>(y);
+    for (int x = 0; x < residual.cols; ++x) {
+      const bool used = m == nullptr || m[x] != 0;
+      for (int c = 0; c < channels; ++c) {
+        const int i = x * channels + c;
+        w[i] = used ? static_cast<float>(1.0 / std::max<double>(std::abs(r[i]), epsilon)) : 0.0f;
+      }
+    }
+  }
+}
+
+// Mask on the observation grid: the pair's mask and, for LR observations,
+// only pixels whose whole HR footprint warped validly.
+cv::Mat ObservationMask(const PairMatching& pair, const cv::Mat& valid_hr) {
+  cv::Mat valid = valid_hr;
+  if (pair.blur != nullptr) valid = DownscaleMaskAll(valid_hr, valid_hr.cols / pair.blur->lr_size().width);
+  if (pair.mask.empty()) return valid;
+  cv::Mat combined;
+  cv::bitwise_and(valid, pair.mask, combined);
+  return combined;
+}
+
+// Predicted observation of a warped HR image: Psi * image, or the image itself.
+void Predict(const PairMatching& pair, const cv::Mat& hr, cv::Mat* out) {
+  if (pair.blur != nullptr) {
+    pair.blur->Apply(hr, out);
+  } else {
+    hr.copyTo(*out);
+  }
+}
+void PredictAdjoint(const PairMatching& pair, const cv::Mat& observation_grid, cv::Mat* out) {
+  if (pair.blur != nullptr) {
+    pair.blur->ApplyAdjoint(observation_grid, out);
+  } else {
+    observation_grid.copyTo(*out);
+  }
+}
+
+double Dot1(const cv::Mat& a, const cv::Mat& b) {
+  double sum = 0.0;
+  const float* pa = a.ptr<float>();
+  const float* pb = b.ptr<float>();
+  const size_t n = a.total() * a.channels();
+  for (size_t i = 0; i < n; ++i) sum += static_cast<double>(pa[i]) * pb[i];
+  return sum;
+}
+
+// Box down-sampling (the capture operator's last step) and its adjoint.
+void BoxDown(const cv::Mat& hr, int scale, cv::Mat* lr) {
+  cv::resize(hr, *lr, cv::Size(hr.cols / scale, hr.rows / scale), 0, 0, cv::INTER_AREA);
+}
+void BoxAdjoint(const cv::Mat& lr, int scale, cv::Mat* hr) {
+  cv::resize(lr, *hr, cv::Size(lr.cols * scale, lr.rows * scale), 0, 0, cv::INTER_NEAREST);
+  *hr *= 1.0 / (scale * scale);
+}
+
+// out[i] = sum_c g[i, c] * in[i, c] (a C-channel image against its Jacobian).
+void ContractChannels(const cv::Mat& g, const cv::Mat& in, cv::Mat* out, bool accumulate) {
+  const int channels = g.channels();
+  const int n = static_cast<int>(g.total());
+  const float* pg = g.ptr<float>();
+  const float* pi = in.ptr<float>();
+  float* po = out->ptr<float>();
+  for (int i = 0; i < n; ++i) {
+    float acc = 0.0f;
+    for (int c = 0; c < channels; ++c) acc += pg[i * channels + c] * pi[i * channels + c];
+    po[i] = accumulate ? po[i] + acc : acc;
+  }
+}
+// out[i, c] = g[i, c] * in[i].
+void ExpandChannels(const cv::Mat& g, const cv::Mat& in, cv::Mat* out) {
+  const int channels = g.channels();
+  const int n = static_cast<int>(g.total());
+  out->create(g.size(), g.type());
+  const float* pg = g.ptr<float>();
+  const float* pi = in.ptr<float>();
+  float* po = out->ptr<float>();
+  for (int i = 0; i < n; ++i) {
+    for (int c = 0; c < channels; ++c) po[i * channels + c] = pg[i * channels + c] * pi[i];
+  }
+}
+
+// The warp W^{t->s} of eq:warpingFunction for one pair of poses, per pixel.
+class PairWarp {
+ public:
+  PairWarp(const PinholeCamera& camera, const SE3& T_world_t, const SE3& T_world_s)
+      : camera_(camera), T_world_t_(T_world_t), T_s_world_(T_world_s.Inverse()) {
+    const SE3 T_s_t = T_s_world_ * T_world_t;
+    const Eigen::Matrix3d k = camera.K();
+    h_ = k * T_s_t.rotation() * k.inverse();
+    kt_ = k * T_s_t.translation();
+    max_u_ = camera.width - 1.0;
+    max_v_ = camera.height - 1.0;
+  }
+  // (u, v) in s of pixel (x, y) of t at inverse depth rho and d(u, v)/d rho;
+  // false when rho is unusable or the point falls behind or outside s.
+  bool Project(int x, int y, double rho, double* u, double* v, double* du, double* dv) const {
+    if (!(rho > 0.0) || !std::isfinite(rho)) return false;
+    // q ~ K X_s scaled by rho: q = H [x y 1] + rho K t.
+    const Eigen::Vector3d q = h_ * Eigen::Vector3d(x, y, 1.0) + rho * kt_;
+    if (!(q.z() > 1e-9)) return false;
+    *u = q.x() / q.z();
+    *v = q.y() / q.z();
+    if (*u < 0.0 || *v < 0.0 || *u > max_u_ || *v > max_v_) return false;
+    *du = (kt_.x() - *u * kt_.z()) / q.z();
+    *dv = (kt_.y() - *v * kt_.z()) / q.z();
+    return true;
+  }
+  // d(u, v)/d eps_t for P_t = exp(eps_t) P_t0 (d/d eps_s is minus it):
+  // X_w = P_t X_t, X_s = R_s^T (X_w - c_s), d X_s / d eps_t = R_s^T [I, -[X_w]x].
+  Eigen::Matrix<double, 2, 6> DPixelDPose(int x, int y, double rho) const {
+    const Eigen::Vector3d point_w = T_world_t_ * (camera_.Ray(x, y) / rho);
+    const Eigen::Vector3d point_s = T_s_world_ * point_w;
+    const double z = point_s.z();
+    Eigen::Matrix<double, 2, 3> d_pixel;
+    d_pixel << camera_.fx / z, 0.0, -camera_.fx * point_s.x() / (z * z), 0.0, camera_.fy / z,
+        -camera_.fy * point_s.y() / (z * z);
+    return d_pixel * T_s_world_.rotation() * DLeftPerturbedPointDEps(point_w);
+  }
+
+ private:
+  PinholeCamera camera_;
+  SE3 T_world_t_, T_s_world_;
+  Eigen::Matrix3d h_;
+  Eigen::Vector3d kt_;
+  double max_u_ = 0.0, max_v_ = 0.0;
+};
+
+}  // namespace
+
+cv::Mat BlurDerivativeWrtInverseDepth(const CaptureGeometry& geometry, int samples,
+                                      const cv::Mat& inverse_depth, const cv::Mat& latent,
+                                      int max_samples) {
+  const PinholeCamera& camera = geometry.camera_hr;
+  const int channels = latent.channels();
+  cv::Mat derivative = cv::Mat::zeros(latent.size(), latent.type());
+  const std::vector<SE3> T_world_tau = VirtualCameraPoses(geometry, samples);
+  const int step = std::max(1, samples / std::max(1, max_samples));
+  std::vector<int> used;
+  for (int m = samples - 1; m >= 0; m -= step) used.push_back(m);
+  cv::Mat gx, gy;
+  Gradients(latent, &gx, &gy);
+  const Eigen::Matrix3d k = camera.K();
+  const Eigen::Matrix3d k_inv = k.inverse();
+  const float weight = 1.0f / used.size();
+  const double max_u = camera.width - 1.0, max_v = camera.height - 1.0;
+  for (int m : used) {
+    const SE3 T_t_tau = geometry.T_world_cam.Inverse() * T_world_tau[m];
+    const Eigen::Matrix3d h = k * T_t_tau.rotation() * k_inv;
+    const Eigen::Vector3d kt = k * T_t_tau.translation();
+#pragma omp parallel for schedule(static)
+    for (int y = 0; y < camera.height; ++y) {
+      const float* rho_row = inverse_depth.ptr<float>(y);
+      float* out = derivative.ptr<float>(y);
+      std::vector<float> grad_x(channels), grad_y(channels);
+      for (int x = 0; x < camera.width; ++x) {
+        const double rho = rho_row[x];
+        if (!(rho > 0.0)) continue;
+        const Eigen::Vector3d q = h * Eigen::Vector3d(x, y, 1.0) + rho * kt;
+        if (!(q.z() > 1e-9)) continue;
+        const double u = std::clamp(q.x() / q.z(), 0.0, max_u);
+        const double v = std::clamp(q.y() / q.z(), 0.0, max_v);
+        SampleBilinear(gx, static_cast<float>(u), static_cast<float>(v), grad_x.data());
+        SampleBilinear(gy, static_cast<float>(u), static_cast<float>(v), grad_y.data());
+        const double du = (kt.x() - u * kt.z()) / q.z();
+        const double dv = (kt.y() - v * kt.z()) / q.z();
+        for (int c = 0; c < channels; ++c) {
+          out[x * channels + c] += weight * static_cast<float>(grad_x[c] * du + grad_y[c] * dv);
+        }
+      }
+    }
+  }
+  return derivative;
+}
+
+void StructureUpdateOptions::Check() const {
+  if (!(lambda_d >= 0.0)) throw InputError("structure update: lambda_d must be >= 0");
+  if (pose_pixel_stride < 1 || pose_pixel_stride > 8) throw InputError("structure update: pose_pixel_stride must be in [1, 8]");
+  if (depth_irls_iterations < 0 || depth_cg_iterations < 1 || pose_iterations < 0) {
+    throw InputError("structure update: iteration counts must be >= 0 (CG >= 1)");
+  }
+  if (!(residual_epsilon > 0.0) || !(tv_epsilon > 0.0) || !(depth_damping >= 0.0) ||
+      !(pose_damping >= 0.0)) {
+    throw InputError("structure update: epsilons must be > 0 and dampings >= 0");
+  }
+  edge_weight.Check();
+}
+
+WarpLinearization LinearizeWarp(const PinholeCamera& camera_hr, const cv::Mat& inverse_depth_t,
+                                const SE3& T_world_t, const SE3& T_world_s,
+                                const cv::Mat& latent_s, std::vector<cv::Mat>* pose_jacobians) {
+  const int channels = latent_s.channels();
+  const int width = camera_hr.width, height = camera_hr.height;
+  WarpLinearization lin;
+  lin.warped = cv::Mat::zeros(height, width, latent_s.type());
+  lin.d_inverse_depth = cv::Mat::zeros(height, width, latent_s.type());
+  lin.valid = cv::Mat::zeros(height, width, CV_8UC1);
+  if (pose_jacobians != nullptr) {
+    pose_jacobians->assign(6, cv::Mat());
+    for (cv::Mat& j : *pose_jacobians) j = cv::Mat::zeros(height, width, latent_s.type());
+  }
+  cv::Mat gx, gy;
+  Gradients(latent_s, &gx, &gy);
+  const PairWarp warp(camera_hr, T_world_t, T_world_s);
+#pragma omp parallel for schedule(static)
+  for (int y = 0; y < height; ++y) {
+    const float* rho_row = inverse_depth_t.ptr<float>(y);
+    std::vector<float> value(channels), grad_x(channels), grad_y(channels);
+    for (int x = 0; x < width; ++x) {
+      double u, v, du, dv;
+      if (!warp.Project(x, y, rho_row[x], &u, &v, &du, &dv)) continue;
+      lin.valid.at<uchar>(y, x) = 255;
+      SampleBilinear(latent_s, static_cast<float>(u), static_cast<float>(v), value.data());
+      SampleBilinear(gx, static_cast<float>(u), static_cast<float>(v), grad_x.data());
+      SampleBilinear(gy, static_cast<float>(u), static_cast<float>(v), grad_y.data());
+      float* warped = lin.warped.ptr<float>(y) + x * channels;
+      float* d_rho = lin.d_inverse_depth.ptr<float>(y) + x * channels;
+      for (int c = 0; c < channels; ++c) {
+        warped[c] = value[c];
+        d_rho[c] = static_cast<float>(grad_x[c] * du + grad_y[c] * dv);
+      }
+      if (pose_jacobians == nullptr) continue;
+      const Eigen::Matrix<double, 2, 6> d_pixel_d_eps = warp.DPixelDPose(x, y, rho_row[x]);
+      for (int j = 0; j < 6; ++j) {
+        float* out = (*pose_jacobians)[j].ptr<float>(y) + x * channels;
+        for (int c = 0; c < channels; ++c) {
+          out[c] = static_cast<float>(grad_x[c] * d_pixel_d_eps(0, j) + grad_y[c] * d_pixel_d_eps(1, j));
+        }
+      }
+    }
+  }
+  return lin;
+}
+
+void UpdateDepth(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world_cam,
+                 const std::vector<cv::Mat>& latents, const std::vector<PairMatching>& pairs,
+                 const SelfConsistencyLinearization* self, const cv::Mat& edge_weight,
+                 double parallax_scale, const StructureUpdateOptions& options,
+                 cv::Mat* inverse_depth) {
+  options.Check();
+  if (pairs.empty() && self == nullptr) return;
+  const int width = camera_hr.width, height = camera_hr.height;
+  const int n = width * height;
+  const double c2 = parallax_scale * parallax_scale;
+  struct PairState {
+    WarpLinearization lin;
+    cv::Mat weight;  // observation grid, C channels
+    cv::Mat residual;
+  };
+  std::vector<PairState> states(pairs.size());
+  cv::Mat tv_weight(height, width, CV_32FC1), rhs(height, width, CV_32FC1);
+  cv::Mat step(height, width, CV_32FC1), r(height, width, CV_32FC1), d(height, width, CV_32FC1),
+      nd(height, width, CV_32FC1), nd_self(height, width, CV_32FC1);
+  cv::Mat expanded, predicted, back;
+  double damping = 0.0;
+  // Self term: weights and the inverse-depth change since it was linearised.
+  cv::Mat self_weight, self_residual;
+  cv::Mat moved = cv::Mat::zeros(height, width, CV_32FC1);
+
+  // out = sum_p G_p^T Psi^T W Psi (G_p .* in) + lambda c^2 L_v in + damping * in
+  // HR pairs (no capture operator) act pixel by pixel: their part of the
+  // normal matrix is the diagonal sum_p sum_c w g^2, formed once per
+  // reweighting instead of applied pair by pair in every CG step.
+  cv::Mat hr_diagonal(height, width, CV_32FC1), squared;
+  auto apply_normal = [&](const cv::Mat& in, cv::Mat* out) {
+    cv::multiply(hr_diagonal, in, *out);
+    for (size_t p = 0; p < pairs.size(); ++p) {
+      if (pairs[p].blur == nullptr) continue;
+      ExpandChannels(states[p].lin.d_inverse_depth, in, &expanded);
+      Predict(pairs[p], expanded, &predicted);
+      cv::multiply(predicted, states[p].weight, predicted);
+      PredictAdjoint(pairs[p], predicted, &back);
+      ContractChannels(states[p].lin.d_inverse_depth, back, out, true);
+    }
+    if (self != nullptr) {
+      ExpandChannels(self->derivative, in, &expanded);
+      BoxDown(expanded, self->scale, &predicted);
+      cv::multiply(predicted, self_weight, predicted);
+      BoxAdjoint(predicted, self->scale, &back);
+      ContractChannels(self->derivative, back, &nd_self, false);
+      cv::scaleAdd(nd_self, self->weight, *out, *out);
+    }
+    AddWeightedLaplacian(in, tv_weight, options.lambda_d * c2, out, 1);
+    cv::scaleAdd(in, damping, *out, *out);
+  };
+
+  for (int irls = 0; irls < options.depth_irls_iterations; ++irls) {
+    // Linearise every pair at the current depth (eq:taylorExpansion).
+    double diagonal_sum = 0.0;
+    for (size_t p = 0; p < pairs.size(); ++p) {
+      const PairMatching& pair = pairs[p];
+      PairState& state = states[p];
+      state.lin = LinearizeWarp(camera_hr, *inverse_depth, T_world_cam[pair.t], T_world_cam[pair.s],
+                                pair.source != nullptr ? *pair.source : latents[pair.s], nullptr);
+      Predict(pair, state.lin.warped, &predicted);
+      state.residual = *pair.observation - predicted;
+      L1Weights(state.residual, ObservationMask(pair, state.lin.valid), options.residual_epsilon,
+                &state.weight);
+      diagonal_sum += Dot1(state.lin.d_inverse_depth, state.lin.d_inverse_depth) *
+                      cv::mean(state.weight)[0] / std::max(1, state.weight.channels());
+    }
+    if (self != nullptr) {
+      // r = (B - Psi I) - Box(h .* moved): the linear model since linearisation.
+      ExpandChannels(self->derivative, moved, &expanded);
+      BoxDown(expanded, self->scale, &predicted);
+      self_residual = *self->observation - self->predicted - predicted;
+      L1Weights(self_residual, cv::Mat(), options.residual_epsilon, &self_weight);
+      diagonal_sum += self->weight * Dot1(self->derivative, self->derivative) *
+                      cv::mean(self_weight)[0] / (self->scale * self->scale);
+    }
+    damping = options.depth_damping * diagonal_sum / n + 1e-12;
+    hr_diagonal.setTo(0.0);
+    for (size_t p = 0; p < pairs.size(); ++p) {
+      if (pairs[p].blur != nullptr) continue;
+      cv::multiply(states[p].lin.d_inverse_depth, states[p].weight, squared);
+      ContractChannels(states[p].lin.d_inverse_depth, squared, &hr_diagonal, true);
+    }
+    // TV weights v = g / max(|grad (c rho)|, eps) (eq:regularizingTerm with g_t).
+    const float* rho = inverse_depth->ptr<float>();
+    for (int yy = 0; yy < height; ++yy) {
+      for (int xx = 0; xx < width; ++xx) {
+        const int i = yy * width + xx;
+        const float gxv = xx + 1 < width ? rho[i + 1] - rho[i] : 0.0f;
+        const float gyv = yy + 1 < height ? rho[i + width] - rho[i] : 0.0f;
+        const double magnitude = parallax_scale * std::sqrt(gxv * gxv + gyv * gyv);
+        const float g = edge_weight.empty() ? 1.0f : edge_weight.ptr<float>()[i];
+        tv_weight.ptr<float>()[i] = static_cast<float>(g / std::max(magnitude, options.tv_epsilon));
+      }
+    }
+    // rhs = sum_p G^T Psi^T W r0 - lambda c^2 L_v rho (without damping).
+    rhs.setTo(0.0);
+    for (size_t p = 0; p < pairs.size(); ++p) {
+      cv::multiply(states[p].residual, states[p].weight, predicted);
+      PredictAdjoint(pairs[p], predicted, &back);
+      ContractChannels(states[p].lin.d_inverse_depth, back, &rhs, true);
+    }
+    if (self != nullptr) {
+      cv::multiply(self_residual, self_weight, predicted);
+      BoxAdjoint(predicted, self->scale, &back);
+      ContractChannels(self->derivative, back, &nd_self, false);
+      cv::scaleAdd(nd_self, self->weight, rhs, rhs);
+    }
+    AddWeightedLaplacian(*inverse_depth, tv_weight, -options.lambda_d * c2, &rhs, 1);
+    // CG on the normal equations from a zero step.
+    step.setTo(0.0);
+    rhs.copyTo(r);
+    r.copyTo(d);
+    double rr = Dot1(r, r);
+    const double rr0 = rr;
+    for (int it = 0; it < options.depth_cg_iterations && rr > 1e-14 * rr0 && rr > 0.0; ++it) {
+      apply_normal(d, &nd);
+      const double dnd = Dot1(d, nd);
+      if (!(dnd > 0.0)) break;
+      const double alpha = rr / dnd;
+      cv::scaleAdd(d, alpha, step, step);
+      cv::scaleAdd(nd, -alpha, r, r);
+      const double rr_next = Dot1(r, r);
+      cv::scaleAdd(d, rr_next / rr, r, d);
+      rr = rr_next;
+    }
+    // Keep inverse depth positive: a step may not shrink it below a quarter.
+    float* rho_out = inverse_depth->ptr<float>();
+    const float* delta = step.ptr<float>();
+    float* moved_out = moved.ptr<float>();
+    for (int i = 0; i < n; ++i) {
+      if (!(rho_out[i] > 0.0f)) continue;
+      const float updated = std::max(rho_out[i] + delta[i], 0.25f * rho_out[i]);
+      moved_out[i] += updated - rho_out[i];
+      rho_out[i] = updated;
+    }
+  }
+}
+
+namespace {
+
+// A^T W A and A^T W r0 of one pair for the pose update, where
+// r(eps) = r0 - A (eps_t - eps_s) and W holds the IRLS weights of r0.
+struct PairNormalEquations {
+  Eigen::Matrix<double, 6, 6> block = Eigen::Matrix<double, 6, 6>::Zero();
+  Eigen::Matrix<double, 6, 1> rhs = Eigen::Matrix<double, 6, 1>::Zero();
+};
+
+// An HR pair pixel by pixel, without intermediate images: I_t against
+// I_s(W^{t->s}) with the gradients of I_s given.
+PairNormalEquations HrPairNormalEquations(const PinholeCamera& camera_hr, const cv::Mat& inverse_depth_t,
+                                          const SE3& T_world_t, const SE3& T_world_s, const cv::Mat& source,
+                                          const cv::Mat& source_gx, const cv::Mat& source_gy,
+                                          const cv::Mat& observation, const cv::Mat& mask, double epsilon,
+                                          int stride) {
+  const int channels = source.channels();
+  const PairWarp warp(camera_hr, T_world_t, T_world_s);
+  PairNormalEquations eq;
+  std::vector<float> value(channels), grad_x(channels), grad_y(channels);
+  for (int y = 0; y < camera_hr.height; y += stride) {
+    const float* rho_row = inverse_depth_t.ptr<float>(y);
+    const float* observed = observation.ptr<float>(y);
+    const uchar* mask_row = mask.empty() ? nullptr : mask.ptr<uchar>(y);
+    for (int x = (y / stride) % stride; x < camera_hr.width; x += stride) {
+      if (mask_row != nullptr && mask_row[x] == 0) continue;
+      double u, v, du, dv;
+      if (!warp.Project(x, y, rho_row[x], &u, &v, &du, &dv)) continue;
+      SampleBilinear(source, static_cast<float>(u), static_cast<float>(v), value.data());
+      SampleBilinear(source_gx, static_cast<float>(u), static_cast<float>(v), grad_x.data());
+      SampleBilinear(source_gy, static_cast<float>(u), static_cast<float>(v), grad_y.data());
+      // Channel c has the row a_c = g_c^T J (g_c: image gradient, J: d pixel
+      // / d eps_t), so sum_c w_c a_c^T a_c = J^T S J with the 2x2
+      // S = sum_c w_c g_c g_c^T, and sum_c w_c r_c a_c^T = J^T b.
+      double s00 = 0.0, s01 = 0.0, s11 = 0.0, b0 = 0.0, b1 = 0.0;
+      for (int c = 0; c < channels; ++c) {
+        const double r0 = observed[x * channels + c] - value[c];
+        const double w = 1.0 / std::max(std::abs(r0), epsilon);
+        const double gx = grad_x[c], gy = grad_y[c];
+        s00 += w * gx * gx;
+        s01 += w * gx * gy;
+        s11 += w * gy * gy;
+        b0 += w * r0 * gx;
+        b1 += w * r0 * gy;
+      }
+      const Eigen::Matrix<double, 2, 6> d_pixel = warp.DPixelDPose(x, y, rho_row[x]);
+      Eigen::Matrix<double, 2, 6> s_times_j;
+      s_times_j.row(0) = s00 * d_pixel.row(0) + s01 * d_pixel.row(1);
+      s_times_j.row(1) = s01 * d_pixel.row(0) + s11 * d_pixel.row(1);
+      eq.block.noalias() += d_pixel.transpose() * s_times_j;
+      eq.rhs.noalias() += d_pixel.transpose() * Eigen::Vector2d(b0, b1);
+    }
+  }
+  return eq;
+}
+
+// A pair through the capture operator (LR residuals): the HR Jacobian images
+// are mapped by Psi_t.
+PairNormalEquations BlurredPairNormalEquations(const PinholeCamera& camera_hr, const cv::Mat& inverse_depth_t,
+                                               const SE3& T_world_t, const SE3& T_world_s,
+                                               const cv::Mat& source, const PairMatching& pair,
+                                               double epsilon) {
+  std::vector<cv::Mat> jacobians, projected(6);
+  const WarpLinearization lin = LinearizeWarp(camera_hr, inverse_depth_t, T_world_t, T_world_s, source, &jacobians);
+  cv::Mat predicted, weight;
+  Predict(pair, lin.warped, &predicted);
+  const cv::Mat residual = *pair.observation - predicted;
+  L1Weights(residual, ObservationMask(pair, lin.valid), epsilon, &weight);
+  for (int j = 0; j < 6; ++j) Predict(pair, jacobians[j], &projected[j]);
+  PairNormalEquations eq;
+  const size_t values = residual.total() * residual.channels();
+  const float* w = weight.ptr<float>();
+  const float* r0 = residual.ptr<float>();
+  for (size_t i = 0; i < values; ++i) {
+    if (w[i] == 0.0f) continue;
+    Eigen::Matrix<double, 6, 1> a;
+    for (int j = 0; j < 6; ++j) a(j) = projected[j].ptr<float>()[i];
+    eq.rhs += (w[i] * r0[i]) * a;
+    eq.block.selfadjointView<Eigen::Upper>().rankUpdate(a, w[i]);
+  }
+  eq.block = eq.block.selfadjointView<Eigen::Upper>();
+  return eq;
+}
+
+}  // namespace
+
+std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr,
+                                  const std::vector<cv::Mat>& inverse_depths,
+                                  const std::vector<cv::Mat>& latents,
+                                  const std::vector<PairMatching>& pairs,
+                                  const StructureUpdateOptions& options,
+                                  std::vector<SE3>* T_world_cam, int num_fixed) {
+  options.Check();
+  const int num_frames = static_cast<int>(T_world_cam->size());
+  std::vector<Vector6d> total(num_frames, Vector6d::Zero());
+  num_fixed = std::max(1, num_fixed);  // at least frame 0: the gauge
+  if (num_frames <= num_fixed || pairs.empty()) return total;
+  const int unknowns = 6 * (num_frames - num_fixed);
+  const int num_pairs = static_cast<int>(pairs.size());
+  auto source_of = [&](const PairMatching& pair) -> const cv::Mat& {
+    return pair.source != nullptr ? *pair.source : latents[pair.s];
+  };
+  // Gradients of every image that HR pairs warp, once per image.
+  std::vector<const cv::Mat*> sources;
+  for (const PairMatching& pair : pairs) {
+    if (pair.blur == nullptr && std::find(sources.begin(), sources.end(), &source_of(pair)) == sources.end()) {
+      sources.push_back(&source_of(pair));
+    }
+  }
+  std::vector<cv::Mat> source_gx(sources.size()), source_gy(sources.size());
+#pragma omp parallel for schedule(dynamic, 1)
+  for (int i = 0; i < static_cast<int>(sources.size()); ++i) Gradients(*sources[i], &source_gx[i], &source_gy[i]);
+  std::vector<PairNormalEquations> equations(num_pairs);
+  for (int iteration = 0; iteration < options.pose_iterations; ++iteration) {
+    // Per pair (in parallel): r(eps) = r0 - A (eps_t - eps_s), A^T W A and A^T W r0.
+#pragma omp parallel for schedule(dynamic, 1)
+    for (int p = 0; p < num_pairs; ++p) {
+      const PairMatching& pair = pairs[p];
+      const SE3& T_world_t = (*T_world_cam)[pair.t];
+      const SE3& T_world_s = (*T_world_cam)[pair.s];
+      if (pair.blur != nullptr) {
+        equations[p] = BlurredPairNormalEquations(camera_hr, inverse_depths[pair.t], T_world_t, T_world_s,
+                                                  source_of(pair), pair, options.residual_epsilon);
+      } else {
+        const size_t i = std::find(sources.begin(), sources.end(), &source_of(pair)) - sources.begin();
+        equations[p] = HrPairNormalEquations(camera_hr, inverse_depths[pair.t], T_world_t, T_world_s,
+                                             source_of(pair), source_gx[i], source_gy[i], *pair.observation,
+                                             pair.mask, options.residual_epsilon, options.pose_pixel_stride);
+      }
+    }
+    Eigen::MatrixXd hessian = Eigen::MatrixXd::Zero(unknowns, unknowns);
+    Eigen::VectorXd gradient = Eigen::VectorXd::Zero(unknowns);
+    for (int p = 0; p < num_pairs; ++p) {
+      const Eigen::Matrix<double, 6, 6>& block = equations[p].block;
+      const Eigen::Matrix<double, 6, 1>& rhs = equations[p].rhs;
+      // Block indices (negative: a fixed frame).
+      const int bt = pairs[p].t - num_fixed, bs = pairs[p].s - num_fixed;
+      if (bt >= 0) {
+        hessian.block<6, 6>(6 * bt, 6 * bt) += block;
+        gradient.segment<6>(6 * bt) += rhs;
+      }
+      if (bs >= 0) {
+        hessian.block<6, 6>(6 * bs, 6 * bs) += block;
+        gradient.segment<6>(6 * bs) -= rhs;
+      }
+      if (bt >= 0 && bs >= 0) {
+        hessian.block<6, 6>(6 * bt, 6 * bs) -= block;
+        hessian.block<6, 6>(6 * bs, 6 * bt) -= block;
+      }
+    }
+    // Levenberg-Marquardt damping on the diagonal.
+    Eigen::MatrixXd damped = hessian;
+    for (int i = 0; i < unknowns; ++i) {
+      damped(i, i) += options.pose_damping * hessian(i, i) + 1e-12;
+    }
+    const Eigen::VectorXd step = damped.ldlt().solve(gradient);
+    if (!step.allFinite()) break;
+    for (int f = num_fixed; f < num_frames; ++f) {
+      const Vector6d eps = step.segment<6>(6 * (f - num_fixed));
+      (*T_world_cam)[f] = SE3::Exp(eps) * (*T_world_cam)[f];
+      total[f] += eps;
+    }
+  }
+  return total;
+}
+
+}  // namespace deblur_sr_mvs

@@ -1,0 +1,396 @@
+#include "deblur_sr_mvs/core/evaluation/evaluation.h"
+
+#include <charconv>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+
+#include <opencv2/imgproc.hpp>
+
+#include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/imaging/image_ops.h"
+#include "deblur_sr_mvs/core/common/text.h"
+
+namespace deblur_sr_mvs {
+namespace {
+
+constexpr double kStampTolerance = 1e-6;  // s, as sequence_io and result_io
+constexpr int kMinAteFrames = 3;          // Sim(3) needs 3 points for the rotation
+
+std::string Printf(const char* format, double value) {
+  char buffer[64];
+  std::snprintf(buffer, sizeof(buffer), format, value);
+  return buffer;
+}
+
+// Same channel count as the comparison needs (only colour -> gray happens:
+// colour is used only when every image involved is colour).
+cv::Mat WithChannels(const cv::Mat& image, int channels) {
+  if (image.channels() == channels) return image;
+  cv::Mat converted;
+  cv::cvtColor(image, converted, channels == 1 ? cv::COLOR_BGR2GRAY : cv::COLOR_GRAY2BGR);
+  return converted;
+}
+
+void CheckEightBit(const cv::Mat& image, const std::string& what) {
+  if (image.empty() || image.depth() != CV_8U || (image.channels() != 1 && image.channels() != 3)) {
+    throw InputError(what + " must be a non-empty 8-bit gray or colour image");
+  }
+}
+
+// Pixels inside `crop` where `depth` is finite and > 0 (as EvaluateDepth counts).
+int CountValidDepth(const cv::Mat& depth, const cv::Rect& crop) {
+  int count = 0;
+  for (int y = crop.y; y < crop.y + crop.height; ++y) {
+    const float* row = depth.ptr<float>(y);
+    for (int x = crop.x; x < crop.x + crop.width; ++x) {
+      if (row[x] > 0.0f && std::isfinite(row[x])) ++count;
+    }
+  }
+  return count;
+}
+
+int CountJointValidDepth(const cv::Mat& estimate, const cv::Mat& truth, const cv::Rect& crop) {
+  int count = 0;
+  for (int y = crop.y; y < crop.y + crop.height; ++y) {
+    const float* pe = estimate.ptr<float>(y);
+    const float* pg = truth.ptr<float>(y);
+    for (int x = crop.x; x < crop.x + crop.width; ++x) {
+      if (pe[x] > 0.0f && std::isfinite(pe[x]) && pg[x] > 0.0f && std::isfinite(pg[x])) ++count;
+    }
+  }
+  return count;
+}
+
+void CheckInputs(const SequenceResult& result, const Sequence& sequence) {
+  if (!sequence.ground_truth) {
+    throw InputError("the sequence has no ground truth (gt/) to evaluate against");
+  }
+  const SequenceGroundTruth& gt = *sequence.ground_truth;
+  const std::size_t count = sequence.frames.size();
+  if (count == 0) throw InputError("the sequence has no frames");
+  if (result.frames.size() != count) {
+    throw InputError("the result has " + std::to_string(result.frames.size()) +
+                     " frames but the sequence has " + std::to_string(count));
+  }
+  if (result.latent.size() != count || sequence.images.size() != count ||
+      gt.latent.size() != count || gt.depth.size() != count || gt.poses.size() != count) {
+    throw InputError("inconsistent frame counts: result latent " +
+                     std::to_string(result.latent.size()) + ", sequence images " +
+                     std::to_string(sequence.images.size()) + ", gt latent/depth/poses " +
+                     std::to_string(gt.latent.size()) + "/" + std::to_string(gt.depth.size()) +
+                     "/" + std::to_string(gt.poses.size()) + " for " + std::to_string(count) +
+                     " frames");
+  }
+  if (result.HasDepth() && result.depth.size() != count) {
+    throw InputError("the result has " + std::to_string(result.depth.size()) +
+                     " depth maps for " + std::to_string(count) + " frames");
+  }
+  if (result.HasPoses() && result.poses.size() != count) {
+    throw InputError("the result has " + std::to_string(result.poses.size()) + " poses for " +
+                     std::to_string(count) + " frames");
+  }
+  for (std::size_t i = 0; i < count; ++i) {
+    const FrameRecord& a = result.frames[i];
+    const FrameRecord& b = sequence.frames[i];
+    if (a.index != b.index || !(std::abs(a.stamp - b.stamp) <= kStampTolerance)) {
+      throw InputError("result frame " + std::to_string(i) + " (index " + std::to_string(a.index) +
+                       ", stamp " + Printf("%.9g", a.stamp) + ") is not sequence frame " +
+                       std::to_string(b.index) + " (stamp " + Printf("%.9g", b.stamp) +
+                       "): the result was made from another sequence");
+    }
+  }
+  const cv::Size hr_size = gt.latent.front().size();
+  const cv::Size lr_size = sequence.images.front().size();
+  if (lr_size.width <= 0 || hr_size.width % lr_size.width != 0 ||
+      hr_size.width / lr_size.width * lr_size.height != hr_size.height) {
+    throw InputError("the ground-truth size " + SizeText(hr_size) +
+                     " is not an integer multiple of the input size " + SizeText(lr_size));
+  }
+  for (std::size_t i = 0; i < count; ++i) {
+    const std::string frame = " of frame " + std::to_string(sequence.frames[i].index);
+    CheckEightBit(result.latent[i], "the result latent image" + frame);
+    CheckEightBit(gt.latent[i], "the ground-truth latent image" + frame);
+    CheckEightBit(sequence.images[i], "the input image" + frame);
+    if (result.latent[i].size() != hr_size) {
+      throw InputError("the result latent image" + frame + " is " +
+                       SizeText(result.latent[i].size()) + " but the ground truth is " +
+                       SizeText(hr_size) + " (the result must be at the ground-truth HR size)");
+    }
+    if (gt.latent[i].size() != hr_size || sequence.images[i].size() != lr_size) {
+      throw InputError("image sizes change within the sequence at frame " +
+                       std::to_string(sequence.frames[i].index));
+    }
+    if (gt.depth[i].type() != CV_32FC1 || gt.depth[i].size() != hr_size) {
+      throw InputError("the ground-truth depth" + frame + " must be 32FC1 of size " +
+                       SizeText(hr_size));
+    }
+    if (result.HasDepth() && (result.depth[i].type() != CV_32FC1 ||
+                              result.depth[i].size() != hr_size)) {
+      throw InputError("the result depth" + frame + " must be 32FC1 of the ground-truth size " +
+                       SizeText(hr_size));
+    }
+  }
+}
+
+// ----------------------------------------------------------------- output
+
+// Shortest text that parses back to the same double; JSON has no NaN/inf.
+std::string JsonNumber(double value) {
+  if (!std::isfinite(value)) return "null";
+  char buffer[64];
+  const std::to_chars_result result = std::to_chars(buffer, buffer + sizeof(buffer), value);
+  return std::string(buffer, result.ptr);
+}
+
+std::string JsonNumber(const std::optional<double>& value) {
+  return value ? JsonNumber(*value) : "null";
+}
+
+std::string JsonString(const std::string& text) {
+  std::string out = "\"";
+  for (const char c : text) {
+    const unsigned char u = static_cast<unsigned char>(c);
+    if (c == '"' || c == '\\') {
+      out += '\\';
+      out += c;
+    } else if (c == '\n') {
+      out += "\\n";
+    } else if (c == '\t') {
+      out += "\\t";
+    } else if (u < 0x20) {
+      char buffer[8];
+      std::snprintf(buffer, sizeof(buffer), "\\u%04x", u);
+      out += buffer;
+    } else {
+      out += c;
+    }
+  }
+  return out + "\"";
+}
+
+// Table cells: fixed decimals like the paper, "inf" for an exact match.
+std::string Cell(double value, int decimals) {
+  if (std::isnan(value)) return "n/a";
+  if (std::isinf(value)) return value > 0 ? "inf" : "-inf";
+  char buffer[64];
+  std::snprintf(buffer, sizeof(buffer), "%.*f", decimals, value);
+  return buffer;
+}
+
+std::string Cell(const std::optional<double>& value, int decimals) {
+  return value ? Cell(*value, decimals) : "n/a";
+}
+
+std::string MarkdownText(const std::string& text) {
+  std::string out;
+  for (const char c : text) {
+    if (c == '|') out += '\\';
+    out += (c == '\n' || c == '\r') ? ' ' : c;
+  }
+  return out;
+}
+
+}  // namespace
+
+void EvaluationOptions::Check() const {
+  if (!(crop_fraction > 0.0 && crop_fraction <= 1.0)) {
+    throw InputError("crop fraction " + Printf("%g", crop_fraction) + " must be in (0, 1]");
+  }
+}
+
+EvaluationReport EvaluateResult(const SequenceResult& result, const Sequence& sequence,
+                                const EvaluationOptions& options) {
+  options.Check();
+  CheckInputs(result, sequence);
+  const SequenceGroundTruth& gt = *sequence.ground_truth;
+  const int count = static_cast<int>(sequence.frames.size());
+
+  EvaluationReport report;
+  report.options = options;
+  report.num_frames = count;
+  report.hr_size = gt.latent.front().size();
+  report.scale = report.hr_size.width / sequence.images.front().cols;
+  // Colour only when every image involved is colour, so that the method and
+  // bicubic are measured in the same space.
+  report.colour = result.latent.front().channels() == 3 && gt.latent.front().channels() == 3 &&
+                  sequence.images.front().channels() == 3;
+  const int channels = report.colour ? 3 : 1;
+  const cv::Rect crop = CentreCrop(report.hr_size, options.crop_fraction);
+  DepthMetricOptions depth_options;
+  depth_options.crop_fraction = options.crop_fraction;
+  depth_options.align_scale = options.align_depth_scale;
+
+  report.frames.resize(count);
+  double sum_image = 0.0, sum_bicubic = 0.0, sum_depth_psnr = 0.0, sum_relative = 0.0;
+  double sum_coverage = 0.0;
+  for (int i = 0; i < count; ++i) {
+    FrameEvaluation& frame = report.frames[i];
+    frame.index = sequence.frames[i].index;
+    frame.stamp = sequence.frames[i].stamp;
+    const cv::Mat truth = WithChannels(gt.latent[i], channels);
+    frame.image_psnr_db = Psnr(WithChannels(result.latent[i], channels), truth, 255.0);
+    const cv::Mat bicubic =
+        ToImage8(UpsampleBicubic(ToFloat01(sequence.images[i]), report.scale));
+    frame.bicubic_psnr_db = Psnr(WithChannels(bicubic, channels), truth, 255.0);
+    sum_image += frame.image_psnr_db;
+    sum_bicubic += frame.bicubic_psnr_db;
+
+    if (!result.HasDepth()) continue;
+    const int gt_valid = CountValidDepth(gt.depth[i], crop);
+    const int joint_valid = CountJointValidDepth(result.depth[i], gt.depth[i], crop);
+    frame.depth_coverage = gt_valid > 0 ? static_cast<double>(joint_valid) / gt_valid : 0.0;
+    sum_coverage += frame.depth_coverage;
+    if (joint_valid == 0) continue;  // nothing to compare; counted in num_depth_frames
+    frame.depth = EvaluateDepth(result.depth[i], gt.depth[i], depth_options);
+    sum_depth_psnr += frame.depth->psnr_db;
+    sum_relative += frame.depth->relative_error;
+    ++report.num_depth_frames;
+  }
+  report.mean_image_psnr_db = sum_image / count;
+  report.mean_bicubic_psnr_db = sum_bicubic / count;
+  if (!result.HasDepth()) {
+    report.depth_note = "the result has no depth";
+  } else {
+    report.mean_depth_coverage = sum_coverage / count;
+    if (report.num_depth_frames > 0) {
+      report.mean_depth_psnr_db = sum_depth_psnr / report.num_depth_frames;
+      report.mean_depth_relative_error = sum_relative / report.num_depth_frames;
+    }
+    if (report.num_depth_frames < count) {
+      report.depth_note = std::to_string(count - report.num_depth_frames) + " of " +
+                          std::to_string(count) +
+                          " frames have no valid estimated depth where the ground truth has one "
+                          "(left out of the means)";
+    }
+  }
+
+  if (!result.HasPoses()) {
+    report.ate_note = "the result has no poses";
+  } else if (count < kMinAteFrames) {
+    report.ate_note = "ATE needs at least " + std::to_string(kMinAteFrames) + " frames, got " +
+                      std::to_string(count);
+  } else {
+    // Associated by frame index (stamps were checked above).
+    std::vector<Eigen::Vector3d> estimate(count), truth(count);
+    for (int i = 0; i < count; ++i) {
+      estimate[i] = result.poses[i].T_world_cam.translation();
+      truth[i] = gt.poses[i].T_world_cam.translation();
+    }
+    try {
+      Sim3 alignment;
+      report.ate_rmse = AbsoluteTrajectoryRmse(estimate, truth, &alignment);
+      report.trajectory_alignment = alignment;
+      for (int i = 0; i < count; ++i) {
+        const Eigen::Vector3d aligned =
+            alignment.scale * (alignment.rotation * estimate[i]) + alignment.translation;
+        report.frames[i].position_error = (aligned - truth[i]).norm();
+      }
+    } catch (const InputError& error) {
+      // A degenerate estimate (all positions equal, non-finite) has no ATE;
+      // it is a result to report, not bad input.
+      report.ate_note = std::string("no ATE: ") + error.what();
+    }
+  }
+  return report;
+}
+
+std::string ToMarkdown(const EvaluationReport& report, const std::string& method_name) {
+  const std::string method = MarkdownText(method_name);
+  std::string out;
+  out += "### Image restoration (cf. paper table tab:quantBlur)\n\n";
+  out += "| Method | Image PSNR (dB) | Bicubic PSNR (dB) | Gain (dB) |\n";
+  out += "|---|---:|---:|---:|\n";
+  out += "| " + method + " | " + Cell(report.mean_image_psnr_db, 2) + " | " +
+         Cell(report.mean_bicubic_psnr_db, 2) + " | " +
+         Cell(report.mean_image_psnr_db - report.mean_bicubic_psnr_db, 2) + " |\n\n";
+
+  out += "### Depth and pose (cf. paper table tab:quant)\n\n";
+  out += "| Method | Depth PSNR (dB) | rel. | ATE RMSE |\n";
+  out += "|---|---:|---:|---:|\n";
+  out += "| " + method + " | " + Cell(report.mean_depth_psnr_db, 2) + " | " +
+         Cell(report.mean_depth_relative_error, 4) + " | " + Cell(report.ate_rmse, 4) + " |\n\n";
+
+  out += std::to_string(report.num_frames) + " frames, x" + std::to_string(report.scale) + " (" +
+         SizeText(report.hr_size) + "), image PSNR in " + (report.colour ? "colour" : "gray") +
+         " over the whole image; depth " +
+         (report.options.align_depth_scale ? "scale-aligned per frame (median), " : "") +
+         Printf("%.0f%%", 100.0 * report.options.crop_fraction) + " centre crop";
+  if (report.mean_depth_psnr_db) {
+    out += ", " + Printf("%.1f%%", 100.0 * report.mean_depth_coverage) + " of it covered";
+  }
+  out += "; ATE Sim(3)-aligned, in ground-truth units.\n";
+  if (!report.depth_note.empty()) out += "Depth: " + report.depth_note + ".\n";
+  if (!report.ate_note.empty()) out += "Pose: " + report.ate_note + ".\n";
+
+  out += "\n#### Per frame\n\n";
+  out += "| Frame | Stamp (s) | Image PSNR (dB) | Bicubic PSNR (dB) | Depth PSNR (dB) | rel. | "
+         "Position error |\n";
+  out += "|---:|---:|---:|---:|---:|---:|---:|\n";
+  for (const FrameEvaluation& frame : report.frames) {
+    out += "| " + std::to_string(frame.index) + " | " + Printf("%.6f", frame.stamp) + " | " +
+           Cell(frame.image_psnr_db, 2) + " | " + Cell(frame.bicubic_psnr_db, 2) + " | " +
+           (frame.depth ? Cell(frame.depth->psnr_db, 2) : "n/a") + " | " +
+           (frame.depth ? Cell(frame.depth->relative_error, 4) : "n/a") + " | " +
+           Cell(frame.position_error, 4) + " |\n";
+  }
+  return out;
+}
+
+std::string ToJson(const EvaluationReport& report, const std::string& method_name) {
+  std::string out = "{\n";
+  out += "  \"method\": " + JsonString(method_name) + ",\n";
+  out += "  \"num_frames\": " + std::to_string(report.num_frames) + ",\n";
+  out += "  \"scale\": " + std::to_string(report.scale) + ",\n";
+  out += "  \"hr_width\": " + std::to_string(report.hr_size.width) + ",\n";
+  out += "  \"hr_height\": " + std::to_string(report.hr_size.height) + ",\n";
+  out += std::string("  \"colour\": ") + (report.colour ? "true" : "false") + ",\n";
+  out += "  \"crop_fraction\": " + JsonNumber(report.options.crop_fraction) + ",\n";
+  out += std::string("  \"align_depth_scale\": ") +
+         (report.options.align_depth_scale ? "true" : "false") + ",\n";
+  out += "  \"mean\": {\n";
+  out += "    \"image_psnr_db\": " + JsonNumber(report.mean_image_psnr_db) + ",\n";
+  out += "    \"bicubic_psnr_db\": " + JsonNumber(report.mean_bicubic_psnr_db) + ",\n";
+  out += "    \"depth_psnr_db\": " + JsonNumber(report.mean_depth_psnr_db) + ",\n";
+  out += "    \"depth_relative_error\": " + JsonNumber(report.mean_depth_relative_error) + ",\n";
+  out += "    \"depth_coverage\": " + JsonNumber(report.mean_depth_coverage) + ",\n";
+  out += "    \"ate_rmse\": " + JsonNumber(report.ate_rmse) + "\n";
+  out += "  },\n";
+  out += "  \"num_depth_frames\": " + std::to_string(report.num_depth_frames) + ",\n";
+  out += "  \"depth_note\": " + JsonString(report.depth_note) + ",\n";
+  out += "  \"ate_note\": " + JsonString(report.ate_note) + ",\n";
+  out += "  \"trajectory_alignment\": ";
+  if (report.trajectory_alignment) {
+    const Sim3& sim3 = *report.trajectory_alignment;
+    out += "{\"scale\": " + JsonNumber(sim3.scale) + ", \"rotation\": [";
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) out += (r + c ? ", " : "") + JsonNumber(sim3.rotation(r, c));
+    }
+    out += "], \"translation\": [" + JsonNumber(sim3.translation.x()) + ", " +
+           JsonNumber(sim3.translation.y()) + ", " + JsonNumber(sim3.translation.z()) + "]}";
+  } else {
+    out += "null";
+  }
+  out += ",\n  \"frames\": [";
+  for (std::size_t i = 0; i < report.frames.size(); ++i) {
+    const FrameEvaluation& frame = report.frames[i];
+    out += i ? ",\n    " : "\n    ";
+    out += "{\"index\": " + std::to_string(frame.index) + ", \"stamp\": " + JsonNumber(frame.stamp) +
+           ", \"image_psnr_db\": " + JsonNumber(frame.image_psnr_db) +
+           ", \"bicubic_psnr_db\": " + JsonNumber(frame.bicubic_psnr_db);
+    out += ", \"depth_psnr_db\": " +
+           (frame.depth ? JsonNumber(frame.depth->psnr_db) : std::string("null"));
+    out += ", \"depth_relative_error\": " +
+           (frame.depth ? JsonNumber(frame.depth->relative_error) : std::string("null"));
+    out += ", \"depth_scale\": " +
+           (frame.depth ? JsonNumber(frame.depth->scale) : std::string("null"));
+    out += ", \"depth_pixels\": " + (frame.depth ? std::to_string(frame.depth->num_pixels) : "0");
+    out += ", \"depth_coverage\": " + JsonNumber(frame.depth_coverage);
+    out += ", \"position_error\": " + JsonNumber(frame.position_error) + "}";
+  }
+  out += report.frames.empty() ? "]\n" : "\n  ]\n";
+  out += "}\n";
+  return out;
+}
+
+}  // namespace deblur_sr_mvs

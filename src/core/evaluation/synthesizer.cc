@@ -1,0 +1,1016 @@
+#include "deblur_sr_mvs/core/evaluation/synthesizer.h"
+#include "deblur_sr_mvs/core/common/text.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <iomanip>
+#include <limits>
+#include <ostream>
+#include <sstream>
+
+#include <omp.h>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+namespace deblur_sr_mvs {
+namespace {
+
+namespace fs = std::filesystem;
+
+// Middlebury 2005/2006 calibration (data/middlebury/SOURCES.md): full-size
+// focal length, the stored images are third-size, 160 mm between view1 and view5.
+constexpr double kMiddleburyFullFocalPx = 3740.0;
+constexpr double kMiddleburyDownsampling = 3.0;
+constexpr double kMiddleburyBaselineM = 0.160;
+
+// Points closer than this to the virtual camera are not rendered.
+constexpr float kNearPlaneM = 1e-3f;
+
+cv::Mat ReadSceneImage(const fs::path& file, int flags) {
+  if (!fs::exists(file)) throw InputError(file.string() + ": file not found");
+  cv::Mat image = cv::imread(file.string(), flags);
+  if (image.empty()) throw InputError(file.string() + ": cannot read the image");
+  return image;
+}
+
+int ReadDmin(const fs::path& file) {
+  if (!fs::exists(file)) throw InputError(file.string() + ": file not found");
+  std::ifstream in(file);
+  if (!in) throw InputError(file.string() + ": cannot open the file");
+  std::stringstream buffer;
+  buffer << in.rdbuf();
+  std::string text = buffer.str();
+  // One integer; whitespace and CRLF line endings are allowed around it.
+  const auto first = text.find_first_not_of(" \t\r\n");
+  const auto last = text.find_last_not_of(" \t\r\n");
+  if (first == std::string::npos) throw InputError(file.string() + ": empty, expected an integer");
+  text = text.substr(first, last - first + 1);
+  std::size_t used = 0;
+  long value = 0;
+  try {
+    value = std::stol(text, &used);
+  } catch (const std::exception&) {
+    used = 0;
+  }
+  if (used != text.size()) {
+    throw InputError(file.string() + ": expected one integer, got \"" + text.substr(0, 40) + "\"");
+  }
+  if (value < 0 || value > 100000) {
+    throw InputError(file.string() + ": dmin " + std::to_string(value) + " is out of range");
+  }
+  return static_cast<int>(value);
+}
+
+double Median(std::vector<float>* values) {
+  if (values->empty()) return 0.0;
+  auto middle = values->begin() + values->size() / 2;
+  std::nth_element(values->begin(), middle, values->end());
+  return *middle;
+}
+
+// The scene's image size and focal length, with the principal point halfway
+// between the two views' (view5's is shifted by the crop offset dmin/3): the
+// midpoint camera then sees the middle of what the two views cover together.
+PinholeCamera ProbeCamera(const StereoScene& scene) {
+  const PinholeCamera& view1 = scene.views[0].camera;
+  const PinholeCamera& view5 = scene.views[1].camera;
+  return PinholeCamera(view1.width, view1.height, scene.focal_px, scene.focal_px,
+                       0.5 * (view1.cx + view5.cx), 0.5 * (view1.cy + view5.cy));
+}
+
+// The centred width x height crop of the probe camera's image.
+PinholeCamera CentredCrop(const PinholeCamera& probe, int width, int height) {
+  return PinholeCamera(width, height, probe.fx, probe.fy,
+                       probe.cx - 0.5 * (probe.width - width),
+                       probe.cy - 0.5 * (probe.height - height));
+}
+
+double PathStart(const SynthesisOptions& options) {
+  return FrameStamp(options, 0) - FrameExposure(options);
+}
+double PathEnd(const SynthesisOptions& options) {
+  return FrameStamp(options, options.num_frames - 1);
+}
+
+// Depth of `result` with its holes set to 0 (unknown): measured blur then
+// uses only pixels some view actually covered.
+cv::Mat CoveredDepth(const RenderResult& result) {
+  cv::Mat depth = result.depth.clone();
+  depth.setTo(0.0f, result.hole_mask);
+  return depth;
+}
+
+// Pinhole projection of n points (structure of arrays); a free function with
+// restrict pointers so that the compiler vectorises it.
+void ProjectPoints(int n, const Eigen::Matrix3f& R, const Eigen::Vector3f& t,
+                   const PinholeCamera& camera, const float* __restrict__ px,
+                   const float* __restrict__ py, const float* __restrict__ pz,
+                   float* __restrict__ us, float* __restrict__ vs, float* __restrict__ zs) {
+  const float r00 = R(0, 0), r01 = R(0, 1), r02 = R(0, 2), r10 = R(1, 0), r11 = R(1, 1),
+              r12 = R(1, 2), r20 = R(2, 0), r21 = R(2, 1), r22 = R(2, 2);
+  const float tx = t.x(), ty = t.y(), tz = t.z();
+  const float fx = camera.fx, fy = camera.fy, cx = camera.cx, cy = camera.cy;
+  for (int i = 0; i < n; ++i) {
+    const float xc = r00 * px[i] + r01 * py[i] + r02 * pz[i] + tx;
+    const float yc = r10 * px[i] + r11 * py[i] + r12 * pz[i] + ty;
+    const float zc = r20 * px[i] + r21 * py[i] + r22 * pz[i] + tz;
+    const float inv_z = 1.0f / zc;
+    us[i] = fx * xc * inv_z + cx;
+    vs[i] = fy * yc * inv_z + cy;
+    zs[i] = zc;
+  }
+}
+
+}  // namespace
+
+// ------------------------------------------------------------------- scene
+
+StereoScene LoadMiddleburyScene(const std::string& folder) {
+  const fs::path root(folder);
+  if (!fs::is_directory(root)) throw InputError(folder + ": scene folder not found");
+
+  StereoScene scene;
+  scene.folder = folder;
+  scene.focal_px = kMiddleburyFullFocalPx / kMiddleburyDownsampling;
+  scene.baseline_m = kMiddleburyBaselineM;
+  scene.dmin = ReadDmin(root / "dmin.txt");
+
+  const char* kImageNames[2] = {"view1.png", "view5.png"};
+  const char* kDisparityNames[2] = {"disp1.png", "disp5.png"};
+  cv::Size size;
+  std::vector<float> depths;
+  for (int v = 0; v < 2; ++v) {
+    SceneView& view = scene.views[v];
+    view.image = ReadSceneImage(root / kImageNames[v], cv::IMREAD_COLOR);
+    const fs::path disparity_file = root / kDisparityNames[v];
+    const cv::Mat disparity = ReadSceneImage(disparity_file, cv::IMREAD_UNCHANGED);
+    if (disparity.type() != CV_8UC1) {
+      throw InputError(disparity_file.string() +
+                       ": expected an 8-bit single-channel disparity image");
+    }
+    if (v == 0) size = view.image.size();
+    if (view.image.size() != size) {
+      throw InputError((root / kImageNames[v]).string() + ": size " + SizeText(view.image) +
+                       " differs from view1.png " + std::to_string(size.width) + "x" +
+                       std::to_string(size.height));
+    }
+    if (disparity.size() != size) {
+      throw InputError(disparity_file.string() + ": size " + SizeText(disparity) +
+                       " differs from view1.png " + std::to_string(size.width) + "x" +
+                       std::to_string(size.height));
+    }
+    // Z = f_full B / (I + dmin) with I the stored value (~full-size disparity).
+    view.depth.create(size, CV_32FC1);
+    for (int y = 0; y < size.height; ++y) {
+      const uint8_t* in = disparity.ptr<uint8_t>(y);
+      float* out = view.depth.ptr<float>(y);
+      for (int x = 0; x < size.width; ++x) {
+        const int total = in[x] + scene.dmin;
+        out[x] = (in[x] == 0 || total <= 0)
+                     ? 0.0f
+                     : static_cast<float>(kMiddleburyFullFocalPx * kMiddleburyBaselineM / total);
+        if (out[x] > 0.0f) depths.push_back(out[x]);
+      }
+    }
+  }
+  if (depths.empty()) throw InputError(folder + ": no known disparity in disp1.png or disp5.png");
+
+  // view1 has its principal point at the image centre; view5 sits 160 mm to
+  // the right and its principal point is shifted by the crop offset dmin/3.
+  const double cx1 = (size.width - 1) / 2.0;
+  const double cy = (size.height - 1) / 2.0;
+  scene.views[0].camera =
+      PinholeCamera(size.width, size.height, scene.focal_px, scene.focal_px, cx1, cy);
+  scene.views[1].camera = PinholeCamera(size.width, size.height, scene.focal_px, scene.focal_px,
+                                        cx1 + scene.dmin / kMiddleburyDownsampling, cy);
+  scene.views[0].T_world_cam = SE3();
+  scene.views[1].T_world_cam =
+      SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(scene.baseline_m, 0.0, 0.0));
+
+  scene.min_depth = *std::min_element(depths.begin(), depths.end());
+  scene.max_depth = *std::max_element(depths.begin(), depths.end());
+  scene.median_depth = Median(&depths);
+  return scene;
+}
+
+StereoScene ZoomScene(const StereoScene& scene, double zoom) {
+  if (!(zoom >= 1.0 && zoom <= 4.0)) {
+    throw InputError("scene zoom must be in [1, 4], got " + std::to_string(zoom));
+  }
+  StereoScene zoomed = scene;
+  zoomed.focal_px = scene.focal_px * zoom;
+  for (int v = 0; v < 2; ++v) {
+    const SceneView& in = scene.views[v];
+    SceneView& out = zoomed.views[v];
+    const cv::Size size(static_cast<int>(std::lround(in.image.cols * zoom)),
+                        static_cast<int>(std::lround(in.image.rows * zoom)));
+    cv::resize(in.image, out.image, size, 0, 0, cv::INTER_CUBIC);
+    cv::resize(in.depth, out.depth, size, 0, 0, cv::INTER_NEAREST);
+    // Pixel centres: X' + 0.5 = zoom (X + 0.5).
+    out.camera = PinholeCamera(size.width, size.height, in.camera.fx * zoom, in.camera.fy * zoom,
+                               zoom * (in.camera.cx + 0.5) - 0.5, zoom * (in.camera.cy + 0.5) - 0.5);
+  }
+  return zoomed;
+}
+
+// --------------------------------------------------------------- renderer
+
+void SceneRenderer::Points::Reserve(std::size_t n) {
+  for (std::vector<float>* values : {&x, &y, &z, &b, &g, &r}) values->reserve(n);
+}
+
+void SceneRenderer::Points::Append(const Points& other, std::size_t i) {
+  x.push_back(other.x[i]);
+  y.push_back(other.y[i]);
+  z.push_back(other.z[i]);
+  b.push_back(other.b[i]);
+  g.push_back(other.g[i]);
+  r.push_back(other.r[i]);
+}
+
+SceneRenderer::SceneRenderer(const StereoScene& scene) {
+  for (int v = 0; v < 2; ++v) {
+    const SceneView& view = scene.views[v];
+    view_centres_world_[v] = view.T_world_cam.translation();
+    Points& points = points_[v];
+    points.Reserve(view.image.total());
+    for (int y = 0; y < view.image.rows; ++y) {
+      const float* depth = view.depth.ptr<float>(y);
+      const cv::Vec3b* colour = view.image.ptr<cv::Vec3b>(y);
+      for (int x = 0; x < view.image.cols; ++x) {
+        if (!(depth[x] > 0.0f)) continue;  // unknown disparity: no point
+        const Eigen::Vector3d p_world = view.T_world_cam * (depth[x] * view.camera.Ray(x, y));
+        points.x.push_back(static_cast<float>(p_world.x()));
+        points.y.push_back(static_cast<float>(p_world.y()));
+        points.z.push_back(static_cast<float>(p_world.z()));
+        points.b.push_back(colour[x][0]);
+        points.g.push_back(colour[x][1]);
+        points.r.push_back(colour[x][2]);
+      }
+    }
+  }
+}
+
+SceneRenderer SceneRenderer::CulledFor(const PinholeCamera& camera,
+                                       const std::vector<SE3>& T_world_cams) const {
+  SceneRenderer culled;
+  culled.view_centres_world_ = view_centres_world_;
+  const std::size_t num_poses = T_world_cams.size();
+  std::vector<SE3> T_cam_worlds;
+  for (const SE3& T : T_world_cams) T_cam_worlds.push_back(T.Inverse());
+  constexpr double kBehind = std::numeric_limits<double>::quiet_NaN();
+  for (int v = 0; v < 2; ++v) {
+    const Points& points = points_[v];
+    const std::size_t n = points.x.size();
+    // Projections at every pose (NaN: behind the camera), and the largest
+    // image step between consecutive poses.
+    std::vector<Eigen::Vector2d> projections(n * num_poses);
+    double max_step = 0.0;
+    for (std::size_t i = 0; i < n; ++i) {
+      const Eigen::Vector3d p_world(points.x[i], points.y[i], points.z[i]);
+      for (std::size_t k = 0; k < num_poses; ++k) {
+        const Eigen::Vector3d p_cam = T_cam_worlds[k] * p_world;
+        Eigen::Vector2d& uv = projections[i * num_poses + k];
+        uv = p_cam.z() > kNearPlaneM ? camera.Project(p_cam) : Eigen::Vector2d(kBehind, kBehind);
+        if (k > 0) {
+          const double step = (uv - projections[i * num_poses + k - 1]).norm();
+          if (std::isfinite(step)) max_step = std::max(max_step, step);
+        }
+      }
+    }
+    // A point whose image path crosses the image between two poses is within
+    // half a step of it at one of them.
+    const double margin = 0.5 * max_step + 2.0;
+    Points& kept = culled.points_[v];
+    kept.Reserve(n);
+    for (std::size_t i = 0; i < n; ++i) {
+      for (std::size_t k = 0; k < num_poses; ++k) {
+        const Eigen::Vector2d& uv = projections[i * num_poses + k];
+        if (uv.x() > -1.0 - margin && uv.y() > -1.0 - margin && uv.x() < camera.width + margin &&
+            uv.y() < camera.height + margin) {
+          kept.Append(points, i);
+          break;
+        }
+      }
+    }
+  }
+  return culled;
+}
+
+RenderResult SceneRenderer::Render(const PinholeCamera& camera, const SE3& T_world_cam,
+                                   const RenderOptions& options) const {
+  RenderWorkspace workspace;
+  RenderResult result;
+  Render(camera, T_world_cam, options, &workspace, &result);
+  return result;
+}
+
+void SceneRenderer::Render(const PinholeCamera& camera, const SE3& T_world_cam,
+                           const RenderOptions& options, RenderWorkspace* workspace,
+                           RenderResult* result) const {
+  const int width = camera.width;
+  const int height = camera.height;
+  const int num_pixels = width * height;
+  const SE3 T_cam_world = T_world_cam.Inverse();
+  const Eigen::Matrix3f R = T_cam_world.rotation().cast<float>();
+  const Eigen::Vector3f t = T_cam_world.translation().cast<float>();
+  const float min_weight = options.min_splat_weight;
+  const float tolerance = 1.0f + options.depth_tolerance;
+  const float coverage = options.coverage_weight;
+  constexpr float kInf = std::numeric_limits<float>::infinity();
+
+  // The view whose centre is nearer to the virtual camera sees the most
+  // similar surfaces: it is primary, the other fills what it leaves empty.
+  const Eigen::Vector3d centre = T_world_cam.translation();
+  int primary = (centre - view_centres_world_[1]).norm() < (centre - view_centres_world_[0]).norm();
+  int num_views = 2;
+  if (options.only_view == 0 || options.only_view == 1) {
+    primary = options.only_view;
+    num_views = 1;
+  }
+  const int order[2] = {primary, 1 - primary};
+
+  for (int k = 0; k < num_views; ++k) {
+    const int view = order[k];
+    const Points& points = points_[view];
+    const int n = static_cast<int>(points.x.size());
+    const bool secondary = k == 1;
+    std::vector<float>& zbuffer = workspace->zbuffer[view];
+    std::vector<float>& accum = workspace->accum[view];
+    std::vector<uint8_t>& useful = workspace->useful;
+    if (k == 0) {
+      accum.assign(static_cast<std::size_t>(num_pixels) * 5, 0.0f);
+      zbuffer.assign(num_pixels, kInf);
+    } else {
+      // The secondary only renders where the primary does not cover: a
+      // z-buffer of -inf elsewhere rejects every splat, only the uncovered
+      // accumulators need clearing (the composite reads no others), and
+      // `useful` flags the footprint corners (x0, y0), offset by one, whose
+      // 2x2 footprint has an uncovered pixel, so most points skip at one byte.
+      accum.resize(static_cast<std::size_t>(num_pixels) * 5);
+      zbuffer.resize(num_pixels);
+      useful.assign(static_cast<std::size_t>(width + 1) * (height + 1), 0);
+      const float* a = workspace->accum[order[0]].data();
+      for (int p = 0; p < num_pixels; ++p) {
+        const bool covered = a[5 * p + 3] >= coverage;
+        zbuffer[p] = covered ? -kInf : kInf;
+        if (covered) continue;
+        std::fill_n(&accum[static_cast<std::size_t>(p) * 5], 5, 0.0f);
+        const int x = p % width, y = p / width;
+        uint8_t* corner = &useful[static_cast<std::size_t>(y) * (width + 1) + x];
+        corner[0] = corner[1] = corner[width + 1] = corner[width + 2] = 1;
+      }
+    }
+
+    // Projection, vectorisable (no branches, structure of arrays).
+    workspace->u.resize(n);
+    workspace->v.resize(n);
+    workspace->z.resize(n);
+    ProjectPoints(n, R, t, camera, points.x.data(), points.y.data(), points.z.data(),
+                  workspace->u.data(), workspace->v.data(), workspace->z.data());
+    const float* us = workspace->u.data();
+    const float* vs = workspace->v.data();
+    const float* zs = workspace->z.data();
+
+    // Pass 1: nearest depth per pixel over the splats with a real share of
+    // it. The splats touching pixels this view renders are kept for pass 2
+    // with their footprint: top-left pixel (x0, y0), bilinear fractions.
+    float* zb = zbuffer.data();
+    std::vector<RenderWorkspace::Splat>& active = workspace->active;
+    active.clear();
+    for (int i = 0; i < n; ++i) {
+      const float u = us[i], v = vs[i], z = zs[i];
+      if (!(z >= kNearPlaneM && u > -1.0f && v > -1.0f && u < width && v < height)) continue;
+      const int x0 = static_cast<int>(u + 1.0f) - 1;  // floor for u > -1
+      const int y0 = static_cast<int>(v + 1.0f) - 1;
+      // u + 1 can round up to width + 1 in float for u just below width
+      // (found by AddressSanitizer): such a splat has no share inside.
+      if (x0 >= width || y0 >= height) continue;
+      if (secondary && !useful[static_cast<std::size_t>(y0 + 1) * (width + 1) + (x0 + 1)]) {
+        continue;
+      }
+      const float ax = u - x0, ay = v - y0;
+      const float weights[4] = {(1.0f - ax) * (1.0f - ay), ax * (1.0f - ay), (1.0f - ax) * ay,
+                                ax * ay};
+      const bool inside = x0 >= 0 && y0 >= 0 && x0 + 1 < width && y0 + 1 < height;
+      if (inside) {
+        float* cell = zb + y0 * width + x0;
+        float* cells[4] = {cell, cell + 1, cell + width, cell + width + 1};
+        for (int c = 0; c < 4; ++c) {
+          *cells[c] = std::min(*cells[c], weights[c] >= min_weight ? z : kInf);
+        }
+      } else {
+        for (int c = 0; c < 4; ++c) {
+          const int x = x0 + (c & 1), y = y0 + (c >> 1);
+          if (x < 0 || y < 0 || x >= width || y >= height || weights[c] < min_weight) continue;
+          zb[y * width + x] = std::min(zb[y * width + x], z);
+        }
+      }
+      active.push_back({i, x0, y0, inside, ax, ay});
+    }
+
+    // Pass 2: blend colour and depth of the splats on the front surface,
+    // within the depth tolerance of the z-buffer on both sides (a nearer
+    // splat there had too little weight to count and would fatten edges).
+    float* acc = accum.data();
+    const float* pb = points.b.data();
+    const float* pg = points.g.data();
+    const float* pr = points.r.data();
+    const float tolerance_low = 1.0f - options.depth_tolerance;
+    for (const RenderWorkspace::Splat& splat : active) {
+      const int i = splat.point;
+      const float z = zs[i];
+      const float ax = splat.ax, ay = splat.ay;
+      const float weights[4] = {(1.0f - ax) * (1.0f - ay), ax * (1.0f - ay), (1.0f - ax) * ay,
+                                ax * ay};
+      const float colour[3] = {pb[i], pg[i], pr[i]};
+      for (int c = 0; c < 4; ++c) {
+        const int x = splat.x0 + (c & 1), y = splat.y0 + (c >> 1);
+        if (!splat.inside && (x < 0 || y < 0 || x >= width || y >= height)) continue;
+        const int index = y * width + x;
+        const float front = zb[index];
+        const bool on_front =
+            z <= front * tolerance && (z >= front * tolerance_low || front == kInf);
+        const float w = on_front ? weights[c] : 0.0f;
+        float* a = acc + static_cast<std::size_t>(index) * 5;
+        a[0] += w * colour[0];
+        a[1] += w * colour[1];
+        a[2] += w * colour[2];
+        a[3] += w;
+        a[4] += w * z;
+      }
+    }
+  }
+
+  // Composite: the primary where it covers, else the secondary; a faint
+  // splat still beats a guess; the rest are holes.
+  result->image.create(height, width, CV_32FC3);
+  result->depth.create(height, width, CV_32FC1);
+  result->hole_mask.create(height, width, CV_8UC1);
+  std::vector<int>& holes = workspace->holes;
+  holes.clear();
+  int num_secondary = 0;
+  const float* acc_primary = workspace->accum[order[0]].data();
+  const float* acc_secondary = num_views == 2 ? workspace->accum[order[1]].data() : nullptr;
+  float* image = result->image.ptr<float>();
+  float* depth = result->depth.ptr<float>();
+  uint8_t* mask = result->hole_mask.ptr<uint8_t>();
+  for (int index = 0; index < num_pixels; ++index) {
+    const float* a = acc_primary + static_cast<std::size_t>(index) * 5;
+    const float* b = acc_secondary ? acc_secondary + static_cast<std::size_t>(index) * 5 : nullptr;
+    const float wa = a[3];
+    const float wb = b ? b[3] : 0.0f;
+    const float* chosen = nullptr;
+    if (wa >= coverage) {
+      chosen = a;
+    } else if (wb >= coverage) {
+      chosen = b;
+    } else if (std::max(wa, wb) >= min_weight) {
+      chosen = wa >= wb ? a : b;
+    }
+    if (chosen) {
+      const float inv = 1.0f / chosen[3];
+      image[3 * index + 0] = chosen[0] * inv;
+      image[3 * index + 1] = chosen[1] * inv;
+      image[3 * index + 2] = chosen[2] * inv;
+      depth[index] = chosen[4] * inv;
+      mask[index] = 0;
+      num_secondary += chosen == b;
+    } else {
+      image[3 * index + 0] = image[3 * index + 1] = image[3 * index + 2] = 0.0f;
+      depth[index] = 0.0f;
+      mask[index] = 255;
+      holes.push_back(index);
+    }
+  }
+  result->num_holes = static_cast<int>(holes.size());
+  result->num_secondary = num_secondary;
+  if (!options.fill_holes || holes.empty() || result->num_holes == num_pixels) return;
+
+  // Hole filling grows inwards one ring per pass from the 8-neighbours; the
+  // farthest neighbour (the background a disocclusion reveals) sets the depth
+  // and the neighbours near that depth the colour. Values are committed after
+  // each pass so that the growth is isotropic.
+  constexpr float kBackgroundTolerance = 0.03f;
+  std::vector<int>& next_holes = workspace->next_holes;
+  std::vector<int>& filled = workspace->filled;
+  std::vector<float>& fill = workspace->fill_values;
+  while (!holes.empty()) {
+    next_holes.clear();
+    filled.clear();
+    fill.clear();
+    for (const int index : holes) {
+      const int x = index % width, y = index / width;
+      float z_max = 0.0f;
+      for (int dy = -1; dy <= 1; ++dy) {
+        for (int dx = -1; dx <= 1; ++dx) {
+          const int xn = x + dx, yn = y + dy;
+          if (xn < 0 || yn < 0 || xn >= width || yn >= height) continue;
+          z_max = std::max(z_max, depth[yn * width + xn]);
+        }
+      }
+      if (z_max <= 0.0f) {
+        next_holes.push_back(index);
+        continue;
+      }
+      float sum[3] = {0.0f, 0.0f, 0.0f};
+      int count = 0;
+      for (int dy = -1; dy <= 1; ++dy) {
+        for (int dx = -1; dx <= 1; ++dx) {
+          const int xn = x + dx, yn = y + dy;
+          if (xn < 0 || yn < 0 || xn >= width || yn >= height) continue;
+          const int n = yn * width + xn;
+          if (depth[n] < z_max * (1.0f - kBackgroundTolerance)) continue;
+          for (int c = 0; c < 3; ++c) sum[c] += image[3 * n + c];
+          ++count;
+        }
+      }
+      filled.push_back(index);
+      fill.insert(fill.end(), {sum[0] / count, sum[1] / count, sum[2] / count, z_max});
+    }
+    if (filled.empty()) break;  // nothing reachable (cannot happen with >= 1 covered pixel)
+    for (std::size_t f = 0; f < filled.size(); ++f) {
+      const int index = filled[f];
+      image[3 * index + 0] = fill[4 * f + 0];
+      image[3 * index + 1] = fill[4 * f + 1];
+      image[3 * index + 2] = fill[4 * f + 2];
+      depth[index] = fill[4 * f + 3];
+    }
+    holes.swap(next_holes);
+  }
+}
+
+// ------------------------------------------------------------ camera paths
+
+std::string CameraPathName(CameraPathType type) {
+  switch (type) {
+    case CameraPathType::kLateral: return "lateral";
+    case CameraPathType::kArc: return "arc";
+    case CameraPathType::kForward: return "forward";
+  }
+  return "unknown";
+}
+
+CameraPathType ParseCameraPathType(const std::string& name) {
+  if (name == "lateral") return CameraPathType::kLateral;
+  if (name == "arc") return CameraPathType::kArc;
+  if (name == "forward") return CameraPathType::kForward;
+  throw InputError("--path: unknown path \"" + name + "\" (expected lateral, arc or forward)");
+}
+
+SE3 CameraPath::PoseAt(double t) const {
+  return SE3::Exp((t - t_mid) * speed * unit_twist) * T_world_mid;
+}
+
+CameraPath MakeCameraPath(CameraPathType type, const StereoScene& scene, double t_mid,
+                          double arc_fixation_factor) {
+  CameraPath path;
+  path.type = type;
+  path.t_mid = t_mid;
+  const Eigen::Vector3d c1 = scene.views[0].T_world_cam.translation();
+  const Eigen::Vector3d c5 = scene.views[1].T_world_cam.translation();
+  const Eigen::Vector3d midpoint = 0.5 * (c1 + c5);
+  path.T_world_mid = SE3(Eigen::Matrix3d::Identity(), midpoint);
+  const Eigen::Vector3d baseline_direction = (c5 - c1).normalized();
+  switch (type) {
+    case CameraPathType::kLateral:
+      path.unit_twist.head<3>() = baseline_direction;
+      break;
+    case CameraPathType::kForward:
+      // Mostly towards the scene; the small sideways part keeps some parallax
+      // at the image centre, where forward motion alone gives none.
+      path.unit_twist.head<3>() = (0.3 * baseline_direction + Eigen::Vector3d::UnitZ()).normalized();
+      break;
+    case CameraPathType::kArc: {
+      // Rotation about the vertical (y, pointing down) axis through the
+      // fixation point F: twist (rho, w) with rho = -w x F. With |w| = 1/radius
+      // the centre moves at 1 m/s; the sign makes it move from view1 to view5.
+      const double radius = arc_fixation_factor * scene.median_depth;
+      path.fixation_point = midpoint + radius * Eigen::Vector3d::UnitZ();
+      const Eigen::Vector3d w = -Eigen::Vector3d::UnitY() / radius;
+      path.unit_twist.head<3>() = -w.cross(path.fixation_point);
+      path.unit_twist.tail<3>() = w;
+      break;
+    }
+  }
+  return path;
+}
+
+MotionStats MeasureImageMotion(const PinholeCamera& camera, const cv::Mat& depth_end,
+                               const SE3& T_world_start, const SE3& T_world_end) {
+  const SE3 T_start_end = T_world_start.Inverse() * T_world_end;
+  std::vector<float> motion;
+  motion.reserve(depth_end.total());
+  for (int y = 0; y < depth_end.rows; ++y) {
+    const float* row = depth_end.ptr<float>(y);
+    for (int x = 0; x < depth_end.cols; ++x) {
+      if (!(row[x] > 0.0f) || !std::isfinite(row[x])) continue;
+      const Eigen::Vector3d p_start = T_start_end * (row[x] * camera.Ray(x, y));
+      if (p_start.z() <= kNearPlaneM) continue;
+      motion.push_back(static_cast<float>((camera.Project(p_start) - Eigen::Vector2d(x, y)).norm()));
+    }
+  }
+  MotionStats stats;
+  stats.num_pixels = static_cast<int>(motion.size());
+  if (motion.empty()) return stats;
+  stats.min_px = *std::min_element(motion.begin(), motion.end());
+  stats.max_px = *std::max_element(motion.begin(), motion.end());
+  stats.median_px = Median(&motion);
+  return stats;
+}
+
+// ------------------------------------------------------------- synthesis
+
+void SynthesisOptions::Check() const {
+  auto fail = [](const std::string& message) { throw InputError(message); };
+  if (num_frames < 2 || num_frames > 100000) {
+    fail("--frames must be between 2 and 100000 (got " + std::to_string(num_frames) + ")");
+  }
+  if (scale < 1 || scale > 8) fail("--scale must be between 1 and 8 (got " + std::to_string(scale) + ")");
+  if (!(exposure_ratio > 0.0 && exposure_ratio <= 1.0)) {
+    fail("--exposure-ratio must be in (0, 1] (got " + std::to_string(exposure_ratio) + ")");
+  }
+  if (!(noise_sigma >= 0.0 && noise_sigma <= 255.0)) {
+    fail("--noise must be in [0, 255] (got " + std::to_string(noise_sigma) + ")");
+  }
+  if (!(blur_px > 0.0 && blur_px <= 500.0)) {
+    fail("--blur-px must be in (0, 500] (got " + std::to_string(blur_px) + ")");
+  }
+  // The estimator averages M = 50 samples per exposure; the data must be finer.
+  if (subframes <= 50 || subframes > 100000) {
+    fail("--subframes must be between 51 and 100000 (got " + std::to_string(subframes) + ")");
+  }
+  if (!(fps > 0.0 && fps <= 10000.0)) fail("--fps must be in (0, 10000] (got " + std::to_string(fps) + ")");
+  if (hr_width < 0 || hr_height < 0 || (hr_width == 0) != (hr_height == 0)) {
+    fail("--hr-width and --hr-height must both be positive or both 0 (automatic)");
+  }
+  if (hr_width % scale != 0 || hr_height % scale != 0) {
+    fail("--hr-width and --hr-height (" + std::to_string(hr_width) + "x" +
+         std::to_string(hr_height) + ") must be divisible by --scale " + std::to_string(scale));
+  }
+  if (!(arc_fixation_factor >= 1.2 && arc_fixation_factor <= 100.0)) {
+    fail("--arc-fixation must be in [1.2, 100] (got " + std::to_string(arc_fixation_factor) + ")");
+  }
+  if (!(forward_travel_cap > 0.0 && forward_travel_cap <= 1.0)) {
+    fail("--forward-cap must be in (0, 1] (got " + std::to_string(forward_travel_cap) + ")");
+  }
+  if (!(max_hole_fraction > 0.0 && max_hole_fraction < 1.0)) {
+    fail("max_hole_fraction must be in (0, 1)");
+  }
+}
+
+double FrameStamp(const SynthesisOptions& options, int index) { return (index + 1) / options.fps; }
+
+double FrameExposure(const SynthesisOptions& options) { return options.exposure_ratio / options.fps; }
+
+double CalibratePathSpeed(const StereoScene& scene, const SceneRenderer& renderer,
+                          const PinholeCamera& camera, const SynthesisOptions& options,
+                          CameraPath* path, bool* capped) {
+  const int middle = (options.num_frames - 1) / 2;
+  const double t_close = FrameStamp(options, middle);
+  const double t_open = t_close - FrameExposure(options);
+  RenderOptions render_options;
+  render_options.fill_holes = false;
+  RenderWorkspace workspace;
+  RenderResult render;
+  auto measure = [&](double speed) {
+    path->speed = speed;
+    renderer.Render(camera, path->PoseAt(t_close), render_options, &workspace, &render);
+    return MeasureImageMotion(camera, CoveredDepth(render), path->PoseAt(t_open),
+                              path->PoseAt(t_close))
+        .median_px;
+  };
+
+  // Forward motion must stop well before the nearest surface.
+  double max_speed = std::numeric_limits<double>::infinity();
+  if (path->type == CameraPathType::kForward) {
+    const double duration = PathEnd(options) - PathStart(options);
+    max_speed = options.forward_travel_cap * scene.min_depth / (path->unit_twist.z() * duration);
+  }
+  *capped = false;
+  // Lateral estimate (exact for a fronto-parallel plane at the median depth),
+  // then fixed-point steps: image motion is nearly proportional to speed.
+  double speed = path->speed > 0.0 ? path->speed
+                                   : options.blur_px * scene.median_depth /
+                                         (scene.focal_px * FrameExposure(options));
+  double achieved = 0.0;
+  for (int iteration = 0; iteration < 10; ++iteration) {
+    if (speed >= max_speed) {
+      speed = max_speed;
+      *capped = true;
+    }
+    achieved = measure(speed);
+    if (*capped || achieved <= 0.0) break;
+    if (std::abs(achieved - options.blur_px) < 1e-3 * options.blur_px) break;
+    speed *= options.blur_px / achieved;
+  }
+  path->speed = speed;
+  return achieved;
+}
+
+PinholeCamera ChooseHrCamera(const StereoScene& scene, const SceneRenderer& renderer,
+                             const CameraPath& path, const SynthesisOptions& options) {
+  const PinholeCamera probe = ProbeCamera(scene);
+  const int width = probe.width, height = probe.height;
+  if (options.hr_width > 0) {
+    if (options.hr_width > width || options.hr_height > height) {
+      throw InputError("--hr-width/--hr-height " + std::to_string(options.hr_width) + "x" +
+                       std::to_string(options.hr_height) + " exceed the scene size " +
+                       std::to_string(width) + "x" + std::to_string(height));
+    }
+    return CentredCrop(probe, options.hr_width, options.hr_height);
+  }
+
+  // Uncovered pixels of the full-size probe at poses spread over the whole
+  // path (exposure of the first frame to the close of the last).
+  const int num_poses = std::max(5, 2 * options.num_frames + 1);
+  const double t0 = PathStart(options), t1 = PathEnd(options);
+  std::vector<cv::Mat> hole_integrals(num_poses);
+  RenderOptions render_options;
+  render_options.fill_holes = false;
+  RenderWorkspace workspace;
+  RenderResult render;
+  cv::Mat holes01;
+  for (int k = 0; k < num_poses; ++k) {
+    const double t = t0 + (t1 - t0) * k / (num_poses - 1);
+    renderer.Render(probe, path.PoseAt(t), render_options, &workspace, &render);
+    cv::threshold(render.hole_mask, holes01, 0, 1, cv::THRESH_BINARY);
+    cv::integral(holes01, hole_integrals[k], CV_32S);
+  }
+  auto count = [](const cv::Mat& integral, int x, int y, int w, int h) {
+    return integral.at<int>(y + h, x + w) - integral.at<int>(y, x + w) -
+           integral.at<int>(y + h, x) + integral.at<int>(y, x);
+  };
+
+  // Holes inside the scene (unknown disparity in both views, disocclusions
+  // seen by neither) cannot be cropped away: measure their level in the
+  // central quarter and allow it on top of max_hole_fraction.
+  const int s = options.scale;
+  double interior = 0.0;
+  for (const cv::Mat& integral : hole_integrals) {
+    interior = std::max(interior, count(integral, width / 4, height / 4, width / 2, height / 2) /
+                                      (static_cast<double>(width / 2) * (height / 2)));
+  }
+  const double max_holes = options.max_hole_fraction + interior;
+
+  // Largest centred crop (divisible by the scale, at least half the scene
+  // size) whose worst pose leaves few holes and whose edges run through
+  // covered pixels: the views' fields of view end at the crop's outside.
+  constexpr int kBand = 3;
+  constexpr double kMaxBandHoleFraction = 0.05;
+  int best_w = 0, best_h = 0;
+  double best_area = -1.0;
+  int fallback_w = 0, fallback_h = 0;
+  double fallback_holes = 2.0;
+  const int min_w = std::max(2 * kBand + s, ((width / 2 + s - 1) / s) * s);
+  const int min_h = std::max(2 * kBand + s, ((height / 2 + s - 1) / s) * s);
+  for (int w = (width / s) * s; w >= min_w; w -= s) {
+    for (int h = (height / s) * s; h >= min_h; h -= s) {
+      if (static_cast<double>(w) * h <= best_area) break;  // smaller h only shrinks the area
+      const int x = (width - w) / 2, y = (height - h) / 2;
+      double worst = 0.0, worst_band = 0.0;
+      for (const cv::Mat& integral : hole_integrals) {
+        const int all = count(integral, x, y, w, h);
+        const int inner = count(integral, x + kBand, y + kBand, w - 2 * kBand, h - 2 * kBand);
+        const double band_area = static_cast<double>(w) * h - (w - 2.0 * kBand) * (h - 2.0 * kBand);
+        worst = std::max(worst, static_cast<double>(all) / (static_cast<double>(w) * h));
+        worst_band = std::max(worst_band, (all - inner) / band_area);
+      }
+      if (worst <= max_holes && worst_band <= kMaxBandHoleFraction) {
+        best_area = static_cast<double>(w) * h;
+        best_w = w;
+        best_h = h;
+      } else if (worst < fallback_holes - 1e-9) {
+        fallback_holes = worst;
+        fallback_w = w;
+        fallback_h = h;
+      }
+    }
+  }
+  if (best_w == 0) {  // the path leaves the views' coverage: least-holes crop
+    best_w = fallback_w;
+    best_h = fallback_h;
+  }
+  return CentredCrop(probe, best_w, best_h);
+}
+
+SynthesisResult SynthesizeSequence(const StereoScene& scene, const SynthesisOptions& options,
+                                   std::ostream* log) {
+  options.Check();
+  const auto start_time = std::chrono::steady_clock::now();
+  SynthesisResult result;
+  const SceneRenderer renderer(scene);
+  const double exposure = FrameExposure(options);
+  const double t_mid = 0.5 * (PathStart(options) + PathEnd(options));
+
+  // Speed first on the full-size camera, then the crop that stays covered
+  // along that path, then the speed again on the final crop.
+  result.path = MakeCameraPath(options.path, scene, t_mid, options.arc_fixation_factor);
+  CalibratePathSpeed(scene, renderer, ProbeCamera(scene), options, &result.path,
+                     &result.speed_capped);
+  result.hr_camera = ChooseHrCamera(scene, renderer, result.path, options);
+  result.achieved_blur_px = CalibratePathSpeed(scene, renderer, result.hr_camera, options,
+                                               &result.path, &result.speed_capped);
+  result.lr_camera =
+      options.scale == 1 ? result.hr_camera : result.hr_camera.Downscaled(options.scale);
+  if (log && result.speed_capped) {
+    *log << "note: the " << CameraPathName(options.path) << " path is capped at "
+         << options.forward_travel_cap << " x the nearest depth; median blur "
+         << result.achieved_blur_px << " px instead of " << options.blur_px << " px\n";
+  }
+
+  const PinholeCamera& hr = result.hr_camera;
+  // "scenes/Dolls/" names the scene "Dolls".
+  fs::path folder = fs::path(scene.folder).lexically_normal();
+  if (folder.filename().empty()) folder = folder.parent_path();
+  const std::string scene_name = folder.filename().string();
+  Sequence& sequence = result.sequence;
+  sequence.calibration = CameraCalibration::FromCamera(result.lr_camera, "synthetic_" + scene_name);
+  sequence.ground_truth.emplace();
+  SequenceGroundTruth& gt = *sequence.ground_truth;
+  gt.calibration = CameraCalibration::FromCamera(hr, "synthetic_" + scene_name + "_hr");
+
+  // Sub-frames are summed in a fixed number of chunks, each in a fixed order,
+  // and the chunks in a fixed order: the result does not depend on threads.
+  const int num_subframes = options.subframes;
+  const int num_chunks = std::min(num_subframes, 16);
+  std::vector<cv::Mat> chunk_sums(num_chunks);
+  for (cv::Mat& sum : chunk_sums) sum.create(hr.height, hr.width, CV_32FC3);
+  std::vector<int> chunk_max_holes(num_chunks);
+  const int num_threads = std::max(1, omp_get_max_threads());
+  std::vector<RenderWorkspace> workspaces(num_threads);
+  std::vector<RenderResult> renders(num_threads);
+  const RenderOptions render_options;
+  cv::RNG rng(options.seed);
+  cv::Mat blurred(hr.height, hr.width, CV_32FC3), low_res, noise;
+
+  for (int i = 0; i < options.num_frames; ++i) {
+    const double t_close = FrameStamp(options, i);
+    const double t_open = t_close - exposure;
+    const SE3 T_world_close = result.path.PoseAt(t_close);
+    // Only the points this exposure can see: same images, faster renders.
+    const SceneRenderer frame_renderer = renderer.CulledFor(
+        hr, {result.path.PoseAt(t_open), result.path.PoseAt(0.5 * (t_open + t_close)),
+             T_world_close});
+
+    // Ground truth at the shutter close time t_c.
+    RenderResult sharp;
+    frame_renderer.Render(hr, T_world_close, render_options, &workspaces[0], &sharp);
+    FrameSynthesisStats stats;
+    stats.hole_fraction_latent = sharp.HoleFraction();
+    stats.blur = MeasureImageMotion(hr, CoveredDepth(sharp), result.path.PoseAt(t_open),
+                                    T_world_close);
+
+    // eq:blurOperator: mean over tau_m = t_o + (m / S)(t_c - t_o), m = 1..S.
+#pragma omp parallel for schedule(dynamic, 1) num_threads(num_threads)
+    for (int c = 0; c < num_chunks; ++c) {
+      const int thread = omp_get_thread_num();
+      RenderResult& render = renders[thread];
+      chunk_sums[c].setTo(cv::Scalar::all(0.0));
+      chunk_max_holes[c] = 0;
+      const int m_begin = 1 + static_cast<int>(static_cast<long>(c) * num_subframes / num_chunks);
+      const int m_end = static_cast<int>(static_cast<long>(c + 1) * num_subframes / num_chunks);
+      for (int m = m_begin; m <= m_end; ++m) {
+        const double tau = t_open + (static_cast<double>(m) / num_subframes) * exposure;
+        frame_renderer.Render(hr, result.path.PoseAt(tau), render_options, &workspaces[thread],
+                              &render);
+        cv::add(chunk_sums[c], render.image, chunk_sums[c]);
+        chunk_max_holes[c] = std::max(chunk_max_holes[c], render.num_holes);
+      }
+    }
+    blurred.setTo(cv::Scalar::all(0.0));
+    for (int c = 0; c < num_chunks; ++c) cv::add(blurred, chunk_sums[c], blurred);
+    blurred *= 1.0 / num_subframes;
+    stats.hole_fraction_max =
+        static_cast<double>(*std::max_element(chunk_max_holes.begin(), chunk_max_holes.end())) /
+        hr.NumPixels();
+
+    // Box-downsampling: INTER_AREA with an integer factor is the box average.
+    if (options.scale == 1) {
+      blurred.copyTo(low_res);
+    } else {
+      cv::resize(blurred, low_res, cv::Size(hr.width / options.scale, hr.height / options.scale),
+                 0.0, 0.0, cv::INTER_AREA);
+    }
+    if (options.noise_sigma > 0.0) {
+      noise.create(low_res.size(), low_res.type());
+      rng.fill(noise, cv::RNG::NORMAL, 0.0, options.noise_sigma);
+      low_res += noise;
+    }
+    cv::Mat image8, latent8;
+    low_res.convertTo(image8, CV_8UC3);  // rounds and saturates to 0..255
+    sharp.image.convertTo(latent8, CV_8UC3);
+
+    sequence.frames.push_back({i, t_close, exposure});
+    sequence.images.push_back(image8);
+    gt.latent.push_back(latent8);
+    gt.depth.push_back(sharp.depth.clone());
+    gt.poses.push_back({t_close, T_world_close});
+    result.frame_stats.push_back(stats);
+    if (log) {
+      std::ostringstream line;
+      line << "frame " << i + 1 << "/" << options.num_frames << ": blur median " << std::fixed
+           << std::setprecision(1) << stats.blur.median_px << " px (max " << stats.blur.max_px
+           << "), holes " << std::setprecision(2) << 100.0 * stats.hole_fraction_max << " %\n";
+      *log << line.str() << std::flush;
+    }
+  }
+  result.seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start_time).count();
+  return result;
+}
+
+namespace {
+
+void WriteCameraFields(std::ostream& out, const std::string& indent, const PinholeCamera& camera) {
+  out << indent << "width: " << camera.width << "\n"
+      << indent << "height: " << camera.height << "\n"
+      << indent << "fx: " << camera.fx << "\n"
+      << indent << "fy: " << camera.fy << "\n"
+      << indent << "cx: " << camera.cx << "\n"
+      << indent << "cy: " << camera.cy << "\n";
+}
+
+template <typename Vector>
+std::string List(const Vector& v) {
+  std::ostringstream out;
+  out << std::setprecision(10) << "[";
+  for (int i = 0; i < v.size(); ++i) out << (i ? ", " : "") << v[i];
+  out << "]";
+  return out.str();
+}
+
+}  // namespace
+
+void WriteSynthesisYaml(const std::string& path, const StereoScene& scene,
+                        const SynthesisOptions& options, const SynthesisResult& result) {
+  std::error_code error;
+  fs::create_directories(fs::path(path).parent_path(), error);
+  std::ofstream out(path);
+  if (!out) throw InputError(path + ": cannot write the file");
+  out << std::setprecision(10);
+  out << "# synthesize_sequence: how this sequence was made (extra file, not read by the\n"
+         "# estimator). World frame = the view1 camera of the scene (optical frame).\n";
+  out << "scene: \"" << scene.folder << "\"\n";
+  out << "scene_calibration:\n"
+      << "  focal_px: " << scene.focal_px << "\n"
+      << "  baseline_m: " << scene.baseline_m << "\n"
+      << "  dmin: " << scene.dmin << "\n"
+      << "  view5_cx_offset_px: " << scene.views[1].camera.cx - scene.views[0].camera.cx << "\n"
+      << "  depth_min_m: " << scene.min_depth << "\n"
+      << "  depth_median_m: " << scene.median_depth << "\n"
+      << "  depth_max_m: " << scene.max_depth << "\n";
+  out << "options:\n"
+      << "  frames: " << options.num_frames << "\n"
+      << "  scale: " << options.scale << "\n"
+      << "  exposure_ratio: " << options.exposure_ratio << "\n"
+      << "  path: " << CameraPathName(options.path) << "\n"
+      << "  noise: " << options.noise_sigma << "\n"
+      << "  seed: " << options.seed << "\n"
+      << "  blur_px: " << options.blur_px << "\n"
+      << "  subframes: " << options.subframes << "\n"
+      << "  fps: " << options.fps << "\n"
+      << "  hr_width: " << options.hr_width << "\n"
+      << "  hr_height: " << options.hr_height << "\n"
+      << "  arc_fixation_factor: " << options.arc_fixation_factor << "\n"
+      << "  forward_travel_cap: " << options.forward_travel_cap << "\n"
+      << "  max_hole_fraction: " << options.max_hole_fraction << "\n";
+  out << "hr_camera:\n";
+  WriteCameraFields(out, "  ", result.hr_camera);
+  out << "lr_camera:\n";
+  WriteCameraFields(out, "  ", result.lr_camera);
+  const CameraPath& p = result.path;
+  const Eigen::Quaterniond q = p.T_world_mid.quaternion();
+  out << "path:\n"
+      << "  # T_world_cam(t) = Exp((t - t_mid) * twist_per_s) * T_world_mid, twist = (rho, phi)\n"
+      << "  type: " << CameraPathName(p.type) << "\n"
+      << "  t_mid: " << p.t_mid << "\n"
+      << "  T_world_mid: " << List(p.T_world_mid.translation()) << "  # tx ty tz\n"
+      << "  T_world_mid_quaternion: [" << q.x() << ", " << q.y() << ", " << q.z() << ", " << q.w()
+      << "]  # qx qy qz qw\n"
+      << "  twist_per_s: " << List(p.Twist()) << "\n"
+      << "  centre_speed_mps: " << p.speed << "\n";
+  if (p.type == CameraPathType::kArc) {
+    out << "  fixation_point: " << List(p.fixation_point) << "\n";
+  }
+  out << "  speed_capped: " << (result.speed_capped ? "true" : "false") << "\n"
+      << "  target_blur_px: " << options.blur_px << "\n"
+      << "  achieved_blur_px: " << result.achieved_blur_px << "  # median, middle frame\n";
+  out << "frames:  # blur = image motion over the exposure in HR px, over covered pixels\n";
+  for (std::size_t i = 0; i < result.frame_stats.size(); ++i) {
+    const FrameSynthesisStats& s = result.frame_stats[i];
+    const FrameRecord& f = result.sequence.frames[i];
+    out << "  - {index: " << f.index << ", stamp: " << f.stamp << ", exposure: " << f.exposure
+        << ", blur_min_px: " << s.blur.min_px << ", blur_median_px: " << s.blur.median_px
+        << ", blur_max_px: " << s.blur.max_px
+        << ", hole_fraction_latent: " << s.hole_fraction_latent
+        << ", hole_fraction_max_subframe: " << s.hole_fraction_max << "}\n";
+  }
+  out << "seconds: " << result.seconds << "\n";
+  if (!out) throw InputError(path + ": cannot write the file");
+}
+
+}  // namespace deblur_sr_mvs

@@ -1,0 +1,501 @@
+#include "deblur_sr_mvs/core/imaging/capture_operator.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <sstream>
+
+#include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/common/runtime.h"
+#include "deblur_sr_mvs/core/geometry/warp.h"
+
+namespace deblur_sr_mvs {
+namespace {
+
+// Fractions within 1e-4 px of 0 or 1 (float rounding) are snapped, so an exact integer warp
+// (zero motion) yields single taps instead of 1e-13 neighbours.
+constexpr float kSnap = 1e-4f;
+constexpr float kInsideTolerance = 1e-4f;
+
+// Merging taps through a local dense grid is O(grid area); above this area
+// (extreme blur) a scatter array plus a sort is cheaper.
+constexpr int kMaxLocalGrid = 4096;
+
+
+// y = A x for a row-major sparse A and interleaved C-channel images. Not
+// auto-vectorised: gathers of scattered columns are slower than scalar loads.
+template <int kChannels>
+__attribute__((optimize("no-tree-vectorize"))) void MultiplyFixed(const SparseMatrixRM& a, const float* x, float* y, int threads) {
+  const int* outer = a.outerIndexPtr();
+  const int* inner = a.innerIndexPtr();
+  const float* values = a.valuePtr();
+  const int rows = static_cast<int>(a.rows());
+#pragma omp parallel for schedule(static) num_threads(threads)
+  for (int r = 0; r < rows; ++r) {
+    float acc[kChannels] = {};
+    for (int k = outer[r]; k < outer[r + 1]; ++k) {
+      const float w = values[k];
+      const float* px = x + static_cast<std::ptrdiff_t>(inner[k]) * kChannels;
+      for (int c = 0; c < kChannels; ++c) acc[c] += w * px[c];
+    }
+    float* py = y + static_cast<std::ptrdiff_t>(r) * kChannels;
+    for (int c = 0; c < kChannels; ++c) py[c] = acc[c];
+  }
+}
+
+// at = a^T (both row-major, compressed) with `threads` threads: per-thread
+// column histograms of contiguous row blocks, one prefix sum, then each thread
+// scatters its block to disjoint slots. Row indices come out sorted.
+}  // namespace
+
+void TransposeSparse(const SparseMatrixRM& a, SparseMatrixRM* at, int threads) {
+  const int rows = static_cast<int>(a.rows());
+  const int cols = static_cast<int>(a.cols());
+  const int* outer = a.outerIndexPtr();
+  const int* inner = a.innerIndexPtr();
+  const float* values = a.valuePtr();
+  std::vector<int> slots(static_cast<size_t>(threads) * cols, 0);
+  at->resize(cols, rows);
+  at->resizeNonZeros(a.nonZeros());
+  int* at_outer = at->outerIndexPtr();
+  int* at_inner = at->innerIndexPtr();
+  float* at_values = at->valuePtr();
+#pragma omp parallel num_threads(threads)
+  {
+    const int thread = omp_get_thread_num();
+    const int first = static_cast<int>(static_cast<long long>(rows) * thread / threads);
+    const int last = static_cast<int>(static_cast<long long>(rows) * (thread + 1) / threads);
+    int* count = slots.data() + static_cast<size_t>(thread) * cols;
+    for (int k = outer[first]; k < outer[last]; ++k) ++count[inner[k]];
+#pragma omp barrier
+#pragma omp single
+    {
+      int running = 0;
+      for (int c = 0; c < cols; ++c) {
+        at_outer[c] = running;
+        for (int t = 0; t < threads; ++t) {
+          int& slot = slots[static_cast<size_t>(t) * cols + c];
+          const int n = slot;
+          slot = running;
+          running += n;
+        }
+      }
+      at_outer[cols] = running;
+    }  // implicit barrier
+    for (int r = first; r < last; ++r) {
+      for (int k = outer[r]; k < outer[r + 1]; ++k) {
+        const int position = count[inner[k]]++;
+        at_inner[position] = r;
+        at_values[position] = values[k];
+      }
+    }
+  }
+}
+
+namespace {
+
+void MultiplyAnyChannels(const SparseMatrixRM& a, const float* x, float* y, int channels,
+                         int threads) {
+  switch (channels) {
+    case 1: MultiplyFixed<1>(a, x, y, threads); return;
+    case 2: MultiplyFixed<2>(a, x, y, threads); return;
+    case 3: MultiplyFixed<3>(a, x, y, threads); return;
+    case 4: MultiplyFixed<4>(a, x, y, threads); return;
+    default: break;
+  }
+  throw InputError("capture operator: images must have 1 to 4 channels");
+}
+
+void Multiply(const SparseMatrixRM& a, const cv::Size& in_size, const cv::Size& out_size,
+              const cv::Mat& in, cv::Mat* out, int threads, const char* what) {
+  if (in.depth() != CV_32F || in.size() != in_size) {
+    std::ostringstream message;
+    message << "capture operator " << what << ": expected a float image of " << in_size.width
+            << "x" << in_size.height << ", got " << in.cols << "x" << in.rows
+            << " (depth " << in.depth() << ")";
+    throw InputError(message.str());
+  }
+  const int channels = in.channels();
+  const cv::Mat source = in.isContinuous() ? in : in.clone();
+  out->create(out_size, CV_32FC(channels));
+  MultiplyAnyChannels(a, source.ptr<float>(), out->ptr<float>(), channels, threads);
+}
+
+}  // namespace
+
+std::vector<SE3> VirtualCameraPoses(const CaptureGeometry& geometry, int samples) {
+  // tau_m = t_o + ((m - 1/2)/M)(t_c - t_o), m = 1..M, on the path of
+  // eq:interpolatingP; alpha = (tau - s)/(t - s) also extrapolates backwards
+  // when s is the next frame (first frame of a sequence). eq:blurOperator
+  // takes m/M, the right end of each of the M slices of the exposure: its
+  // mean instant is then (M + 1)/(2M) of the way, not the middle, so the
+  // modelled blur sits half a slice late and the restored image shifts to
+  // compensate (0.13 HR px on average at 14 px of blur and M 50 on the
+  // synthetic scenes). The midpoint of each slice integrates the exposure
+  // without that bias (0.03 px).
+  const double frame_gap = geometry.stamp - geometry.neighbour_stamp;
+  const double shutter_open = geometry.stamp - geometry.exposure;
+  std::vector<SE3> poses;
+  poses.reserve(samples);
+  for (int m = 0; m < samples; ++m) {
+    const double tau = shutter_open + (m + 0.5) / samples * geometry.exposure;
+    const double alpha = (tau - geometry.neighbour_stamp) / frame_gap;
+    poses.push_back(InterpolatePose(geometry.T_world_neighbour, geometry.T_world_cam, alpha));
+  }
+  return poses;
+}
+
+void CaptureOperatorOptions::Check() const {
+  if (samples < 1 || samples > 10000) {
+    throw InputError("capture operator: samples (M) must be in [1, 10000], got " +
+                     std::to_string(samples));
+  }
+  if (scale < 1 || scale > 8) {
+    throw InputError("capture operator: scale must be in [1, 8], got " + std::to_string(scale));
+  }
+  if (num_threads < 0) {
+    throw InputError("capture operator: num_threads must be >= 0, got " +
+                     std::to_string(num_threads));
+  }
+}
+
+void CaptureOperator::Apply(const cv::Mat& hr, cv::Mat* lr) const {
+  Multiply(forward_, hr_size_, lr_size_, hr, lr, num_threads_, "Apply");
+}
+
+void MultiplySparse(const SparseMatrixRM& a, const cv::Mat& in, cv::Mat* out, int threads) {
+  if (in.depth() != CV_32F || in.rows * in.cols != a.cols()) {
+    throw InputError("MultiplySparse: input must be a float image with one pixel per column");
+  }
+  const int channels = in.channels();
+  const cv::Mat source = in.isContinuous() ? in : in.clone();
+  out->create(static_cast<int>(a.rows()), 1, CV_32FC(channels));
+  MultiplyAnyChannels(a, source.ptr<float>(), out->ptr<float>(), channels, ResolveThreads(threads));
+}
+
+void CaptureOperator::ApplyAdjoint(const cv::Mat& lr, cv::Mat* hr) const {
+  if (adjoint_.nonZeros() > 0 || forward_.nonZeros() == 0) {
+    Multiply(adjoint_, lr_size_, hr_size_, lr, hr, num_threads_, "ApplyAdjoint");
+    return;
+  }
+  // No transposed copy: scatter each row of Psi into the HR image.
+  if (lr.depth() != CV_32F || lr.size() != lr_size_) {
+    throw InputError("capture operator ApplyAdjoint: expected a float image of the LR size");
+  }
+  const int channels = lr.channels();
+  if (channels < 1 || channels > 4) throw InputError("capture operator: images must have 1 to 4 channels");
+  const cv::Mat source = lr.isContinuous() ? lr : lr.clone();
+  hr->create(hr_size_, CV_32FC(channels));
+  hr->setTo(0.0);
+  const int* outer = forward_.outerIndexPtr();
+  const int* inner = forward_.innerIndexPtr();
+  const float* values = forward_.valuePtr();
+  const float* x = source.ptr<float>();
+  float* y = hr->ptr<float>();
+  const int rows = static_cast<int>(forward_.rows());
+  for (int r = 0; r < rows; ++r) {
+    const float* xr = x + static_cast<std::ptrdiff_t>(r) * channels;
+    for (int k = outer[r]; k < outer[r + 1]; ++k) {
+      float* yc = y + static_cast<std::ptrdiff_t>(inner[k]) * channels;
+      for (int c = 0; c < channels; ++c) yc[c] += values[k] * xr[c];
+    }
+  }
+}
+
+CaptureOperatorBuilder::CaptureOperatorBuilder(const CaptureOperatorOptions& options)
+    : options_(options) {
+  options_.Check();
+}
+
+void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOperator* op) {
+  const PinholeCamera& camera = geometry.camera_hr;
+  const int scale = options_.scale;
+  const int samples = options_.samples;
+  const int threads = ResolveThreads(options_.num_threads);
+  {
+    const std::string problem = camera.Problem();
+    if (!problem.empty()) throw InputError("capture operator: " + problem);
+  }
+  if (camera.width < 2 || camera.height < 2 || camera.width % scale != 0 ||
+      camera.height % scale != 0) {
+    throw InputError("capture operator: HR size " + std::to_string(camera.width) + "x" +
+                     std::to_string(camera.height) + " must be at least 2x2 and divisible by scale " +
+                     std::to_string(scale));
+  }
+  if (geometry.depth_hr.type() != CV_32FC1 || geometry.depth_hr.cols != camera.width ||
+      geometry.depth_hr.rows != camera.height) {
+    throw InputError("capture operator: depth must be CV_32FC1 of the HR camera size");
+  }
+  if (!(geometry.exposure > 0.0) || !std::isfinite(geometry.exposure)) {
+    throw InputError("capture operator: exposure must be > 0");
+  }
+  const double frame_gap = geometry.stamp - geometry.neighbour_stamp;
+  if (!std::isfinite(frame_gap) || frame_gap == 0.0) {
+    throw InputError("capture operator: the neighbour's stamp must differ from the frame's");
+  }
+
+  const SE3& T_world_t = geometry.T_world_cam;
+  const SE3 T_source_world = geometry.T_world_source.value_or(T_world_t).Inverse();
+  const std::vector<SE3> T_world_tau = VirtualCameraPoses(geometry, samples);
+  std::vector<PixelTransferF> transfers;
+  std::vector<SE3> T_tau_t(samples);
+  transfers.reserve(samples);
+  for (int m = 0; m < samples; ++m) {
+    T_tau_t[m] = T_world_tau[m].Inverse() * T_world_t;
+    transfers.emplace_back(PixelTransfer(camera, T_source_world * T_world_tau[m]));
+  }
+
+  double stage_start = NowMs();
+  // D_tau_m by reprojecting D_t into each virtual camera (paper Sec. 3).
+  std::vector<const cv::Mat*> virtual_depth(samples, &geometry.depth_hr);
+  if (options_.reproject_depth) {
+    virtual_depths_.resize(samples);
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
+    for (int m = 0; m < samples; ++m) {
+      ReprojectDepth(camera, geometry.depth_hr, T_tau_t[m], /*fill_from_source=*/true,
+                     &virtual_depths_[m]);
+    }
+    for (int m = 0; m < samples; ++m) virtual_depth[m] = &virtual_depths_[m];
+  }
+
+  timings_.reprojection_ms = NowMs() - stage_start;
+  stage_start = NowMs();
+
+  const int hr_width = camera.width;
+  const int hr_height = camera.height;
+  const int lr_width = hr_width / scale;
+  const int lr_height = hr_height / scale;
+  const int lr_pixels = lr_width * lr_height;
+  const int samples_per_pixel = samples * scale * scale;
+  const float sample_weight = 1.0f / static_cast<float>(samples_per_pixel);
+  const float max_u = static_cast<float>(hr_width - 1);
+  const float max_v = static_cast<float>(hr_height - 1);
+  std::vector<const float*> virtual_depth_data(samples);
+  for (int m = 0; m < samples; ++m) virtual_depth_data[m] = virtual_depth[m]->ptr<float>();
+  // The transfers as structure-of-arrays over m, so that the per-sample loop
+  // below vectorises; the row-constant parts are precomputed per HR row.
+  std::vector<float> h0(samples), h3(samples), h6(samples), t0(samples), t1(samples),
+      t2(samples);
+  std::vector<float> row_bases(static_cast<size_t>(hr_height) * 3 * samples);
+  for (int m = 0; m < samples; ++m) {
+    h0[m] = transfers[m].h[0];
+    h3[m] = transfers[m].h[3];
+    h6[m] = transfers[m].h[6];
+    t0[m] = transfers[m].t[0];
+    t1[m] = transfers[m].t[1];
+    t2[m] = transfers[m].t[2];
+    for (int y = 0; y < hr_height; ++y) {
+      float base[3];
+      transfers[m].RowBase(static_cast<float>(y), base);
+      for (int k = 0; k < 3; ++k) row_bases[(static_cast<size_t>(y) * 3 + k) * samples + m] = base[k];
+    }
+  }
+
+  op->lr_size_ = cv::Size(lr_width, lr_height);
+  op->hr_size_ = cv::Size(hr_width, hr_height);
+  op->num_threads_ = threads;
+  op->coverage_.assign(lr_pixels, 1.0f);
+
+  // Each thread assembles a contiguous block of LR rows into its own CSR
+  // pieces; the blocks are concatenated in order afterwards.
+  std::vector<std::vector<int>>& block_columns = block_columns_;
+  std::vector<std::vector<float>>& block_values = block_values_;
+  block_columns.resize(std::max<size_t>(block_columns.size(), threads));
+  block_values.resize(std::max<size_t>(block_values.size(), threads));
+  std::vector<int>& row_nnz = row_nnz_;
+  row_nnz.assign(lr_pixels, 0);
+
+#pragma omp parallel num_threads(threads)
+  {
+    const int thread = omp_get_thread_num();
+    const int first_row = static_cast<int>(static_cast<long long>(lr_height) * thread / threads);
+    const int last_row =
+        static_cast<int>(static_cast<long long>(lr_height) * (thread + 1) / threads);
+    std::vector<int>& columns = block_columns[thread];
+    std::vector<float>& values = block_values[thread];
+    columns.clear();
+    values.clear();
+    columns.reserve(static_cast<size_t>(last_row - first_row) * lr_width * 64);
+    values.reserve(columns.capacity());
+    // Per-sample scratch of one LR pixel (structure of arrays).
+    std::vector<float> depth(samples);
+    std::vector<int> tap_x(samples_per_pixel), tap_y(samples_per_pixel);
+    std::vector<float> frac_x(samples_per_pixel), frac_y(samples_per_pixel);
+    std::vector<float> cells(4 * kMaxLocalGrid);
+    std::vector<float> scatter;  // fallback for huge footprints
+    std::vector<int> touched;
+
+    for (int lr_y = first_row; lr_y < last_row; ++lr_y) {
+      for (int lr_x = 0; lr_x < lr_width; ++lr_x) {
+        const int row = lr_y * lr_width + lr_x;
+        int misses = 0;
+        int min_x = hr_width, max_x = -1, min_y = hr_height, max_y = -1;
+        for (int sub_y = 0; sub_y < scale; ++sub_y) {
+          const int y = lr_y * scale + sub_y;
+          const float* base0 = &row_bases[(static_cast<size_t>(y) * 3 + 0) * samples];
+          const float* base1 = base0 + samples;
+          const float* base2 = base1 + samples;
+          for (int sub_x = 0; sub_x < scale; ++sub_x) {
+            const int x = lr_x * scale + sub_x;
+            const size_t pixel = static_cast<size_t>(y) * hr_width + x;
+            for (int m = 0; m < samples; ++m) depth[m] = virtual_depth_data[m][pixel];
+            const int offset = (sub_y * scale + sub_x) * samples;
+            int* out_x = tap_x.data() + offset;
+            int* out_y = tap_y.data() + offset;
+            float* out_fx = frac_x.data() + offset;
+            float* out_fy = frac_y.data() + offset;
+            const float xf = static_cast<float>(x);
+            const float yf = static_cast<float>(y);
+            // W^{tau_m -> src}(x) for every virtual camera (eq:warpingFunction);
+            // unknown depth or a point behind the camera samples x itself, and
+            // samples outside the image are clamped (border replicated); both
+            // count as misses in the coverage.
+            const float* __restrict depth_m = depth.data();
+            const float* __restrict c_h0 = h0.data();
+            const float* __restrict c_h3 = h3.data();
+            const float* __restrict c_h6 = h6.data();
+            const float* __restrict c_t0 = t0.data();
+            const float* __restrict c_t1 = t1.data();
+            const float* __restrict c_t2 = t2.data();
+#pragma omp simd reduction(+ : misses)
+            for (int m = 0; m < samples; ++m) {
+              const float d = depth_m[m];
+              const float z = d * (c_h6[m] * xf + base2[m]) + c_t2[m];
+              const float inv_z = 1.0f / z;
+              float u = (d * (c_h0[m] * xf + base0[m]) + c_t0[m]) * inv_z;
+              float v = (d * (c_h3[m] * xf + base1[m]) + c_t1[m]) * inv_z;
+              // Bitwise & (no short-circuit branches) keeps the loop vectorisable.
+              const bool usable = (d > 0.0f) & (d < 1e30f) & (z > 1e-9f);
+              u = usable ? u : xf;
+              v = usable ? v : yf;
+              const bool inside = usable & (u >= -kInsideTolerance) & (v >= -kInsideTolerance) &
+                                  (u <= max_u + kInsideTolerance) & (v <= max_v + kInsideTolerance);
+              misses += inside ? 0 : 1;
+              u = std::min(std::max(u, 0.0f), max_u);
+              v = std::min(std::max(v, 0.0f), max_v);
+              const int ix = std::min(static_cast<int>(u), hr_width - 2);
+              const int iy = std::min(static_cast<int>(v), hr_height - 2);
+              float fx = u - static_cast<float>(ix);
+              float fy = v - static_cast<float>(iy);
+              fx = fx < kSnap ? 0.0f : (fx > 1.0f - kSnap ? 1.0f : fx);
+              fy = fy < kSnap ? 0.0f : (fy > 1.0f - kSnap ? 1.0f : fy);
+              out_x[m] = ix;
+              out_y[m] = iy;
+              out_fx[m] = fx;
+              out_fy[m] = fy;
+            }
+          }
+        }
+        for (int k = 0; k < samples_per_pixel; ++k) {
+          min_x = std::min(min_x, tap_x[k]);
+          max_x = std::max(max_x, tap_x[k]);
+          min_y = std::min(min_y, tap_y[k]);
+          max_y = std::max(max_y, tap_y[k]);
+        }
+        ++max_x;  // the right and bottom taps of the bilinear stencil
+        ++max_y;
+        op->coverage_[row] = 1.0f - static_cast<float>(misses) / samples_per_pixel;
+
+        const int grid_width = max_x - min_x + 1;
+        const int grid_height = max_y - min_y + 1;
+        const size_t row_start = columns.size();
+        if (grid_width * grid_height <= kMaxLocalGrid) {
+          // Merge taps in a local dense grid. Each sample adds its four
+          // bilinear weights to ONE cell as a 4-vector (top-left, top-right,
+          // bottom-left, bottom-right); the stencil is unfolded when the grid
+          // is emitted. Emitting in raster order gives sorted column indices.
+          std::fill(cells.begin(), cells.begin() + 4 * grid_width * grid_height, 0.0f);
+          float* __restrict c = cells.data();
+          for (int k = 0; k < samples_per_pixel; ++k) {
+            const float wy1 = frac_y[k] * sample_weight;
+            const float wy0 = sample_weight - wy1;
+            const float fx = frac_x[k];
+            float* cell = c + 4 * ((tap_y[k] - min_y) * grid_width + (tap_x[k] - min_x));
+            cell[0] += (1.0f - fx) * wy0;
+            cell[1] += fx * wy0;
+            cell[2] += (1.0f - fx) * wy1;
+            cell[3] += fx * wy1;
+          }
+          for (int gy = 0; gy < grid_height; ++gy) {
+            const float* here = c + 4 * gy * grid_width;
+            const float* above = here - 4 * grid_width;
+            const int base = (min_y + gy) * hr_width + min_x;
+            for (int gx = 0; gx < grid_width; ++gx) {
+              float value = here[4 * gx];
+              if (gx > 0) value += here[4 * gx - 3];
+              if (gy > 0) {
+                value += above[4 * gx + 2];
+                if (gx > 0) value += above[4 * gx - 1];
+              }
+              if (value != 0.0f) {
+                columns.push_back(base + gx);
+                values.push_back(value);
+              }
+            }
+          }
+        } else {
+          if (scatter.empty()) scatter.assign(static_cast<size_t>(hr_width) * hr_height, 0.0f);
+          auto add = [&](int index, float w) {
+            if (w == 0.0f) return;
+            if (scatter[index] == 0.0f) touched.push_back(index);
+            scatter[index] += w;
+          };
+          for (int k = 0; k < samples_per_pixel; ++k) {
+            const int index = tap_y[k] * hr_width + tap_x[k];
+            const float wy1 = frac_y[k] * sample_weight;
+            const float wy0 = sample_weight - wy1;
+            const float fx = frac_x[k];
+            add(index, (1.0f - fx) * wy0);
+            add(index + 1, fx * wy0);
+            add(index + hr_width, (1.0f - fx) * wy1);
+            add(index + hr_width + 1, fx * wy1);
+          }
+          std::sort(touched.begin(), touched.end());
+          for (int index : touched) {
+            columns.push_back(index);
+            values.push_back(scatter[index]);
+            scatter[index] = 0.0f;
+          }
+          touched.clear();
+        }
+        row_nnz[row] = static_cast<int>(columns.size() - row_start);
+      }
+    }
+  }
+
+  // Concatenate the blocks into one compressed row-major matrix.
+  size_t nnz = 0;
+  for (const auto& block : block_columns) nnz += block.size();
+  SparseMatrixRM& forward = op->forward_;
+  forward.resize(lr_pixels, hr_width * hr_height);
+  forward.resizeNonZeros(static_cast<Eigen::Index>(nnz));
+  int* outer = forward.outerIndexPtr();
+  outer[0] = 0;
+  for (int r = 0; r < lr_pixels; ++r) outer[r + 1] = outer[r] + row_nnz[r];
+  size_t offset = 0;
+  for (int t = 0; t < threads; ++t) {
+    std::copy(block_columns[t].begin(), block_columns[t].end(), forward.innerIndexPtr() + offset);
+    std::copy(block_values[t].begin(), block_values[t].end(), forward.valuePtr() + offset);
+    offset += block_columns[t].size();
+  }
+  timings_.assembly_ms = NowMs() - stage_start;
+  stage_start = NowMs();
+  if (options_.transposed_copy) {
+    TransposeSparse(forward, &op->adjoint_, threads);
+  } else {
+    op->adjoint_ = SparseMatrixRM();
+  }
+  timings_.adjoint_ms = NowMs() - stage_start;
+}
+
+CaptureOperator BuildCaptureOperator(const CaptureGeometry& geometry,
+                                     const CaptureOperatorOptions& options) {
+  CaptureOperatorBuilder builder(options);
+  CaptureOperator op;
+  builder.Build(geometry, &op);
+  return op;
+}
+
+}  // namespace deblur_sr_mvs

@@ -1,0 +1,915 @@
+#include "deblur_sr_mvs/core/io/sequence_io.h"
+#include "deblur_sr_mvs/core/common/text.h"
+
+#include <algorithm>
+#include <cctype>
+#include <charconv>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <map>
+#include <sstream>
+#include <system_error>
+
+#include <opencv2/imgcodecs.hpp>
+
+namespace deblur_sr_mvs {
+namespace {
+
+namespace fs = std::filesystem;
+
+// ------------------------------------------------------------------ helpers
+
+[[noreturn]] void Fail(const std::string& path, const std::string& message) {
+  throw InputError(path + ": " + message);
+}
+
+[[noreturn]] void FailAt(const std::string& path, int line, const std::string& message) {
+  throw InputError(path + ":" + std::to_string(line) + ": " + message);
+}
+
+// Shortest text that parses back to exactly `value` (locale independent).
+std::string FormatDouble(double value) {
+  char buffer[64];
+  const std::to_chars_result result = std::to_chars(buffer, buffer + sizeof(buffer), value);
+  return std::string(buffer, result.ptr);
+}
+
+// Short form for messages: 0.3 - 0.25 reads 0.05, not 0.04999999999999999.
+std::string MessageNumber(double value) {
+  char buffer[64];
+  std::snprintf(buffer, sizeof(buffer), "%.9g", value);
+  return buffer;
+}
+
+// Quotes user text in messages: bounded length, non-printable bytes as '?',
+// so that binary garbage still gives a one-line message.
+std::string Quote(const std::string& text) {
+  constexpr std::size_t kMaxLength = 40;
+  std::string out = "'";
+  for (std::size_t i = 0; i < text.size() && i < kMaxLength; ++i) {
+    const unsigned char c = static_cast<unsigned char>(text[i]);
+    out += (c >= 0x20 && c < 0x7f) ? static_cast<char>(c) : '?';
+  }
+  if (text.size() > kMaxLength) out += "...";
+  return out + "'";
+}
+
+std::string Trim(const std::string& text) {
+  const char* kSpace = " \t\r\n\f\v";
+  const std::size_t begin = text.find_first_not_of(kSpace);
+  if (begin == std::string::npos) return "";
+  const std::size_t end = text.find_last_not_of(kSpace);
+  return text.substr(begin, end - begin + 1);
+}
+
+// Locale-independent number parsing that must consume the whole token.
+bool ParseDouble(const std::string& token, double* value) {
+  const char* begin = token.data();
+  const char* end = token.data() + token.size();
+  if (begin != end && *begin == '+') ++begin;
+  if (begin == end) return false;
+  const std::from_chars_result result = std::from_chars(begin, end, *value);
+  return result.ec == std::errc() && result.ptr == end;
+}
+
+bool ParseInt(const std::string& token, long long* value) {
+  const char* begin = token.data();
+  const char* end = token.data() + token.size();
+  if (begin != end && *begin == '+') ++begin;
+  if (begin == end) return false;
+  const std::from_chars_result result = std::from_chars(begin, end, *value);
+  return result.ec == std::errc() && result.ptr == end;
+}
+
+void CheckReadableFile(const std::string& path) {
+  std::error_code error;
+  const fs::file_status status = fs::status(path, error);
+  if (!fs::exists(status)) Fail(path, "file not found");
+  if (fs::is_directory(status)) Fail(path, "is a directory, expected a file");
+}
+
+std::string ReadTextFile(const std::string& path) {
+  CheckReadableFile(path);
+  std::ifstream in(path, std::ios::binary);
+  if (!in) Fail(path, "cannot open file for reading");
+  std::ostringstream content;
+  content << in.rdbuf();
+  if (in.bad()) Fail(path, "read error");
+  return content.str();
+}
+
+// Lines without their '\n' (and without a trailing '\r', for CRLF files).
+std::vector<std::string> SplitLines(const std::string& text) {
+  std::vector<std::string> lines;
+  std::size_t start = 0;
+  while (start <= text.size()) {
+    std::size_t end = text.find('\n', start);
+    if (end == std::string::npos) end = text.size();
+    std::string line = text.substr(start, end - start);
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    lines.push_back(std::move(line));
+    start = end + 1;
+  }
+  // A final '\n' produces one empty "line" that is not in the file.
+  if (!lines.empty() && lines.back().empty() && !text.empty() && text.back() == '\n') {
+    lines.pop_back();
+  }
+  return lines;
+}
+
+void CreateParentFolder(const std::string& path) {
+  const fs::path parent = fs::path(path).parent_path();
+  if (parent.empty()) return;
+  std::error_code error;
+  fs::create_directories(parent, error);
+  if (error) Fail(path, "cannot create folder " + parent.string() + ": " + error.message());
+}
+
+void WriteTextFile(const std::string& path, const std::string& content) {
+  CreateParentFolder(path);
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  if (!out) Fail(path, "cannot open file for writing");
+  out << content;
+  out.close();
+  if (!out) Fail(path, "write error");
+}
+
+// ---------------------------------------------------- camera_calibration YAML
+//
+// A strict parser for the subset camera_calibration writes: top-level
+// `key: scalar`, `key: [flow list]` and `key:` followed by an indented block
+// (or `key: {flow map}`) of `rows`, `cols`, `data`. Flow lists and maps may
+// span several lines. Anything else is reported with its line number.
+
+struct YamlNode {
+  int line = 0;
+  bool is_map = false;
+  std::string scalar;                        // scalar, or the text of a flow list
+  std::map<std::string, YamlNode> children;  // when is_map
+};
+
+struct YamlLine {
+  int number = 0;
+  int indent = 0;
+  std::string text;  // without indentation, comment and trailing spaces
+};
+
+class YamlParser {
+ public:
+  YamlParser(const std::string& path, const std::string& content) : path_(path) {
+    const std::vector<std::string> raw_lines = SplitLines(content);
+    for (std::size_t i = 0; i < raw_lines.size(); ++i) {
+      const int number = static_cast<int>(i) + 1;
+      std::string text = StripComment(raw_lines[i]);
+      const std::size_t last = text.find_last_not_of(" \t");
+      if (last == std::string::npos) continue;  // blank or comment-only line
+      text.erase(last + 1);
+      const std::size_t first = text.find_first_not_of(' ');
+      if (text[first] == '\t') FailAt(path_, number, "tab in indentation (YAML allows spaces only)");
+      if (number == 1 && text == "%YAML:1.0") continue;  // OpenCV-style header
+      if (text == "---") continue;                       // document start
+      lines_.push_back({number, static_cast<int>(first), text.substr(first)});
+    }
+  }
+
+  bool empty() const { return lines_.empty(); }
+
+  YamlNode Parse() {
+    YamlNode root;
+    root.is_map = true;
+    std::size_t position = 0;
+    ParseBlock(&position, 0, &root);
+    if (position != lines_.size()) {
+      FailAt(path_, lines_[position].number, "unexpected indentation");
+    }
+    return root;
+  }
+
+ private:
+  static std::string StripComment(const std::string& line) {
+    char quote = 0;
+    for (std::size_t i = 0; i < line.size(); ++i) {
+      const char c = line[i];
+      if (quote) {
+        if (c == quote) quote = 0;
+      } else if (c == '"' || c == '\'') {
+        quote = c;
+      } else if (c == '#' && (i == 0 || line[i - 1] == ' ' || line[i - 1] == '\t')) {
+        return line.substr(0, i);
+      }
+    }
+    return line;
+  }
+
+  // Parses `key: value` lines at exactly `indent` into `parent`.
+  void ParseBlock(std::size_t* position, int indent, YamlNode* parent) {
+    while (*position < lines_.size()) {
+      const YamlLine& line = lines_[*position];
+      if (line.indent < indent) return;
+      if (line.indent > indent) FailAt(path_, line.number, "unexpected indentation");
+      if (line.text.rfind("- ", 0) == 0 || line.text == "-") {
+        FailAt(path_, line.number, "block lists ('- item') are not supported, use [a, b, ...]");
+      }
+      std::string key;
+      std::string value;
+      SplitKeyValue(line.text, line.number, &key, &value);
+      ++*position;
+      YamlNode node;
+      node.line = line.number;
+      if (value.empty()) {
+        if (*position < lines_.size() && lines_[*position].indent > indent) {
+          node.is_map = true;
+          ParseBlock(position, lines_[*position].indent, &node);
+        }
+      } else if (value[0] == '[' || value[0] == '{') {
+        value = CollectFlow(value, line.number, position);
+        if (value[0] == '{') {
+          node.is_map = true;
+          ParseFlowMap(value, line.number, &node);
+        } else {
+          node.scalar = value;
+        }
+      } else {
+        node.scalar = Unquote(value, line.number);
+      }
+      AddChild(parent, key, std::move(node));
+    }
+  }
+
+  void AddChild(YamlNode* parent, const std::string& key, YamlNode node) {
+    const int line = node.line;
+    if (!parent->children.emplace(key, std::move(node)).second) {
+      FailAt(path_, line, "duplicate key '" + key + "'");
+    }
+  }
+
+  void SplitKeyValue(const std::string& text, int line, std::string* key, std::string* value) {
+    // The key ends at the first ':' followed by a space or the end of the line.
+    std::size_t colon = std::string::npos;
+    for (std::size_t i = 0; i < text.size(); ++i) {
+      if (text[i] == ':' && (i + 1 == text.size() || text[i + 1] == ' ')) {
+        colon = i;
+        break;
+      }
+      if (text[i] == '[' || text[i] == '{' || text[i] == ',') break;
+    }
+    if (colon == std::string::npos || colon == 0) {
+      FailAt(path_, line, "expected 'key: value', got " + Quote(text));
+    }
+    *key = Trim(text.substr(0, colon));
+    *value = Trim(text.substr(colon + 1));
+  }
+
+  // Joins continuation lines until the brackets opened in `value` are closed.
+  std::string CollectFlow(std::string value, int line, std::size_t* position) {
+    int depth = 0;
+    auto balance = [&depth, this, line](const std::string& text) {
+      for (char c : text) {
+        if (c == '[' || c == '{') ++depth;
+        if (c == ']' || c == '}') --depth;
+        if (depth < 0) FailAt(path_, line, "unbalanced brackets");
+      }
+    };
+    balance(value);
+    while (depth > 0) {
+      if (*position >= lines_.size()) {
+        FailAt(path_, line, "unterminated '" + value.substr(0, 1) + "' (missing closing bracket)");
+      }
+      const std::string& more = lines_[(*position)++].text;
+      balance(more);
+      value += " " + more;
+    }
+    const char close = value[0] == '[' ? ']' : '}';
+    if (value.back() != close) {
+      FailAt(path_, line, "unexpected text after the closing '" + std::string(1, close) + "'");
+    }
+    return value;
+  }
+
+  void ParseFlowMap(const std::string& text, int line, YamlNode* node) {
+    for (const std::string& entry : SplitFlowItems(text, line)) {
+      std::string key;
+      std::string value;
+      SplitKeyValue(entry, line, &key, &value);
+      YamlNode child;
+      child.line = line;
+      if (!value.empty() && value[0] == '{') FailAt(path_, line, "nested flow maps are not supported");
+      child.scalar = value.empty() || value[0] == '[' ? value : Unquote(value, line);
+      AddChild(node, key, std::move(child));
+    }
+  }
+
+  std::string Unquote(const std::string& value, int line) {
+    if (value.empty() || (value[0] != '"' && value[0] != '\'')) return value;
+    const char quote = value[0];
+    if (value.size() < 2 || value.back() != quote) {
+      FailAt(path_, line, "unterminated quoted string " + Quote(value));
+    }
+    std::string out;
+    for (std::size_t i = 1; i + 1 < value.size(); ++i) {
+      if (quote == '"' && value[i] == '\\' && i + 2 < value.size()) {
+        out += value[++i];
+      } else if (quote == '\'' && value[i] == '\'' && i + 2 < value.size() && value[i + 1] == '\'') {
+        out += value[++i];
+      } else {
+        out += value[i];
+      }
+    }
+    return out;
+  }
+
+ public:
+  // Items of "[a, b, c]" or "{k: v, ...}" split at top-level commas.
+  std::vector<std::string> SplitFlowItems(const std::string& text, int line) const {
+    std::vector<std::string> items;
+    const std::string inner = Trim(text.substr(1, text.size() - 2));
+    if (inner.empty()) return items;
+    int depth = 0;
+    std::string current;
+    for (char c : inner) {
+      if (c == '[' || c == '{') ++depth;
+      if (c == ']' || c == '}') --depth;
+      if (c == ',' && depth == 0) {
+        items.push_back(Trim(current));
+        current.clear();
+      } else {
+        current += c;
+      }
+    }
+    items.push_back(Trim(current));
+    for (const std::string& item : items) {
+      if (item.empty()) FailAt(path_, line, "empty item in " + Quote(text));
+    }
+    return items;
+  }
+
+ private:
+  std::string path_;
+  std::vector<YamlLine> lines_;
+};
+
+class CalibrationReader {
+ public:
+  CalibrationReader(const std::string& path, YamlParser* parser, const YamlNode* root)
+      : path_(path), parser_(parser), root_(root) {}
+
+  const YamlNode* Find(const std::string& key) const {
+    const auto it = root_->children.find(key);
+    return it == root_->children.end() ? nullptr : &it->second;
+  }
+
+  const YamlNode& Require(const std::string& key) const {
+    const YamlNode* node = Find(key);
+    if (node == nullptr) Fail(path_, "missing key '" + key + "'");
+    return *node;
+  }
+
+  int PositiveInt(const YamlNode& node, const std::string& name) const {
+    long long value = 0;
+    if (node.is_map || !ParseInt(node.scalar, &value) || value <= 0 ||
+        value > std::numeric_limits<int>::max()) {
+      FailAt(path_, node.line,
+             name + " must be a positive integer, got " + Quote(node.is_map ? "{map}" : node.scalar));
+    }
+    return static_cast<int>(value);
+  }
+
+  std::string String(const std::string& key, const std::string& fallback) const {
+    const YamlNode* node = Find(key);
+    if (node == nullptr) return fallback;
+    if (node->is_map || (!node->scalar.empty() && node->scalar[0] == '[')) {
+      FailAt(path_, node->line, key + " must be a string");
+    }
+    return node->scalar;
+  }
+
+  // A `{rows, cols, data}` matrix; expected_cols < 0 accepts any column count.
+  std::vector<double> Matrix(const YamlNode& node, const std::string& key, int expected_rows,
+                             int expected_cols) const {
+    if (!node.is_map) FailAt(path_, node.line, key + " must be a map with rows, cols and data");
+    const int rows = Dimension(node, key, "rows");
+    const int cols = Dimension(node, key, "cols");
+    if (rows != expected_rows) {
+      FailAt(path_, Child(node, key, "rows").line,
+             key + ": rows is " + std::to_string(rows) + ", expected " + std::to_string(expected_rows));
+    }
+    if (expected_cols >= 0 && cols != expected_cols) {
+      FailAt(path_, Child(node, key, "cols").line,
+             key + ": cols is " + std::to_string(cols) + ", expected " + std::to_string(expected_cols));
+    }
+    const YamlNode& data = Child(node, key, "data");
+    if (data.is_map || data.scalar.empty() || data.scalar[0] != '[') {
+      FailAt(path_, data.line, key + ": data must be a list [a, b, ...]");
+    }
+    const std::vector<std::string> items = parser_->SplitFlowItems(data.scalar, data.line);
+    if (static_cast<long long>(items.size()) != static_cast<long long>(rows) * cols) {
+      FailAt(path_, data.line,
+             key + ": data has " + std::to_string(items.size()) + " values, expected rows*cols = " +
+                 std::to_string(static_cast<long long>(rows) * cols));
+    }
+    std::vector<double> values(items.size());
+    for (std::size_t i = 0; i < items.size(); ++i) {
+      if (!ParseDouble(items[i], &values[i])) {
+        FailAt(path_, data.line, key + ": data value " + Quote(items[i]) + " is not a number");
+      }
+      if (!std::isfinite(values[i])) {
+        FailAt(path_, data.line, key + ": data value " + Quote(items[i]) + " is not finite");
+      }
+    }
+    return values;
+  }
+
+ private:
+  const YamlNode& Child(const YamlNode& node, const std::string& key, const std::string& name) const {
+    const auto it = node.children.find(name);
+    if (it == node.children.end()) FailAt(path_, node.line, key + ": missing key '" + name + "'");
+    return it->second;
+  }
+
+  int Dimension(const YamlNode& node, const std::string& key, const std::string& name) const {
+    const YamlNode& child = Child(node, key, name);
+    long long value = 0;
+    if (child.is_map || !ParseInt(child.scalar, &value) || value < 0 || value > 1000000) {
+      FailAt(path_, child.line, key + ": " + name + " must be a non-negative integer, got " +
+                                    Quote(child.is_map ? "{map}" : child.scalar));
+    }
+    return static_cast<int>(value);
+  }
+
+  std::string path_;
+  YamlParser* parser_;
+  const YamlNode* root_;
+};
+
+std::string FormatMatrixEntry(const std::string& key, int rows, int cols,
+                              const std::vector<double>& data) {
+  std::string out = key + ":\n  rows: " + std::to_string(rows) + "\n  cols: " +
+                    std::to_string(cols) + "\n  data: [";
+  for (std::size_t i = 0; i < data.size(); ++i) {
+    if (i > 0) out += (cols > 0 && i % static_cast<std::size_t>(cols) == 0) ? ",\n         " : ", ";
+    out += FormatDouble(data[i]);
+  }
+  return out + "]\n";
+}
+
+// Plain scalar when it reads back unchanged, else a double-quoted string.
+std::string FormatYamlString(const std::string& text) {
+  const bool plain = !text.empty() && text == Trim(text) &&
+                     text.find_first_of(":#'\"[]{},&*!|>%@`\\") == std::string::npos &&
+                     text[0] != '-';
+  if (plain) return text;
+  std::string out = "\"";
+  for (char c : text) {
+    if (c == '"' || c == '\\') out += '\\';
+    out += c;
+  }
+  return out + "\"";
+}
+
+Eigen::Matrix<double, 3, 4> ProjectionOf(const PinholeCamera& camera) {
+  Eigen::Matrix<double, 3, 4> projection = Eigen::Matrix<double, 3, 4>::Zero();
+  projection(0, 0) = camera.fx;
+  projection(0, 2) = camera.cx;
+  projection(1, 1) = camera.fy;
+  projection(1, 2) = camera.cy;
+  projection(2, 2) = 1.0;
+  return projection;
+}
+
+// ------------------------------------------------------------------- images
+
+cv::Mat ReadImageFile(const std::string& path) {
+  CheckReadableFile(path);
+  std::error_code error;
+  if (fs::file_size(path, error) == 0 && !error) Fail(path, "file is empty");
+  cv::Mat image;
+  try {
+    image = cv::imread(path, cv::IMREAD_UNCHANGED);
+  } catch (const cv::Exception& e) {
+    Fail(path, "cannot be decoded (" + Trim(e.err) + ")");
+  }
+  if (image.empty()) Fail(path, "cannot be decoded (truncated, corrupt or unsupported format)");
+  return image;
+}
+
+void WriteImageFile(const std::string& path, const cv::Mat& image,
+                    const std::vector<int>& params = {}) {
+  CreateParentFolder(path);
+  bool ok = false;
+  try {
+    ok = cv::imwrite(path, image, params);
+  } catch (const cv::Exception& e) {
+    Fail(path, "cannot write image (" + Trim(e.err) + ")");
+  }
+  if (!ok) Fail(path, "cannot write image");
+}
+
+std::string TypeText(const cv::Mat& image) {
+  const int depth = image.depth();
+  const char* names[] = {"8U", "8S", "16U", "16S", "32S", "32F", "64F", "16F"};
+  const std::string name = depth >= 0 && depth < 8 ? names[depth] : "?";
+  return name + "C" + std::to_string(image.channels());
+}
+
+bool HasExtension(const std::string& path, std::initializer_list<const char*> extensions) {
+  std::string extension = fs::path(path).extension().string();
+  std::transform(extension.begin(), extension.end(), extension.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  for (const char* candidate : extensions) {
+    if (extension == candidate) return true;
+  }
+  return false;
+}
+
+}  // namespace
+
+// ------------------------------------------------------------- calibration
+
+CameraCalibration CameraCalibration::FromCamera(const PinholeCamera& camera,
+                                                const std::string& name) {
+  CameraCalibration calibration;
+  calibration.camera = camera;
+  calibration.camera_name = name;
+  calibration.projection = ProjectionOf(camera);
+  return calibration;
+}
+
+bool CameraCalibration::HasDistortion() const {
+  return std::any_of(distortion.begin(), distortion.end(), [](double d) { return d != 0.0; });
+}
+
+CameraCalibration ReadCameraYaml(const std::string& path) {
+  const std::string content = ReadTextFile(path);
+  YamlParser parser(path, content);
+  if (parser.empty()) Fail(path, "file is empty (expected camera_calibration YAML)");
+  const YamlNode root = parser.Parse();
+  const CalibrationReader reader(path, &parser, &root);
+
+  CameraCalibration calibration;
+  PinholeCamera& camera = calibration.camera;
+  camera.width = reader.PositiveInt(reader.Require("image_width"), "image_width");
+  camera.height = reader.PositiveInt(reader.Require("image_height"), "image_height");
+  calibration.camera_name = reader.String("camera_name", calibration.camera_name);
+
+  const YamlNode& k_node = reader.Require("camera_matrix");
+  const std::vector<double> k = reader.Matrix(k_node, "camera_matrix", 3, 3);
+  // A pinhole camera without skew; a tiny tolerance for hand-edited files.
+  const double tolerance = 1e-9 * std::max({1.0, std::abs(k[0]), std::abs(k[4])});
+  if (std::abs(k[1]) > tolerance || std::abs(k[3]) > tolerance || std::abs(k[6]) > tolerance ||
+      std::abs(k[7]) > tolerance || std::abs(k[8] - 1.0) > tolerance) {
+    std::string text;
+    for (int i = 0; i < 9; ++i) text += (i ? (i % 3 ? " " : "; ") : "") + FormatDouble(k[i]);
+    FailAt(path, k_node.line,
+           "camera_matrix must be [fx 0 cx; 0 fy cy; 0 0 1], got [" + text + "]");
+  }
+  camera.fx = k[0];
+  camera.cx = k[2];
+  camera.fy = k[4];
+  camera.cy = k[5];
+  if (camera.fx <= 0.0 || camera.fy <= 0.0) {
+    FailAt(path, k_node.line, "camera_matrix: focal length (fx, fy) = (" + FormatDouble(camera.fx) +
+                                  ", " + FormatDouble(camera.fy) + ") must be positive");
+  }
+
+  calibration.distortion_model = reader.String("distortion_model", calibration.distortion_model);
+  if (const YamlNode* node = reader.Find("distortion_coefficients")) {
+    calibration.distortion = reader.Matrix(*node, "distortion_coefficients", 1, -1);
+  }
+  if (const YamlNode* node = reader.Find("rectification_matrix")) {
+    const std::vector<double> r = reader.Matrix(*node, "rectification_matrix", 3, 3);
+    calibration.rectification = Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(r.data());
+  }
+  // Missing P defaults to [K | 0], what the writer would have written.
+  calibration.projection = ProjectionOf(camera);
+  if (const YamlNode* node = reader.Find("projection_matrix")) {
+    const std::vector<double> p = reader.Matrix(*node, "projection_matrix", 3, 4);
+    calibration.projection = Eigen::Map<const Eigen::Matrix<double, 3, 4, Eigen::RowMajor>>(p.data());
+  }
+  return calibration;
+}
+
+void WriteCameraYaml(const std::string& path, const CameraCalibration& calibration) {
+  const PinholeCamera& camera = calibration.camera;
+  const std::vector<double> k = {camera.fx, 0.0, camera.cx, 0.0, camera.fy, camera.cy, 0.0, 0.0, 1.0};
+  std::vector<double> r(9);
+  std::vector<double> p(12);
+  const Eigen::Matrix<double, 3, 4> projection =
+      calibration.projection.isZero(0.0) ? ProjectionOf(camera) : calibration.projection;
+  for (int row = 0; row < 3; ++row) {
+    for (int col = 0; col < 3; ++col) r[row * 3 + col] = calibration.rectification(row, col);
+    for (int col = 0; col < 4; ++col) p[row * 4 + col] = projection(row, col);
+  }
+  std::string out;
+  out += "image_width: " + std::to_string(camera.width) + "\n";
+  out += "image_height: " + std::to_string(camera.height) + "\n";
+  out += "camera_name: " + FormatYamlString(calibration.camera_name) + "\n";
+  out += FormatMatrixEntry("camera_matrix", 3, 3, k);
+  out += "distortion_model: " + FormatYamlString(calibration.distortion_model) + "\n";
+  out += FormatMatrixEntry("distortion_coefficients", 1, static_cast<int>(calibration.distortion.size()),
+                           calibration.distortion);
+  out += FormatMatrixEntry("rectification_matrix", 3, 3, r);
+  out += FormatMatrixEntry("projection_matrix", 3, 4, p);
+  WriteTextFile(path, out);
+}
+
+// ---------------------------------------------------------------- frames.csv
+
+std::vector<FrameRecord> ReadFramesCsv(const std::string& path) {
+  static const char* kHeader = "index,stamp,exposure";
+  const std::string content = ReadTextFile(path);
+  std::vector<std::string> lines = SplitLines(content);
+  // Spreadsheet programs may prefix a UTF-8 byte order mark.
+  if (!lines.empty() && lines[0].rfind("\xEF\xBB\xBF", 0) == 0) lines[0].erase(0, 3);
+  for (std::string& line : lines) line = Trim(line);
+  // Trailing empty lines are tolerated; empty lines elsewhere are not.
+  while (!lines.empty() && lines.back().empty()) lines.pop_back();
+  if (lines.empty()) Fail(path, std::string("file is empty (expected header '") + kHeader + "')");
+  if (lines[0] != kHeader) {
+    FailAt(path, 1, std::string("header must be '") + kHeader + "', got " + Quote(lines[0]));
+  }
+  if (lines.size() == 1) Fail(path, "no frames after the header");
+
+  std::vector<FrameRecord> frames;
+  std::vector<std::string> stamp_texts;
+  frames.reserve(lines.size() - 1);
+  for (std::size_t i = 1; i < lines.size(); ++i) {
+    const int number = static_cast<int>(i) + 1;
+    const std::string& line = lines[i];
+    if (line.empty()) FailAt(path, number, "empty line");
+    std::vector<std::string> fields;
+    std::stringstream stream(line);
+    std::string field;
+    while (std::getline(stream, field, ',')) fields.push_back(Trim(field));
+    if (line.back() == ',') fields.push_back("");
+    if (fields.size() != 3) {
+      FailAt(path, number, "expected 3 fields 'index,stamp,exposure', got " +
+                               std::to_string(fields.size()) + " in " + Quote(line));
+    }
+    FrameRecord frame;
+    long long index = 0;
+    if (!ParseInt(fields[0], &index)) FailAt(path, number, "index " + Quote(fields[0]) + " is not an integer");
+    const long long expected = static_cast<long long>(frames.size());
+    if (index != expected) {
+      FailAt(path, number, "index " + fields[0] + " should be " + std::to_string(expected) +
+                               " (indices are contiguous from 0)");
+    }
+    frame.index = static_cast<int>(index);
+    if (!ParseDouble(fields[1], &frame.stamp)) FailAt(path, number, "stamp " + Quote(fields[1]) + " is not a number");
+    if (!std::isfinite(frame.stamp)) FailAt(path, number, "stamp " + fields[1] + " is not finite");
+    if (!ParseDouble(fields[2], &frame.exposure)) {
+      FailAt(path, number, "exposure " + Quote(fields[2]) + " is not a number");
+    }
+    if (!std::isfinite(frame.exposure) || frame.exposure <= 0.0) {
+      FailAt(path, number, "exposure " + fields[2] + " must be finite and > 0");
+    }
+    if (!frames.empty() && !(frame.stamp > frames.back().stamp)) {
+      FailAt(path, number, "stamp " + fields[1] + " is not after the previous stamp " + stamp_texts.back());
+    }
+    frames.push_back(frame);
+    stamp_texts.push_back(fields[1]);
+  }
+
+  // The exposure [t_c - exposure, t_c] must fit in the frame interval. The
+  // tolerance covers rounding of decimal stamps (e.g. 0.3 - 0.2 < 0.1) and
+  // large epoch stamps.
+  for (std::size_t i = 0; i < frames.size() && frames.size() > 1; ++i) {
+    const bool first = i == 0;
+    const double a = first ? frames[0].stamp : frames[i - 1].stamp;
+    const double b = first ? frames[1].stamp : frames[i].stamp;
+    const double interval = b - a;
+    const double tolerance =
+        1e-12 + 8.0 * std::numeric_limits<double>::epsilon() * std::max(std::abs(a), std::abs(b));
+    if (frames[i].exposure > interval + tolerance) {
+      FailAt(path, static_cast<int>(i) + 2,
+             "exposure " + MessageNumber(frames[i].exposure) + " s exceeds the frame interval " +
+                 MessageNumber(interval) + " s (gap to the " + (first ? "next" : "previous") + " stamp)");
+    }
+  }
+  return frames;
+}
+
+void WriteFramesCsv(const std::string& path, const std::vector<FrameRecord>& frames) {
+  std::string out = "index,stamp,exposure\n";
+  for (const FrameRecord& frame : frames) {
+    out += std::to_string(frame.index) + "," + FormatDouble(frame.stamp) + "," +
+           FormatDouble(frame.exposure) + "\n";
+  }
+  WriteTextFile(path, out);
+}
+
+// -------------------------------------------------------------- TUM poses
+
+std::vector<StampedPose> ReadTumTrajectory(const std::string& path) {
+  const std::string content = ReadTextFile(path);
+  const std::vector<std::string> lines = SplitLines(content);
+  std::vector<StampedPose> poses;
+  std::vector<std::string> fields;
+  for (std::size_t i = 0; i < lines.size(); ++i) {
+    const int number = static_cast<int>(i) + 1;
+    const std::string line = Trim(lines[i]);
+    if (line.empty() || line[0] == '#') continue;
+    fields.clear();
+    std::istringstream stream(line);
+    std::string field;
+    while (stream >> field) fields.push_back(field);
+    if (fields.size() != 8) {
+      FailAt(path, number, "expected 8 values 'stamp tx ty tz qx qy qz qw', got " +
+                               std::to_string(fields.size()));
+    }
+    double v[8];
+    for (int j = 0; j < 8; ++j) {
+      if (!ParseDouble(fields[j], &v[j])) FailAt(path, number, "value " + Quote(fields[j]) + " is not a number");
+      if (!std::isfinite(v[j])) FailAt(path, number, "value " + fields[j] + " is not finite");
+    }
+    const Eigen::Quaterniond q(v[7], v[4], v[5], v[6]);  // (w, x, y, z)
+    if (q.norm() < 1e-6) {
+      FailAt(path, number, "quaternion (qx qy qz qw) = (" + fields[4] + " " + fields[5] + " " +
+                               fields[6] + " " + fields[7] + ") has (near) zero norm");
+    }
+    StampedPose pose;
+    pose.stamp = v[0];
+    pose.T_world_cam = SE3(q.normalized(), Eigen::Vector3d(v[1], v[2], v[3]));
+    poses.push_back(pose);
+  }
+  if (poses.empty()) Fail(path, "no poses (expected lines 'stamp tx ty tz qx qy qz qw')");
+  return poses;
+}
+
+void WriteTumTrajectory(const std::string& path, const std::vector<StampedPose>& poses) {
+  std::string out = "# stamp tx ty tz qx qy qz qw (T_world_cam, camera -> world)\n";
+  for (const StampedPose& pose : poses) {
+    Eigen::Quaterniond q = pose.T_world_cam.quaternion();
+    if (q.w() < 0.0) q.coeffs() = -q.coeffs();  // canonical sign, same rotation
+    const Eigen::Vector3d& t = pose.T_world_cam.translation();
+    const double values[8] = {pose.stamp, t.x(), t.y(), t.z(), q.x(), q.y(), q.z(), q.w()};
+    for (int j = 0; j < 8; ++j) out += (j ? " " : "") + FormatDouble(values[j]);
+    out += "\n";
+  }
+  WriteTextFile(path, out);
+}
+
+// ------------------------------------------------------------------ images
+
+cv::Mat ReadDepthTiff(const std::string& path) {
+  const cv::Mat depth = ReadImageFile(path);
+  if (depth.type() != CV_32FC1) {
+    Fail(path, "depth must be float32 single-channel (32FC1), got " + TypeText(depth));
+  }
+  return depth;
+}
+
+void WriteDepthTiff(const std::string& path, const cv::Mat& depth) {
+  if (depth.empty()) Fail(path, "cannot write an empty depth map");
+  if (depth.type() != CV_32FC1) Fail(path, "depth to write must be 32FC1, got " + TypeText(depth));
+  if (!HasExtension(path, {".tif", ".tiff"})) Fail(path, "depth file name must end with .tiff or .tif");
+  WriteImageFile(path, depth);
+}
+
+// 4-channel (alpha) images are rejected rather than silently flattened:
+// the sequence format holds gray or colour frames only.
+cv::Mat ReadImage8(const std::string& path) {
+  const cv::Mat image = ReadImageFile(path);
+  if (image.depth() != CV_8U) Fail(path, "image must be 8-bit, got " + TypeText(image));
+  if (image.channels() != 1 && image.channels() != 3) {
+    Fail(path, "image must be gray or colour (1 or 3 channels), got " +
+                   std::to_string(image.channels()) + " channels");
+  }
+  return image;
+}
+
+void WriteImage(const std::string& path, const cv::Mat& image) {
+  if (image.empty()) Fail(path, "cannot write an empty image");
+  const int depth = image.depth();
+  const int channels = image.channels();
+  if ((depth != CV_8U && depth != CV_16U) || (channels != 1 && channels != 3 && channels != 4)) {
+    Fail(path, "image to write must be 8- or 16-bit with 1, 3 or 4 channels, got " + TypeText(image));
+  }
+  WriteImageFile(path, image);
+}
+
+std::string FrameStem(int index) {
+  char buffer[32];
+  std::snprintf(buffer, sizeof(buffer), "%06d", index);
+  return buffer;
+}
+
+// --------------------------------------------------------- whole sequences
+
+Sequence ReadSequence(const std::string& folder, bool read_ground_truth) {
+  const fs::path root(folder);
+  std::error_code error;
+  if (!fs::is_directory(root, error)) Fail(folder, "sequence folder not found");
+  const std::string camera_path = (root / "camera.yaml").string();
+
+  Sequence sequence;
+  sequence.calibration = ReadCameraYaml(camera_path);
+  sequence.frames = ReadFramesCsv((root / "frames.csv").string());
+  const PinholeCamera& camera = sequence.calibration.camera;
+  sequence.images.reserve(sequence.frames.size());
+  for (const FrameRecord& frame : sequence.frames) {
+    const std::string path = (root / "images" / (FrameStem(frame.index) + ".png")).string();
+    cv::Mat image = ReadImage8(path);
+    if (image.cols != camera.width || image.rows != camera.height) {
+      Fail(path, "image is " + SizeText(image.cols, image.rows) + " but " + camera_path + " says " +
+                     SizeText(camera.width, camera.height));
+    }
+    if (!sequence.images.empty() && image.channels() != sequence.images.front().channels()) {
+      Fail(path, "image has " + std::to_string(image.channels()) + " channel(s) but frame 0 has " +
+                     std::to_string(sequence.images.front().channels()));
+    }
+    sequence.images.push_back(std::move(image));
+  }
+
+  const fs::path gt_root = root / "gt";
+  if (!read_ground_truth || !fs::exists(gt_root, error)) return sequence;
+  if (!fs::is_directory(gt_root, error)) Fail(gt_root.string(), "is not a folder");
+
+  SequenceGroundTruth gt;
+  const std::string gt_camera_path = (gt_root / "camera.yaml").string();
+  gt.calibration = ReadCameraYaml(gt_camera_path);
+  const PinholeCamera& gt_camera = gt.calibration.camera;
+  auto check_size = [&](const std::string& path, const cv::Mat& image) {
+    if (image.cols != gt_camera.width || image.rows != gt_camera.height) {
+      Fail(path, "image is " + SizeText(image.cols, image.rows) + " but " + gt_camera_path +
+                     " says " + SizeText(gt_camera.width, gt_camera.height));
+    }
+  };
+  gt.latent.reserve(sequence.frames.size());
+  gt.depth.reserve(sequence.frames.size());
+  for (const FrameRecord& frame : sequence.frames) {
+    const std::string stem = FrameStem(frame.index);
+    const std::string latent_path = (gt_root / "latent" / (stem + ".png")).string();
+    cv::Mat latent = ReadImage8(latent_path);
+    check_size(latent_path, latent);
+    if (!gt.latent.empty() && latent.channels() != gt.latent.front().channels()) {
+      Fail(latent_path, "image has " + std::to_string(latent.channels()) +
+                            " channel(s) but the first latent image has " +
+                            std::to_string(gt.latent.front().channels()));
+    }
+    gt.latent.push_back(std::move(latent));
+    const std::string depth_path = (gt_root / "depth" / (stem + ".tiff")).string();
+    cv::Mat depth = ReadDepthTiff(depth_path);
+    check_size(depth_path, depth);
+    gt.depth.push_back(std::move(depth));
+  }
+  const std::string poses_path = (gt_root / "poses.txt").string();
+  gt.poses = ReadTumTrajectory(poses_path);
+  if (gt.poses.size() != sequence.frames.size()) {
+    Fail(poses_path, std::to_string(gt.poses.size()) + " poses for " +
+                         std::to_string(sequence.frames.size()) + " frames (one pose per frame)");
+  }
+  constexpr double kStampTolerance = 1e-6;  // s
+  for (std::size_t i = 0; i < gt.poses.size(); ++i) {
+    if (!(std::abs(gt.poses[i].stamp - sequence.frames[i].stamp) <= kStampTolerance)) {
+      Fail(poses_path, "pose " + std::to_string(i) + " has stamp " + FormatDouble(gt.poses[i].stamp) +
+                           " but frame " + std::to_string(i) + " has stamp " +
+                           FormatDouble(sequence.frames[i].stamp) + " (tolerance 1e-6 s)");
+    }
+  }
+  sequence.ground_truth = std::move(gt);
+  return sequence;
+}
+
+void WriteSequence(const std::string& folder, const Sequence& sequence) {
+  const fs::path root(folder);
+  const std::size_t count = sequence.frames.size();
+  if (sequence.images.size() != count) {
+    Fail(folder, "cannot write " + std::to_string(sequence.images.size()) + " images for " +
+                     std::to_string(count) + " frames");
+  }
+  if (sequence.ground_truth) {
+    const SequenceGroundTruth& gt = *sequence.ground_truth;
+    if (gt.latent.size() != count || gt.depth.size() != count || gt.poses.size() != count) {
+      Fail(folder, "ground truth needs one latent image, depth map and pose per frame, got " +
+                       std::to_string(gt.latent.size()) + ", " + std::to_string(gt.depth.size()) +
+                       ", " + std::to_string(gt.poses.size()) + " for " + std::to_string(count) +
+                       " frames");
+    }
+  }
+  std::error_code error;
+  fs::create_directories(root / "images", error);
+  if (error) Fail(folder, "cannot create folder: " + error.message());
+
+  WriteCameraYaml((root / "camera.yaml").string(), sequence.calibration);
+  WriteFramesCsv((root / "frames.csv").string(), sequence.frames);
+  for (std::size_t i = 0; i < count; ++i) {
+    const std::string stem = FrameStem(sequence.frames[i].index);
+    WriteImage((root / "images" / (stem + ".png")).string(), sequence.images[i]);
+  }
+  if (!sequence.ground_truth) return;
+
+  const SequenceGroundTruth& gt = *sequence.ground_truth;
+  const fs::path gt_root = root / "gt";
+  WriteCameraYaml((gt_root / "camera.yaml").string(), gt.calibration);
+  for (std::size_t i = 0; i < count; ++i) {
+    const std::string stem = FrameStem(sequence.frames[i].index);
+    WriteImage((gt_root / "latent" / (stem + ".png")).string(), gt.latent[i]);
+    WriteDepthTiff((gt_root / "depth" / (stem + ".tiff")).string(), gt.depth[i]);
+  }
+  WriteTumTrajectory((gt_root / "poses.txt").string(), gt.poses);
+}
+
+}  // namespace deblur_sr_mvs

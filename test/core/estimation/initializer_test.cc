@@ -1,0 +1,320 @@
+#include "deblur_sr_mvs/core/estimation/initializer.h"
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+#include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
+
+#include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/imaging/image_ops.h"
+#include "deblur_sr_mvs/core/evaluation/metrics.h"
+#include "deblur_sr_mvs/core/io/sequence_io.h"
+
+namespace deblur_sr_mvs {
+namespace {
+
+namespace fs = std::filesystem;
+
+// A 5-frame Dolls sequence (default lateral path, severe blur: ~7 LR px per
+// exposure, scale 2) made by the synthesizer tool. ctest runs every TEST in
+// its own process, so the sequence is cached in the temp folder under a name
+// keyed by the tool binary (a rebuilt tool makes a new one), written to a
+// private folder first and renamed into place (parallel ctest runs).
+const Sequence& DollsSequence() {
+  static const Sequence sequence = [] {
+    const std::string tool = std::string(DSM_TOOL_DIR) + "/synthesize_sequence";
+    std::error_code error;
+    const auto stamp = fs::last_write_time(tool, error).time_since_epoch().count();
+    const fs::path folder = fs::path(::testing::TempDir()) /
+                            ("dsm_initializer_dolls5_" + std::to_string(stamp) + "_" +
+                             std::to_string(fs::file_size(tool, error)));
+    if (!fs::exists(folder / "frames.csv")) {
+      const fs::path scratch = folder.string() + ".tmp" + std::to_string(::getpid());
+      const std::string command = tool + " --scene " + std::string(DSM_SOURCE_DIR) +
+                                  "/data/middlebury/Dolls --output " + scratch.string() +
+                                  " --frames 5 --subframes 60 >/dev/null 2>&1";
+      if (std::system(command.c_str()) != 0) {
+        ADD_FAILURE() << "synthesize_sequence failed: " << command;
+        return Sequence();
+      }
+      fs::rename(scratch, folder, error);  // fails harmlessly when another run won
+      fs::remove_all(scratch, error);
+    }
+    return ReadSequence(folder.string(), /*read_ground_truth=*/true);
+  }();
+  return sequence;
+}
+
+std::vector<cv::Mat> FloatImages(const Sequence& sequence) {
+  std::vector<cv::Mat> images;
+  for (const cv::Mat& image : sequence.images) images.push_back(ToFloat01(image));
+  return images;
+}
+
+const InitialStructure& DollsResult() {
+  static const InitialStructure result = [] {
+    const Sequence& sequence = DollsSequence();
+    return InitializeStructure(FloatImages(sequence), sequence.calibration.camera, sequence.frames,
+                               InitializerOptions());
+  }();
+  return result;
+}
+
+// Mean relative depth error (paper's metric: median scale alignment, 70 %
+// centre crop) of LR depths up-sampled bicubically to the HR ground truth.
+double MeanDepthError(const std::vector<cv::Mat>& depth_lr, const Sequence& sequence) {
+  DepthMetricOptions options;
+  options.crop_fraction = 0.7;
+  double sum = 0.0;
+  for (size_t t = 0; t < depth_lr.size(); ++t) {
+    const cv::Mat& truth = sequence.ground_truth->depth[t];
+    cv::Mat upsampled;
+    cv::resize(depth_lr[t], upsampled, truth.size(), 0, 0, cv::INTER_CUBIC);
+    sum += EvaluateDepth(upsampled, truth, options).relative_error;
+  }
+  return sum / depth_lr.size();
+}
+
+void ExpectOneLine(const std::string& message) {
+  EXPECT_FALSE(message.empty());
+  EXPECT_EQ(message.find('\n'), std::string::npos) << message;
+}
+
+template <typename Error>
+void ExpectThrowsWith(const std::function<void()>& call, const std::string& part) {
+  try {
+    call();
+    ADD_FAILURE() << "expected an error mentioning '" << part << "'";
+  } catch (const Error& error) {
+    const std::string message = error.what();
+    ExpectOneLine(message);
+    EXPECT_NE(message.find(part), std::string::npos) << message;
+  }
+}
+
+TEST(InitializerTest, RecoversTrajectoryWithUnitFirstBaseline) {
+  const Sequence& sequence = DollsSequence();
+  ASSERT_EQ(sequence.images.size(), 5u);
+  const InitialStructure& result = DollsResult();
+  ASSERT_EQ(result.T_world_cam.size(), 5u);
+
+  // Gauge: world = camera 0, cameras 0 and 1 one unit apart.
+  EXPECT_LT(result.T_world_cam[0].Log().norm(), 1e-9);
+  EXPECT_NEAR(
+      (result.T_world_cam[1].translation() - result.T_world_cam[0].translation()).norm(), 1.0,
+      1e-9);
+
+  // Positions after Sim(3) alignment. Measured: 0.46 % of the path on this
+  // sequence, 0.3-0.6 % on the four 10-frame scenes.
+  std::vector<Eigen::Vector3d> estimate, truth;
+  double path = 0.0;
+  for (size_t t = 0; t < result.T_world_cam.size(); ++t) {
+    estimate.push_back(result.T_world_cam[t].translation());
+    truth.push_back(sequence.ground_truth->poses[t].T_world_cam.translation());
+    if (t > 0) path += (truth[t] - truth[t - 1]).norm();
+  }
+  EXPECT_LT(AbsoluteTrajectoryRmse(estimate, truth), 0.03 * path);
+
+  // Orientations relative to frame 0. Measured <= 0.03 deg; a reconstruction
+  // that takes the sideways motion for a pan (the narrow-field ambiguity the
+  // rotation prior resolves) is off by ~0.8 deg per frame.
+  const SE3& T_world0 = sequence.ground_truth->poses[0].T_world_cam;
+  for (size_t t = 1; t < result.T_world_cam.size(); ++t) {
+    const Eigen::Matrix3d R_true =
+        (T_world0.Inverse() * sequence.ground_truth->poses[t].T_world_cam).rotation();
+    const double angle =
+        Eigen::AngleAxisd(result.T_world_cam[t].rotation().transpose() * R_true).angle();
+    EXPECT_LT(angle * 180.0 / M_PI, 0.3) << "frame " << t;
+  }
+
+  for (const char* stage : {"tracking", "two-view", "bundle adjustment", "depth", "total"}) {
+    EXPECT_NE(result.summary.find(stage), std::string::npos) << result.summary;
+  }
+}
+
+TEST(InitializerTest, RecoversDepth) {
+  const Sequence& sequence = DollsSequence();
+  const InitialStructure& result = DollsResult();
+  ASSERT_EQ(result.depth_lr.size(), 5u);
+  const cv::Size lr_size(sequence.calibration.camera.width, sequence.calibration.camera.height);
+  for (const cv::Mat& depth : result.depth_lr) {
+    ASSERT_EQ(depth.type(), CV_32FC1);
+    ASSERT_EQ(depth.size(), lr_size);
+    int valid = 0;
+    for (int y = 0; y < depth.rows; ++y) {
+      for (int x = 0; x < depth.cols; ++x) valid += depth.at<float>(y, x) > 0.0f ? 1 : 0;
+    }
+    EXPECT_GT(valid, 0.99 * depth.total());
+  }
+  // Measured 0.018 here (0.010-0.032 on the four 10-frame scenes); the paper
+  // reports 0.034-0.056 on Dolls after its full optimisation. Dolls is
+  // shallow: the median depth everywhere already scores 0.064, so the bound
+  // is ~2x the measurement and the estimate must also remove most of the
+  // error of that constant map.
+  const double error = MeanDepthError(result.depth_lr, sequence);
+  EXPECT_LT(error, 0.035);
+  std::vector<cv::Mat> constant;
+  for (const cv::Mat& depth : result.depth_lr) {
+    std::vector<float> values(depth.begin<float>(), depth.end<float>());
+    std::nth_element(values.begin(), values.begin() + values.size() / 2, values.end());
+    constant.push_back(cv::Mat(depth.size(), CV_32FC1, cv::Scalar(values[values.size() / 2])));
+  }
+  EXPECT_LT(error, 0.5 * MeanDepthError(constant, sequence));
+}
+
+TEST(InitializerTest, GrayFramesAndTwoFramesWork) {
+  const Sequence& sequence = DollsSequence();
+  std::vector<cv::Mat> gray;
+  for (int t = 0; t < 2; ++t) {
+    cv::Mat converted;
+    cv::cvtColor(ToFloat01(sequence.images[t]), converted, cv::COLOR_BGR2GRAY);
+    gray.push_back(converted);
+  }
+  const std::vector<FrameRecord> frames(sequence.frames.begin(), sequence.frames.begin() + 2);
+  const InitialStructure result =
+      InitializeStructure(gray, sequence.calibration.camera, frames, InitializerOptions());
+  ASSERT_EQ(result.T_world_cam.size(), 2u);
+  EXPECT_NEAR((result.T_world_cam[1].translation() - result.T_world_cam[0].translation()).norm(),
+              1.0, 1e-9);
+  // The ground truth moves along +x of camera 0.
+  const Eigen::Vector3d direction = result.T_world_cam[1].translation();
+  EXPECT_GT(direction.x(), 0.99);
+  // Measured 0.013 (two frames, one neighbour each).
+  EXPECT_LT(MeanDepthError(result.depth_lr, sequence), 0.035);
+}
+
+TEST(InitializerTest, UntexturedFramesGiveInitializationError) {
+  const Sequence& sequence = DollsSequence();
+  const PinholeCamera& camera = sequence.calibration.camera;
+  for (const double value : {0.0, 0.5}) {
+    const std::vector<cv::Mat> blank(3, cv::Mat(camera.height, camera.width, CV_32FC3,
+                                                cv::Scalar::all(value)));
+    const std::vector<FrameRecord> frames(sequence.frames.begin(), sequence.frames.begin() + 3);
+    ExpectThrowsWith<InitializationError>(
+        [&] { InitializeStructure(blank, camera, frames, InitializerOptions()); }, "features");
+  }
+}
+
+TEST(InitializerTest, UnrelatedFramesGiveInitializationError) {
+  const Sequence& sequence = DollsSequence();
+  const PinholeCamera& camera = sequence.calibration.camera;
+  std::vector<cv::Mat> noise;
+  cv::RNG rng(7);
+  for (int t = 0; t < 3; ++t) {
+    cv::Mat image(camera.height, camera.width, CV_32FC3);
+    rng.fill(image, cv::RNG::UNIFORM, 0.0, 1.0);
+    cv::GaussianBlur(image, image, cv::Size(5, 5), 1.5);  // corners, but nothing to track
+    noise.push_back(image);
+  }
+  const std::vector<FrameRecord> frames(sequence.frames.begin(), sequence.frames.begin() + 3);
+  ExpectThrowsWith<InitializationError>(
+      [&] { InitializeStructure(noise, camera, frames, InitializerOptions()); }, "frames 0-1: only");
+}
+
+// The frames carry no depth (the camera did not translate): initialisation
+// must fail with one line that says so.
+void ExpectNoParallaxError(const std::vector<cv::Mat>& images, const PinholeCamera& camera,
+                           const std::vector<FrameRecord>& frames, const std::string& what) {
+  try {
+    InitializeStructure(images, camera, frames, InitializerOptions());
+    ADD_FAILURE() << what << " cannot be initialised";
+  } catch (const InitializationError& error) {
+    const std::string message = error.what();
+    ExpectOneLine(message);
+    EXPECT_TRUE(message.find("parallax") != std::string::npos ||
+                message.find("degenerate") != std::string::npos)
+        << message;
+  }
+}
+
+TEST(InitializerTest, StaticCameraGivesInitializationError) {
+  const Sequence& sequence = DollsSequence();
+  const std::vector<cv::Mat> images(3, ToFloat01(sequence.images[2]));
+  const std::vector<FrameRecord> frames(sequence.frames.begin(), sequence.frames.begin() + 3);
+  ExpectNoParallaxError(images, sequence.calibration.camera, frames, "a camera that does not move");
+}
+
+TEST(InitializerTest, PureRotationGivesInitializationError) {
+  // Frames related by rotations only (homographies K R K^-1): no translation,
+  // so no parallax and no depth. The initialiser must say so, not invent depth.
+  const Sequence& sequence = DollsSequence();
+  const PinholeCamera& camera = sequence.calibration.camera;
+  const Eigen::Matrix3d K = (Eigen::Matrix3d() << camera.fx, 0, camera.cx, 0, camera.fy, camera.cy, 0, 0, 1)
+                                .finished();
+  const cv::Mat first = ToFloat01(sequence.images[2]);
+  std::vector<cv::Mat> images;
+  for (int t = 0; t < 3; ++t) {
+    const Eigen::Matrix3d R = Eigen::AngleAxisd(0.01 * t, Eigen::Vector3d(0.2, 1.0, 0.1).normalized()).matrix();
+    const Eigen::Matrix3d H = K * R * K.inverse();
+    cv::Mat homography(3, 3, CV_64F);
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) homography.at<double>(r, c) = H(r, c);
+    }
+    cv::Mat warped;
+    cv::warpPerspective(first, warped, homography, first.size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
+    images.push_back(warped);
+  }
+  const std::vector<FrameRecord> frames(sequence.frames.begin(), sequence.frames.begin() + 3);
+  ExpectNoParallaxError(images, camera, frames, "a purely rotating camera");
+}
+
+TEST(InitializerTest, BadOptionsAndInputsGiveInputError) {
+  auto expect_bad = [](const std::function<void(InitializerOptions*)>& change,
+                       const std::string& field) {
+    InitializerOptions options;
+    change(&options);
+    ExpectThrowsWith<InputError>([&] { options.Check(); }, field);
+  };
+  expect_bad([](InitializerOptions* o) { o->num_threads = -1; }, "num_threads");
+  expect_bad([](InitializerOptions* o) { o->num_planes = 2; }, "num_planes");
+  expect_bad([](InitializerOptions* o) { o->ransac_confidence = 1.5; }, "ransac_confidence");
+  expect_bad([](InitializerOptions* o) { o->ransac_threshold_px = 0.0; }, "ransac_threshold_px");
+  expect_bad([](InitializerOptions* o) { o->depth_tv_weight = -1.0; }, "depth_tv_weight");
+  expect_bad([](InitializerOptions* o) { o->neighbours_per_side = 0; }, "neighbours_per_side");
+  expect_bad([](InitializerOptions* o) { o->theta_end = 2.0 * o->theta_start; }, "theta");
+  expect_bad([](InitializerOptions* o) { o->capture_samples = 0; }, "capture_samples");
+  expect_bad([](InitializerOptions* o) { o->rotation_prior_px = 0.0; }, "rotation_prior_px");
+  expect_bad([](InitializerOptions* o) { o->edge_weight.sigma = 0.0; }, "edge_weight");
+  EXPECT_NO_THROW(InitializerOptions().Check());
+
+  // InitializeStructure checks its options and inputs before any work.
+  const PinholeCamera camera(64, 48, 60.0, 60.0, 31.5, 23.5);
+  const std::vector<cv::Mat> images(2, cv::Mat(48, 64, CV_32FC1, cv::Scalar(0.5)));
+  std::vector<FrameRecord> frames(2);
+  frames[0] = {0, 0.1, 0.05};
+  frames[1] = {1, 0.2, 0.05};
+  InitializerOptions bad;
+  bad.min_inliers = 2;
+  ExpectThrowsWith<InputError>([&] { InitializeStructure(images, camera, frames, bad); },
+                               "min_inliers");
+  ExpectThrowsWith<InputError>(
+      [&] {
+        InitializeStructure({images[0]}, camera, {frames[0]}, InitializerOptions());
+      },
+      "at least 2 frames");
+  ExpectThrowsWith<InputError>(
+      [&] {
+        const std::vector<cv::Mat> wrong(2, cv::Mat(40, 64, CV_32FC1, cv::Scalar(0.5)));
+        InitializeStructure(wrong, camera, frames, InitializerOptions());
+      },
+      "image 0");
+  ExpectThrowsWith<InputError>(
+      [&] {
+        std::vector<FrameRecord> backwards = frames;
+        backwards[1].stamp = 0.05;
+        InitializeStructure(images, camera, backwards, InitializerOptions());
+      },
+      "stamps");
+}
+
+}  // namespace
+}  // namespace deblur_sr_mvs

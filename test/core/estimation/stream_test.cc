@@ -1,0 +1,282 @@
+// Streaming layer: windowing, the bounded pending queue, pose-sequence
+// alignment and the window-to-window continuity of StreamEstimator.
+#include "deblur_sr_mvs/core/estimation/stream.h"
+
+#include <atomic>
+#include <cstdlib>
+#include <iostream>
+#include <limits>
+#include <thread>
+
+#include <unistd.h>
+
+#include <filesystem>
+
+#include <gtest/gtest.h>
+
+#include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/imaging/image_ops.h"
+#include "deblur_sr_mvs/core/evaluation/metrics.h"
+#include "deblur_sr_mvs/core/io/sequence_io.h"
+
+namespace deblur_sr_mvs {
+namespace {
+
+StreamFrame FrameWithId(uint64_t id) {
+  StreamFrame frame;
+  frame.id = id;
+  frame.stamp_ns = static_cast<int64_t>(id) * 1000;
+  return frame;
+}
+
+std::vector<uint64_t> IdsOf(const StreamWindow& window) {
+  std::vector<uint64_t> ids;
+  for (const StreamFrame& frame : window) ids.push_back(frame.id);
+  return ids;
+}
+
+TEST(StreamOptions, RejectsBadValues) {
+  StreamOptions options;
+  EXPECT_NO_THROW(options.Check());
+  options.window_size = 2;
+  EXPECT_THROW(options.Check(), InputError);
+  options = StreamOptions();
+  options.window_overlap = options.window_size;
+  EXPECT_THROW(options.Check(), InputError);
+  options.window_overlap = 1;
+  EXPECT_THROW(options.Check(), InputError);
+  options = StreamOptions();
+  options.max_pending_windows = 0;
+  EXPECT_THROW(options.Check(), InputError);
+}
+
+TEST(FrameWindower, OverlappingWindowsInOrder) {
+  StreamOptions options;
+  options.window_size = 4;
+  options.window_overlap = 2;
+  FrameWindower windower(options);
+  std::vector<std::vector<uint64_t>> windows;
+  for (uint64_t id = 0; id < 8; ++id) {
+    for (const StreamWindow& window : windower.Add(FrameWithId(id))) windows.push_back(IdsOf(window));
+  }
+  ASSERT_EQ(windows.size(), 3u);
+  EXPECT_EQ(windows[0], (std::vector<uint64_t>{0, 1, 2, 3}));
+  EXPECT_EQ(windows[1], (std::vector<uint64_t>{2, 3, 4, 5}));
+  EXPECT_EQ(windows[2], (std::vector<uint64_t>{4, 5, 6, 7}));
+  EXPECT_EQ(windower.buffered(), 2u);
+  windower.Reset();
+  EXPECT_EQ(windower.buffered(), 0u);
+}
+
+TEST(FrameWindower, ShrinkingTheWindowLosesNoFrame) {
+  StreamOptions options;
+  options.window_size = 6;
+  options.window_overlap = 2;
+  FrameWindower windower(options);
+  for (uint64_t id = 0; id < 5; ++id) EXPECT_TRUE(windower.Add(FrameWithId(id)).empty());
+  options.window_size = 3;
+  windower.SetOptions(options);
+  const std::vector<StreamWindow> windows = windower.Add(FrameWithId(5));
+  ASSERT_EQ(windows.size(), 4u);
+  EXPECT_EQ(IdsOf(windows[0]), (std::vector<uint64_t>{0, 1, 2}));
+  EXPECT_EQ(IdsOf(windows[3]), (std::vector<uint64_t>{3, 4, 5}));
+}
+
+TEST(PendingWindowQueue, DropsTheOldestAndCounts) {
+  PendingWindowQueue queue(2);
+  EXPECT_EQ(queue.Push({FrameWithId(1)}), 0);
+  EXPECT_EQ(queue.Push({FrameWithId(2)}), 0);
+  EXPECT_EQ(queue.Push({FrameWithId(3)}), 1);
+  EXPECT_EQ(queue.dropped(), 1u);
+  StreamWindow window;
+  ASSERT_TRUE(queue.Pop(&window));
+  EXPECT_EQ(window[0].id, 2u);
+  ASSERT_TRUE(queue.Pop(&window));
+  EXPECT_EQ(window[0].id, 3u);
+  EXPECT_EQ(queue.size(), 0u);
+}
+
+TEST(PendingWindowQueue, StopWakesABlockedPop) {
+  PendingWindowQueue queue(1);
+  std::atomic<bool> returned{false};
+  bool popped = true;
+  std::thread consumer([&] {
+    StreamWindow window;
+    popped = queue.Pop(&window);
+    returned = true;
+  });
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  EXPECT_FALSE(returned.load());
+  queue.Stop();
+  consumer.join();
+  EXPECT_FALSE(popped);
+  EXPECT_EQ(queue.Push({FrameWithId(1)}), 0);  // ignored after Stop
+  EXPECT_EQ(queue.size(), 0u);
+}
+
+std::vector<SE3> SomePoses() {
+  std::vector<SE3> poses;
+  for (int i = 0; i < 4; ++i) {
+    Vector6d xi;
+    xi << 0.1 * i, -0.05 * i, 0.02 * i * i, 0.01 * i, 0.03 * i, -0.02 * i;
+    poses.push_back(SE3::Exp(xi));
+  }
+  return poses;
+}
+
+TEST(AlignPoseSequence, RecoversASimilarityExactly) {
+  Sim3 truth;
+  truth.scale = 2.5;
+  truth.rotation = SE3::Exp((Vector6d() << 0, 0, 0, 0.3, -0.2, 0.7).finished()).rotation();
+  truth.translation = Eigen::Vector3d(1.0, -2.0, 0.5);
+  const std::vector<SE3> source = SomePoses();
+  std::vector<SE3> target;
+  for (const SE3& pose : source) target.push_back(TransformPose(truth, pose));
+  const Sim3 found = AlignPoseSequence(source, target);
+  EXPECT_NEAR(found.scale, truth.scale, 1e-12);
+  EXPECT_LT((found.rotation - truth.rotation).norm(), 1e-12);
+  EXPECT_LT((found.translation - truth.translation).norm(), 1e-12);
+  // Relative poses keep their rotation and scale their translation.
+  const SE3 relative_source = source[0].Inverse() * source[3];
+  const SE3 relative_target = target[0].Inverse() * target[3];
+  EXPECT_LT((relative_source.rotation() - relative_target.rotation()).norm(), 1e-12);
+  EXPECT_LT((truth.scale * relative_source.translation() - relative_target.translation()).norm(), 1e-12);
+}
+
+TEST(AlignPoseSequence, RejectsCamerasThatDoNotMove) {
+  const std::vector<SE3> still(3, SE3());
+  EXPECT_THROW(AlignPoseSequence(still, SomePoses()), InputError);
+  EXPECT_THROW(AlignPoseSequence(SomePoses(), still), InputError);
+  EXPECT_THROW(AlignPoseSequence({SE3()}, {SE3()}), InputError);
+}
+
+EstimatorResult ResultWithSteps(const std::vector<double>& xs) {
+  EstimatorResult result;
+  for (double x : xs) result.T_world_cam.emplace_back(Eigen::Matrix3d::Identity(), Eigen::Vector3d(x, 0, 0));
+  result.latent.push_back(cv::Mat(4, 4, CV_32FC1, cv::Scalar(0.5f)));
+  return result;
+}
+
+TEST(ProblemWithEstimate, AcceptsSmoothMotionRejectsJumpsAndNonFinite) {
+  EXPECT_EQ(ProblemWithEstimate(ResultWithSteps({0, 1, 2.1, 3.0, 4.2}), 8.0), "");
+  EXPECT_NE(ProblemWithEstimate(ResultWithSteps({0, 1, 2, 30, 31}), 8.0), "");
+  EXPECT_NE(ProblemWithEstimate(ResultWithSteps({0, 0, 0, 5}), 8.0), "");
+  EXPECT_NE(ProblemWithEstimate(ResultWithSteps({0, 1, std::nan(""), 3}), 8.0), "");
+  EstimatorResult bad_image = ResultWithSteps({0, 1, 2});
+  bad_image.latent[0].at<float>(1, 1) = std::numeric_limits<float>::infinity();
+  EXPECT_NE(ProblemWithEstimate(bad_image, 8.0), "");
+}
+
+// Synthesizes (once per binary) a small 8-frame Dolls sequence.
+const Sequence& SmallSequence() {
+  static const Sequence sequence = [] {
+    const std::string folder = testing::TempDir() + "/dsm_stream_seq_" + std::to_string(::getpid());
+    const std::string command = std::string(DSM_TOOL_DIR) + "/synthesize_sequence --scene " +
+                                DSM_SOURCE_DIR + "/data/middlebury/Dolls --output " + folder +
+                                " --frames 8 --subframes 100 --hr-width 240 --hr-height 180 > /dev/null";
+    EXPECT_EQ(std::system(command.c_str()), 0);
+    Sequence read = ReadSequence(folder, true);
+    std::filesystem::remove_all(folder);  // per process (ctest runs tests in parallel)
+    return read;
+  }();
+  return sequence;
+}
+
+EstimatorOptions FastOptions() {
+  EstimatorOptions options;
+  options.samples = 20;
+  options.max_iterations = 1;
+  return options;
+}
+
+std::vector<StreamWindow> WindowsOf(const Sequence& sequence, const StreamOptions& stream_options) {
+  FrameWindower windower(stream_options);
+  std::vector<StreamWindow> windows;
+  for (size_t t = 0; t < sequence.images.size(); ++t) {
+    StreamFrame frame;
+    frame.id = t + 100;
+    frame.stamp_ns = static_cast<int64_t>(t) * 33000000;
+    frame.stamp_close = sequence.frames[t].stamp;
+    frame.exposure = sequence.frames[t].exposure;
+    frame.image = ToFloat01(sequence.images[t]);
+    for (StreamWindow& window : windower.Add(frame)) windows.push_back(std::move(window));
+  }
+  return windows;
+}
+
+TEST(StreamEstimator, WindowsFormOneContinuousTrajectory) {
+  const Sequence& sequence = SmallSequence();
+  ASSERT_TRUE(sequence.ground_truth.has_value());
+  StreamOptions stream_options;
+  stream_options.window_size = 5;
+  stream_options.window_overlap = 2;
+  const std::vector<StreamWindow> windows = WindowsOf(sequence, stream_options);
+  ASSERT_EQ(windows.size(), 2u);  // frames 0-4 and 3-7
+
+  StreamEstimator stream(FastOptions());
+  const WindowEstimate first = stream.Process(windows[0], sequence.calibration.camera);
+  const WindowEstimate second = stream.Process(windows[1], sequence.calibration.camera);
+  EXPECT_FALSE(first.continued);
+  EXPECT_TRUE(second.continued) << second.note;
+  EXPECT_EQ(first.first_new, 0);
+  EXPECT_EQ(second.first_new, 2);
+  EXPECT_EQ(second.ids.front(), 103u);
+  EXPECT_EQ(second.stamps_ns.back(), 7 * 33000000);
+
+  // The shared frames stay where the first window put them.
+  for (int i = 0; i < 2; ++i) {
+    const SE3& before = first.result.T_world_cam[3 + i];
+    const SE3& after = second.result.T_world_cam[i];
+    EXPECT_LT((before.translation() - after.translation()).norm(), 1e-6) << "shared frame " << i;
+    EXPECT_LT((before.rotation() - after.rotation()).norm(), 1e-6) << "shared frame " << i;
+  }
+
+  // The stitched trajectory (first window + the new frames of the second)
+  // matches the ground truth up to one similarity.
+  std::vector<Eigen::Vector3d> estimate, truth;
+  for (int t = 0; t < 5; ++t) estimate.push_back(first.result.T_world_cam[t].translation());
+  for (int i = second.first_new; i < 5; ++i) estimate.push_back(second.result.T_world_cam[i].translation());
+  for (const StampedPose& pose : sequence.ground_truth->poses) truth.push_back(pose.T_world_cam.translation());
+  ASSERT_EQ(estimate.size(), truth.size());
+  double path = 0.0;
+  for (size_t t = 1; t < truth.size(); ++t) path += (truth[t] - truth[t - 1]).norm();
+  const double ate = AbsoluteTrajectoryRmse(estimate, truth);
+  EXPECT_LT(ate, 0.02 * path) << "ATE " << ate << " m over a " << path << " m path";
+  std::cout << "stitched ATE " << ate << " m over a " << path << " m path\n";
+
+  // Depth of the second window is in the same scale: a frame seen by both
+  // windows has nearly the same median depth.
+  const cv::Mat& depth_first = first.result.depth[4];
+  const cv::Mat& depth_second = second.result.depth[1];
+  auto median = [](const cv::Mat& depth) {
+    std::vector<float> values;
+    for (auto it = depth.begin<float>(); it != depth.end<float>(); ++it) {
+      if (std::isfinite(*it) && *it > 0) values.push_back(*it);
+    }
+    std::nth_element(values.begin(), values.begin() + values.size() / 2, values.end());
+    return values[values.size() / 2];
+  };
+  EXPECT_NEAR(median(depth_second) / median(depth_first), 1.0, 0.03);
+}
+
+TEST(StreamEstimator, ResetStartsANewSegmentAndCancelStops) {
+  const Sequence& sequence = SmallSequence();
+  StreamOptions stream_options;
+  stream_options.window_size = 5;
+  stream_options.window_overlap = 2;
+  const std::vector<StreamWindow> windows = WindowsOf(sequence, stream_options);
+  StreamEstimator stream(FastOptions());
+  std::atomic<bool> cancel{true};
+  stream.SetCancelFlag(&cancel);
+  EXPECT_THROW(stream.Process(windows[0], sequence.calibration.camera), EstimationCancelled);
+  cancel = false;
+  stream.Process(windows[0], sequence.calibration.camera);
+  stream.Reset();
+  const WindowEstimate second = stream.Process(windows[1], sequence.calibration.camera);
+  EXPECT_FALSE(second.continued);
+  EXPECT_EQ(second.first_new, 0);
+  EXPECT_LT(second.result.T_world_cam[0].translation().norm(), 1e-9);
+}
+
+}  // namespace
+}  // namespace deblur_sr_mvs

@@ -1,0 +1,273 @@
+// Properties of the capture operator Psi_t (eq:blurOperator) and of the
+// visibility sets (eq:occUpdate).
+#include "deblur_sr_mvs/core/imaging/capture_operator.h"
+
+#include <random>
+
+#include <opencv2/imgproc.hpp>
+
+#include <gtest/gtest.h>
+
+#include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/geometry/visibility.h"
+
+namespace deblur_sr_mvs {
+namespace {
+
+SE3 Translation(double x, double y, double z) {
+  return SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(x, y, z));
+}
+
+// A bumpy scene in front of the camera with a depth edge, so reprojection,
+// z-buffering and occlusion all take part.
+cv::Mat SceneDepth(int width, int height) {
+  cv::Mat depth(height, width, CV_32FC1);
+  for (int y = 0; y < height; ++y) {
+    for (int x = 0; x < width; ++x) {
+      float d = 2.0f + 0.3f * std::sin(0.11f * x) * std::cos(0.07f * y);
+      if (x > width / 3 && x < width / 2 && y > height / 4 && y < height / 2) d = 1.2f;
+      depth.at<float>(y, x) = d;
+    }
+  }
+  return depth;
+}
+
+CaptureGeometry MovingGeometry(int width, int height) {
+  CaptureGeometry geometry;
+  geometry.camera_hr = PinholeCamera(width, height, 0.9 * width, 0.9 * width, 0.5 * width - 0.3,
+                                     0.5 * height + 0.2);
+  geometry.depth_hr = SceneDepth(width, height);
+  geometry.T_world_cam = SE3::Exp((Vector6d() << 0.02, 0.004, -0.01, 0.01, -0.015, 0.004).finished());
+  geometry.T_world_neighbour = SE3();
+  geometry.stamp = 1.0 / 30.0;
+  geometry.neighbour_stamp = 0.0;
+  geometry.exposure = 0.8 / 30.0;
+  return geometry;
+}
+
+double Dot(const cv::Mat& a, const cv::Mat& b) {
+  double sum = 0.0;
+  const float* pa = a.ptr<float>();
+  const float* pb = b.ptr<float>();
+  const size_t n = a.total() * a.channels();
+  for (size_t i = 0; i < n; ++i) sum += static_cast<double>(pa[i]) * pb[i];
+  return sum;
+}
+
+cv::Mat RandomImage(cv::Size size, int channels, unsigned seed) {
+  cv::Mat image(size, CV_32FC(channels));
+  cv::RNG rng(seed);
+  rng.fill(image, cv::RNG::UNIFORM, 0.0, 1.0);
+  return image;
+}
+
+TEST(CaptureOperator, AdjointIdentityOnRandomData) {
+  for (int scale : {1, 2, 3}) {
+    for (int channels : {1, 3}) {
+      CaptureOperatorOptions options;
+      options.scale = scale;
+      options.samples = 17;
+      CaptureGeometry geometry = MovingGeometry(48 * scale / scale * 2, 36 * 2);
+      if (geometry.camera_hr.width % scale != 0) continue;
+      // A neighbour source camera too: the matching-term form of Psi.
+      geometry.T_world_source = Translation(-0.03, 0.0, 0.01);
+      const CaptureOperator op = BuildCaptureOperator(geometry, options);
+      const cv::Mat x = RandomImage(op.hr_size(), channels, 11);
+      const cv::Mat y = RandomImage(op.lr_size(), channels, 12);
+      cv::Mat psi_x, psi_t_y;
+      op.Apply(x, &psi_x);
+      op.ApplyAdjoint(y, &psi_t_y);
+      const double lhs = Dot(psi_x, y);
+      const double rhs = Dot(x, psi_t_y);
+      EXPECT_NEAR(lhs, rhs, 1e-5 * std::abs(lhs)) << "scale " << scale << " channels " << channels;
+    }
+  }
+}
+
+TEST(CaptureOperator, ConstantImageStaysConstant) {
+  CaptureOperatorOptions options;
+  options.samples = 25;
+  const CaptureOperator op = BuildCaptureOperator(MovingGeometry(80, 60), options);
+  cv::Mat constant(op.hr_size(), CV_32FC3, cv::Scalar(0.25, 0.5, 0.75));
+  cv::Mat out;
+  op.Apply(constant, &out);
+  double max_error = 0.0;
+  for (int y = 0; y < out.rows; ++y) {
+    for (int x = 0; x < out.cols; ++x) {
+      const cv::Vec3f v = out.at<cv::Vec3f>(y, x);
+      max_error = std::max({max_error, std::abs(v[0] - 0.25), std::abs(v[1] - 0.5),
+                            std::abs(v[2] - 0.75)});
+    }
+  }
+  EXPECT_LT(max_error, 1e-5);
+}
+
+TEST(CaptureOperator, ZeroMotionScaleOneIsIdentity) {
+  CaptureGeometry geometry = MovingGeometry(40, 30);
+  geometry.T_world_neighbour = geometry.T_world_cam;  // no motion
+  CaptureOperatorOptions options;
+  options.scale = 1;
+  options.samples = 10;
+  const CaptureOperator op = BuildCaptureOperator(geometry, options);
+  const SparseMatrixRM& a = op.matrix();
+  ASSERT_EQ(a.rows(), 40 * 30);
+  ASSERT_EQ(a.cols(), 40 * 30);
+  EXPECT_EQ(a.nonZeros(), 40 * 30);
+  for (int r = 0; r < a.outerSize(); ++r) {
+    for (SparseMatrixRM::InnerIterator it(a, r); it; ++it) {
+      EXPECT_EQ(it.col(), r);
+      EXPECT_NEAR(it.value(), 1.0f, 1e-6f);
+    }
+  }
+  for (float c : op.coverage()) EXPECT_EQ(c, 1.0f);
+}
+
+TEST(CaptureOperator, ZeroMotionIsBoxDownsampling) {
+  CaptureGeometry geometry = MovingGeometry(60, 42);
+  geometry.T_world_neighbour = geometry.T_world_cam;
+  CaptureOperatorOptions options;
+  options.scale = 3;
+  options.samples = 5;
+  const CaptureOperator op = BuildCaptureOperator(geometry, options);
+  const cv::Mat image = RandomImage(op.hr_size(), 3, 5);
+  cv::Mat ours, reference;
+  op.Apply(image, &ours);
+  cv::resize(image, reference, op.lr_size(), 0, 0, cv::INTER_AREA);
+  EXPECT_LT(cv::norm(ours, reference, cv::NORM_INF), 1e-5);
+}
+
+// A fronto-parallel plane and a camera translating along x: every virtual
+// camera shifts the image by f b (t - tau) / (dt Z), and bilinear sampling
+// reproduces a linear ramp exactly, so the blurred ramp is known in closed
+// form. Run both with the previous frame and with the next one as the
+// neighbour (backward extrapolation of the first frame).
+TEST(CaptureOperator, BlurOfARampMatchesClosedForm) {
+  const int width = 120, height = 40, scale = 2, samples = 50;
+  const double depth = 2.0, baseline = 0.1, frame_interval = 1.0 / 30.0;
+  const double exposure = 0.75 * frame_interval;
+  for (bool neighbour_is_next : {false, true}) {
+    CaptureGeometry geometry;
+    geometry.camera_hr = PinholeCamera(width, height, 300.0, 300.0, 59.5, 19.5);
+    geometry.depth_hr = cv::Mat(height, width, CV_32FC1, cv::Scalar(depth));
+    geometry.T_world_cam = SE3();
+    geometry.stamp = 1.0;
+    geometry.exposure = exposure;
+    if (neighbour_is_next) {
+      geometry.T_world_neighbour = Translation(baseline, 0, 0);
+      geometry.neighbour_stamp = 1.0 + frame_interval;
+    } else {
+      geometry.T_world_neighbour = Translation(-baseline, 0, 0);
+      geometry.neighbour_stamp = 1.0 - frame_interval;
+    }
+    CaptureOperatorOptions options;
+    options.scale = scale;
+    options.samples = samples;
+    const CaptureOperator op = BuildCaptureOperator(geometry, options);
+    cv::Mat ramp(height, width, CV_32FC1);
+    for (int y = 0; y < height; ++y) {
+      for (int x = 0; x < width; ++x) ramp.at<float>(y, x) = 0.01f * x + 0.002f * y + 0.1f;
+    }
+    cv::Mat blurred;
+    op.Apply(ramp, &blurred);
+    // Mean shift (HR px) of the virtual cameras at the slice midpoints: half
+    // the blur, f b/Z * e/dt / 2 (the paper's m/M would give (M-1)/(2M)).
+    const double mean_shift = 300.0 * baseline / depth * exposure / frame_interval / 2.0;
+    const double max_shift = 300.0 * baseline / depth * exposure / frame_interval;
+    ASSERT_GT(max_shift, 8.0);  // a severe blur, as in the paper
+    int checked = 0;
+    for (int y = 0; y < blurred.rows; ++y) {
+      for (int x = 0; x < blurred.cols; ++x) {
+        if (op.coverage()[y * blurred.cols + x] < 1.0f) continue;
+        const double hr_x = scale * x + (scale - 1) / 2.0 - mean_shift;
+        const double hr_y = scale * y + (scale - 1) / 2.0;
+        EXPECT_NEAR(blurred.at<float>(y, x), 0.01 * hr_x + 0.002 * hr_y + 0.1, 2e-5);
+        ++checked;
+      }
+    }
+    // Pixels within the blur length of the left border miss samples.
+    EXPECT_GT(checked, blurred.total() * 3 / 4);
+    EXPECT_LT(checked, static_cast<int>(blurred.total()));
+  }
+}
+
+TEST(CaptureOperator, RejectsInconsistentInput) {
+  CaptureGeometry geometry = MovingGeometry(40, 30);
+  CaptureOperatorOptions options;
+  options.scale = 4;  // 30 is not divisible by 4
+  EXPECT_THROW(BuildCaptureOperator(geometry, options), InputError);
+  options.scale = 2;
+  geometry.exposure = 0.0;
+  EXPECT_THROW(BuildCaptureOperator(geometry, options), InputError);
+  geometry = MovingGeometry(40, 30);
+  geometry.neighbour_stamp = geometry.stamp;
+  EXPECT_THROW(BuildCaptureOperator(geometry, options), InputError);
+  geometry = MovingGeometry(40, 30);
+  geometry.depth_hr = cv::Mat(10, 10, CV_32FC1, cv::Scalar(1.0f));
+  EXPECT_THROW(BuildCaptureOperator(geometry, options), InputError);
+  options.samples = 0;
+  EXPECT_THROW(options.Check(), InputError);
+  const CaptureOperator op = BuildCaptureOperator(MovingGeometry(40, 30), CaptureOperatorOptions());
+  cv::Mat wrong(7, 7, CV_32FC1, cv::Scalar(0)), out;
+  EXPECT_THROW(op.Apply(wrong, &out), InputError);
+}
+
+// A near square in front of a far plane; the second camera moves sideways,
+// so part of the plane next to the square is hidden behind it from s.
+TEST(Visibility, OccludedBackgroundIsNotVisible) {
+  const int width = 80, height = 60;
+  const PinholeCamera camera(width, height, 100.0, 100.0, 39.5, 29.5);
+  cv::Mat depth(height, width, CV_32FC1, cv::Scalar(4.0f));
+  const cv::Rect square(30, 20, 20, 20);
+  depth(square).setTo(1.0f);
+  // Camera s is 0.1 m to the right: near points shift left by f b/Z = 10 px,
+  // far ones by 2.5 px, so the plane just left of the square is covered.
+  const SE3 T_s_t = Translation(-0.1, 0.0, 0.0);
+  const cv::Mat visible = ComputeVisibility(camera, depth, T_s_t, VisibilityOptions());
+  // The whole square is visible (nearest), minus nothing.
+  EXPECT_EQ(cv::countNonZero(visible(square)), square.area());
+  // Background pixels from 3 to 7 px left of the square land on the square's
+  // image in s: hidden.
+  for (int y = 22; y < 38; ++y) {
+    for (int x = 23; x <= 27; ++x) EXPECT_EQ(visible.at<uchar>(y, x), 0) << x << "," << y;
+  }
+  // Far from the square the plane is visible; near the left border it leaves the image.
+  EXPECT_EQ(visible.at<uchar>(10, 70), 255);
+  EXPECT_EQ(visible.at<uchar>(10, 0), 0);
+  const cv::Mat visible_lr = DownscaleMaskAll(visible, 2);
+  EXPECT_EQ(visible_lr.at<uchar>(15, 12), 0);
+  EXPECT_EQ(visible_lr.at<uchar>(5, 35), 255);
+}
+
+TEST(EdgeWeight, FlatIsOneAndEdgesAreSmall) {
+  cv::Mat image(20, 20, CV_32FC1, cv::Scalar(0.3f));
+  image.colRange(10, 20).setTo(0.9f);
+  const cv::Mat g = EdgeWeight(image, EdgeWeightOptions());
+  EXPECT_FLOAT_EQ(g.at<float>(5, 3), 1.0f);
+  EXPECT_LT(g.at<float>(5, 9), 0.05f);
+  EdgeWeightOptions bad;
+  bad.sigma = 0.0;
+  EXPECT_THROW(EdgeWeight(image, bad), InputError);
+}
+
+}  // namespace
+}  // namespace deblur_sr_mvs
+
+namespace deblur_sr_mvs {
+namespace {
+
+// Without the transposed copy Psi^T scatters through Psi: same result.
+TEST(CaptureOperator, AdjointWithoutTransposedCopyIsTheSame) {
+  CaptureOperatorOptions options;
+  options.samples = 13;
+  const CaptureOperator with_copy = BuildCaptureOperator(MovingGeometry(60, 40), options);
+  options.transposed_copy = false;
+  const CaptureOperator without_copy = BuildCaptureOperator(MovingGeometry(60, 40), options);
+  const cv::Mat y = RandomImage(with_copy.lr_size(), 3, 21);
+  cv::Mat a, b;
+  with_copy.ApplyAdjoint(y, &a);
+  without_copy.ApplyAdjoint(y, &b);
+  EXPECT_LT(cv::norm(a, b, cv::NORM_INF), 1e-5);
+}
+
+}  // namespace
+}  // namespace deblur_sr_mvs
