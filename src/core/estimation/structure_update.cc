@@ -83,6 +83,11 @@ cv::Mat ObservationMask(const PairMatching& pair, const cv::Mat& valid_hr) {
   return combined;
 }
 
+// The image a pair warps into t: its own source, or the latent image of s.
+const cv::Mat& SourceImage(const PairMatching& pair, const std::vector<cv::Mat>& latents) {
+  return pair.source != nullptr ? *pair.source : latents[pair.s];
+}
+
 // Predicted observation of a warped HR image: Psi * image, or the image itself.
 void Predict(const PairMatching& pair, const cv::Mat& hr, cv::Mat* out) {
   if (pair.blur != nullptr) {
@@ -404,7 +409,7 @@ class DepthNormalEquations {
       const PairMatching& pair = pairs_[p];
       PairState& state = states_[p];
       state.lin = LinearizeWarp(camera_hr_, inverse_depth, T_world_cam_[pair.t], T_world_cam_[pair.s],
-                                pair.source != nullptr ? *pair.source : latents_[pair.s], nullptr);
+                                SourceImage(pair, latents_), nullptr);
       Predict(pair, state.lin.warped, &predicted_);
       state.residual = *pair.observation - predicted_;
       L1Weights(state.residual, ObservationMask(pair, state.lin.valid), options_.residual_epsilon,
@@ -601,14 +606,12 @@ std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr,
   if (num_frames <= num_fixed || pairs.empty()) return total;
   const int unknowns = 6 * (num_frames - num_fixed);
   const int num_pairs = static_cast<int>(pairs.size());
-  auto source_of = [&](const PairMatching& pair) -> const cv::Mat& {
-    return pair.source != nullptr ? *pair.source : latents[pair.s];
-  };
   // Gradients of every image that HR pairs warp, once per image.
   std::vector<const cv::Mat*> sources;
   for (const PairMatching& pair : pairs) {
-    if (pair.blur == nullptr && std::find(sources.begin(), sources.end(), &source_of(pair)) == sources.end()) {
-      sources.push_back(&source_of(pair));
+    const cv::Mat* source = &SourceImage(pair, latents);
+    if (pair.blur == nullptr && std::find(sources.begin(), sources.end(), source) == sources.end()) {
+      sources.push_back(source);
     }
   }
   std::vector<cv::Mat> source_gx(sources.size()), source_gy(sources.size());
@@ -622,14 +625,15 @@ std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr,
       const PairMatching& pair = pairs[p];
       const SE3& T_world_t = (*T_world_cam)[pair.t];
       const SE3& T_world_s = (*T_world_cam)[pair.s];
+      const cv::Mat& source = SourceImage(pair, latents);
       if (pair.blur != nullptr) {
         equations[p] = BlurredPairNormalEquations(camera_hr, inverse_depths[pair.t], T_world_t, T_world_s,
-                                                  source_of(pair), pair, options.residual_epsilon);
+                                                  source, pair, options.residual_epsilon);
       } else {
-        const size_t i = std::find(sources.begin(), sources.end(), &source_of(pair)) - sources.begin();
-        equations[p] = HrPairNormalEquations(camera_hr, inverse_depths[pair.t], T_world_t, T_world_s,
-                                             source_of(pair), source_gx[i], source_gy[i], *pair.observation,
-                                             pair.mask, options.residual_epsilon, options.pose_pixel_stride);
+        const size_t i = std::find(sources.begin(), sources.end(), &source) - sources.begin();
+        equations[p] = HrPairNormalEquations(camera_hr, inverse_depths[pair.t], T_world_t, T_world_s, source,
+                                             source_gx[i], source_gy[i], *pair.observation, pair.mask,
+                                             options.residual_epsilon, options.pose_pixel_stride);
       }
     }
     Eigen::MatrixXd hessian = Eigen::MatrixXd::Zero(unknowns, unknowns);
