@@ -343,7 +343,7 @@ class WindowSolver {
   const bool joint_;
   const int threads_;
   const PinholeCamera camera_hr_;
-  const int total_steps_;  // progress: initialisation and two phases per iteration
+  const int total_steps_;  // progress: the first image phase and two phases per iteration
   int steps_done_ = 0;
   double run_start_ms_ = 0.0;
   Timer timer_;
@@ -428,8 +428,9 @@ WindowSolver::WindowSolver(const EstimatorOptions& options, int threads, const E
   for (int t = 0; t < num_frames_; ++t) neighbours_[t] = Neighbours(t, num_frames_, options_.neighbour_radius);
 }
 
-// Algorithm 1: after the initialisation (done by the caller), max_iter
-// times the image phase and the structure phase.
+// The main loop of Algorithm 1 (alg:optimization) after the initialisation
+// (done by the caller): max_iter times the image phase and the structure
+// phase, on the schedule the mode asks for.
 EstimatorResult WindowSolver::Solve() {
   run_start_ms_ = NowMs();
   result_.energies.push_back(TotalEnergy(0, "initialization"));
@@ -883,6 +884,8 @@ std::vector<cv::Mat> UpsampleInitialDepth(const std::vector<cv::Mat>& depth_lr, 
   return depth_hr;
 }
 
+// Algorithm 1 (alg:optimization): D_t and P_t initialised by
+// eq:initializationScene, then the main loop from that structure.
 EstimatorResult Estimator::Run(const EstimatorInput& input, const ProgressCallback& progress) {
   const double start = NowMs();
   if (progress) progress(0.0, "initialisation");
