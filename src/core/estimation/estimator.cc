@@ -3,10 +3,9 @@
 #include <omp.h>
 
 #include <algorithm>
-#include <chrono>
+#include <atomic>
 #include <cmath>
 #include <exception>
-#include <functional>
 #include <list>
 #include <map>
 #include <memory>
@@ -15,15 +14,13 @@
 #include <opencv2/imgproc.hpp>
 
 #include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/common/options_check.h"
+#include "deblur_sr_mvs/core/common/runtime.h"
 #include "deblur_sr_mvs/core/estimation/frame_structure.h"
 #include "deblur_sr_mvs/core/imaging/image_ops.h"
 
 namespace deblur_sr_mvs {
 namespace {
-
-double Now() {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
-}
 
 // Accumulates wall time per named stage, in first-seen order.
 class Timer {
@@ -38,6 +35,8 @@ class Timer {
     }
     timings_.push_back({stage, seconds});
   }
+  // Adds the wall time since start_ms (a NowMs() value).
+  void AddSince(const std::string& stage, double start_ms) { Add(stage, (NowMs() - start_ms) / 1000.0); }
   const std::vector<StageTiming>& timings() const { return timings_; }
 
  private:
@@ -75,11 +74,6 @@ double DepthTv(const cv::Mat& inverse_depth, const cv::Mat& edge_weight, double 
     }
   }
   return sum;
-}
-
-// Gray image in [0, 1] for edge weights.
-cv::Mat EdgeWeightOf(const cv::Mat& latent, const EdgeWeightOptions& options) {
-  return EdgeWeight(latent, options);
 }
 
 // Fills NaN / non-positive depth by the nearest valid values (row then
@@ -153,6 +147,13 @@ cv::Mat DepthFromInverse(const cv::Mat& rho) {
   return depth;
 }
 
+// Pixels of frame t (HR CV_8UC1) that frame s sees: Omega_{t,s} of eq:occSet.
+cv::Mat VisibleFromSource(const PinholeCamera& camera_hr, const std::vector<FrameStructure>& frames, int t,
+                          int s, const VisibilityOptions& options) {
+  const SE3 T_s_t = frames[s].T_world_cam.Inverse() * frames[t].T_world_cam;
+  return ComputeVisibility(camera_hr, frames[t].depth_hr, T_s_t, options);
+}
+
 // Operators Psi_t[src] and their visibility masks, rebuilt only when the
 // structure they depend on (D_t, P_t, P_neighbour(t), P_src) changed. Memory
 // is bounded: the least recently used entries go first.
@@ -188,7 +189,7 @@ class OperatorCache {
         return it->second;
       }
     }
-    const double start = Now();
+    const double start = NowMs();
     auto entry = std::make_shared<Entry>();
     const size_t thread = std::min<size_t>(omp_get_thread_num(), builders_.size() - 1);
     builders_[thread].Build(MakeCaptureGeometry(frames, camera_hr_, t, source), &entry->op);
@@ -198,13 +199,11 @@ class OperatorCache {
     const std::vector<float>& coverage = entry->op.coverage();
     for (int i = 0; i < lr.area(); ++i) entry->mask.ptr<uchar>()[i] = coverage[i] >= 1.0f ? 255 : 0;
     if (source != t) {
-      const SE3 T_s_t = frames[source].T_world_cam.Inverse() * frames[t].T_world_cam;
-      const cv::Mat visible = DownscaleMaskAll(
-          ComputeVisibility(camera_hr_, frames[t].depth_hr, T_s_t, visibility_),
-          camera_hr_.width / lr.width);
+      const cv::Mat visible = DownscaleMaskAll(VisibleFromSource(camera_hr_, frames, t, source, visibility_),
+                                               camera_hr_.width / lr.width);
       cv::bitwise_and(entry->mask, visible, entry->mask);
     }
-    timer->Add("operator builds (thread seconds)", Now() - start);
+    timer->AddSince("operator builds (thread seconds)", start);
     std::lock_guard<std::mutex> lock(mutex_);
     auto it = entries_.find(key);
     if (it != entries_.end()) {
@@ -250,6 +249,586 @@ class OperatorCache {
   std::list<std::pair<int, int>> order_;
 };
 
+// Operator options of the estimator's capture operators (eq:blurOperator).
+CaptureOperatorOptions EstimatorOperatorOptions(const EstimatorOptions& options) {
+  CaptureOperatorOptions op_options;
+  op_options.samples = options.samples;
+  op_options.scale = options.scale;
+  // The estimator parallelises over frames (no barriers inside a frame's
+  // work, which matters when the cores are shared); every operator runs on
+  // the thread that uses it.
+  op_options.num_threads = 1;
+  op_options.transposed_copy = false;  // half the memory, same speed on one thread
+  return op_options;
+}
+
+// Algorithm 1 (alg:optimization) on one window from a given structure. The
+// object holds the window's state: observations B_t, latent images I_t, the
+// frame structures (D_t, P_t), inverse depths, edge weights g_t, the
+// neighbour lists N(t) and the operator cache. Its phases are the image
+// update (eq:imgUpdate), the structure update (eq:taylorExpansion,
+// eq:updateVariables) and accept/undo of an iteration.
+class WindowSolver {
+ public:
+  // Inputs must have been checked (CheckWindowCounts, CheckWindowValues);
+  // the depth maps are checked here, frame by frame.
+  WindowSolver(const EstimatorOptions& options, int threads, const EstimatorInput& input,
+               const std::vector<cv::Mat>& depth_hr, const std::vector<SE3>& T_world_cam,
+               const std::atomic<bool>* cancel, const ProgressCallback& progress);
+
+  // Runs the iterations the options ask for and returns the result in the
+  // output gauge.
+  EstimatorResult Solve();
+
+ private:
+  using HeldOperators = std::vector<std::shared_ptr<const OperatorCache::Entry>>;
+  // The state an iteration may have to undo.
+  struct Snapshot {
+    std::vector<cv::Mat> latents, inverse_depth, edge_weight;
+    std::vector<SE3> T_world_cam;
+  };
+
+  // ---- The three schedules.
+  void RunJoint();
+  void RunBaseline();
+  void RunImagesOnly();
+
+  // ---- Phases.
+  void ImagePhase(int iteration);
+  void StructurePhase(int iteration, bool isolated);
+  void UpdateLatent(int t);
+  void UpdateEdgeWeight(int t);
+  void UpdateFrameDepth(int t, int iteration, bool isolated, const std::vector<SE3>& poses,
+                        const StructureUpdateOptions& structure_options);
+  void UpdateAllPoses(int iteration, bool isolated, const std::vector<SE3>& poses,
+                      const StructureUpdateOptions& structure_options);
+  void AppendPairs(int t, const std::vector<int>& sources, std::vector<PairMatching>* pairs,
+                   HeldOperators* held);
+  SelfConsistencyLinearization SelfConsistencyOf(int t);
+  void SetInverseDepth(int t, const cv::Mat& inverse_depth);
+  void SetPoses(const std::vector<SE3>& T_world_cam);
+
+  // ---- Energy (eq:energyFunction).
+  double FrameEnergy(int t, EnergyRecord* parts);
+  EnergyRecord TotalEnergy(int iteration, const std::string& stage);
+  cv::Mat BaselineMask(int t, int s, const cv::Mat& valid) const;
+  double ParallaxScale() const;
+
+  // ---- Accept / undo.
+  Snapshot TakeSnapshot() const;
+  void Undo(int iteration, const Snapshot& snapshot);
+
+  // ---- Guards and bookkeeping.
+  bool OutOfTime(int iterations_done);
+  void RequireFiniteEnergy(const char* where) const;
+  void ThrowIfCancelled() const;
+  void Report(double within, const std::string& what);
+  std::shared_ptr<const OperatorCache::Entry> Operator(int t, int source);
+  template <typename Body>
+  void ForEachFrame(const Body& body);
+  EstimatorResult GaugedResult();
+
+  bool blurred_matching() const {
+    return joint_ && options_.structure_matching == StructureMatching::kBlurred;
+  }
+  bool input_matching() const {
+    return joint_ && options_.structure_matching == StructureMatching::kRestoredAndInput;
+  }
+
+  const EstimatorOptions& options_;
+  const std::atomic<bool>* cancel_;
+  const ProgressCallback& progress_;
+  const int num_frames_;
+  const int scale_;
+  const bool joint_;
+  const int threads_;
+  const PinholeCamera camera_hr_;
+  const int total_steps_;  // progress: the first image phase and two phases per iteration
+  int steps_done_ = 0;
+  double run_start_ms_ = 0.0;
+  Timer timer_;
+  EstimatorResult result_;
+
+  std::vector<cv::Mat> observations_;  // B_t (LR, continuous)
+  std::vector<cv::Mat> bicubic_;       // B_t up-sampled (HR)
+  std::vector<cv::Mat> latents_;       // I_t (HR)
+  std::vector<FrameStructure> frames_;  // D_t, P_t, stamps, exposures
+  std::vector<cv::Mat> inverse_depth_;  // rho_t = 1 / D_t (HR, holes filled)
+  std::vector<cv::Mat> edge_weight_;    // g_t of eq:regularizingTerm
+  // Bumped on every change of D_t / P_t: the operator cache rebuilds what
+  // depends on them.
+  std::vector<long> depth_version_, pose_version_;
+  std::vector<std::vector<int>> neighbours_;  // N(t)
+  std::unique_ptr<OperatorCache> cache_;
+};
+
+// Runs body(t) for every frame on `threads_` threads; the first exception
+// thrown by any frame is rethrown here (exceptions must not leave an
+// OpenMP region).
+template <typename Body>
+void WindowSolver::ForEachFrame(const Body& body) {
+  const int num_frames = num_frames_, threads = threads_;
+  std::exception_ptr error;
+  std::mutex error_mutex;
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
+  for (int t = 0; t < num_frames; ++t) {
+    try {
+      ThrowIfCancelled();
+      body(t);
+    } catch (...) {
+      std::lock_guard<std::mutex> lock(error_mutex);
+      if (!error) error = std::current_exception();
+    }
+  }
+  if (error) std::rethrow_exception(error);
+}
+
+WindowSolver::WindowSolver(const EstimatorOptions& options, int threads, const EstimatorInput& input,
+                           const std::vector<cv::Mat>& depth_hr, const std::vector<SE3>& T_world_cam,
+                           const std::atomic<bool>* cancel, const ProgressCallback& progress)
+    : options_(options),
+      cancel_(cancel),
+      progress_(progress),
+      num_frames_(static_cast<int>(input.images.size())),
+      scale_(options.scale),
+      joint_(options.mode == EstimatorMode::kJoint),
+      threads_(threads),
+      camera_hr_(input.camera.Upscaled(options.scale)),
+      total_steps_(std::max(1, 2 * options.max_iterations + 1)),
+      observations_(num_frames_),
+      bicubic_(num_frames_),
+      latents_(num_frames_),
+      frames_(num_frames_),
+      inverse_depth_(num_frames_),
+      edge_weight_(num_frames_),
+      depth_version_(num_frames_, 0),
+      pose_version_(num_frames_, 0),
+      neighbours_(num_frames_) {
+  result_.camera_hr = camera_hr_;
+  for (int t = 0; t < num_frames_; ++t) {
+    observations_[t] = input.images[t].isContinuous() ? input.images[t] : input.images[t].clone();
+    bicubic_[t] = UpsampleBicubic(observations_[t], scale_);
+    latents_[t] = bicubic_[t].clone();
+    frames_[t].stamp = input.frames[t].stamp;
+    frames_[t].exposure = input.frames[t].exposure;
+    frames_[t].T_world_cam = T_world_cam[t];
+    if (depth_hr[t].type() != CV_32FC1 || depth_hr[t].size() != cv::Size(camera_hr_.width, camera_hr_.height)) {
+      throw InputError("estimator: depth maps must be CV_32FC1 of the HR size");
+    }
+    inverse_depth_[t] = InverseDepthFromDepth(depth_hr[t]);
+    frames_[t].depth_hr = DepthFromInverse(inverse_depth_[t]);
+    UpdateEdgeWeight(t);
+  }
+  omp_set_max_active_levels(1);
+  // Every operator of a 10-frame 640x480 window (30 operators of ~38 MiB)
+  // fits; larger windows evict the least recently used ones and rebuild them,
+  // which keeps the peak memory bounded.
+  cache_ = std::make_unique<OperatorCache>(EstimatorOperatorOptions(options_), threads_, camera_hr_,
+                                           options_.visibility, size_t(3) << 29);
+  for (int t = 0; t < num_frames_; ++t) neighbours_[t] = Neighbours(t, num_frames_, options_.neighbour_radius);
+}
+
+// The main loop of Algorithm 1 (alg:optimization) after the initialisation
+// (done by the caller): max_iter times the image phase and the structure
+// phase, on the schedule the mode asks for.
+EstimatorResult WindowSolver::Solve() {
+  run_start_ms_ = NowMs();
+  result_.energies.push_back(TotalEnergy(0, "initialization"));
+  RequireFiniteEnergy("at the initial structure");
+  if (!joint_) {
+    RunBaseline();
+  } else if (!options_.update_structure) {
+    RunImagesOnly();
+  } else if (options_.max_iterations > 0) {
+    RunJoint();
+  }
+  if (progress_) progress_(1.0, "done");
+  return GaugedResult();
+}
+
+// Algorithm 1: image update, then max_iter times structure update followed
+// by the image update that judges it (the last one gives the output images
+// that match the final structure). A structure update whose following image
+// update does not lower the energy is undone, with the images, and the
+// iterations stop: the recorded energy after each kept iteration never
+// increases.
+void WindowSolver::RunJoint() {
+  ImagePhase(1);
+  RequireFiniteEnergy("after the first image update");
+  double accepted = result_.energies.back().total;
+  for (int iteration = 1; iteration <= options_.max_iterations; ++iteration) {
+    if (OutOfTime(iteration - 1)) break;
+    const Snapshot before = TakeSnapshot();
+    StructurePhase(iteration, /*isolated=*/false);
+    ImagePhase(iteration + 1);
+    if (result_.energies.back().total <= accepted) {
+      accepted = result_.energies.back().total;
+      continue;
+    }
+    Undo(iteration, before);
+    break;
+  }
+}
+
+// Baseline: the images stay the bicubic inputs; only the structure moves.
+void WindowSolver::RunBaseline() {
+  for (int iteration = 1; iteration <= options_.max_iterations && options_.update_structure; ++iteration) {
+    if (OutOfTime(iteration - 1)) break;
+    StructurePhase(iteration, /*isolated=*/true);
+  }
+}
+
+// Images only: depth and poses stay as given.
+void WindowSolver::RunImagesOnly() {
+  for (int iteration = 1; iteration <= options_.max_iterations; ++iteration) {
+    if (OutOfTime(iteration - 1)) break;
+    ImagePhase(iteration);
+  }
+}
+
+// ---- Phase 1: latent images (eq:imgUpdate), one frame at a time.
+void WindowSolver::ImagePhase(int iteration) {
+  const double begin = NowMs();
+  ForEachFrame([this, iteration](int t) {
+    if (omp_get_thread_num() == 0) {
+      Report(double(t) / num_frames_,
+             "iteration " + std::to_string(iteration) + ": image " + std::to_string(t));
+    }
+    UpdateLatent(t);
+    UpdateEdgeWeight(t);
+  });
+  ++steps_done_;
+  timer_.AddSince("image update (incl. operator builds)", begin);
+  result_.energies.push_back(TotalEnergy(iteration, "image"));
+}
+
+// I_t from the matching terms of its neighbours (Psi_s applied to I_t
+// against B_s) and its own self-consistency term (eq:IPterm).
+void WindowSolver::UpdateLatent(int t) {
+  std::vector<LinearL1Term> terms;
+  HeldOperators held;
+  for (int s : neighbours_[t]) {
+    held.push_back(Operator(s, t));
+    terms.push_back({&held.back()->op, &observations_[s], held.back()->mask, 1.0});
+  }
+  held.push_back(Operator(t, t));
+  terms.push_back({&held.back()->op, &observations_[t], cv::Mat(), options_.lambda_s});
+  ImageUpdateOptions image_options = options_.image;
+  image_options.num_threads = 1;
+  UpdateImage(terms, image_options, &latents_[t]);
+}
+
+// g_t of eq:regularizingTerm follows the edges of the current I_t.
+void WindowSolver::UpdateEdgeWeight(int t) {
+  edge_weight_[t] = EdgeWeight(latents_[t], options_.structure.edge_weight);
+}
+
+// ---- Phase 2: depths and poses (eq:taylorExpansion, eq:updateVariables).
+// With `isolated` (baseline: the images are fixed) each depth map and the
+// pose update is kept only if it lowers the energy on its own. In joint
+// mode the latent images were fitted to the old structure, so a step
+// towards the true structure can raise the energy until the images follow:
+// RunJoint judges the structure update after the next image update.
+void WindowSolver::StructurePhase(int iteration, bool isolated) {
+  const double begin = NowMs();
+  StructureUpdateOptions structure_options = options_.structure;
+  structure_options.num_threads = threads_;
+  std::vector<SE3> poses(num_frames_);
+  for (int t = 0; t < num_frames_; ++t) poses[t] = frames_[t].T_world_cam;
+  ForEachFrame([this, iteration, isolated, &poses, &structure_options](int t) {
+    UpdateFrameDepth(t, iteration, isolated, poses, structure_options);
+  });
+  if (options_.update_poses) UpdateAllPoses(iteration, isolated, poses, structure_options);
+  ++steps_done_;
+  timer_.AddSince("structure update", begin);
+  result_.energies.push_back(TotalEnergy(iteration, "structure"));
+}
+
+// D_t from the pairs (t <- s), s in N(t), and, for kBlurred, the
+// self-consistency term linearised in depth.
+void WindowSolver::UpdateFrameDepth(int t, int iteration, bool isolated, const std::vector<SE3>& poses,
+                                    const StructureUpdateOptions& structure_options) {
+  if (omp_get_thread_num() == 0) {
+    Report(double(t) / (num_frames_ + 1),
+           "iteration " + std::to_string(iteration) + ": structure " + std::to_string(t));
+  }
+  const double before = isolated ? FrameEnergy(t, nullptr) : 0.0;
+  const cv::Mat saved = inverse_depth_[t].clone();
+  std::vector<PairMatching> pairs;
+  HeldOperators held;
+  AppendPairs(t, neighbours_[t], &pairs, &held);
+  SelfConsistencyLinearization self;
+  if (blurred_matching()) self = SelfConsistencyOf(t);
+  const double depth_begin = NowMs();
+  UpdateDepth(camera_hr_, poses, latents_, pairs, blurred_matching() ? &self : nullptr, edge_weight_[t],
+              ParallaxScale(), structure_options, &inverse_depth_[t]);
+  timer_.AddSince("depth updates (thread seconds)", depth_begin);
+  SetInverseDepth(t, inverse_depth_[t]);
+  if (isolated && !(FrameEnergy(t, nullptr) <= before)) {
+    SetInverseDepth(t, saved);  // the surrogate step did not pay: keep D_t
+  }
+}
+
+// All poses but the held leading ones, jointly from every pair within the
+// pose radius (longer baselines than N(t); the blurred form needs the
+// operators of N(t) only).
+void WindowSolver::UpdateAllPoses(int iteration, bool isolated, const std::vector<SE3>& poses,
+                                  const StructureUpdateOptions& structure_options) {
+  const int pose_radius = blurred_matching()
+                              ? options_.neighbour_radius
+                              : std::max(options_.neighbour_radius, options_.pose_neighbour_radius);
+  Report(double(num_frames_) / (num_frames_ + 1), "iteration " + std::to_string(iteration) + ": poses");
+  const double before = isolated ? TotalEnergy(iteration, "structure").total : 0.0;
+  std::vector<PairMatching> pairs;
+  HeldOperators held;
+  for (int t = 0; t < num_frames_; ++t) AppendPairs(t, Neighbours(t, num_frames_, pose_radius), &pairs, &held);
+  std::vector<SE3> updated = poses;
+  const double pose_begin = NowMs();
+  UpdatePoses(camera_hr_, inverse_depth_, latents_, pairs, structure_options, &updated,
+              options_.fixed_leading_poses);
+  timer_.AddSince("pose updates", pose_begin);
+  SetPoses(updated);
+  if (isolated && !(TotalEnergy(iteration, "structure").total <= before)) SetPoses(poses);
+}
+
+// The pairs (t <- s) of frame t with s in `sources` (eq:matchingTerm);
+// `held` keeps their operators alive.
+void WindowSolver::AppendPairs(int t, const std::vector<int>& sources, std::vector<PairMatching>* pairs,
+                               HeldOperators* held) {
+  for (int s : sources) {
+    PairMatching pair;
+    pair.t = t;
+    pair.s = s;
+    if (blurred_matching()) {
+      held->push_back(Operator(t, s));
+      pair.mask = held->back()->mask;
+      held->push_back(Operator(t, t));
+      pair.blur = &held->back()->op;
+      pair.observation = &observations_[t];
+      pairs->push_back(pair);
+      continue;
+    }
+    // Restored (or, in the baseline, bicubic) HR images of t and s.
+    pair.observation = &latents_[t];
+    pair.mask = VisibleFromSource(camera_hr_, frames_, t, s, options_.visibility);
+    pairs->push_back(pair);
+    if (input_matching()) {
+      // The same pair on the up-sampled inputs, which do not depend on
+      // the current structure (see StructureMatching).
+      pair.observation = &bicubic_[t];
+      pair.source = &bicubic_[s];
+      pairs->push_back(pair);
+    }
+  }
+}
+
+// lambda_s |B_t - Psi_t I_t| (eq:IPterm) linearised in the inverse depth of t.
+SelfConsistencyLinearization WindowSolver::SelfConsistencyOf(int t) {
+  SelfConsistencyLinearization self;
+  const auto self_op = Operator(t, t);
+  self.observation = &observations_[t];
+  self_op->op.Apply(latents_[t], &self.predicted);
+  self.derivative = BlurDerivativeWrtInverseDepth(MakeCaptureGeometry(frames_, camera_hr_, t, t),
+                                                  options_.samples, inverse_depth_[t], latents_[t],
+                                                  /*max_samples=*/10);
+  self.weight = options_.lambda_s;
+  self.scale = scale_;
+  return self;
+}
+
+void WindowSolver::SetInverseDepth(int t, const cv::Mat& inverse_depth) {
+  inverse_depth_[t] = inverse_depth;
+  frames_[t].depth_hr = DepthFromInverse(inverse_depth);
+  ++depth_version_[t];
+}
+
+// P_t of every frame but the first (the gauge) from `T_world_cam`.
+void WindowSolver::SetPoses(const std::vector<SE3>& T_world_cam) {
+  for (int t = 1; t < num_frames_; ++t) {
+    frames_[t].T_world_cam = T_world_cam[t];
+    ++pose_version_[t];
+  }
+}
+
+// E_t (eq:energyFunctiont) of one frame at the current state; `parts`
+// (optional) accumulates its terms.
+double WindowSolver::FrameEnergy(int t, EnergyRecord* parts) {
+  double matching = 0.0, self = 0.0;
+  cv::Mat predicted;
+  if (joint_) {
+    for (int s : neighbours_[t]) {
+      const auto e = Operator(t, s);
+      e->op.Apply(latents_[s], &predicted);
+      matching += SumAbsMasked(predicted, observations_[t], e->mask);
+    }
+    const auto e = Operator(t, t);
+    e->op.Apply(latents_[t], &predicted);
+    self = options_.lambda_s * SumAbsMasked(predicted, observations_[t], cv::Mat());
+  } else {
+    for (int s : neighbours_[t]) {
+      const WarpLinearization lin = LinearizeWarp(camera_hr_, inverse_depth_[t], frames_[t].T_world_cam,
+                                                  frames_[s].T_world_cam, latents_[s], nullptr);
+      matching += SumAbsMasked(lin.warped, latents_[t], BaselineMask(t, s, lin.valid));
+    }
+  }
+  const double image_tv = joint_ ? options_.image.lambda_i * TotalVariation(latents_[t]) : 0.0;
+  const double depth_tv =
+      options_.structure.lambda_d * DepthTv(inverse_depth_[t], edge_weight_[t], ParallaxScale());
+  if (parts != nullptr) {
+    parts->matching += matching;
+    parts->self_consistency += self;
+    parts->image_tv += image_tv;
+    parts->depth_tv += depth_tv;
+    parts->total += matching + self + image_tv + depth_tv;
+  }
+  return matching + self + image_tv + depth_tv;
+}
+
+// E of eq:energyFunction: the frames' parts, summed in frame order.
+EnergyRecord WindowSolver::TotalEnergy(int iteration, const std::string& stage) {
+  const double begin = NowMs();
+  std::vector<EnergyRecord> parts(num_frames_);
+  ForEachFrame([this, &parts](int t) { FrameEnergy(t, &parts[t]); });
+  EnergyRecord record;
+  record.iteration = iteration;
+  record.stage = stage;
+  for (const EnergyRecord& part : parts) {
+    record.total += part.total;
+    record.matching += part.matching;
+    record.self_consistency += part.self_consistency;
+    record.image_tv += part.image_tv;
+    record.depth_tv += part.depth_tv;
+  }
+  timer_.AddSince("energy", begin);
+  return record;
+}
+
+// Baseline matching at HR: visible, validly warped pixels of t.
+cv::Mat WindowSolver::BaselineMask(int t, int s, const cv::Mat& valid) const {
+  cv::Mat mask = VisibleFromSource(camera_hr_, frames_, t, s, options_.visibility);
+  cv::bitwise_and(mask, valid, mask);
+  return mask;
+}
+
+// Parallax scale: inverse depth in HR pixels of parallax per mean baseline.
+double WindowSolver::ParallaxScale() const {
+  double baseline = 0.0;
+  for (int t = 1; t < num_frames_; ++t) {
+    baseline += (frames_[t].T_world_cam.translation() - frames_[t - 1].T_world_cam.translation()).norm();
+  }
+  baseline /= (num_frames_ - 1);
+  return camera_hr_.fx * std::max(baseline, 1e-9);
+}
+
+WindowSolver::Snapshot WindowSolver::TakeSnapshot() const {
+  Snapshot snapshot;
+  snapshot.latents = CloneAll(latents_);
+  snapshot.inverse_depth = CloneAll(inverse_depth_);
+  snapshot.edge_weight = CloneAll(edge_weight_);
+  snapshot.T_world_cam.resize(num_frames_);
+  for (int t = 0; t < num_frames_; ++t) snapshot.T_world_cam[t] = frames_[t].T_world_cam;
+  return snapshot;
+}
+
+// Back to `snapshot` after an iteration that raised (or lost) the energy;
+// records the restored energy and says so in the notes.
+void WindowSolver::Undo(int iteration, const Snapshot& snapshot) {
+  latents_ = snapshot.latents;
+  inverse_depth_ = snapshot.inverse_depth;
+  edge_weight_ = snapshot.edge_weight;
+  for (int t = 0; t < num_frames_; ++t) {
+    frames_[t].T_world_cam = snapshot.T_world_cam[t];
+    frames_[t].depth_hr = DepthFromInverse(inverse_depth_[t]);
+    ++depth_version_[t];
+    ++pose_version_[t];
+  }
+  const double rejected = result_.energies.back().total;
+  EnergyRecord restored = TotalEnergy(iteration, "restored");
+  result_.energies.push_back(restored);
+  result_.notes.push_back("iteration " + std::to_string(iteration) +
+                          (std::isfinite(rejected) ? " raised the energy" : " lost the energy (not finite)") +
+                          ": undone, iterations stopped");
+}
+
+// The time cap (options.max_seconds): true, with a note, once it is past.
+bool WindowSolver::OutOfTime(int iterations_done) {
+  if (options_.max_seconds <= 0.0 || (NowMs() - run_start_ms_) / 1000.0 <= options_.max_seconds) return false;
+  result_.notes.push_back("time cap of " + std::to_string(options_.max_seconds) + " s reached after " +
+                          std::to_string(iterations_done) + " iteration(s)");
+  return true;
+}
+
+void WindowSolver::RequireFiniteEnergy(const char* where) const {
+  if (!std::isfinite(result_.energies.back().total)) {
+    throw EstimationDiverged(std::string("the energy is not finite ") + where);
+  }
+}
+
+void WindowSolver::ThrowIfCancelled() const {
+  if (cancel_ != nullptr && cancel_->load()) throw EstimationCancelled();
+}
+
+// Progress within the current phase (`within` in [0, 1]); also the point
+// where a raised cancel flag stops the run.
+void WindowSolver::Report(double within, const std::string& what) {
+  ThrowIfCancelled();
+  if (progress_) progress_(std::min(1.0, (steps_done_ + within) / total_steps_), what);
+}
+
+// Psi_t sampling I_source with its mask, from the cache.
+std::shared_ptr<const OperatorCache::Entry> WindowSolver::Operator(int t, int source) {
+  return cache_->Get(frames_, depth_version_, pose_version_, t, source, &timer_);
+}
+
+// The result in the output gauge: world = first camera, first two cameras 1
+// unit apart; latent images clamped to [0, 1].
+EstimatorResult WindowSolver::GaugedResult() {
+  // Monocular scale: first two cameras 1 unit apart (SPEC section 2).
+  const double baseline =
+      (frames_[1].T_world_cam.translation() - frames_[0].T_world_cam.translation()).norm();
+  const double rescale = baseline > 1e-12 ? 1.0 / baseline : 1.0;
+  const SE3 T_first_world = frames_[0].T_world_cam.Inverse();
+  for (int t = 0; t < num_frames_; ++t) {
+    const SE3 pose = T_first_world * frames_[t].T_world_cam;
+    result_.T_world_cam.emplace_back(pose.rotation(), pose.translation() * rescale);
+    cv::Mat depth = frames_[t].depth_hr * rescale;
+    result_.depth.push_back(depth);
+    cv::Mat clamped;
+    cv::min(cv::max(latents_[t], 0.0), 1.0, clamped);
+    result_.latent.push_back(clamped);
+  }
+  result_.timings = timer_.timings();
+  return std::move(result_);
+}
+
+// Counts, sizes and camera of RunFromStructure's input.
+void CheckWindowCounts(const EstimatorInput& input, const std::vector<cv::Mat>& depth_hr,
+                       const std::vector<SE3>& T_world_cam) {
+  if (input.images.size() < 2) throw InputError("estimator: needs at least 2 frames");
+  if (input.frames.size() != input.images.size() || depth_hr.size() != input.images.size() ||
+      T_world_cam.size() != input.images.size()) {
+    throw InputError("estimator: images, frames, depths and poses differ in number");
+  }
+  const std::string problem = input.camera.Problem();
+  if (!problem.empty()) throw InputError("estimator: camera: " + problem);
+}
+
+// Pixel types and finiteness of the frames, finiteness of the poses.
+void CheckWindowValues(const EstimatorInput& input, const std::vector<SE3>& T_world_cam) {
+  for (const cv::Mat& image : input.images) {
+    if (image.depth() != CV_32F || image.cols != input.camera.width || image.rows != input.camera.height ||
+        image.channels() != input.images[0].channels()) {
+      throw InputError("estimator: every frame must be a float image of the camera size");
+    }
+    if (!cv::checkRange(image)) throw InputError("estimator: a frame has NaN or infinite pixels");
+  }
+  for (const SE3& pose : T_world_cam) {
+    if (!pose.translation().allFinite() || !pose.rotation().allFinite()) {
+      throw InputError("estimator: an initial pose is not finite");
+    }
+  }
+}
+
 }  // namespace
 
 const char* ToString(EstimatorMode mode) {
@@ -278,18 +857,17 @@ EstimatorMode ParseEstimatorMode(const std::string& text) {
   throw InputError("mode must be 'joint' or 'baseline', got '" + text + "'");
 }
 
+// The names are those of the node's parameters and the tools' flags.
 void EstimatorOptions::Check() const {
-  if (scale < 1 || scale > 4) throw InputError("scale must be in [1, 4], got " + std::to_string(scale));
-  if (samples < 1 || samples > 1000) throw InputError("samples must be in [1, 1000], got " + std::to_string(samples));
-  if (max_iterations < 0 || max_iterations > 100) throw InputError("iterations must be in [0, 100]");
-  if (neighbour_radius < 1 || neighbour_radius > 5) throw InputError("neighbour_radius must be in [1, 5]");
-  if (pose_neighbour_radius < 1 || pose_neighbour_radius > 5) {
-    throw InputError("pose_neighbour_radius must be in [1, 5]");
-  }
-  if (!(lambda_s >= 0.0) || !std::isfinite(lambda_s)) throw InputError("lambda_s must be >= 0");
-  if (num_threads < 0) throw InputError("threads must be >= 0");
-  if (fixed_leading_poses < 1) throw InputError("fixed_leading_poses must be >= 1");
-  if (!(max_seconds >= 0.0) || !std::isfinite(max_seconds)) throw InputError("max_seconds must be >= 0");
+  CheckInRange("scale", scale, 1, 4);
+  CheckInRange("samples", samples, 1, 1000);
+  CheckInRange("iterations", max_iterations, 0, 100);
+  CheckInRange("neighbour_radius", neighbour_radius, 1, 5);
+  CheckInRange("pose_neighbour_radius", pose_neighbour_radius, 1, 5);
+  CheckAtLeast("lambda_s", lambda_s, 0.0);
+  CheckAtLeast("threads", num_threads, 0);
+  CheckAtLeast("fixed_leading_poses", fixed_leading_poses, 1);
+  CheckAtLeast("max_seconds", max_seconds, 0.0);
   image.Check();
   structure.Check();
   visibility.Check();
@@ -306,8 +884,10 @@ std::vector<cv::Mat> UpsampleInitialDepth(const std::vector<cv::Mat>& depth_lr, 
   return depth_hr;
 }
 
+// Algorithm 1 (alg:optimization): D_t and P_t initialised by
+// eq:initializationScene, then the main loop from that structure.
 EstimatorResult Estimator::Run(const EstimatorInput& input, const ProgressCallback& progress) {
-  const double start = Now();
+  const double start = NowMs();
   if (progress) progress(0.0, "initialisation");
   InitializerOptions init_options = options_.initializer;
   init_options.num_threads = options_.num_threads;
@@ -315,7 +895,7 @@ EstimatorResult Estimator::Run(const EstimatorInput& input, const ProgressCallba
       InitializeStructure(input.images, input.camera, input.frames, init_options);
   ThrowIfCancelled();
   const std::vector<cv::Mat> depth_hr = UpsampleInitialDepth(initial.depth_lr, options_.scale);
-  const double init_seconds = Now() - start;
+  const double init_seconds = (NowMs() - start) / 1000.0;
   EstimatorResult result = RunFromStructure(input, depth_hr, initial.T_world_cam, progress);
   result.timings.insert(result.timings.begin(), StageTiming{"initialization", init_seconds});
   result.initializer_summary = initial.summary;
@@ -323,391 +903,15 @@ EstimatorResult Estimator::Run(const EstimatorInput& input, const ProgressCallba
 }
 
 EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
-                                            const std::vector<cv::Mat>& depth_hr_in,
-                                            const std::vector<SE3>& T_world_cam_in,
+                                            const std::vector<cv::Mat>& depth_hr,
+                                            const std::vector<SE3>& T_world_cam,
                                             const ProgressCallback& progress) {
-  const int num_frames = static_cast<int>(input.images.size());
-  if (num_frames < 2) throw InputError("estimator: needs at least 2 frames");
-  if (input.frames.size() != input.images.size() || depth_hr_in.size() != input.images.size() ||
-      T_world_cam_in.size() != input.images.size()) {
-    throw InputError("estimator: images, frames, depths and poses differ in number");
-  }
-  {
-    const std::string problem = input.camera.Problem();
-    if (!problem.empty()) throw InputError("estimator: camera: " + problem);
-  }
-  const int scale = options_.scale;
-  const bool joint = options_.mode == EstimatorMode::kJoint;
-  const PinholeCamera camera_hr = input.camera.Upscaled(scale);
-  const int threads = options_.num_threads > 0 ? options_.num_threads : omp_get_max_threads();
+  CheckWindowCounts(input, depth_hr, T_world_cam);
+  const int threads = ResolveThreads(options_.num_threads);
   omp_set_num_threads(threads);
-  for (const cv::Mat& image : input.images) {
-    if (image.depth() != CV_32F || image.cols != input.camera.width || image.rows != input.camera.height ||
-        image.channels() != input.images[0].channels()) {
-      throw InputError("estimator: every frame must be a float image of the camera size");
-    }
-    if (!cv::checkRange(image)) throw InputError("estimator: a frame has NaN or infinite pixels");
-  }
-  for (const SE3& pose : T_world_cam_in) {
-    if (!pose.translation().allFinite() || !pose.rotation().allFinite()) {
-      throw InputError("estimator: an initial pose is not finite");
-    }
-  }
-
-  Timer timer;
-  EstimatorResult result;
-  result.camera_hr = camera_hr;
-
-  // State: latent images, frame structure, inverse depths, edge weights.
-  std::vector<cv::Mat> observations(num_frames), bicubic(num_frames), latents(num_frames);
-  std::vector<FrameStructure> frames(num_frames);
-  std::vector<cv::Mat> inverse_depth(num_frames), edge_weight(num_frames);
-  std::vector<long> depth_version(num_frames, 0), pose_version(num_frames, 0);
-  for (int t = 0; t < num_frames; ++t) {
-    observations[t] = input.images[t].isContinuous() ? input.images[t] : input.images[t].clone();
-    bicubic[t] = UpsampleBicubic(observations[t], scale);
-    latents[t] = bicubic[t].clone();
-    frames[t].stamp = input.frames[t].stamp;
-    frames[t].exposure = input.frames[t].exposure;
-    frames[t].T_world_cam = T_world_cam_in[t];
-    if (depth_hr_in[t].type() != CV_32FC1 || depth_hr_in[t].size() != cv::Size(camera_hr.width, camera_hr.height)) {
-      throw InputError("estimator: depth maps must be CV_32FC1 of the HR size");
-    }
-    inverse_depth[t] = InverseDepthFromDepth(depth_hr_in[t]);
-    frames[t].depth_hr = DepthFromInverse(inverse_depth[t]);
-    edge_weight[t] = EdgeWeightOf(latents[t], options_.structure.edge_weight);
-  }
-  // Parallax scale: inverse depth in HR pixels of parallax per mean baseline.
-  auto parallax_scale = [&]() {
-    double baseline = 0.0;
-    for (int t = 1; t < num_frames; ++t) {
-      baseline += (frames[t].T_world_cam.translation() - frames[t - 1].T_world_cam.translation()).norm();
-    }
-    baseline /= (num_frames - 1);
-    return camera_hr.fx * std::max(baseline, 1e-9);
-  };
-
-  CaptureOperatorOptions op_options;
-  op_options.samples = options_.samples;
-  op_options.scale = scale;
-  // The estimator parallelises over frames (no barriers inside a frame's
-  // work, which matters when the cores are shared); every operator runs on
-  // the thread that uses it.
-  op_options.num_threads = 1;
-  op_options.transposed_copy = false;  // half the memory, same speed on one thread
-  omp_set_max_active_levels(1);
-  // Every operator of a 10-frame 640x480 window (30 operators of ~38 MiB)
-  // fits; larger windows evict the least recently used ones and rebuild them,
-  // which keeps the peak memory bounded.
-  OperatorCache cache(op_options, threads, camera_hr, options_.visibility, size_t(3) << 29);
-
-  // Runs body(t) for every frame on `threads` threads; the first exception
-  // thrown by any frame is rethrown here (exceptions must not leave an
-  // OpenMP region).
-  auto for_each_frame = [&](const std::function<void(int)>& body) {
-    std::exception_ptr error;
-    std::mutex error_mutex;
-#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
-    for (int t = 0; t < num_frames; ++t) {
-      try {
-        ThrowIfCancelled();
-        body(t);
-      } catch (...) {
-        std::lock_guard<std::mutex> lock(error_mutex);
-        if (!error) error = std::current_exception();
-      }
-    }
-    if (error) std::rethrow_exception(error);
-  };
-
-  const std::vector<std::vector<int>> neighbours = [&] {
-    std::vector<std::vector<int>> n(num_frames);
-    for (int t = 0; t < num_frames; ++t) n[t] = Neighbours(t, num_frames, options_.neighbour_radius);
-    return n;
-  }();
-
-  // Baseline matching at HR: visible, validly warped pixels of t.
-  auto baseline_mask = [&](int t, int s, const cv::Mat& valid) {
-    const SE3 T_s_t = frames[s].T_world_cam.Inverse() * frames[t].T_world_cam;
-    cv::Mat mask = ComputeVisibility(camera_hr, frames[t].depth_hr, T_s_t, options_.visibility);
-    cv::bitwise_and(mask, valid, mask);
-    return mask;
-  };
-
-  // E_t (eq:energyFunctiont) of one frame at the current state.
-  auto frame_energy = [&](int t, EnergyRecord* parts) {
-    double matching = 0.0, self = 0.0;
-    cv::Mat predicted;
-    if (joint) {
-      for (int s : neighbours[t]) {
-        const auto e = cache.Get(frames, depth_version, pose_version, t, s, &timer);
-        e->op.Apply(latents[s], &predicted);
-        matching += SumAbsMasked(predicted, observations[t], e->mask);
-      }
-      const auto e = cache.Get(frames, depth_version, pose_version, t, t, &timer);
-      e->op.Apply(latents[t], &predicted);
-      self = options_.lambda_s * SumAbsMasked(predicted, observations[t], cv::Mat());
-    } else {
-      for (int s : neighbours[t]) {
-        const WarpLinearization lin = LinearizeWarp(camera_hr, inverse_depth[t], frames[t].T_world_cam,
-                                                    frames[s].T_world_cam, latents[s], nullptr);
-        matching += SumAbsMasked(lin.warped, latents[t], baseline_mask(t, s, lin.valid));
-      }
-    }
-    const double image_tv = joint ? options_.image.lambda_i * TotalVariation(latents[t]) : 0.0;
-    const double depth_tv =
-        options_.structure.lambda_d * DepthTv(inverse_depth[t], edge_weight[t], parallax_scale());
-    if (parts != nullptr) {
-      parts->matching += matching;
-      parts->self_consistency += self;
-      parts->image_tv += image_tv;
-      parts->depth_tv += depth_tv;
-      parts->total += matching + self + image_tv + depth_tv;
-    }
-    return matching + self + image_tv + depth_tv;
-  };
-  auto total_energy = [&](int iteration, const std::string& stage) {
-    const double begin = Now();
-    std::vector<EnergyRecord> parts(num_frames);
-    for_each_frame([&](int t) { frame_energy(t, &parts[t]); });
-    EnergyRecord record;
-    record.iteration = iteration;
-    record.stage = stage;
-    for (const EnergyRecord& part : parts) {
-      record.total += part.total;
-      record.matching += part.matching;
-      record.self_consistency += part.self_consistency;
-      record.image_tv += part.image_tv;
-      record.depth_tv += part.depth_tv;
-    }
-    timer.Add("energy", Now() - begin);
-    return record;
-  };
-
-  const double run_start = Now();
-  auto out_of_time = [&](int iterations_done) {
-    if (options_.max_seconds <= 0.0 || Now() - run_start <= options_.max_seconds) return false;
-    result.notes.push_back("time cap of " + std::to_string(options_.max_seconds) + " s reached after " +
-                           std::to_string(iterations_done) + " iteration(s)");
-    return true;
-  };
-  auto require_finite = [&](const char* where) {
-    if (!std::isfinite(result.energies.back().total)) {
-      throw EstimationDiverged(std::string("the energy is not finite ") + where);
-    }
-  };
-  result.energies.push_back(total_energy(0, "initialization"));
-  require_finite("at the initial structure");
-  const int total_steps = std::max(1, 2 * options_.max_iterations + 1);
-  int steps_done = 0;
-  auto report = [&](double within, const std::string& what) {
-    ThrowIfCancelled();
-    if (progress) progress(std::min(1.0, (steps_done + within) / total_steps), what);
-  };
-
-  // ---- Phase 1: latent images (eq:imgUpdate), one frame at a time.
-  auto image_phase = [&](int iteration) {
-    const double begin = Now();
-    for_each_frame([&](int t) {
-      if (omp_get_thread_num() == 0) {
-        report(double(t) / num_frames, "iteration " + std::to_string(iteration) + ": image " + std::to_string(t));
-      }
-      std::vector<LinearL1Term> terms;
-      std::vector<std::shared_ptr<const OperatorCache::Entry>> held;
-      for (int s : neighbours[t]) {
-        held.push_back(cache.Get(frames, depth_version, pose_version, s, t, &timer));
-        terms.push_back({&held.back()->op, &observations[s], held.back()->mask, 1.0});
-      }
-      held.push_back(cache.Get(frames, depth_version, pose_version, t, t, &timer));
-      terms.push_back({&held.back()->op, &observations[t], cv::Mat(), options_.lambda_s});
-      ImageUpdateOptions image_options = options_.image;
-      image_options.num_threads = 1;
-      UpdateImage(terms, image_options, &latents[t]);
-      edge_weight[t] = EdgeWeightOf(latents[t], options_.structure.edge_weight);
-    });
-    ++steps_done;
-    timer.Add("image update (incl. operator builds)", Now() - begin);
-    result.energies.push_back(total_energy(iteration, "image"));
-  };
-
-  // ---- Phase 2: depths and poses (eq:taylorExpansion, eq:updateVariables).
-  // With `isolated` (baseline: the images are fixed) each depth map and the
-  // pose update is kept only if it lowers the energy on its own. In joint
-  // mode the latent images were fitted to the old structure, so a step
-  // towards the true structure can raise the energy until the images follow:
-  // the caller judges the structure update after the next image update.
-  auto structure_phase = [&](int iteration, bool isolated) {
-    const double begin = Now();
-    StructureUpdateOptions structure_options = options_.structure;
-    structure_options.num_threads = threads;
-    std::vector<SE3> poses(num_frames);
-    for (int t = 0; t < num_frames; ++t) poses[t] = frames[t].T_world_cam;
-    // The pairs (t <- s) of frame t with s in `sources`; `held` keeps their
-    // operators alive.
-    const bool blurred_matching = joint && options_.structure_matching == StructureMatching::kBlurred;
-    const bool input_matching = joint && options_.structure_matching == StructureMatching::kRestoredAndInput;
-    auto pairs_of = [&](int t, const std::vector<int>& sources, std::vector<PairMatching>* pairs,
-                        std::vector<std::shared_ptr<const OperatorCache::Entry>>* held) {
-      for (int s : sources) {
-        PairMatching pair;
-        pair.t = t;
-        pair.s = s;
-        if (blurred_matching) {
-          held->push_back(cache.Get(frames, depth_version, pose_version, t, s, &timer));
-          pair.mask = held->back()->mask;
-          held->push_back(cache.Get(frames, depth_version, pose_version, t, t, &timer));
-          pair.blur = &held->back()->op;
-          pair.observation = &observations[t];
-          pairs->push_back(pair);
-          continue;
-        }
-        // Restored (or, in the baseline, bicubic) HR images of t and s.
-        pair.observation = &latents[t];
-        const SE3 T_s_t = frames[s].T_world_cam.Inverse() * frames[t].T_world_cam;
-        pair.mask = ComputeVisibility(camera_hr, frames[t].depth_hr, T_s_t, options_.visibility);
-        pairs->push_back(pair);
-        if (input_matching) {
-          // The same pair on the up-sampled inputs, which do not depend on
-          // the current structure (see StructureMatching).
-          pair.observation = &bicubic[t];
-          pair.source = &bicubic[s];
-          pairs->push_back(pair);
-        }
-      }
-    };
-    // Pose pairs reach further than N(t) (longer baselines); the blurred
-    // form needs the operators of N(t) only.
-    const int pose_radius = blurred_matching ? options_.neighbour_radius
-                                             : std::max(options_.neighbour_radius, options_.pose_neighbour_radius);
-    for_each_frame([&](int t) {
-      if (omp_get_thread_num() == 0) {
-        report(double(t) / (num_frames + 1),
-               "iteration " + std::to_string(iteration) + ": structure " + std::to_string(t));
-      }
-      const double before = isolated ? frame_energy(t, nullptr) : 0.0;
-      const cv::Mat saved = inverse_depth[t].clone();
-      std::vector<PairMatching> pairs;
-      std::vector<std::shared_ptr<const OperatorCache::Entry>> held;
-      pairs_of(t, neighbours[t], &pairs, &held);
-      SelfConsistencyLinearization self;
-      if (blurred_matching) {
-        const auto self_op = cache.Get(frames, depth_version, pose_version, t, t, &timer);
-        self.observation = &observations[t];
-        self_op->op.Apply(latents[t], &self.predicted);
-        self.derivative = BlurDerivativeWrtInverseDepth(
-            MakeCaptureGeometry(frames, camera_hr, t, t), options_.samples, inverse_depth[t],
-            latents[t], /*max_samples=*/10);
-        self.weight = options_.lambda_s;
-        self.scale = scale;
-      }
-      const double depth_begin = Now();
-      UpdateDepth(camera_hr, poses, latents, pairs, blurred_matching ? &self : nullptr, edge_weight[t],
-                  parallax_scale(), structure_options, &inverse_depth[t]);
-      timer.Add("depth updates (thread seconds)", Now() - depth_begin);
-      frames[t].depth_hr = DepthFromInverse(inverse_depth[t]);
-      ++depth_version[t];
-      if (isolated && !(frame_energy(t, nullptr) <= before)) {
-        inverse_depth[t] = saved;  // the surrogate step did not pay: keep D_t
-        frames[t].depth_hr = DepthFromInverse(saved);
-        ++depth_version[t];
-      }
-    });
-    if (options_.update_poses) {
-      report(double(num_frames) / (num_frames + 1), "iteration " + std::to_string(iteration) + ": poses");
-      const double before = isolated ? total_energy(iteration, "structure").total : 0.0;
-      std::vector<PairMatching> pairs;
-      std::vector<std::shared_ptr<const OperatorCache::Entry>> held;
-      for (int t = 0; t < num_frames; ++t) pairs_of(t, Neighbours(t, num_frames, pose_radius), &pairs, &held);
-      std::vector<SE3> updated = poses;
-      const double pose_begin = Now();
-      UpdatePoses(camera_hr, inverse_depth, latents, pairs, structure_options, &updated,
-                  options_.fixed_leading_poses);
-      timer.Add("pose updates", Now() - pose_begin);
-      for (int t = 1; t < num_frames; ++t) {
-        frames[t].T_world_cam = updated[t];
-        ++pose_version[t];
-      }
-      if (isolated && !(total_energy(iteration, "structure").total <= before)) {
-        for (int t = 1; t < num_frames; ++t) {
-          frames[t].T_world_cam = poses[t];
-          ++pose_version[t];
-        }
-      }
-    }
-    ++steps_done;
-    timer.Add("structure update", Now() - begin);
-    result.energies.push_back(total_energy(iteration, "structure"));
-  };
-
-  if (!joint) {
-    for (int iteration = 1; iteration <= options_.max_iterations && options_.update_structure; ++iteration) {
-      if (out_of_time(iteration - 1)) break;
-      structure_phase(iteration, /*isolated=*/true);
-    }
-  } else if (!options_.update_structure) {
-    for (int iteration = 1; iteration <= options_.max_iterations; ++iteration) {
-      if (out_of_time(iteration - 1)) break;
-      image_phase(iteration);
-    }
-  } else if (options_.max_iterations > 0) {
-    // Algorithm 1: image update, then max_iter times structure update followed
-    // by the image update that judges it (the last one gives the output
-    // images that match the final structure). A structure update whose
-    // following image update does not lower the energy is undone, with the
-    // images, and the iterations stop: the recorded energy after each kept
-    // iteration never increases.
-    image_phase(1);
-    require_finite("after the first image update");
-    double accepted = result.energies.back().total;
-    for (int iteration = 1; iteration <= options_.max_iterations; ++iteration) {
-      if (out_of_time(iteration - 1)) break;
-      const std::vector<cv::Mat> saved_latents = CloneAll(latents);
-      const std::vector<cv::Mat> saved_inverse_depth = CloneAll(inverse_depth);
-      const std::vector<cv::Mat> saved_edge_weight = CloneAll(edge_weight);
-      std::vector<SE3> saved_poses(num_frames);
-      for (int t = 0; t < num_frames; ++t) saved_poses[t] = frames[t].T_world_cam;
-      structure_phase(iteration, /*isolated=*/false);
-      image_phase(iteration + 1);
-      if (result.energies.back().total <= accepted) {
-        accepted = result.energies.back().total;
-        continue;
-      }
-      latents = saved_latents;
-      inverse_depth = saved_inverse_depth;
-      edge_weight = saved_edge_weight;
-      for (int t = 0; t < num_frames; ++t) {
-        frames[t].T_world_cam = saved_poses[t];
-        frames[t].depth_hr = DepthFromInverse(inverse_depth[t]);
-        ++depth_version[t];
-        ++pose_version[t];
-      }
-      const double rejected = result.energies.back().total;
-      EnergyRecord restored = total_energy(iteration, "restored");
-      result.energies.push_back(restored);
-      result.notes.push_back("iteration " + std::to_string(iteration) +
-                             (std::isfinite(rejected) ? " raised the energy" : " lost the energy (not finite)") +
-                             ": undone, iterations stopped");
-      break;
-    }
-  }
-  if (progress) progress(1.0, "done");
-
-  // Monocular scale: first two cameras 1 unit apart (SPEC section 2).
-  const double baseline =
-      (frames[1].T_world_cam.translation() - frames[0].T_world_cam.translation()).norm();
-  const double rescale = baseline > 1e-12 ? 1.0 / baseline : 1.0;
-  const SE3 T_first_world = frames[0].T_world_cam.Inverse();
-  for (int t = 0; t < num_frames; ++t) {
-    const SE3 pose = T_first_world * frames[t].T_world_cam;
-    result.T_world_cam.emplace_back(pose.rotation(), pose.translation() * rescale);
-    cv::Mat depth = frames[t].depth_hr * rescale;
-    result.depth.push_back(depth);
-    cv::Mat clamped;
-    cv::min(cv::max(latents[t], 0.0), 1.0, clamped);
-    result.latent.push_back(clamped);
-  }
-  result.timings = timer.timings();
-  return result;
+  CheckWindowValues(input, T_world_cam);
+  WindowSolver solver(options_, threads, input, depth_hr, T_world_cam, cancel_, progress);
+  return solver.Solve();
 }
 
 }  // namespace deblur_sr_mvs

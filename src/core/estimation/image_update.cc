@@ -6,11 +6,11 @@
 #include <cmath>
 
 #include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/common/options_check.h"
+#include "deblur_sr_mvs/core/common/runtime.h"
 
 namespace deblur_sr_mvs {
 namespace {
-
-int Threads(int requested) { return requested > 0 ? requested : omp_get_max_threads(); }
 
 size_t NumValues(const cv::Mat& m) { return m.total() * m.channels(); }
 
@@ -63,13 +63,11 @@ struct TermState {
 }  // namespace
 
 void ImageUpdateOptions::Check() const {
-  if (!(lambda_i >= 0.0)) throw InputError("image update: lambda_i must be >= 0");
-  if (irls_iterations < 1 || cg_iterations < 1) {
-    throw InputError("image update: irls_iterations and cg_iterations must be >= 1");
-  }
-  if (!(residual_epsilon > 0.0) || !(tv_epsilon > 0.0)) {
-    throw InputError("image update: residual_epsilon and tv_epsilon must be > 0");
-  }
+  CheckAtLeast("image update: lambda_i", lambda_i, 0.0);
+  CheckAtLeast("image update: irls_iterations", irls_iterations, 1);
+  CheckAtLeast("image update: cg_iterations", cg_iterations, 1);
+  CheckAbove("image update: residual_epsilon", residual_epsilon, 0.0);
+  CheckAbove("image update: tv_epsilon", tv_epsilon, 0.0);
 }
 
 void AddWeightedLaplacian(const cv::Mat& x, const cv::Mat& v, double scale, cv::Mat* out,
@@ -137,99 +135,146 @@ double ImageEnergy(const std::vector<LinearL1Term>& terms, double lambda_i, cons
   return energy;
 }
 
-double UpdateImage(const std::vector<LinearL1Term>& terms, const ImageUpdateOptions& options,
-                   cv::Mat* image) {
-  options.Check();
-  const int threads = Threads(options.num_threads);
-  if (image->depth() != CV_32F || !image->isContinuous()) {
+namespace {
+
+// The reweighted least-squares problem of one IRLS step of eq:imgUpdate at
+// the current image x: with W_k = weight_k * mask_k / max(|A_k x - b_k|, eps)
+// and V = 1 / max(|grad x|, eps), the normal operator is
+//   N y = sum_k A_k^T W_k A_k y + lambda_i D^T V D y
+// and the right-hand side sum_k A_k^T W_k b_k.
+class ReweightedImageSystem {
+ public:
+  ReweightedImageSystem(const std::vector<LinearL1Term>& terms, const ImageUpdateOptions& options, int threads,
+                        int hr_rows)
+      : terms_(terms), options_(options), threads_(threads), hr_rows_(hr_rows), states_(terms.size()),
+        adjoints_(terms.size()) {
+    // Psi^T as row-major copies made here, once per update: a gather is much
+    // faster than scattering through Psi, and the copies live only as long as
+    // this update (the operators' owners need not keep them).
+    for (size_t k = 0; k < terms.size(); ++k) TransposeSparse(terms[k].op->matrix(), &adjoints_[k], threads);
+  }
+
+  // W_k and V at `image`.
+  void Reweight(const cv::Mat& image) {
+    for (size_t k = 0; k < terms_.size(); ++k) ReweightTerm(terms_[k], image, &states_[k]);
+    TvWeights(image, options_.tv_epsilon, &tv_weights_);
+  }
+
+  // rhs = sum_k A_k^T W_k b_k (HR, as `image`).
+  void RightHandSide(const cv::Mat& image, cv::Mat* rhs) {
+    rhs->create(image.size(), image.type());
+    rhs->setTo(0.0);
+    for (size_t k = 0; k < terms_.size(); ++k) {
+      cv::multiply(*terms_[k].observation, states_[k].weight, temp_lr_);
+      ApplyAdjoint(k, temp_lr_, &temp_hr_);
+      Axpy(1.0, temp_hr_, rhs, threads_);
+    }
+  }
+
+  // out = N x.
+  void ApplyNormal(const cv::Mat& x, cv::Mat* out) {
+    out->create(x.size(), x.type());
+    out->setTo(0.0);
+    for (size_t k = 0; k < terms_.size(); ++k) {
+      terms_[k].op->Apply(x, &temp_lr_);
+      cv::multiply(temp_lr_, states_[k].weight, temp_lr_);
+      ApplyAdjoint(k, temp_lr_, &temp_hr_);
+      Axpy(1.0, temp_hr_, out, threads_);
+    }
+    if (options_.lambda_i > 0.0) AddWeightedLaplacian(x, tv_weights_, options_.lambda_i, out, threads_);
+  }
+
+ private:
+  // W = weight * mask / max(|A x - b|, eps) of one term at `image`.
+  void ReweightTerm(const LinearL1Term& term, const cv::Mat& image, TermState* state) const {
+    term.op->Apply(image, &state->residual);
+    state->residual -= *term.observation;
+    state->weight.create(state->residual.size(), state->residual.type());
+    const int channels = state->residual.channels();
+    for (int y = 0; y < state->residual.rows; ++y) {
+      const float* r = state->residual.ptr<float>(y);
+      float* w = state->weight.ptr<float>(y);
+      const uchar* m = term.mask.empty() ? nullptr : term.mask.ptr<uchar>(y);
+      for (int x = 0; x < state->residual.cols; ++x) {
+        const bool used = m == nullptr || m[x] != 0;
+        for (int c = 0; c < channels; ++c) {
+          const int i = x * channels + c;
+          w[i] = used ? static_cast<float>(term.weight /
+                                           std::max<double>(std::abs(r[i]), options_.residual_epsilon))
+                      : 0.0f;
+        }
+      }
+    }
+  }
+
+  void ApplyAdjoint(size_t k, const cv::Mat& lr, cv::Mat* hr) const {
+    MultiplySparse(adjoints_[k], lr, hr, threads_);
+    *hr = hr->reshape(lr.channels(), hr_rows_);
+  }
+
+  const std::vector<LinearL1Term>& terms_;
+  const ImageUpdateOptions& options_;
+  const int threads_;
+  const int hr_rows_;
+  std::vector<TermState> states_;
+  std::vector<SparseMatrixRM> adjoints_;
+  cv::Mat tv_weights_, temp_lr_, temp_hr_;
+};
+
+// At most `iterations` CG steps on N x = rhs, warm-started from *image.
+void SolveByConjugateGradients(ReweightedImageSystem* system, const cv::Mat& rhs, int iterations, int threads,
+                               cv::Mat* image) {
+  cv::Mat residual, direction, normal_direction;
+  system->ApplyNormal(*image, &residual);
+  residual = rhs - residual;  // r = b - N x
+  direction = residual.clone();
+  double rr = Dot(residual, residual, threads);
+  const double rr0 = rr;
+  for (int it = 0; it < iterations && rr > 1e-12 * rr0 && rr > 0.0; ++it) {
+    system->ApplyNormal(direction, &normal_direction);
+    const double dnd = Dot(direction, normal_direction, threads);
+    if (!(dnd > 0.0)) break;
+    const double alpha = rr / dnd;
+    Axpy(alpha, direction, image, threads);
+    Axpy(-alpha, normal_direction, &residual, threads);
+    const double rr_next = Dot(residual, residual, threads);
+    const double beta = rr_next / rr;
+    rr = rr_next;
+    // d = r + beta d
+    direction *= beta;
+    Axpy(1.0, residual, &direction, threads);
+  }
+}
+
+void CheckTermsMatchImage(const std::vector<LinearL1Term>& terms, const cv::Mat& image) {
+  if (image.depth() != CV_32F || !image.isContinuous()) {
     throw InputError("image update: the image must be a continuous float image");
   }
   for (const LinearL1Term& term : terms) {
     if (term.op == nullptr || term.observation == nullptr ||
-        term.op->hr_size() != image->size() || term.observation->size() != term.op->lr_size() ||
-        term.observation->type() != image->type() ||
+        term.op->hr_size() != image.size() || term.observation->size() != term.op->lr_size() ||
+        term.observation->type() != image.type() ||
         (!term.mask.empty() && term.mask.size() != term.op->lr_size())) {
       throw InputError("image update: a data term does not match the image (sizes or channels)");
     }
   }
-  std::vector<TermState> states(terms.size());
-  // Psi^T as row-major copies made here, once per update: a gather is much
-  // faster than scattering through Psi, and the copies live only as long as
-  // this update (the operators' owners need not keep them).
-  std::vector<SparseMatrixRM> adjoints(terms.size());
-  for (size_t k = 0; k < terms.size(); ++k) TransposeSparse(terms[k].op->matrix(), &adjoints[k], threads);
-  auto apply_adjoint = [&](size_t k, const cv::Mat& lr, cv::Mat* hr) {
-    MultiplySparse(adjoints[k], lr, hr, threads);
-    *hr = hr->reshape(lr.channels(), image->rows);
-  };
-  cv::Mat tv_weights, rhs, residual, direction, normal_direction, temp_lr, temp_hr;
+}
 
-  // Normal operator N x = sum_k A_k^T W_k A_k x + lambda_i D^T V D x.
-  auto apply_normal = [&](const cv::Mat& x, cv::Mat* out) {
-    out->create(x.size(), x.type());
-    out->setTo(0.0);
-    for (size_t k = 0; k < terms.size(); ++k) {
-      terms[k].op->Apply(x, &temp_lr);
-      cv::multiply(temp_lr, states[k].weight, temp_lr);
-      apply_adjoint(k, temp_lr, &temp_hr);
-      Axpy(1.0, temp_hr, out, threads);
-    }
-    if (options.lambda_i > 0.0) AddWeightedLaplacian(x, tv_weights, options.lambda_i, out, threads);
-  };
+}  // namespace
 
+// IRLS on eq:imgUpdate: reweight at the current image, then CG on the
+// reweighted system from it.
+double UpdateImage(const std::vector<LinearL1Term>& terms, const ImageUpdateOptions& options,
+                   cv::Mat* image) {
+  options.Check();
+  const int threads = ResolveThreads(options.num_threads);
+  CheckTermsMatchImage(terms, *image);
+  ReweightedImageSystem system(terms, options, threads, image->rows);
+  cv::Mat rhs;
   for (int irls = 0; irls < options.irls_iterations; ++irls) {
-    // Reweight: W = weight * mask / max(|A x - b|, eps), V = 1 / max(|grad x|, eps).
-    for (size_t k = 0; k < terms.size(); ++k) {
-      const LinearL1Term& term = terms[k];
-      TermState& state = states[k];
-      term.op->Apply(*image, &state.residual);
-      state.residual -= *term.observation;
-      state.weight.create(state.residual.size(), state.residual.type());
-      const int channels = state.residual.channels();
-      for (int y = 0; y < state.residual.rows; ++y) {
-        const float* r = state.residual.ptr<float>(y);
-        float* w = state.weight.ptr<float>(y);
-        const uchar* m = term.mask.empty() ? nullptr : term.mask.ptr<uchar>(y);
-        for (int x = 0; x < state.residual.cols; ++x) {
-          const bool used = m == nullptr || m[x] != 0;
-          for (int c = 0; c < channels; ++c) {
-            const int i = x * channels + c;
-            w[i] = used ? static_cast<float>(term.weight /
-                                             std::max<double>(std::abs(r[i]), options.residual_epsilon))
-                        : 0.0f;
-          }
-        }
-      }
-    }
-    TvWeights(*image, options.tv_epsilon, &tv_weights);
-
-    // rhs = sum_k A_k^T W_k b_k; CG on N x = rhs from the current image.
-    rhs.create(image->size(), image->type());
-    rhs.setTo(0.0);
-    for (size_t k = 0; k < terms.size(); ++k) {
-      cv::multiply(*terms[k].observation, states[k].weight, temp_lr);
-      apply_adjoint(k, temp_lr, &temp_hr);
-      Axpy(1.0, temp_hr, &rhs, threads);
-    }
-    apply_normal(*image, &residual);
-    residual = rhs - residual;  // r = b - N x
-    direction = residual.clone();
-    double rr = Dot(residual, residual, threads);
-    const double rr0 = rr;
-    for (int it = 0; it < options.cg_iterations && rr > 1e-12 * rr0 && rr > 0.0; ++it) {
-      apply_normal(direction, &normal_direction);
-      const double dnd = Dot(direction, normal_direction, threads);
-      if (!(dnd > 0.0)) break;
-      const double alpha = rr / dnd;
-      Axpy(alpha, direction, image, threads);
-      Axpy(-alpha, normal_direction, &residual, threads);
-      const double rr_next = Dot(residual, residual, threads);
-      const double beta = rr_next / rr;
-      rr = rr_next;
-      // d = r + beta d
-      direction *= beta;
-      Axpy(1.0, residual, &direction, threads);
-    }
+    system.Reweight(*image);
+    system.RightHandSide(*image, &rhs);
+    SolveByConjugateGradients(&system, rhs, options.cg_iterations, threads, image);
   }
   return ImageEnergy(terms, options.lambda_i, *image);
 }

@@ -5,23 +5,16 @@
 #include <utility>
 
 #include "deblur_sr_mvs/core/common/errors.h"
-#include "deblur_sr_mvs/core/estimation/initializer.h"
+#include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/common/runtime.h"
+#include "deblur_sr_mvs/core/estimation/initializer.h"
 
 namespace deblur_sr_mvs {
 
 void StreamOptions::Check() const {
-  if (window_size < 3 || window_size > 64) {
-    throw InputError("window_size must be in [3, 64], got " + std::to_string(window_size));
-  }
-  if (window_overlap < 2 || window_overlap >= window_size) {
-    throw InputError("window_overlap must be in [2, window_size - 1] = [2, " +
-                     std::to_string(window_size - 1) + "], got " + std::to_string(window_overlap));
-  }
-  if (max_pending_windows < 1 || max_pending_windows > 100) {
-    throw InputError("max_pending_windows must be in [1, 100], got " +
-                     std::to_string(max_pending_windows));
-  }
+  CheckInRange("window_size", window_size, 3, 64);
+  CheckInRange("window_overlap", window_overlap, 2, window_size - 1);
+  CheckInRange("max_pending_windows", max_pending_windows, 1, 100);
 }
 
 // ------------------------------------------------------------- FrameWindower
@@ -127,96 +120,115 @@ void StreamEstimator::Reset() {
   has_returned_ = false;
 }
 
-WindowEstimate StreamEstimator::Process(const StreamWindow& window, const PinholeCamera& camera_lr,
-                                        const ProgressCallback& progress) {
-  if (window.size() < 2) throw InputError("stream: a window needs at least 2 frames");
-  const EstimatorOptions& options = estimator_.options();
+namespace {
+
+// The estimator's input for `window`; fills the ids and stamps of `estimate`.
+EstimatorInput WindowInput(const StreamWindow& window, const PinholeCamera& camera_lr,
+                           WindowEstimate* estimate) {
   EstimatorInput input;
   input.camera = camera_lr;
-  WindowEstimate estimate;
   for (size_t i = 0; i < window.size(); ++i) {
     const StreamFrame& frame = window[i];
     if (i > 0 && frame.id <= window[i - 1].id) throw InputError("stream: frame ids must increase");
     input.images.push_back(frame.image);
     input.frames.push_back(FrameRecord{static_cast<int>(i), frame.stamp_close, frame.exposure});
-    estimate.ids.push_back(frame.id);
-    estimate.stamps_ns.push_back(frame.stamp_ns);
+    estimate->ids.push_back(frame.id);
+    estimate->stamps_ns.push_back(frame.stamp_ns);
   }
+  return input;
+}
 
-  // The leading frames this window shares with the previous one.
+}  // namespace
+
+WindowEstimate StreamEstimator::Process(const StreamWindow& window, const PinholeCamera& camera_lr,
+                                        const ProgressCallback& progress) {
+  if (window.size() < 2) throw InputError("stream: a window needs at least 2 frames");
+  WindowEstimate estimate;
+  const EstimatorInput input = WindowInput(window, camera_lr, &estimate);
+  if (!ContinueTrajectory(input, SharedPreviousPoses(window), progress, &estimate)) {
+    StartSegment(input, progress, &estimate);
+  }
+  Remember(window, &estimate);
+  return estimate;
+}
+
+std::vector<SE3> StreamEstimator::SharedPreviousPoses(const StreamWindow& window) const {
   std::vector<SE3> shared_previous;
   for (const StreamFrame& frame : window) {
     const auto found = last_poses_.find(frame.id);
     if (found == last_poses_.end()) break;
     shared_previous.push_back(found->second);
   }
-  const int num_shared = static_cast<int>(shared_previous.size());
-  bool tied = false;
-  if (num_shared >= 2 && PathLength(shared_previous) > 1e-12) {
-    const double start = NowMs();
-    InitializerOptions init_options = options.initializer;
-    init_options.num_threads = options.num_threads;
-    InitialStructure initial =
-        InitializeStructure(input.images, input.camera, input.frames, init_options);
-    std::vector<SE3> shared_initial(initial.T_world_cam.begin(), initial.T_world_cam.begin() + num_shared);
-    if (PathLength(shared_initial) > 1e-12) {
-      // Initial structure of this window in the stream's world and scale; the
-      // shared cameras start exactly where the previous window left them.
-      const Sim3 to_stream = AlignPoseSequence(shared_initial, shared_previous);
-      std::vector<SE3> poses;
-      for (size_t i = 0; i < window.size(); ++i) {
-        poses.push_back(static_cast<int>(i) < num_shared
-                            ? shared_previous[i]
-                            : TransformPose(to_stream, initial.T_world_cam[i]));
-      }
-      std::vector<cv::Mat> depth_lr;
-      for (const cv::Mat& depth : initial.depth_lr) depth_lr.push_back(depth * to_stream.scale);
-      const std::vector<cv::Mat> depth_hr = UpsampleInitialDepth(depth_lr, options.scale);
-      const double init_seconds = (NowMs() - start) / 1000.0;
-      // The shared cameras stay where the previous window put them.
-      EstimatorOptions held = options;
-      held.fixed_leading_poses = num_shared;
-      Estimator estimator(held);
-      estimator.SetCancelFlag(cancel_);
-      estimate.result = estimator.RunFromStructure(input, depth_hr, poses, progress);
-      estimate.result.timings.insert(estimate.result.timings.begin(),
-                                     StageTiming{"initialization", init_seconds});
-      estimate.result.initializer_summary = initial.summary;
-      // The estimator returns its own gauge (first camera, unit baseline):
-      // carry the result back onto the previous window's shared cameras
-      // (exact, since they were held).
-      std::vector<SE3> shared_result(estimate.result.T_world_cam.begin(),
-                                     estimate.result.T_world_cam.begin() + num_shared);
-      const Sim3 back = AlignPoseSequence(shared_result, shared_previous);
-      for (SE3& pose : estimate.result.T_world_cam) pose = TransformPose(back, pose);
-      for (cv::Mat& depth : estimate.result.depth) depth *= back.scale;
-      estimate.continued = true;
-      estimate.note = "continued from the previous window through " + std::to_string(num_shared) +
-                      " shared frames (scale factor " + std::to_string(back.scale) + ")";
-      tied = true;
-    }
-  }
-  if (!tied) {
-    estimate.result = estimator_.Run(input, progress);
-    estimate.continued = false;
-    estimate.note = last_poses_.empty()
-                        ? "new trajectory: world = first camera, first two cameras 1 unit apart"
-                        : "new trajectory segment (no usable overlap with the previous window): "
-                          "world = this window's first camera, first two cameras 1 unit apart";
-  }
+  return shared_previous;
+}
 
-  estimate.first_new = 0;
+bool StreamEstimator::ContinueTrajectory(const EstimatorInput& input, const std::vector<SE3>& shared_previous,
+                                         const ProgressCallback& progress, WindowEstimate* estimate) const {
+  const int num_shared = static_cast<int>(shared_previous.size());
+  if (!(num_shared >= 2 && PathLength(shared_previous) > 1e-12)) return false;
+  const EstimatorOptions& options = estimator_.options();
+  const double start = NowMs();
+  InitializerOptions init_options = options.initializer;
+  init_options.num_threads = options.num_threads;
+  InitialStructure initial = InitializeStructure(input.images, input.camera, input.frames, init_options);
+  std::vector<SE3> shared_initial(initial.T_world_cam.begin(), initial.T_world_cam.begin() + num_shared);
+  if (!(PathLength(shared_initial) > 1e-12)) return false;
+  // Initial structure of this window in the stream's world and scale; the
+  // shared cameras start exactly where the previous window left them.
+  const Sim3 to_stream = AlignPoseSequence(shared_initial, shared_previous);
+  std::vector<SE3> poses;
+  for (size_t i = 0; i < input.images.size(); ++i) {
+    poses.push_back(static_cast<int>(i) < num_shared ? shared_previous[i]
+                                                     : TransformPose(to_stream, initial.T_world_cam[i]));
+  }
+  std::vector<cv::Mat> depth_lr;
+  for (const cv::Mat& depth : initial.depth_lr) depth_lr.push_back(depth * to_stream.scale);
+  const std::vector<cv::Mat> depth_hr = UpsampleInitialDepth(depth_lr, options.scale);
+  const double init_seconds = (NowMs() - start) / 1000.0;
+  // The shared cameras stay where the previous window put them.
+  EstimatorOptions held = options;
+  held.fixed_leading_poses = num_shared;
+  Estimator estimator(held);
+  estimator.SetCancelFlag(cancel_);
+  EstimatorResult& result = estimate->result;
+  result = estimator.RunFromStructure(input, depth_hr, poses, progress);
+  result.timings.insert(result.timings.begin(), StageTiming{"initialization", init_seconds});
+  result.initializer_summary = initial.summary;
+  // The estimator returns its own gauge (first camera, unit baseline):
+  // carry the result back onto the previous window's shared cameras
+  // (exact, since they were held).
+  std::vector<SE3> shared_result(result.T_world_cam.begin(), result.T_world_cam.begin() + num_shared);
+  const Sim3 back = AlignPoseSequence(shared_result, shared_previous);
+  for (SE3& pose : result.T_world_cam) pose = TransformPose(back, pose);
+  for (cv::Mat& depth : result.depth) depth *= back.scale;
+  estimate->continued = true;
+  estimate->note = "continued from the previous window through " + std::to_string(num_shared) +
+                   " shared frames (scale factor " + std::to_string(back.scale) + ")";
+  return true;
+}
+
+void StreamEstimator::StartSegment(const EstimatorInput& input, const ProgressCallback& progress,
+                                   WindowEstimate* estimate) {
+  estimate->result = estimator_.Run(input, progress);
+  estimate->continued = false;
+  estimate->note = last_poses_.empty()
+                       ? "new trajectory: world = first camera, first two cameras 1 unit apart"
+                       : "new trajectory segment (no usable overlap with the previous window): "
+                         "world = this window's first camera, first two cameras 1 unit apart";
+}
+
+void StreamEstimator::Remember(const StreamWindow& window, WindowEstimate* estimate) {
+  estimate->first_new = 0;
   if (has_returned_) {
-    while (estimate.first_new < static_cast<int>(window.size()) &&
-           window[estimate.first_new].id <= last_returned_id_) {
-      ++estimate.first_new;
+    while (estimate->first_new < static_cast<int>(window.size()) &&
+           window[estimate->first_new].id <= last_returned_id_) {
+      ++estimate->first_new;
     }
   }
   last_poses_.clear();
-  for (size_t i = 0; i < window.size(); ++i) last_poses_[window[i].id] = estimate.result.T_world_cam[i];
+  for (size_t i = 0; i < window.size(); ++i) last_poses_[window[i].id] = estimate->result.T_world_cam[i];
   last_returned_id_ = std::max(has_returned_ ? last_returned_id_ : 0, window.back().id);
   has_returned_ = true;
-  return estimate;
 }
 
 }  // namespace deblur_sr_mvs

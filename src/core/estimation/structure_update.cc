@@ -9,6 +9,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/estimation/image_update.h"
 
 namespace deblur_sr_mvs {
@@ -80,6 +81,11 @@ cv::Mat ObservationMask(const PairMatching& pair, const cv::Mat& valid_hr) {
   cv::Mat combined;
   cv::bitwise_and(valid, pair.mask, combined);
   return combined;
+}
+
+// The image a pair warps into t: its own source, or the latent image of s.
+const cv::Mat& SourceImage(const PairMatching& pair, const std::vector<cv::Mat>& latents) {
+  return pair.source != nullptr ? *pair.source : latents[pair.s];
 }
 
 // Predicted observation of a warped HR image: Psi * image, or the image itself.
@@ -236,15 +242,15 @@ cv::Mat BlurDerivativeWrtInverseDepth(const CaptureGeometry& geometry, int sampl
 }
 
 void StructureUpdateOptions::Check() const {
-  if (!(lambda_d >= 0.0)) throw InputError("structure update: lambda_d must be >= 0");
-  if (pose_pixel_stride < 1 || pose_pixel_stride > 8) throw InputError("structure update: pose_pixel_stride must be in [1, 8]");
-  if (depth_irls_iterations < 0 || depth_cg_iterations < 1 || pose_iterations < 0) {
-    throw InputError("structure update: iteration counts must be >= 0 (CG >= 1)");
-  }
-  if (!(residual_epsilon > 0.0) || !(tv_epsilon > 0.0) || !(depth_damping >= 0.0) ||
-      !(pose_damping >= 0.0)) {
-    throw InputError("structure update: epsilons must be > 0 and dampings >= 0");
-  }
+  CheckAtLeast("structure update: lambda_d", lambda_d, 0.0);
+  CheckInRange("structure update: pose_pixel_stride", pose_pixel_stride, 1, 8);
+  CheckAtLeast("structure update: depth_irls_iterations", depth_irls_iterations, 0);
+  CheckAtLeast("structure update: depth_cg_iterations", depth_cg_iterations, 1);
+  CheckAtLeast("structure update: pose_iterations", pose_iterations, 0);
+  CheckAbove("structure update: residual_epsilon", residual_epsilon, 0.0);
+  CheckAbove("structure update: tv_epsilon", tv_epsilon, 0.0);
+  CheckAtLeast("structure update: depth_damping", depth_damping, 0.0);
+  CheckAtLeast("structure update: pose_damping", pose_damping, 0.0);
   edge_weight.Check();
 }
 
@@ -294,6 +300,194 @@ WarpLinearization LinearizeWarp(const PinholeCamera& camera_hr, const cv::Mat& i
   return lin;
 }
 
+namespace {
+
+// The IRLS form of the depth update of one frame (eq:taylorExpansion, with
+// the edge-weighted TV of eq:regularizingTerm on c * rho, c the parallax
+// scale) at the current inverse depth rho:
+//   N x = sum_p G_p^T Psi^T W_p Psi (G_p .* x) + lambda_s H^T Box^T W_s Box (H .* x)
+//         + lambda_d c^2 L_v x + damping * x,
+//   rhs = sum_p G_p^T Psi^T W_p r_p + lambda_s H^T Box^T W_s r_s - lambda_d c^2 L_v rho,
+// G_p the warped images' derivatives in rho, H the self term's (Psi = I for
+// HR pairs).
+class DepthNormalEquations {
+ public:
+  DepthNormalEquations(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world_cam,
+                       const std::vector<cv::Mat>& latents, const std::vector<PairMatching>& pairs,
+                       const SelfConsistencyLinearization* self, const cv::Mat& edge_weight,
+                       double parallax_scale, const StructureUpdateOptions& options)
+      : camera_hr_(camera_hr), T_world_cam_(T_world_cam), latents_(latents), pairs_(pairs), self_(self),
+        edge_weight_(edge_weight), parallax_scale_(parallax_scale), options_(options),
+        width_(camera_hr.width), height_(camera_hr.height),
+        c2_(parallax_scale * parallax_scale), states_(pairs.size()),
+        tv_weight_(height_, width_, CV_32FC1), nd_self_(height_, width_, CV_32FC1),
+        moved_(cv::Mat::zeros(height_, width_, CV_32FC1)), hr_diagonal_(height_, width_, CV_32FC1) {}
+
+  // Linearises every term at `inverse_depth` and reweights (IRLS).
+  void Linearize(const cv::Mat& inverse_depth) {
+    double diagonal_sum = LinearizePairs(inverse_depth);
+    if (self_ != nullptr) diagonal_sum += LinearizeSelf();
+    damping_ = options_.depth_damping * diagonal_sum / (width_ * height_) + 1e-12;
+    // HR pairs (no capture operator) act pixel by pixel: their part of the
+    // normal matrix is the diagonal sum_p sum_c w g^2, formed once per
+    // reweighting instead of applied pair by pair in every CG step.
+    hr_diagonal_.setTo(0.0);
+    for (size_t p = 0; p < pairs_.size(); ++p) {
+      if (pairs_[p].blur != nullptr) continue;
+      cv::multiply(states_[p].lin.d_inverse_depth, states_[p].weight, squared_);
+      ContractChannels(states_[p].lin.d_inverse_depth, squared_, &hr_diagonal_, true);
+    }
+    ReweightTv(inverse_depth);
+  }
+
+  // rhs at `inverse_depth` (the linearisation point), without damping.
+  void RightHandSide(const cv::Mat& inverse_depth, cv::Mat* rhs) {
+    rhs->setTo(0.0);
+    for (size_t p = 0; p < pairs_.size(); ++p) {
+      cv::multiply(states_[p].residual, states_[p].weight, predicted_);
+      PredictAdjoint(pairs_[p], predicted_, &back_);
+      ContractChannels(states_[p].lin.d_inverse_depth, back_, rhs, true);
+    }
+    if (self_ != nullptr) {
+      cv::multiply(self_residual_, self_weight_, predicted_);
+      BoxAdjoint(predicted_, self_->scale, &back_);
+      ContractChannels(self_->derivative, back_, &nd_self_, false);
+      cv::scaleAdd(nd_self_, self_->weight, *rhs, *rhs);
+    }
+    AddWeightedLaplacian(inverse_depth, tv_weight_, -options_.lambda_d * c2_, rhs, 1);
+  }
+
+  // out = N in.
+  void ApplyNormal(const cv::Mat& in, cv::Mat* out) {
+    cv::multiply(hr_diagonal_, in, *out);
+    for (size_t p = 0; p < pairs_.size(); ++p) {
+      if (pairs_[p].blur == nullptr) continue;
+      ExpandChannels(states_[p].lin.d_inverse_depth, in, &expanded_);
+      Predict(pairs_[p], expanded_, &predicted_);
+      cv::multiply(predicted_, states_[p].weight, predicted_);
+      PredictAdjoint(pairs_[p], predicted_, &back_);
+      ContractChannels(states_[p].lin.d_inverse_depth, back_, out, true);
+    }
+    if (self_ != nullptr) {
+      ExpandChannels(self_->derivative, in, &expanded_);
+      BoxDown(expanded_, self_->scale, &predicted_);
+      cv::multiply(predicted_, self_weight_, predicted_);
+      BoxAdjoint(predicted_, self_->scale, &back_);
+      ContractChannels(self_->derivative, back_, &nd_self_, false);
+      cv::scaleAdd(nd_self_, self_->weight, *out, *out);
+    }
+    AddWeightedLaplacian(in, tv_weight_, options_.lambda_d * c2_, out, 1);
+    cv::scaleAdd(in, damping_, *out, *out);
+  }
+
+  // rho += step, where a step may not shrink rho below a quarter (inverse
+  // depth stays positive); remembers the change for the self term.
+  void ApplyStep(const cv::Mat& step, cv::Mat* inverse_depth) {
+    float* rho_out = inverse_depth->ptr<float>();
+    const float* delta = step.ptr<float>();
+    float* moved_out = moved_.ptr<float>();
+    for (int i = 0; i < width_ * height_; ++i) {
+      if (!(rho_out[i] > 0.0f)) continue;
+      const float updated = std::max(rho_out[i] + delta[i], 0.25f * rho_out[i]);
+      moved_out[i] += updated - rho_out[i];
+      rho_out[i] = updated;
+    }
+  }
+
+ private:
+  struct PairState {
+    WarpLinearization lin;
+    cv::Mat weight;  // observation grid, C channels
+    cv::Mat residual;
+  };
+
+  // Every pair at the current depth (eq:taylorExpansion); returns its share
+  // of the data diagonal's sum (for the damping).
+  double LinearizePairs(const cv::Mat& inverse_depth) {
+    double diagonal_sum = 0.0;
+    for (size_t p = 0; p < pairs_.size(); ++p) {
+      const PairMatching& pair = pairs_[p];
+      PairState& state = states_[p];
+      state.lin = LinearizeWarp(camera_hr_, inverse_depth, T_world_cam_[pair.t], T_world_cam_[pair.s],
+                                SourceImage(pair, latents_), nullptr);
+      Predict(pair, state.lin.warped, &predicted_);
+      state.residual = *pair.observation - predicted_;
+      L1Weights(state.residual, ObservationMask(pair, state.lin.valid), options_.residual_epsilon,
+                &state.weight);
+      diagonal_sum += Dot1(state.lin.d_inverse_depth, state.lin.d_inverse_depth) *
+                      cv::mean(state.weight)[0] / std::max(1, state.weight.channels());
+    }
+    return diagonal_sum;
+  }
+
+  // The self term (eq:IPterm): r = (B - Psi I) - Box(h .* moved), the linear
+  // model since it was linearised; returns its share of the diagonal's sum.
+  double LinearizeSelf() {
+    ExpandChannels(self_->derivative, moved_, &expanded_);
+    BoxDown(expanded_, self_->scale, &predicted_);
+    self_residual_ = *self_->observation - self_->predicted - predicted_;
+    L1Weights(self_residual_, cv::Mat(), options_.residual_epsilon, &self_weight_);
+    return self_->weight * Dot1(self_->derivative, self_->derivative) * cv::mean(self_weight_)[0] /
+           (self_->scale * self_->scale);
+  }
+
+  // TV weights v = g / max(|grad (c rho)|, eps) (eq:regularizingTerm with g_t).
+  void ReweightTv(const cv::Mat& inverse_depth) {
+    const float* rho = inverse_depth.ptr<float>();
+    for (int yy = 0; yy < height_; ++yy) {
+      for (int xx = 0; xx < width_; ++xx) {
+        const int i = yy * width_ + xx;
+        const float gxv = xx + 1 < width_ ? rho[i + 1] - rho[i] : 0.0f;
+        const float gyv = yy + 1 < height_ ? rho[i + width_] - rho[i] : 0.0f;
+        const double magnitude = parallax_scale_ * std::sqrt(gxv * gxv + gyv * gyv);
+        const float g = edge_weight_.empty() ? 1.0f : edge_weight_.ptr<float>()[i];
+        tv_weight_.ptr<float>()[i] = static_cast<float>(g / std::max(magnitude, options_.tv_epsilon));
+      }
+    }
+  }
+
+  const PinholeCamera& camera_hr_;
+  const std::vector<SE3>& T_world_cam_;
+  const std::vector<cv::Mat>& latents_;
+  const std::vector<PairMatching>& pairs_;
+  const SelfConsistencyLinearization* self_;
+  const cv::Mat& edge_weight_;
+  const double parallax_scale_;
+  const StructureUpdateOptions& options_;
+  const int width_, height_;
+  const double c2_;
+  std::vector<PairState> states_;
+  cv::Mat tv_weight_, nd_self_;
+  cv::Mat self_weight_, self_residual_;  // self term: IRLS weights and residual
+  cv::Mat moved_;                        // inverse-depth change since the self term's linearisation
+  cv::Mat hr_diagonal_, squared_;
+  cv::Mat expanded_, predicted_, back_;  // scratch
+  double damping_ = 0.0;
+};
+
+// At most `iterations` CG steps on N step = rhs from a zero step.
+void SolveDepthStep(DepthNormalEquations* system, const cv::Mat& rhs, int iterations, cv::Mat* step) {
+  cv::Mat r(rhs.size(), CV_32FC1), d(rhs.size(), CV_32FC1), nd(rhs.size(), CV_32FC1);
+  step->setTo(0.0);
+  rhs.copyTo(r);
+  r.copyTo(d);
+  double rr = Dot1(r, r);
+  const double rr0 = rr;
+  for (int it = 0; it < iterations && rr > 1e-14 * rr0 && rr > 0.0; ++it) {
+    system->ApplyNormal(d, &nd);
+    const double dnd = Dot1(d, nd);
+    if (!(dnd > 0.0)) break;
+    const double alpha = rr / dnd;
+    cv::scaleAdd(d, alpha, *step, *step);
+    cv::scaleAdd(nd, -alpha, r, r);
+    const double rr_next = Dot1(r, r);
+    cv::scaleAdd(d, rr_next / rr, r, d);
+    rr = rr_next;
+  }
+}
+
+}  // namespace
+
 void UpdateDepth(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world_cam,
                  const std::vector<cv::Mat>& latents, const std::vector<PairMatching>& pairs,
                  const SelfConsistencyLinearization* self, const cv::Mat& edge_weight,
@@ -301,135 +495,15 @@ void UpdateDepth(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world
                  cv::Mat* inverse_depth) {
   options.Check();
   if (pairs.empty() && self == nullptr) return;
-  const int width = camera_hr.width, height = camera_hr.height;
-  const int n = width * height;
-  const double c2 = parallax_scale * parallax_scale;
-  struct PairState {
-    WarpLinearization lin;
-    cv::Mat weight;  // observation grid, C channels
-    cv::Mat residual;
-  };
-  std::vector<PairState> states(pairs.size());
-  cv::Mat tv_weight(height, width, CV_32FC1), rhs(height, width, CV_32FC1);
-  cv::Mat step(height, width, CV_32FC1), r(height, width, CV_32FC1), d(height, width, CV_32FC1),
-      nd(height, width, CV_32FC1), nd_self(height, width, CV_32FC1);
-  cv::Mat expanded, predicted, back;
-  double damping = 0.0;
-  // Self term: weights and the inverse-depth change since it was linearised.
-  cv::Mat self_weight, self_residual;
-  cv::Mat moved = cv::Mat::zeros(height, width, CV_32FC1);
-
-  // out = sum_p G_p^T Psi^T W Psi (G_p .* in) + lambda c^2 L_v in + damping * in
-  // HR pairs (no capture operator) act pixel by pixel: their part of the
-  // normal matrix is the diagonal sum_p sum_c w g^2, formed once per
-  // reweighting instead of applied pair by pair in every CG step.
-  cv::Mat hr_diagonal(height, width, CV_32FC1), squared;
-  auto apply_normal = [&](const cv::Mat& in, cv::Mat* out) {
-    cv::multiply(hr_diagonal, in, *out);
-    for (size_t p = 0; p < pairs.size(); ++p) {
-      if (pairs[p].blur == nullptr) continue;
-      ExpandChannels(states[p].lin.d_inverse_depth, in, &expanded);
-      Predict(pairs[p], expanded, &predicted);
-      cv::multiply(predicted, states[p].weight, predicted);
-      PredictAdjoint(pairs[p], predicted, &back);
-      ContractChannels(states[p].lin.d_inverse_depth, back, out, true);
-    }
-    if (self != nullptr) {
-      ExpandChannels(self->derivative, in, &expanded);
-      BoxDown(expanded, self->scale, &predicted);
-      cv::multiply(predicted, self_weight, predicted);
-      BoxAdjoint(predicted, self->scale, &back);
-      ContractChannels(self->derivative, back, &nd_self, false);
-      cv::scaleAdd(nd_self, self->weight, *out, *out);
-    }
-    AddWeightedLaplacian(in, tv_weight, options.lambda_d * c2, out, 1);
-    cv::scaleAdd(in, damping, *out, *out);
-  };
-
+  DepthNormalEquations system(camera_hr, T_world_cam, latents, pairs, self, edge_weight, parallax_scale,
+                              options);
+  cv::Mat rhs(camera_hr.height, camera_hr.width, CV_32FC1);
+  cv::Mat step(camera_hr.height, camera_hr.width, CV_32FC1);
   for (int irls = 0; irls < options.depth_irls_iterations; ++irls) {
-    // Linearise every pair at the current depth (eq:taylorExpansion).
-    double diagonal_sum = 0.0;
-    for (size_t p = 0; p < pairs.size(); ++p) {
-      const PairMatching& pair = pairs[p];
-      PairState& state = states[p];
-      state.lin = LinearizeWarp(camera_hr, *inverse_depth, T_world_cam[pair.t], T_world_cam[pair.s],
-                                pair.source != nullptr ? *pair.source : latents[pair.s], nullptr);
-      Predict(pair, state.lin.warped, &predicted);
-      state.residual = *pair.observation - predicted;
-      L1Weights(state.residual, ObservationMask(pair, state.lin.valid), options.residual_epsilon,
-                &state.weight);
-      diagonal_sum += Dot1(state.lin.d_inverse_depth, state.lin.d_inverse_depth) *
-                      cv::mean(state.weight)[0] / std::max(1, state.weight.channels());
-    }
-    if (self != nullptr) {
-      // r = (B - Psi I) - Box(h .* moved): the linear model since linearisation.
-      ExpandChannels(self->derivative, moved, &expanded);
-      BoxDown(expanded, self->scale, &predicted);
-      self_residual = *self->observation - self->predicted - predicted;
-      L1Weights(self_residual, cv::Mat(), options.residual_epsilon, &self_weight);
-      diagonal_sum += self->weight * Dot1(self->derivative, self->derivative) *
-                      cv::mean(self_weight)[0] / (self->scale * self->scale);
-    }
-    damping = options.depth_damping * diagonal_sum / n + 1e-12;
-    hr_diagonal.setTo(0.0);
-    for (size_t p = 0; p < pairs.size(); ++p) {
-      if (pairs[p].blur != nullptr) continue;
-      cv::multiply(states[p].lin.d_inverse_depth, states[p].weight, squared);
-      ContractChannels(states[p].lin.d_inverse_depth, squared, &hr_diagonal, true);
-    }
-    // TV weights v = g / max(|grad (c rho)|, eps) (eq:regularizingTerm with g_t).
-    const float* rho = inverse_depth->ptr<float>();
-    for (int yy = 0; yy < height; ++yy) {
-      for (int xx = 0; xx < width; ++xx) {
-        const int i = yy * width + xx;
-        const float gxv = xx + 1 < width ? rho[i + 1] - rho[i] : 0.0f;
-        const float gyv = yy + 1 < height ? rho[i + width] - rho[i] : 0.0f;
-        const double magnitude = parallax_scale * std::sqrt(gxv * gxv + gyv * gyv);
-        const float g = edge_weight.empty() ? 1.0f : edge_weight.ptr<float>()[i];
-        tv_weight.ptr<float>()[i] = static_cast<float>(g / std::max(magnitude, options.tv_epsilon));
-      }
-    }
-    // rhs = sum_p G^T Psi^T W r0 - lambda c^2 L_v rho (without damping).
-    rhs.setTo(0.0);
-    for (size_t p = 0; p < pairs.size(); ++p) {
-      cv::multiply(states[p].residual, states[p].weight, predicted);
-      PredictAdjoint(pairs[p], predicted, &back);
-      ContractChannels(states[p].lin.d_inverse_depth, back, &rhs, true);
-    }
-    if (self != nullptr) {
-      cv::multiply(self_residual, self_weight, predicted);
-      BoxAdjoint(predicted, self->scale, &back);
-      ContractChannels(self->derivative, back, &nd_self, false);
-      cv::scaleAdd(nd_self, self->weight, rhs, rhs);
-    }
-    AddWeightedLaplacian(*inverse_depth, tv_weight, -options.lambda_d * c2, &rhs, 1);
-    // CG on the normal equations from a zero step.
-    step.setTo(0.0);
-    rhs.copyTo(r);
-    r.copyTo(d);
-    double rr = Dot1(r, r);
-    const double rr0 = rr;
-    for (int it = 0; it < options.depth_cg_iterations && rr > 1e-14 * rr0 && rr > 0.0; ++it) {
-      apply_normal(d, &nd);
-      const double dnd = Dot1(d, nd);
-      if (!(dnd > 0.0)) break;
-      const double alpha = rr / dnd;
-      cv::scaleAdd(d, alpha, step, step);
-      cv::scaleAdd(nd, -alpha, r, r);
-      const double rr_next = Dot1(r, r);
-      cv::scaleAdd(d, rr_next / rr, r, d);
-      rr = rr_next;
-    }
-    // Keep inverse depth positive: a step may not shrink it below a quarter.
-    float* rho_out = inverse_depth->ptr<float>();
-    const float* delta = step.ptr<float>();
-    float* moved_out = moved.ptr<float>();
-    for (int i = 0; i < n; ++i) {
-      if (!(rho_out[i] > 0.0f)) continue;
-      const float updated = std::max(rho_out[i] + delta[i], 0.25f * rho_out[i]);
-      moved_out[i] += updated - rho_out[i];
-      rho_out[i] = updated;
-    }
+    system.Linearize(*inverse_depth);
+    system.RightHandSide(*inverse_depth, &rhs);
+    SolveDepthStep(&system, rhs, options.depth_cg_iterations, &step);
+    system.ApplyStep(step, inverse_depth);
   }
 }
 
@@ -532,14 +606,12 @@ std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr,
   if (num_frames <= num_fixed || pairs.empty()) return total;
   const int unknowns = 6 * (num_frames - num_fixed);
   const int num_pairs = static_cast<int>(pairs.size());
-  auto source_of = [&](const PairMatching& pair) -> const cv::Mat& {
-    return pair.source != nullptr ? *pair.source : latents[pair.s];
-  };
   // Gradients of every image that HR pairs warp, once per image.
   std::vector<const cv::Mat*> sources;
   for (const PairMatching& pair : pairs) {
-    if (pair.blur == nullptr && std::find(sources.begin(), sources.end(), &source_of(pair)) == sources.end()) {
-      sources.push_back(&source_of(pair));
+    const cv::Mat* source = &SourceImage(pair, latents);
+    if (pair.blur == nullptr && std::find(sources.begin(), sources.end(), source) == sources.end()) {
+      sources.push_back(source);
     }
   }
   std::vector<cv::Mat> source_gx(sources.size()), source_gy(sources.size());
@@ -553,14 +625,15 @@ std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr,
       const PairMatching& pair = pairs[p];
       const SE3& T_world_t = (*T_world_cam)[pair.t];
       const SE3& T_world_s = (*T_world_cam)[pair.s];
+      const cv::Mat& source = SourceImage(pair, latents);
       if (pair.blur != nullptr) {
         equations[p] = BlurredPairNormalEquations(camera_hr, inverse_depths[pair.t], T_world_t, T_world_s,
-                                                  source_of(pair), pair, options.residual_epsilon);
+                                                  source, pair, options.residual_epsilon);
       } else {
-        const size_t i = std::find(sources.begin(), sources.end(), &source_of(pair)) - sources.begin();
-        equations[p] = HrPairNormalEquations(camera_hr, inverse_depths[pair.t], T_world_t, T_world_s,
-                                             source_of(pair), source_gx[i], source_gy[i], *pair.observation,
-                                             pair.mask, options.residual_epsilon, options.pose_pixel_stride);
+        const size_t i = std::find(sources.begin(), sources.end(), &source) - sources.begin();
+        equations[p] = HrPairNormalEquations(camera_hr, inverse_depths[pair.t], T_world_t, T_world_s, source,
+                                             source_gx[i], source_gy[i], *pair.observation, pair.mask,
+                                             options.residual_epsilon, options.pose_pixel_stride);
       }
     }
     Eigen::MatrixXd hessian = Eigen::MatrixXd::Zero(unknowns, unknowns);

@@ -317,6 +317,33 @@ TEST(EstimatorSafety, BadOptionsAreRejected) {
   options = EstimatorOptions();
   options.fixed_leading_poses = 0;
   EXPECT_THROW(options.Check(), InputError);
+  options = EstimatorOptions();
+  options.image.lambda_i = std::numeric_limits<double>::infinity();
+  EXPECT_THROW(options.Check(), InputError);
+}
+
+// Every Options::Check() names the value, its range and what it got.
+TEST(EstimatorSafety, BadOptionsNameTheRangeAndTheValue) {
+  auto message = [](const EstimatorOptions& options) {
+    try {
+      options.Check();
+    } catch (const InputError& error) {
+      return std::string(error.what());
+    }
+    return std::string("(no error)");
+  };
+  EstimatorOptions options;
+  options.scale = 5;
+  EXPECT_EQ(message(options), "scale must be in [1, 4], got 5");
+  options = EstimatorOptions();
+  options.lambda_s = -1.0;
+  EXPECT_EQ(message(options), "lambda_s must be >= 0, got -1");
+  options = EstimatorOptions();
+  options.image.cg_iterations = 0;
+  EXPECT_EQ(message(options), "image update: cg_iterations must be >= 1, got 0");
+  options = EstimatorOptions();
+  options.structure.tv_epsilon = 0.0;
+  EXPECT_EQ(message(options), "structure update: tv_epsilon must be > 0, got 0");
 }
 
 }  // namespace

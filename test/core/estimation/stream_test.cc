@@ -48,6 +48,14 @@ TEST(StreamOptions, RejectsBadValues) {
   options = StreamOptions();
   options.max_pending_windows = 0;
   EXPECT_THROW(options.Check(), InputError);
+  options = StreamOptions();
+  options.window_overlap = options.window_size;
+  try {
+    options.Check();
+    ADD_FAILURE() << "window_overlap == window_size passed";
+  } catch (const InputError& error) {
+    EXPECT_EQ(std::string(error.what()), "window_overlap must be in [2, 5], got 6");
+  }
 }
 
 TEST(FrameWindower, OverlappingWindowsInOrder) {

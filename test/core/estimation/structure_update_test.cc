@@ -2,6 +2,7 @@
 // differences, and the blur derivative of the self-consistency term.
 #include "deblur_sr_mvs/core/estimation/structure_update.h"
 
+#include <cmath>
 #include <cstdio>
 
 #include <opencv2/imgproc.hpp>
@@ -164,6 +165,9 @@ TEST(StructureUpdateOptions, RejectsBadValues) {
   EXPECT_ANY_THROW(options.Check());
   options = StructureUpdateOptions();
   options.pose_pixel_stride = 0;
+  EXPECT_ANY_THROW(options.Check());
+  options = StructureUpdateOptions();
+  options.depth_damping = std::nan("");
   EXPECT_ANY_THROW(options.Check());
 }
 

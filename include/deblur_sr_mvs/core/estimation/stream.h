@@ -171,6 +171,20 @@ class StreamEstimator {
   void Reset();
 
  private:
+  // The poses the previous window gave the leading frames of `window`, as
+  // many as the two windows share.
+  std::vector<SE3> SharedPreviousPoses(const StreamWindow& window) const;
+  // Estimates the window from the previous one: its initial structure is
+  // carried into the stream's world and scale through the shared frames,
+  // which the estimator holds. False (estimate untouched) when fewer than
+  // two frames are shared or they do not move.
+  bool ContinueTrajectory(const EstimatorInput& input, const std::vector<SE3>& shared_previous,
+                          const ProgressCallback& progress, WindowEstimate* estimate) const;
+  // Estimates the window on its own: a new trajectory segment.
+  void StartSegment(const EstimatorInput& input, const ProgressCallback& progress, WindowEstimate* estimate);
+  // Marks the frames already returned and keeps this window's poses.
+  void Remember(const StreamWindow& window, WindowEstimate* estimate);
+
   Estimator estimator_;
   const std::atomic<bool>* cancel_ = nullptr;
   std::map<uint64_t, SE3> last_poses_;  // the previous window's poses, by frame id
