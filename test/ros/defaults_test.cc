@@ -2,7 +2,8 @@
 // names of ForEachParameter. config/default.yaml, cfg/Estimator.cfg (through
 // the generated EstimatorConfig) and the parameter table of the README must
 // agree with them, and they are the core's EstimatorOptions / StreamOptions
-// defaults but for the node's time cap of one window. No ROS master needed.
+// defaults but for the node's time cap of one window. The hand-written
+// reconfigure mapping is checked parameter by parameter. No ROS master needed.
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -13,6 +14,7 @@
 #include <vector>
 
 #include <boost/any.hpp>
+#include <dynamic_reconfigure/Config.h>
 #include <gtest/gtest.h>
 #include <yaml-cpp/yaml.h>
 
@@ -184,6 +186,59 @@ TEST(NodeDefaults, ReconfigureDefaultsAreTheNodes) {
     }
   }
   EXPECT_TRUE(problems.empty()) << "cfg/Estimator.cfg disagrees with NodeParameters:\n" << problems;
+}
+
+// WithConfig and ConfigOf map each cfg parameter by hand: every one must reach
+// the node parameter of the same name and come back.
+TEST(NodeDefaults, ReconfigureMapsEveryParameterToItsNamesake) {
+  NodeParameters params;
+  params.exposure_time = 0.02;
+  std::string problems;
+  for (const auto& description : EstimatorConfig::__getParamDescriptions__()) {
+    EstimatorConfig config = ConfigOf(params);
+    // A different valid value, set through the generated description: one
+    // more, or half of a real number.
+    double changed = 0.0;
+    boost::any value;
+    description->getValue(config, value);
+    dynamic_reconfigure::Config message;
+    if (description->type == "int") {
+      changed = boost::any_cast<int>(value) + 1;
+      dynamic_reconfigure::IntParameter parameter;
+      parameter.name = description->name;
+      parameter.value = static_cast<int>(changed);
+      message.ints.push_back(parameter);
+    } else if (description->type == "double") {
+      changed = boost::any_cast<double>(value) * 0.5;
+      dynamic_reconfigure::DoubleParameter parameter;
+      parameter.name = description->name;
+      parameter.value = changed;
+      message.doubles.push_back(parameter);
+    } else {
+      problems += "  " + description->name + ": a " + description->type + " (the test knows int and double)\n";
+      continue;
+    }
+    ASSERT_TRUE(description->fromMessage(message, config)) << description->name;
+    NodeParameters updated;
+    try {
+      updated = WithConfig(params, config);
+    } catch (const InputError& error) {
+      problems += "  " + description->name + ": " + error.what() + "\n";
+      continue;
+    }
+    const std::map<std::string, Value> values = ValuesOf(updated);
+    const Value& reached = values.at(description->name);
+    if (!reached.numeric || reached.number != changed) {
+      problems += "  " + description->name + " = " + std::to_string(changed) + " reached the node as " +
+                  reached.text + "\n";
+    }
+    boost::any back;
+    description->getValue(ConfigOf(updated), back);
+    const double back_number =
+        description->type == "int" ? boost::any_cast<int>(back) : boost::any_cast<double>(back);
+    if (back_number != changed) problems += "  " + description->name + ": ConfigOf does not give it back\n";
+  }
+  EXPECT_TRUE(problems.empty()) << "WithConfig / ConfigOf:\n" << problems;
 }
 
 // The parameter table of a Markdown file: the rows after a header row whose
