@@ -24,6 +24,37 @@ constexpr char kScaleNote[] =
     "monocular: poses and depths are in units of the distance between the first two cameras "
     "of the trajectory segment, not metres";
 
+bool IsColour(ros_glue::ImageFamily family) {
+  return family == ros_glue::ImageFamily::kRgb8 || family == ros_glue::ImageFamily::kBgr8;
+}
+
+// No texture at all (black, saturated or covered): every channel's standard
+// deviation is below kMinImageDeviation.
+bool IsConstant(const cv::Mat& image01) {
+  cv::Scalar mean, deviation;
+  cv::meanStdDev(image01, mean, deviation);
+  double spread = 0.0;
+  for (int c = 0; c < image01.channels(); ++c) spread = std::max(spread, deviation[c]);
+  return spread < kMinImageDeviation;
+}
+
+// The exposure cannot exceed the frame interval (the shutter would still be
+// open when the next frame starts): clamps it; true when any was clamped.
+bool ClampExposures(StreamWindow* frames) {
+  bool clamped = false;
+  for (size_t i = 0; i < frames->size(); ++i) {
+    const size_t j = i > 0 ? i - 1 : 1;
+    const double interval = std::abs((*frames)[i].stamp_close - (*frames)[j].stamp_close);
+    if ((*frames)[i].exposure > interval) {
+      (*frames)[i].exposure = interval;
+      clamped = true;
+    }
+  }
+  return clamped;
+}
+
+ros::Time TimeFromNs(int64_t stamp_ns) { return ros::Time().fromNSec(static_cast<uint64_t>(stamp_ns)); }
+
 }  // namespace
 
 EstimatorNodelet::EstimatorNodelet() = default;
@@ -141,7 +172,7 @@ void EstimatorNodelet::ImageCallback(const sensor_msgs::ImageConstPtr& image) {
       // Older images still waiting will not get their camera_info now.
       while (!unmatched_images_.empty() && unmatched_images_.front()->header.stamp < image->header.stamp) {
         unmatched_images_.pop_front();
-        RejectFrame("no camera_info", kNoCameraInfo + info_topic_ + ": frame not used (the node never guesses intrinsics)");
+        RejectUnmatchedImage();
       }
       AcceptFrame(image, info);
       return;
@@ -150,7 +181,7 @@ void EstimatorNodelet::ImageCallback(const sensor_msgs::ImageConstPtr& image) {
   unmatched_images_.push_back(image);
   while (unmatched_images_.size() > kMaxUnmatchedImages) {
     unmatched_images_.pop_front();
-    RejectFrame("no camera_info", kNoCameraInfo + info_topic_ + ": frame not used (the node never guesses intrinsics)");
+    RejectUnmatchedImage();
   }
 }
 
@@ -161,9 +192,7 @@ void EstimatorNodelet::InfoCallback(const sensor_msgs::CameraInfoConstPtr& info)
     if ((*it)->header.stamp == info->header.stamp) {
       const sensor_msgs::ImageConstPtr image = *it;
       // Older unmatched images will never get their camera_info.
-      for (auto old = unmatched_images_.begin(); old != it; ++old) {
-        RejectFrame("no camera_info", kNoCameraInfo + info_topic_ + ": frame not used (the node never guesses intrinsics)");
-      }
+      for (auto old = unmatched_images_.begin(); old != it; ++old) RejectUnmatchedImage();
       unmatched_images_.erase(unmatched_images_.begin(), it + 1);
       AcceptFrame(image, info);
       return;
@@ -186,6 +215,10 @@ void EstimatorNodelet::RejectFrame(const std::string& category, const std::strin
   }
   std::lock_guard<std::mutex> lock(health_mutex_);
   last_problem_ = why;
+}
+
+void EstimatorNodelet::RejectUnmatchedImage() {
+  RejectFrame("no camera_info", kNoCameraInfo + info_topic_ + ": frame not used (the node never guesses intrinsics)");
 }
 
 void EstimatorNodelet::RestartStream(const std::string& why) {
@@ -211,54 +244,13 @@ void EstimatorNodelet::AcceptFrame(const sensor_msgs::ImageConstPtr& image,
     return;
   }
   const ros::Time stamp = image->header.stamp;
-  if (stamp.isZero()) {
-    RejectFrame("zero stamp", "image stamp is 0: frame not used (the stamps define the exposure timing)");
+  if (!CheckStamp(stamp)) return;
+  if (IsConstant(image01)) {
+    RejectFrame("constant image", "image is constant (black, saturated or covered): frame not used");
     return;
   }
-  const ros::Time now = ros::Time::now();
-  if (!now.isZero() && stamp > now + ros::Duration(kMaxFutureSeconds)) {
-    RejectFrame("future stamp", "image stamp is " + std::to_string((stamp - now).toSec()) +
-                                    " s in the future (clock skew?): frame not used");
-    return;
-  }
-  if (have_stream_ && stamp == last_stamp_) {
-    RejectFrame("duplicate stamp", "duplicate image stamp " + std::to_string(stamp.toSec()) + ": frame not used");
-    return;
-  }
-  {
-    cv::Scalar mean, deviation;
-    cv::meanStdDev(image01, mean, deviation);
-    double spread = 0.0;
-    for (int c = 0; c < image01.channels(); ++c) spread = std::max(spread, deviation[c]);
-    if (spread < kMinImageDeviation) {
-      RejectFrame("constant image", "image is constant (black, saturated or covered): frame not used");
-      return;
-    }
-  }
-  if (have_stream_ && stamp < last_stamp_) {
-    RestartStream("image stamp went back by " + std::to_string((last_stamp_ - stamp).toSec()) +
-                  " s (bag loop or clock reset?)");
-  } else if (have_stream_ && (stamp - last_stamp_).toSec() > params_.max_frame_gap) {
-    RestartStream("gap of " + std::to_string((stamp - last_stamp_).toSec()) + " s between frames (> max_frame_gap " +
-                  std::to_string(params_.max_frame_gap) + " s)");
-  }
-  const bool colour = family == ros_glue::ImageFamily::kRgb8 || family == ros_glue::ImageFamily::kBgr8;
-  const bool stream_colour = stream_family_ == ros_glue::ImageFamily::kRgb8 ||
-                             stream_family_ == ros_glue::ImageFamily::kBgr8;
-  if (have_stream_ && (camera.width != stream_camera_.width || camera.height != stream_camera_.height ||
-                       camera.fx != stream_camera_.fx || camera.fy != stream_camera_.fy ||
-                       camera.cx != stream_camera_.cx || camera.cy != stream_camera_.cy ||
-                       colour != stream_colour)) {
-    RestartStream("image size, intrinsics or colour changed");
-  }
-  if (!have_stream_) {
-    have_stream_ = true;
-    epoch_origin_ = stamp;
-    stream_camera_ = camera;
-    stream_camera_frame_ = !params_.camera_frame.empty() ? params_.camera_frame
-                           : image->header.frame_id.empty() ? std::string("camera_estimated")
-                                                            : image->header.frame_id + "_estimated";
-  }
+  RestartOnDiscontinuity(stamp, camera, family);
+  if (!have_stream_) StartStream(stamp, camera, image->header.frame_id);
   stream_family_ = family;
   last_stamp_ = stamp;
 
@@ -268,20 +260,68 @@ void EstimatorNodelet::AcceptFrame(const sensor_msgs::ImageConstPtr& image,
   frame.stamp_close = (stamp - epoch_origin_).toSec() + params_.CloseOffset();
   frame.exposure = params_.exposure_time;
   frame.image = image01;
-  for (StreamWindow& frames : windower_->Add(std::move(frame))) {
-    PendingWindow window;
-    window.frames = std::move(frames);
-    window.camera = stream_camera_;
-    window.family = stream_family_;
-    window.camera_frame = stream_camera_frame_;
-    window.epoch = epoch_;
-    window.completed = ros::WallTime::now();
-    if (queue_->Push(std::move(window)) > 0) {
-      NODELET_WARN_THROTTLE(5.0,
-                            "deblur_sr_mvs: the worker is busy: dropped the oldest pending window "
-                            "(%lu dropped so far; raise max_pending_windows or lower the rate)",
-                            static_cast<unsigned long>(queue_->dropped()));
-    }
+  for (StreamWindow& frames : windower_->Add(std::move(frame))) QueueWindow(std::move(frames));
+}
+
+bool EstimatorNodelet::CheckStamp(const ros::Time& stamp) {
+  if (stamp.isZero()) {
+    RejectFrame("zero stamp", "image stamp is 0: frame not used (the stamps define the exposure timing)");
+    return false;
+  }
+  const ros::Time now = ros::Time::now();
+  if (!now.isZero() && stamp > now + ros::Duration(kMaxFutureSeconds)) {
+    RejectFrame("future stamp", "image stamp is " + std::to_string((stamp - now).toSec()) +
+                                    " s in the future (clock skew?): frame not used");
+    return false;
+  }
+  if (have_stream_ && stamp == last_stamp_) {
+    RejectFrame("duplicate stamp", "duplicate image stamp " + std::to_string(stamp.toSec()) + ": frame not used");
+    return false;
+  }
+  return true;
+}
+
+void EstimatorNodelet::RestartOnDiscontinuity(const ros::Time& stamp, const PinholeCamera& camera,
+                                              ros_glue::ImageFamily family) {
+  if (!have_stream_) return;
+  if (stamp < last_stamp_) {
+    RestartStream("image stamp went back by " + std::to_string((last_stamp_ - stamp).toSec()) +
+                  " s (bag loop or clock reset?)");
+  } else if ((stamp - last_stamp_).toSec() > params_.max_frame_gap) {
+    RestartStream("gap of " + std::to_string((stamp - last_stamp_).toSec()) + " s between frames (> max_frame_gap " +
+                  std::to_string(params_.max_frame_gap) + " s)");
+  }
+  if (have_stream_ && (camera.width != stream_camera_.width || camera.height != stream_camera_.height ||
+                       camera.fx != stream_camera_.fx || camera.fy != stream_camera_.fy ||
+                       camera.cx != stream_camera_.cx || camera.cy != stream_camera_.cy ||
+                       IsColour(family) != IsColour(stream_family_))) {
+    RestartStream("image size, intrinsics or colour changed");
+  }
+}
+
+void EstimatorNodelet::StartStream(const ros::Time& stamp, const PinholeCamera& camera,
+                                   const std::string& input_frame) {
+  have_stream_ = true;
+  epoch_origin_ = stamp;
+  stream_camera_ = camera;
+  stream_camera_frame_ = !params_.camera_frame.empty() ? params_.camera_frame
+                         : input_frame.empty()         ? std::string("camera_estimated")
+                                                       : input_frame + "_estimated";
+}
+
+void EstimatorNodelet::QueueWindow(StreamWindow frames) {
+  PendingWindow window;
+  window.frames = std::move(frames);
+  window.camera = stream_camera_;
+  window.family = stream_family_;
+  window.camera_frame = stream_camera_frame_;
+  window.epoch = epoch_;
+  window.completed = ros::WallTime::now();
+  if (queue_->Push(std::move(window)) > 0) {
+    NODELET_WARN_THROTTLE(5.0,
+                          "deblur_sr_mvs: the worker is busy: dropped the oldest pending window "
+                          "(%lu dropped so far; raise max_pending_windows or lower the rate)",
+                          static_cast<unsigned long>(queue_->dropped()));
   }
 }
 
@@ -307,6 +347,56 @@ void EstimatorNodelet::WorkerLoop() {
 }
 
 void EstimatorNodelet::ProcessWindow(PendingWindow window) {
+  const ros_glue::NodeParameters params = SyncWorker(window);
+  ++window_index_;
+  EstimatorStatus status;
+  status.header.frame_id = params.world_frame;
+  status.header.stamp = TimeFromNs(window.frames.back().stamp_ns);
+  status.window_index = window_index_;
+  for (const StreamFrame& frame : window.frames) status.frame_stamps.push_back(TimeFromNs(frame.stamp_ns));
+  const bool clamped = ClampExposures(&window.frames);
+
+  const ros::WallTime start = ros::WallTime::now();
+  WindowEstimate estimate;
+  try {
+    estimate = stream_->Process(window.frames, window.camera);
+  } catch (const EstimationCancelled&) {
+    return;  // shutting down: publish nothing more
+  } catch (const std::exception& error) {
+    SkipWindow("window skipped: " + OneLine(error.what()), false, &status);
+    return;
+  }
+  if (shutting_down_) return;
+  // Never publish garbage: non-finite values or a pose jump skip the window
+  // and restart the trajectory.
+  const std::string problem = ProblemWithEstimate(estimate.result, params.max_step_ratio);
+  if (!problem.empty()) {
+    SkipWindow("window skipped: " + problem + "; the trajectory restarts", true, &status);
+    return;
+  }
+
+  if (!estimate.continued) path_.poses.clear();
+  for (size_t i = static_cast<size_t>(estimate.first_new); i < window.frames.size(); ++i) {
+    if (shutting_down_ || !ros::ok()) return;
+    PublishFrame(window, estimate.result, i, estimate.stamps_ns[i], params);
+  }
+  PublishPath(params, status.header.stamp);
+
+  const double processing = (ros::WallTime::now() - start).toSec();
+  const double latency = (ros::WallTime::now() - window.completed).toSec();
+  ++windows_processed_;
+  {
+    std::lock_guard<std::mutex> lock(health_mutex_);
+    last_latency_ = latency;
+    last_processing_ = processing;
+  }
+  status.processing_seconds = processing;
+  status.latency_seconds = latency;
+  DescribeEstimate(estimate, clamped, &status);
+  PublishStatus(status);
+}
+
+ros_glue::NodeParameters EstimatorNodelet::SyncWorker(const PendingWindow& window) {
   ros_glue::NodeParameters params;
   uint64_t version;
   {
@@ -323,132 +413,79 @@ void EstimatorNodelet::ProcessWindow(PendingWindow window) {
     path_.poses.clear();
     worker_epoch_ = window.epoch;
   }
-  ++window_index_;
+  return params;
+}
 
-  EstimatorStatus status;
-  status.header.frame_id = params.world_frame;
-  status.header.stamp.fromNSec(static_cast<uint64_t>(window.frames.back().stamp_ns));
-  status.window_index = window_index_;
-  for (const StreamFrame& frame : window.frames) {
-    status.frame_stamps.push_back(ros::Time().fromNSec(static_cast<uint64_t>(frame.stamp_ns)));
-  }
-
-  // The exposure cannot exceed the frame interval (the shutter would still be
-  // open when the next frame starts): clamp it and say so.
-  bool clamped = false;
-  for (size_t i = 0; i < window.frames.size(); ++i) {
-    const size_t j = i > 0 ? i - 1 : 1;
-    const double interval = std::abs(window.frames[i].stamp_close - window.frames[j].stamp_close);
-    if (window.frames[i].exposure > interval) {
-      window.frames[i].exposure = interval;
-      clamped = true;
-    }
-  }
-
-  const ros::WallTime start = ros::WallTime::now();
-  WindowEstimate estimate;
-  try {
-    estimate = stream_->Process(window.frames, window.camera);
-  } catch (const EstimationCancelled&) {
-    return;  // shutting down: publish nothing more
-  } catch (const std::exception& error) {
-    ++windows_failed_;
-    status.success = false;
-    status.message = "window skipped: " + OneLine(error.what());
-    NODELET_WARN("deblur_sr_mvs: %s", status.message.c_str());
-    {
-      std::lock_guard<std::mutex> lock(health_mutex_);
-      last_problem_ = status.message;
-    }
-    PublishStatus(status);
-    return;
-  }
-  if (shutting_down_) return;
-  const EstimatorResult& result = estimate.result;
-
-  // Never publish garbage: non-finite values or a pose jump skip the window
-  // and restart the trajectory.
-  const std::string problem = ProblemWithEstimate(result, params.max_step_ratio);
-  if (!problem.empty()) {
-    ++windows_failed_;
-    status.success = false;
-    status.message = "window skipped: " + problem + "; the trajectory restarts";
-    NODELET_WARN("deblur_sr_mvs: %s", status.message.c_str());
+void EstimatorNodelet::SkipWindow(const std::string& message, bool restart, EstimatorStatus* status) {
+  ++windows_failed_;
+  status->success = false;
+  status->message = message;
+  NODELET_WARN("deblur_sr_mvs: %s", message.c_str());
+  if (restart) {
     stream_->Reset();
     path_.poses.clear();
-    {
-      std::lock_guard<std::mutex> lock(health_mutex_);
-      last_problem_ = status.message;
-    }
-    PublishStatus(status);
-    return;
   }
-
-  if (!estimate.continued) path_.poses.clear();
-  const int scale = params.estimator.scale;
-  for (size_t i = static_cast<size_t>(estimate.first_new); i < window.frames.size(); ++i) {
-    if (shutting_down_ || !ros::ok()) return;
-    std_msgs::Header header;
-    header.stamp.fromNSec(static_cast<uint64_t>(estimate.stamps_ns[i]));
-    header.frame_id = window.camera_frame;
-    const sensor_msgs::CameraInfo info = ros_glue::ScaledCameraInfo(window.camera, scale, header);
-    restored_publisher_.publish(ros_glue::Float01ToImage(result.latent[i], window.family, header), info);
-    depth_publisher_.publish(ros_glue::DepthToImage(result.depth[i], header), info);
-
-    geometry_msgs::PoseStamped pose;
-    pose.header.stamp = header.stamp;
-    pose.header.frame_id = params.world_frame;
-    pose.pose = ros_glue::PoseToMsg(result.T_world_cam[i]);
-    pose_publisher_.publish(pose);
-    path_.poses.push_back(pose);
-    if (tf_broadcaster_) {
-      geometry_msgs::TransformStamped transform;
-      transform.header = pose.header;
-      transform.child_frame_id = window.camera_frame;
-      transform.transform.translation.x = pose.pose.position.x;
-      transform.transform.translation.y = pose.pose.position.y;
-      transform.transform.translation.z = pose.pose.position.z;
-      transform.transform.rotation = pose.pose.orientation;
-      tf_broadcaster_->sendTransform(transform);
-    }
-    if (points_publisher_.getNumSubscribers() > 0) {
-      points_publisher_.publish(ros_glue::DepthToPoints(result.depth[i], result.latent[i], result.camera_hr,
-                                                        params.points_stride, header));
-    }
-    ++frames_published_;
+  {
+    std::lock_guard<std::mutex> lock(health_mutex_);
+    last_problem_ = message;
   }
+  PublishStatus(*status);
+}
+
+void EstimatorNodelet::PublishFrame(const PendingWindow& window, const EstimatorResult& result, size_t i,
+                                    int64_t stamp_ns, const ros_glue::NodeParameters& params) {
+  std_msgs::Header header;
+  header.stamp = TimeFromNs(stamp_ns);
+  header.frame_id = window.camera_frame;
+  const sensor_msgs::CameraInfo info = ros_glue::ScaledCameraInfo(window.camera, params.estimator.scale, header);
+  restored_publisher_.publish(ros_glue::Float01ToImage(result.latent[i], window.family, header), info);
+  depth_publisher_.publish(ros_glue::DepthToImage(result.depth[i], header), info);
+
+  geometry_msgs::PoseStamped pose;
+  pose.header.stamp = header.stamp;
+  pose.header.frame_id = params.world_frame;
+  pose.pose = ros_glue::PoseToMsg(result.T_world_cam[i]);
+  pose_publisher_.publish(pose);
+  path_.poses.push_back(pose);
+  if (tf_broadcaster_) {
+    geometry_msgs::TransformStamped transform;
+    transform.header = pose.header;
+    transform.child_frame_id = window.camera_frame;
+    transform.transform = ros_glue::TransformToMsg(result.T_world_cam[i]);
+    tf_broadcaster_->sendTransform(transform);
+  }
+  if (points_publisher_.getNumSubscribers() > 0) {
+    points_publisher_.publish(ros_glue::DepthToPoints(result.depth[i], result.latent[i], result.camera_hr,
+                                                      params.points_stride, header));
+  }
+  ++frames_published_;
+}
+
+void EstimatorNodelet::PublishPath(const ros_glue::NodeParameters& params, const ros::Time& stamp) {
   while (path_.poses.size() > static_cast<size_t>(params.max_path_length)) {
     path_.poses.erase(path_.poses.begin());
   }
   path_.header.frame_id = params.world_frame;
-  path_.header.stamp = status.header.stamp;
+  path_.header.stamp = stamp;
   path_publisher_.publish(path_);
+}
 
-  const double processing = (ros::WallTime::now() - start).toSec();
-  const double latency = (ros::WallTime::now() - window.completed).toSec();
-  ++windows_processed_;
-  {
-    std::lock_guard<std::mutex> lock(health_mutex_);
-    last_latency_ = latency;
-    last_processing_ = processing;
-  }
-  status.success = true;
-  status.continued = estimate.continued;
-  status.first_new = estimate.first_new;
-  status.message = estimate.note + (clamped ? "; exposure_time clamped to the frame interval" : "");
-  for (const std::string& note : result.notes) status.message += "; " + note;
+void EstimatorNodelet::DescribeEstimate(const WindowEstimate& estimate, bool clamped, EstimatorStatus* status) {
+  const EstimatorResult& result = estimate.result;
+  status->success = true;
+  status->continued = estimate.continued;
+  status->first_new = estimate.first_new;
+  status->message = estimate.note + (clamped ? "; exposure_time clamped to the frame interval" : "");
+  for (const std::string& note : result.notes) status->message += "; " + note;
   for (const EnergyRecord& energy : result.energies) {
-    status.energy_stages.push_back(energy.stage);
-    status.energy_iterations.push_back(energy.iteration);
-    status.energies.push_back(energy.total);
+    status->energy_stages.push_back(energy.stage);
+    status->energy_iterations.push_back(energy.iteration);
+    status->energies.push_back(energy.total);
   }
   for (const StageTiming& timing : result.timings) {
-    status.stage_names.push_back(timing.stage);
-    status.stage_seconds.push_back(timing.seconds);
+    status->stage_names.push_back(timing.stage);
+    status->stage_seconds.push_back(timing.seconds);
   }
-  status.processing_seconds = processing;
-  status.latency_seconds = latency;
-  PublishStatus(status);
 }
 
 void EstimatorNodelet::PublishStatus(EstimatorStatus status) {

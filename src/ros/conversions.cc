@@ -7,6 +7,7 @@
 #include <opencv2/imgproc.hpp>
 #include <sensor_msgs/image_encodings.h>
 #include <sensor_msgs/point_cloud2_iterator.h>
+#include <tf2_eigen/tf2_eigen.h>
 
 namespace deblur_sr_mvs {
 namespace ros_glue {
@@ -248,15 +249,27 @@ sensor_msgs::PointCloud2 DepthToPoints(const cv::Mat& depth, const cv::Mat& imag
 
 geometry_msgs::Pose PoseToMsg(const SE3& T_world_cam) {
   geometry_msgs::Pose pose;
-  pose.position.x = T_world_cam.translation().x();
-  pose.position.y = T_world_cam.translation().y();
-  pose.position.z = T_world_cam.translation().z();
-  const Eigen::Quaterniond q = T_world_cam.quaternion().normalized();
-  pose.orientation.x = q.x();
-  pose.orientation.y = q.y();
-  pose.orientation.z = q.z();
-  pose.orientation.w = q.w();
+  pose.position = tf2::toMsg(T_world_cam.translation());
+  pose.orientation = tf2::toMsg(T_world_cam.quaternion().normalized());
   return pose;
+}
+
+geometry_msgs::Transform TransformToMsg(const SE3& T_world_cam) {
+  geometry_msgs::Transform transform;
+  tf2::toMsg(T_world_cam.translation(), transform.translation);
+  transform.rotation = tf2::toMsg(T_world_cam.quaternion().normalized());
+  return transform;
+}
+
+SE3 PoseFromMsg(const geometry_msgs::Pose& pose) {
+  Eigen::Vector3d translation;
+  Eigen::Quaterniond rotation;
+  tf2::fromMsg(pose.position, translation);
+  tf2::fromMsg(pose.orientation, rotation);
+  if (!translation.allFinite() || !rotation.coeffs().allFinite() || rotation.norm() == 0.0) {
+    throw InputError("pose with a non-finite position or orientation, or a zero quaternion");
+  }
+  return SE3(rotation.normalized(), translation);
 }
 
 }  // namespace ros_glue

@@ -1,6 +1,6 @@
 #include "deblur_sr_mvs/ros/node_parameters.h"
 
-#include <cmath>
+#include "deblur_sr_mvs/core/common/options_check.h"
 
 namespace deblur_sr_mvs {
 namespace ros_glue {
@@ -12,21 +12,35 @@ StampPosition ParseStampPosition(const std::string& text) {
   throw InputError("stamp_position must be start, middle or end, got '" + text + "'");
 }
 
-void NodeParameters::Check() const {
-  if (!(exposure_time > 0.0) || !std::isfinite(exposure_time) || exposure_time > 10.0) {
-    throw InputError("exposure_time must be in (0, 10] s (the shutter time of the camera), got " +
-                     std::to_string(exposure_time));
+const char* ToString(StampPosition position) {
+  switch (position) {
+    case StampPosition::kStart: return "start";
+    case StampPosition::kMiddle: return "middle";
+    case StampPosition::kEnd: return "end";
   }
-  if (!(max_frame_gap > 0.0) || !std::isfinite(max_frame_gap)) throw InputError("max_frame_gap must be > 0 s");
-  if (!(max_step_ratio > 1.0) || !std::isfinite(max_step_ratio)) throw InputError("max_step_ratio must be > 1");
+  return "end";
+}
+
+EstimatorOptions NodeEstimatorOptions() {
+  EstimatorOptions options;
+  options.max_seconds = 60.0;
+  return options;
+}
+
+void NodeParameters::Check() const {
+  // (0, 10] s: the shutter time of the camera.
+  CheckAbove("exposure_time", exposure_time, 0.0);
+  CheckInRange("exposure_time", exposure_time, 0.0, 10.0);
+  CheckAbove("max_frame_gap", max_frame_gap, 0.0);
+  CheckAbove("max_step_ratio", max_step_ratio, 1.0);
   stream.Check();
   estimator.Check();
   if (world_frame.empty()) throw InputError("world_frame must not be empty");
   if (!camera_frame.empty() && camera_frame == world_frame) {
     throw InputError("camera_frame must differ from world_frame");
   }
-  if (points_stride < 1 || points_stride > 64) throw InputError("points_stride must be in [1, 64]");
-  if (max_path_length < 1) throw InputError("max_path_length must be >= 1");
+  CheckInRange("points_stride", points_stride, 1, 64);
+  CheckAtLeast("max_path_length", max_path_length, 1);
 }
 
 double NodeParameters::CloseOffset() const {
@@ -48,40 +62,41 @@ void Read(const ros::NodeHandle& node, const std::string& name, T* value) {
   }
 }
 
+// ForEachParameter's visitor of ReadNodeParameters: a missing parameter keeps
+// the value it visits (the default); the enums are read as text or bool.
+class ParameterReader {
+ public:
+  explicit ParameterReader(const ros::NodeHandle& node) : node_(node) {}
+
+  template <typename T>
+  void operator()(const char* name, T& value) const {
+    Read(node_, name, &value);
+  }
+  void operator()(const char* name, StampPosition& position) const {
+    std::string text = ToString(position);
+    Read(node_, name, &text);
+    position = ParseStampPosition(text);
+  }
+  void operator()(const char* name, EstimatorMode& mode) const {
+    std::string text = ToString(mode);
+    Read(node_, name, &text);
+    mode = ParseEstimatorMode(text);
+  }
+  void operator()(const char* name, DistortionPolicy& policy) const {
+    bool assume_rectified = policy == DistortionPolicy::kAssumeRectified;
+    Read(node_, name, &assume_rectified);
+    policy = assume_rectified ? DistortionPolicy::kAssumeRectified : DistortionPolicy::kReject;
+  }
+
+ private:
+  const ros::NodeHandle& node_;
+};
+
 }  // namespace
 
 NodeParameters ReadNodeParameters(const ros::NodeHandle& node) {
   NodeParameters params;
-  params.estimator.max_seconds = 60.0;  // the node's default cap (config/default.yaml)
-  Read(node, "exposure_time", &params.exposure_time);
-  std::string stamp_position = "end";
-  Read(node, "stamp_position", &stamp_position);
-  params.stamp_position = ParseStampPosition(stamp_position);
-  Read(node, "max_frame_gap", &params.max_frame_gap);
-  Read(node, "max_step_ratio", &params.max_step_ratio);
-  Read(node, "window_size", &params.stream.window_size);
-  Read(node, "window_overlap", &params.stream.window_overlap);
-  Read(node, "max_pending_windows", &params.stream.max_pending_windows);
-  std::string mode = "joint";
-  Read(node, "mode", &mode);
-  params.estimator.mode = ParseEstimatorMode(mode);
-  Read(node, "scale", &params.estimator.scale);
-  Read(node, "samples", &params.estimator.samples);
-  Read(node, "iterations", &params.estimator.max_iterations);
-  Read(node, "lambda_s", &params.estimator.lambda_s);
-  Read(node, "lambda_d", &params.estimator.structure.lambda_d);
-  Read(node, "lambda_i", &params.estimator.image.lambda_i);
-  Read(node, "threads", &params.estimator.num_threads);
-  Read(node, "max_window_seconds", &params.estimator.max_seconds);
-  Read(node, "world_frame", &params.world_frame);
-  Read(node, "camera_frame", &params.camera_frame);
-  Read(node, "publish_tf", &params.publish_tf);
-  Read(node, "points_stride", &params.points_stride);
-  Read(node, "max_path_length", &params.max_path_length);
-  Read(node, "lazy_subscription", &params.lazy_subscription);
-  bool assume_rectified = false;
-  Read(node, "assume_rectified", &assume_rectified);
-  params.distortion = assume_rectified ? DistortionPolicy::kAssumeRectified : DistortionPolicy::kReject;
+  ForEachParameter(params, ParameterReader(node));
   params.Check();
   return params;
 }

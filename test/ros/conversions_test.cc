@@ -173,6 +173,47 @@ TEST(PointCloud, BackProjectsSubsampledValidPixels) {
   EXPECT_EQ(*r, 128);
 }
 
+TEST(PoseConversion, RoundTripsToDoublePrecision) {
+  Vector6d xi;
+  // Small, large (w < 0 in Eigen's quaternion of the matrix: no sign flip
+  // must happen) and near-pi rotations.
+  for (const double angle : {0.0, 0.3, 2.0, 3.1, 3.14159}) {
+    xi << 0.5, -1.25, 3.0, angle * 0.6, -angle * 0.48, angle * 0.64;
+    const SE3 T = SE3::Exp(xi);
+    const geometry_msgs::Pose pose = PoseToMsg(T);
+    const Eigen::Quaterniond q = T.quaternion().normalized();
+    EXPECT_EQ(pose.orientation.w, q.w()) << angle;  // copied as it is
+    EXPECT_EQ(pose.orientation.x, q.x()) << angle;
+    EXPECT_EQ(pose.position.z, T.translation().z());
+    const SE3 back = PoseFromMsg(pose);
+    EXPECT_EQ(back.translation(), T.translation()) << angle;
+    EXPECT_LT((back.rotation() - T.rotation()).cwiseAbs().maxCoeff(), 1e-15) << angle;
+    // The tf transform carries the pose's numbers.
+    const geometry_msgs::Transform transform = TransformToMsg(T);
+    EXPECT_EQ(transform.translation.x, pose.position.x);
+    EXPECT_EQ(transform.translation.y, pose.position.y);
+    EXPECT_EQ(transform.translation.z, pose.position.z);
+    EXPECT_EQ(transform.rotation, pose.orientation);
+    // Message -> SE3 -> message: the same quaternion (up to sign).
+    const geometry_msgs::Pose again = PoseToMsg(back);
+    const Eigen::Vector4d first(pose.orientation.w, pose.orientation.x, pose.orientation.y, pose.orientation.z);
+    Eigen::Vector4d second(again.orientation.w, again.orientation.x, again.orientation.y, again.orientation.z);
+    if (first.dot(second) < 0.0) second = -second;
+    EXPECT_LT((first - second).cwiseAbs().maxCoeff(), 1e-15) << angle;
+  }
+}
+
+TEST(PoseConversion, RejectsNonFiniteOrZeroQuaternions) {
+  geometry_msgs::Pose pose;
+  pose.orientation.w = 2.0;  // not normalised: normalised on the way in
+  EXPECT_DOUBLE_EQ(PoseFromMsg(pose).rotation().trace(), 3.0);
+  pose.orientation.w = 0.0;
+  EXPECT_THROW(PoseFromMsg(pose), InputError);
+  pose.orientation.w = 1.0;
+  pose.position.y = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(PoseFromMsg(pose), InputError);
+}
+
 TEST(NodeParameters, StampPositionGivesTheShutterClose) {
   NodeParameters params;
   params.exposure_time = 0.02;
@@ -185,20 +226,42 @@ TEST(NodeParameters, StampPositionGivesTheShutterClose) {
   EXPECT_THROW(ParseStampPosition("centre"), InputError);
 }
 
+// The message of params.Check(), "" when it passes.
+std::string CheckMessage(const NodeParameters& params) {
+  try {
+    params.Check();
+  } catch (const InputError& error) {
+    return error.what();
+  }
+  return "";
+}
+
 TEST(NodeParameters, ChecksEveryValue) {
   NodeParameters params;
-  EXPECT_THROW(params.Check(), InputError);  // exposure_time is required
+  // exposure_time is required.
+  EXPECT_EQ(CheckMessage(params), "exposure_time must be > 0, got 0");
   params.exposure_time = 0.02;
-  EXPECT_NO_THROW(params.Check());
+  EXPECT_EQ(CheckMessage(params), "");
   NodeParameters bad = params;
   bad.exposure_time = -1.0;
-  EXPECT_THROW(bad.Check(), InputError);
+  EXPECT_EQ(CheckMessage(bad), "exposure_time must be > 0, got -1");
+  bad.exposure_time = 20.0;
+  EXPECT_EQ(CheckMessage(bad), "exposure_time must be in [0, 10], got 20");
+  bad = params;
+  bad.max_frame_gap = std::numeric_limits<double>::infinity();
+  EXPECT_EQ(CheckMessage(bad), "max_frame_gap must be > 0, got inf");
+  bad = params;
+  bad.max_step_ratio = 1.0;
+  EXPECT_EQ(CheckMessage(bad), "max_step_ratio must be > 1, got 1");
   bad = params;
   bad.points_stride = 0;
-  EXPECT_THROW(bad.Check(), InputError);
+  EXPECT_EQ(CheckMessage(bad), "points_stride must be in [1, 64], got 0");
+  bad = params;
+  bad.max_path_length = 0;
+  EXPECT_EQ(CheckMessage(bad), "max_path_length must be >= 1, got 0");
   bad = params;
   bad.camera_frame = bad.world_frame;
-  EXPECT_THROW(bad.Check(), InputError);
+  EXPECT_EQ(CheckMessage(bad), "camera_frame must differ from world_frame");
 }
 
 TEST(NodeParameters, ReconfigureAppliesTuningOrNothing) {

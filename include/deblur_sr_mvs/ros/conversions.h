@@ -6,6 +6,7 @@
 #include <string>
 
 #include <geometry_msgs/PoseStamped.h>
+#include <geometry_msgs/Transform.h>
 #include <opencv2/core.hpp>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
@@ -60,7 +61,13 @@ sensor_msgs::PointCloud2 DepthToPoints(const cv::Mat& depth, const cv::Mat& imag
                                        const PinholeCamera& camera, int stride,
                                        const std_msgs::Header& header);
 
+// Poses (tf2_eigen's conversions). The quaternion is the rotation's,
+// normalised, copied as it is (no sign flip): PoseFromMsg(PoseToMsg(T)) gives
+// T back to double precision, and pose and transform carry the same numbers.
 geometry_msgs::Pose PoseToMsg(const SE3& T_world_cam);
+geometry_msgs::Transform TransformToMsg(const SE3& T_world_cam);
+// Throws InputError on non-finite values or a zero quaternion; normalises it.
+SE3 PoseFromMsg(const geometry_msgs::Pose& pose);
 
 }  // namespace ros_glue
 }  // namespace deblur_sr_mvs

@@ -52,12 +52,34 @@ class EstimatorNodelet : public nodelet::Nodelet {
   void ConnectCallback();
   void ImageCallback(const sensor_msgs::ImageConstPtr& image);
   void InfoCallback(const sensor_msgs::CameraInfoConstPtr& info);
-  // Checks one matched image + camera_info and buffers it (input_mutex_ held).
+  // ---- Input side (input_mutex_ held).
+  // Checks one matched image + camera_info and buffers it.
   void AcceptFrame(const sensor_msgs::ImageConstPtr& image, const sensor_msgs::CameraInfoConstPtr& info);
+  bool CheckStamp(const ros::Time& stamp);  // false: rejected (zero, future, duplicate)
+  // Restarts the trajectory when time went back, a gap exceeds max_frame_gap,
+  // or the camera (size, intrinsics, colour) changed.
+  void RestartOnDiscontinuity(const ros::Time& stamp, const PinholeCamera& camera, ros_glue::ImageFamily family);
+  void StartStream(const ros::Time& stamp, const PinholeCamera& camera, const std::string& input_frame);
+  void QueueWindow(StreamWindow frames);  // a complete window for the worker
   void RejectFrame(const std::string& category, const std::string& why);
-  void RestartStream(const std::string& why);  // input_mutex_ held
+  void RejectUnmatchedImage();  // an image whose camera_info never came
+  void RestartStream(const std::string& why);
+
+  // ---- Worker side.
   void WorkerLoop();
   void ProcessWindow(PendingWindow window);
+  // The parameters for `window`, applied to the estimator (reconfigured
+  // since the last window); a new epoch resets the stream and the path.
+  ros_glue::NodeParameters SyncWorker(const PendingWindow& window);
+  // A failed window: counted, warned and said in `status`; `restart` also
+  // restarts the trajectory.
+  void SkipWindow(const std::string& message, bool restart, EstimatorStatus* status);
+  // Image, depth, pose, tf and points of window frame i.
+  void PublishFrame(const PendingWindow& window, const EstimatorResult& result, size_t i, int64_t stamp_ns,
+                    const ros_glue::NodeParameters& params);
+  void PublishPath(const ros_glue::NodeParameters& params, const ros::Time& stamp);
+  // Success, energies, timings and notes of a published window.
+  void DescribeEstimate(const WindowEstimate& estimate, bool clamped, EstimatorStatus* status);
   void PublishStatus(EstimatorStatus status);
   void ReconfigureCallback(EstimatorConfig& config, uint32_t level);
   void Diagnose(diagnostic_updater::DiagnosticStatusWrapper& status);

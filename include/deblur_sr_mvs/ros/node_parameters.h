@@ -1,6 +1,8 @@
 // The estimator node's private parameters (SPEC section 5, README table) and
 // their translation into the core's Options structs: the one place where
-// ~parameters become options.
+// ~parameters become options, and the one source of their defaults
+// (NodeParameters' initialisers; config/default.yaml, cfg/Estimator.cfg and
+// the README's table are tested against them by test/ros/defaults_test.cc).
 #pragma once
 
 #include <string>
@@ -18,6 +20,11 @@ namespace ros_glue {
 // Where the header stamp of a frame lies within its exposure.
 enum class StampPosition { kStart, kMiddle, kEnd };
 StampPosition ParseStampPosition(const std::string& text);  // InputError otherwise
+const char* ToString(StampPosition position);                // "start" | "middle" | "end"
+
+// The core's estimator defaults with the node's time cap of one window
+// (~max_window_seconds): a live node must not stall on one window.
+EstimatorOptions NodeEstimatorOptions();
 
 struct NodeParameters {
   // --- Shutter: exposure time and what the header stamp marks.
@@ -30,7 +37,7 @@ struct NodeParameters {
   StreamOptions stream;            // window_size, window_overlap, max_pending_windows
   // --- The estimator (mode, scale, samples, iterations, lambdas, threads,
   //     max_window_seconds -> estimator.max_seconds).
-  EstimatorOptions estimator;
+  EstimatorOptions estimator = NodeEstimatorOptions();
   // --- Outputs.
   std::string world_frame = "world";
   std::string camera_frame;        // empty: "<input frame_id>_estimated"
@@ -48,6 +55,37 @@ struct NodeParameters {
   // Shutter close time t_c minus the header stamp (s).
   double CloseOffset() const;
 };
+
+// Calls visit(name, member) for every private parameter of the node, in the
+// order the node reads them: the one list of names. `Params` is NodeParameters
+// or const NodeParameters; the enums are StampPosition (~stamp_position),
+// EstimatorMode (~mode) and DistortionPolicy (~assume_rectified, a bool).
+template <typename Params, typename Visitor>
+void ForEachParameter(Params& params, Visitor&& visit) {
+  visit("exposure_time", params.exposure_time);
+  visit("stamp_position", params.stamp_position);
+  visit("max_frame_gap", params.max_frame_gap);
+  visit("max_step_ratio", params.max_step_ratio);
+  visit("window_size", params.stream.window_size);
+  visit("window_overlap", params.stream.window_overlap);
+  visit("max_pending_windows", params.stream.max_pending_windows);
+  visit("mode", params.estimator.mode);
+  visit("scale", params.estimator.scale);
+  visit("samples", params.estimator.samples);
+  visit("iterations", params.estimator.max_iterations);
+  visit("lambda_s", params.estimator.lambda_s);
+  visit("lambda_d", params.estimator.structure.lambda_d);
+  visit("lambda_i", params.estimator.image.lambda_i);
+  visit("threads", params.estimator.num_threads);
+  visit("max_window_seconds", params.estimator.max_seconds);
+  visit("world_frame", params.world_frame);
+  visit("camera_frame", params.camera_frame);
+  visit("publish_tf", params.publish_tf);
+  visit("points_stride", params.points_stride);
+  visit("max_path_length", params.max_path_length);
+  visit("lazy_subscription", params.lazy_subscription);
+  visit("assume_rectified", params.distortion);
+}
 
 // Reads every parameter from the private node handle (defaults above for
 // missing ones) and checks them: throws InputError with one line.
