@@ -71,6 +71,7 @@ using deblur_sr_mvs::CameraCalibration;
 using deblur_sr_mvs::InputError;
 using deblur_sr_mvs::OneLine;
 using deblur_sr_mvs::Sequence;
+using deblur_sr_mvs::SizeText;
 
 constexpr char kDescription[] =
     "Writes the images of a rosbag as a sequence folder (camera.yaml, frames.csv,\n"

@@ -11,6 +11,7 @@
 #include <limits>
 #include <sstream>
 #include <string>
+#include <vector>
 
 #include <CLI/CLI.hpp>
 
@@ -90,7 +91,11 @@ class ToolCommandLine : public CLI::App {
       std::cout << help();
       return false;
     } catch (const CLI::ParseError& error) {
-      throw InputError(std::string(error.what()) + " (see --help)");
+      // CLI11 checks required flags and values before it reports arguments it
+      // does not know; a mistyped flag is the more useful message.
+      const std::vector<std::string> unknown = remaining();
+      const std::string message = unknown.empty() ? error.what() : CLI::ExtrasError(unknown).what();
+      throw InputError(message + " (see --help)");
     }
     return true;
   }

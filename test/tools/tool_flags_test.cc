@@ -65,6 +65,7 @@ TEST(ToolFlags, ParseWholeFiniteValuesInRange) {
   EXPECT_EQ(ParseMessage({"--scale", "1"}), "--scale: expects an integer in [2, 8], got '1' (see --help)");
   EXPECT_EQ(ParseMessage({"--exposure", "-1"}), "--exposure: expects a number >= 1e-06, got '-1' (see --help)");
   EXPECT_NE(ParseMessage({"--frobnicate"}).find("--frobnicate"), std::string::npos);
+  EXPECT_NE(ParseMessage({"--frobnicate", "--scale", "1"}).find("--frobnicate"), std::string::npos);
   EXPECT_NE(ParseMessage({"--n"}).find("--n"), std::string::npos);  // no value
   EXPECT_NE(ParseMessage({"stray"}).find("stray"), std::string::npos);
 }
@@ -92,6 +93,7 @@ TEST(ToolFlags, BadFlagsGiveOneLineAndExitCode2) {
   ExpectOneLineError("synthesize_sequence", {"--scene", scene, "--output", out, "--path", "loop"}, "--path");
   ExpectOneLineError("synthesize_sequence", {"--scene", scene, "--output", out, "--bogus", "1"}, "--bogus");
   ExpectOneLineError("synthesize_sequence", {"--output", out}, "--scene");
+  ExpectOneLineError("synthesize_sequence", {"--frobnicate", "x"}, "--frobnicate");  // before --scene
   ExpectOneLineError("evaluate_sequence", {"--result", scene, "--sequence", scene, "--crop", "1.5"}, "--crop");
   ExpectOneLineError("evaluate_sequence", {"--result", scene, "--sequence"}, "--sequence");
   ExpectOneLineError("make_comparison_figure", {"--sequence", scene, "--output", out, "--frame", "-1"},
