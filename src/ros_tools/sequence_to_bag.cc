@@ -90,7 +90,9 @@ bool ParseOptions(int argc, char** argv, Options* options) {
   bool no_ground_truth = false;
   std::string compression = "none";
   deblur_sr_mvs::ToolCommandLine cli("sequence_to_bag", kDescription);
-  cli.add_option("--input", options->input, "sequence folder to read")->required()->check(CLI::ExistingDirectory);
+  cli.add_option("--input", options->input, "sequence folder to read")
+      ->required()
+      ->check(CLI::ExistingDirectory);
   cli.add_option("--output", options->output, "bag file to write (replaced when it exists)")->required();
   cli.add_option("--frame-id", options->frame_id, "header.frame_id of the camera messages (default camera)");
   cli.add_option("--image-topic", options->image_topic,

@@ -159,7 +159,8 @@ int Run(int argc, char** argv) {
   out.calibration = dsm::CameraCalibration::FromCamera(result.camera_hr.Upscaled(flags.output_scale),
                                                        camera_name);
   FillOutputs(result, input.frames, flags.output_scale, &out);
-  out.report_json = dsm::JsonText(dsm::EstimateReportJson(options, flags.input, result, wall, PeakMemoryMiB()));
+  out.report_json =
+      dsm::JsonText(dsm::EstimateReportJson(options, flags.input, result, wall, PeakMemoryMiB()));
   dsm::WriteResult(flags.output, out);
   if (!flags.quiet) {
     std::printf("estimate_sequence: %zu frames, %s, %.1f s, peak %.0f MiB, energy %.4g -> %.4g; wrote %s\n",

@@ -49,7 +49,9 @@ int Run(int argc, char** argv) {
   cli.add_option("--result", result_dir, "result folder (camera.yaml, frames.csv, latent/, ...)")
       ->required()
       ->check(CLI::ExistingDirectory);
-  cli.add_option("--sequence", sequence_dir, "sequence folder with gt/")->required()->check(CLI::ExistingDirectory);
+  cli.add_option("--sequence", sequence_dir, "sequence folder with gt/")
+      ->required()
+      ->check(CLI::ExistingDirectory);
   cli.add_option("--crop", options.crop_fraction,
                  "depth centre-crop fraction in (0, 1] (default 0.7, as the paper)")
       ->check(dsm::FlagNumber(1e-6, 1.0));

@@ -159,7 +159,8 @@ void WriteResultFigure(const dsm::Sequence& sequence, const std::string& sequenc
   const dsm::SequenceResult result = dsm::ReadResult(result_dir);
   const cv::Mat& truth = frame.truth;
   const int num_frames = static_cast<int>(sequence.frames.size());
-  if (static_cast<int>(result.latent.size()) != num_frames || result.latent[frame.index].size() != truth.size()) {
+  if (static_cast<int>(result.latent.size()) != num_frames ||
+      result.latent[frame.index].size() != truth.size()) {
     throw dsm::InputError(result_dir + ": frames or HR size differ from " + sequence_dir);
   }
   cv::Mat restored = result.latent[frame.index];
@@ -178,8 +179,8 @@ void WriteResultFigure(const dsm::Sequence& sequence, const std::string& sequenc
                      cv::Point(2 * step, truth.rows + kGap), step, &canvas);
   }
   if (result.HasPoses() && num_frames >= 3) {
-    PasteTrajectoryPanel(result.poses, sequence.ground_truth->poses, cv::Size(2 * truth.cols + kGap, truth.rows),
-                         cv::Point(0, truth.rows + kGap), &canvas);
+    PasteTrajectoryPanel(result.poses, sequence.ground_truth->poses,
+                         cv::Size(2 * truth.cols + kGap, truth.rows), cv::Point(0, truth.rows + kGap), &canvas);
   }
   dsm::WriteImage(output, canvas);
   std::printf("%s: frame %d, PSNR vs ground truth: bicubic %.2f dB, restored %.2f dB\n", output.c_str(),
@@ -190,7 +191,9 @@ int Run(int argc, char** argv) {
   std::string sequence_dir, output, result_dir;
   int frame = -1;  // default: the middle frame
   dsm::ToolCommandLine cli("make_comparison_figure", kDescription);
-  cli.add_option("--sequence", sequence_dir, "sequence folder with gt/")->required()->check(CLI::ExistingDirectory);
+  cli.add_option("--sequence", sequence_dir, "sequence folder with gt/")
+      ->required()
+      ->check(CLI::ExistingDirectory);
   cli.add_option("--output", output, "PNG file to write")->required();
   cli.add_option("--frame", frame, "frame index (default: the middle frame)")->check(dsm::FlagInt(0));
   cli.add_option("--result", result_dir, "result folder of estimate_sequence")->check(CLI::ExistingDirectory);

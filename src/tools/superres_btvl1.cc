@@ -182,7 +182,8 @@ int Run(int argc, char** argv) {
   cv::Ptr<cv::superres::SuperResolution> btv = cv::superres::createSuperResolution_BTVL1();
   btv->setScale(scale);
   if (flags.iterations > 0) btv->setIterations(flags.iterations);
-  const int requested_radius = flags.temporal_radius >= 0 ? flags.temporal_radius : btv->getTemporalAreaRadius();
+  const int requested_radius =
+      flags.temporal_radius >= 0 ? flags.temporal_radius : btv->getTemporalAreaRadius();
   // OpenCV's BTV-L1 indexes past its frame cache (and crashes) when the
   // sequence is shorter than radius + 1 frames.
   btv->setTemporalAreaRadius(std::min(requested_radius, num_frames - 1));

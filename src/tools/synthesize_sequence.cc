@@ -65,7 +65,8 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::SynthesisOptions
   cli.add_option("--frames", options->num_frames, "number of frames (default 10)")->check(dsm::FlagInt());
   cli.add_option("--scale", options->scale, "super-resolution factor, LR = HR / S (default 2)")
       ->check(dsm::FlagInt());
-  cli.add_option("--exposure-ratio", options->exposure_ratio, "exposure / frame interval, in (0, 1] (default 0.8)")
+  cli.add_option("--exposure-ratio", options->exposure_ratio,
+                 "exposure / frame interval, in (0, 1] (default 0.8)")
       ->check(dsm::FlagNumber());
   cli.add_option("--path", flags->path, "lateral, arc or forward (default lateral)")
       ->check(CLI::IsMember({"lateral", "arc", "forward"}));

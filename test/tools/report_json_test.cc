@@ -70,8 +70,10 @@ TEST(ReportJson, UndoneIterationWithNanEnergiesIsStrictJson) {
   const nlohmann::ordered_json ordered = nlohmann::ordered_json::parse(text);
   std::vector<std::string> keys;
   for (auto it = ordered.begin(); it != ordered.end(); ++it) keys.push_back(it.key());
-  EXPECT_EQ(keys, (std::vector<std::string>{"input", "parameters", "energies", "stage_seconds", "wall_seconds",
-                                            "peak_memory_mib", "initializer", "solver_notes", "monocular_scale"}));
+  const std::vector<std::string> expected = {"input",           "parameters",  "energies",
+                                             "stage_seconds",   "wall_seconds", "peak_memory_mib",
+                                             "initializer",     "solver_notes", "monocular_scale"};
+  EXPECT_EQ(keys, expected);
   EXPECT_EQ(report["parameters"]["mode"], "joint");
   EXPECT_EQ(report["parameters"]["update_poses"], true);
 }
