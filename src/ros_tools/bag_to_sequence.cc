@@ -70,31 +70,13 @@ namespace enc = sensor_msgs::image_encodings;
 using deblur_sr_mvs::CameraCalibration;
 using deblur_sr_mvs::InputError;
 using deblur_sr_mvs::OneLine;
-using deblur_sr_mvs::ParseFlagNumber;
 using deblur_sr_mvs::Sequence;
+using deblur_sr_mvs::SizeText;
 
-constexpr char kUsage[] =
-    "usage: bag_to_sequence --input BAG --output SEQ [--image-topic T] [--info-topic T]\n"
-    "                       [--exposure-topic T] [--exposure SECONDS]\n"
-    "                       [--gt-namespace NS] [--no-ground-truth]\n"
-    "\n"
+constexpr char kDescription[] =
     "Writes the images of a rosbag as a sequence folder (camera.yaml, frames.csv,\n"
     "images/, and gt/ when the bag has ground truth). Every image needs a\n"
-    "CameraInfo with the same stamp; stamps must increase.\n"
-    "\n"
-    "  --input BAG             bag file to read\n"
-    "  --output SEQ            sequence folder to write: new, empty or an existing\n"
-    "                          sequence folder (its frames and gt/ are replaced)\n"
-    "  --image-topic T         sensor_msgs/Image, mono8, rgb8 or bgr8 (default /camera/image_raw)\n"
-    "  --info-topic T          sensor_msgs/CameraInfo (default /camera/camera_info)\n"
-    "  --exposure-topic T      sensor_msgs/TimeReference per frame: exposure =\n"
-    "                          header.stamp - time_ref (default /camera/exposure)\n"
-    "  --exposure SECONDS      exposure of every frame, for bags without that topic\n"
-    "                          (overrides the topic when both are there)\n"
-    "  --gt-namespace NS       ground-truth topics NS/image, NS/depth, NS/camera_info,\n"
-    "                          NS/pose (default /gt)\n"
-    "  --no-ground-truth       do not write gt/ even when the bag has it\n"
-    "  --help                  this text\n";
+    "CameraInfo with the same stamp; stamps must increase.";
 
 struct Options {
   std::string input;
@@ -119,47 +101,41 @@ std::string Seconds(double value) {
 
 std::string StampText(const ros::Time& stamp) { return Seconds(stamp.toSec()); }
 
-Options ParseOptions(int argc, char** argv, bool* help) {
-  Options options;
-  *help = false;
-  for (int i = 1; i < argc; ++i) {
-    const std::string flag = argv[i];
-    if (flag == "--help" || flag == "-h") {
-      *help = true;
-      return options;
-    }
-    if (flag == "--no-ground-truth") {
-      options.ground_truth = false;
-      continue;
-    }
-    if (flag.rfind("--", 0) != 0) throw InputError("unexpected argument \"" + flag + "\" (see --help)");
-    std::string* target = nullptr;
-    if (flag == "--input") target = &options.input;
-    if (flag == "--output") target = &options.output;
-    if (flag == "--image-topic") target = &options.image_topic;
-    if (flag == "--info-topic") target = &options.info_topic;
-    if (flag == "--exposure-topic") target = &options.exposure_topic;
-    if (flag == "--gt-namespace") target = &options.gt_namespace;
-    const bool is_exposure = flag == "--exposure";
-    if (target == nullptr && !is_exposure) throw InputError("unknown flag " + flag + " (see --help)");
-    if (i + 1 >= argc) throw InputError(flag + ": missing value");
-    const std::string value = argv[++i];
-    if (is_exposure) {
-      options.exposure = ParseFlagNumber(flag, value, 1e-6);  // seconds
-    } else {
-      *target = value;
-    }
-  }
-  if (options.input.empty()) throw InputError("--input is required (see --help)");
-  if (options.output.empty()) throw InputError("--output is required (see --help)");
-  for (const std::string* topic : {&options.image_topic, &options.info_topic,
-                                   &options.exposure_topic, &options.gt_namespace}) {
+// Parses the command line; false after --help.
+bool ParseOptions(int argc, char** argv, Options* options) {
+  bool no_ground_truth = false;
+  double exposure = 0.0;
+  deblur_sr_mvs::ToolCommandLine cli("bag_to_sequence", kDescription);
+  cli.add_option("--input", options->input, "bag file to read")->required();
+  cli.add_option("--output", options->output,
+                 "sequence folder to write: new, empty or an existing sequence folder (its frames and gt/ "
+                 "are replaced)")
+      ->required();
+  cli.add_option("--image-topic", options->image_topic,
+                 "sensor_msgs/Image, mono8, rgb8 or bgr8 (default /camera/image_raw)");
+  cli.add_option("--info-topic", options->info_topic, "sensor_msgs/CameraInfo (default /camera/camera_info)");
+  cli.add_option("--exposure-topic", options->exposure_topic,
+                 "sensor_msgs/TimeReference per frame: exposure = header.stamp - time_ref (default "
+                 "/camera/exposure)");
+  CLI::Option* exposure_flag =
+      cli.add_option("--exposure", exposure,
+                     "exposure of every frame in seconds, for bags without that topic (overrides the topic "
+                     "when both are there)")
+          ->check(deblur_sr_mvs::FlagNumber(1e-6));
+  cli.add_option("--gt-namespace", options->gt_namespace,
+                 "ground-truth topics NS/image, NS/depth, NS/camera_info, NS/pose (default /gt)");
+  cli.add_flag("--no-ground-truth", no_ground_truth, "do not write gt/ even when the bag has it");
+  if (!cli.Parse(argc, argv)) return false;
+  options->ground_truth = !no_ground_truth;
+  if (exposure_flag->count() > 0) options->exposure = exposure;
+  for (const std::string* topic : {&options->image_topic, &options->info_topic, &options->exposure_topic,
+                                   &options->gt_namespace}) {
     if (topic->empty()) throw InputError("topic names must not be empty");
   }
-  while (options.gt_namespace.size() > 1 && options.gt_namespace.back() == '/') {
-    options.gt_namespace.pop_back();
+  while (options->gt_namespace.size() > 1 && options->gt_namespace.back() == '/') {
+    options->gt_namespace.pop_back();
   }
-  return options;
+  return true;
 }
 
 // ------------------------------------------------------------ bag contents
@@ -245,6 +221,72 @@ std::string ConnectionField(const rosbag::MessageInstance& message, const std::s
   return it == header->end() ? "" : it->second;
 }
 
+using TopicTypes = std::map<std::string, std::set<std::string>>;  // topic -> message types
+
+// Every topic of the bag with its types: the topics we read must carry the
+// expected type, and the image and camera_info topics must be there.
+void CheckTopics(const Options& options, rosbag::Bag& bag) {
+  const std::string& path = options.input;
+  TopicTypes types;
+  rosbag::View everything(bag);
+  for (const rosbag::ConnectionInfo* connection : everything.getConnections()) {
+    types[connection->topic].insert(connection->datatype);
+  }
+  CheckTopicType<sensor_msgs::Image>(path, types, options.image_topic);
+  CheckTopicType<sensor_msgs::CameraInfo>(path, types, options.info_topic);
+  if (!options.exposure) {
+    CheckTopicType<sensor_msgs::TimeReference>(path, types, options.exposure_topic);
+  }
+  if (options.ground_truth) {
+    CheckTopicType<sensor_msgs::Image>(path, types, options.GtTopic("image"));
+    CheckTopicType<sensor_msgs::Image>(path, types, options.GtTopic("depth"));
+    CheckTopicType<sensor_msgs::CameraInfo>(path, types, options.GtTopic("camera_info"));
+    CheckTopicType<geometry_msgs::PoseStamped>(path, types, options.GtTopic("pose"));
+  }
+  if (types.count(options.image_topic) == 0) {
+    throw InputError(path + ": no messages on the image topic " + options.image_topic + " (" +
+                     TopicList(types) + "; see --image-topic)");
+  }
+  if (types.count(options.info_topic) == 0) {
+    throw InputError(path + ": no messages on the camera_info topic " + options.info_topic +
+                     ", every image needs a CameraInfo with its stamp (" + TopicList(types) +
+                     "; see --info-topic)");
+  }
+}
+
+// The messages of the topics we read, in bag order.
+void ReadMessages(const Options& options, rosbag::Bag& bag, BagContents* contents) {
+  const std::string& path = options.input;
+  const std::string gt_image = options.GtTopic("image");
+  const std::string gt_depth = options.GtTopic("depth");
+  const std::string gt_info = options.GtTopic("camera_info");
+  const std::string gt_pose = options.GtTopic("pose");
+  std::vector<std::string> topics = {options.image_topic, options.info_topic};
+  if (!options.exposure) topics.push_back(options.exposure_topic);
+  if (options.ground_truth) topics.insert(topics.end(), {gt_image, gt_depth, gt_info, gt_pose});
+  rosbag::View view(bag, rosbag::TopicQuery(topics));
+  for (const rosbag::MessageInstance& message : view) {
+    const std::string& topic = message.getTopic();
+    if (topic == options.image_topic) {
+      contents->images.push_back(Instantiate<sensor_msgs::Image>(message, path));
+    } else if (topic == options.info_topic) {
+      if (contents->infos.empty()) contents->camera_name = ConnectionField(message, "camera_name");
+      AddByStamp(path, topic, Instantiate<sensor_msgs::CameraInfo>(message, path), &contents->infos);
+    } else if (topic == options.exposure_topic) {
+      AddByStamp(path, topic, Instantiate<sensor_msgs::TimeReference>(message, path), &contents->exposures);
+    } else if (topic == gt_image) {
+      AddByStamp(path, topic, Instantiate<sensor_msgs::Image>(message, path), &contents->gt_images);
+    } else if (topic == gt_depth) {
+      AddByStamp(path, topic, Instantiate<sensor_msgs::Image>(message, path), &contents->gt_depths);
+    } else if (topic == gt_info) {
+      if (contents->gt_infos.empty()) contents->gt_camera_name = ConnectionField(message, "camera_name");
+      AddByStamp(path, topic, Instantiate<sensor_msgs::CameraInfo>(message, path), &contents->gt_infos);
+    } else if (topic == gt_pose) {
+      AddByStamp(path, topic, Instantiate<geometry_msgs::PoseStamped>(message, path), &contents->gt_poses);
+    }
+  }
+}
+
 BagContents ReadBag(const Options& options) {
   const std::string& path = options.input;
   std::error_code error;
@@ -256,65 +298,8 @@ BagContents ReadBag(const Options& options) {
   try {
     rosbag::Bag bag;
     bag.open(path, rosbag::bagmode::Read);
-
-    std::map<std::string, std::set<std::string>> types;
-    {
-      rosbag::View everything(bag);
-      for (const rosbag::ConnectionInfo* connection : everything.getConnections()) {
-        types[connection->topic].insert(connection->datatype);
-      }
-    }
-    const std::string gt_image = options.GtTopic("image");
-    const std::string gt_depth = options.GtTopic("depth");
-    const std::string gt_info = options.GtTopic("camera_info");
-    const std::string gt_pose = options.GtTopic("pose");
-    CheckTopicType<sensor_msgs::Image>(path, types, options.image_topic);
-    CheckTopicType<sensor_msgs::CameraInfo>(path, types, options.info_topic);
-    if (!options.exposure) {
-      CheckTopicType<sensor_msgs::TimeReference>(path, types, options.exposure_topic);
-    }
-    if (options.ground_truth) {
-      CheckTopicType<sensor_msgs::Image>(path, types, gt_image);
-      CheckTopicType<sensor_msgs::Image>(path, types, gt_depth);
-      CheckTopicType<sensor_msgs::CameraInfo>(path, types, gt_info);
-      CheckTopicType<geometry_msgs::PoseStamped>(path, types, gt_pose);
-    }
-    if (types.count(options.image_topic) == 0) {
-      throw InputError(path + ": no messages on the image topic " + options.image_topic + " (" +
-                       TopicList(types) + "; see --image-topic)");
-    }
-    if (types.count(options.info_topic) == 0) {
-      throw InputError(path + ": no messages on the camera_info topic " + options.info_topic +
-                       ", every image needs a CameraInfo with its stamp (" + TopicList(types) +
-                       "; see --info-topic)");
-    }
-
-    std::vector<std::string> topics = {options.image_topic, options.info_topic};
-    if (!options.exposure) topics.push_back(options.exposure_topic);
-    if (options.ground_truth) topics.insert(topics.end(), {gt_image, gt_depth, gt_info, gt_pose});
-    rosbag::View view(bag, rosbag::TopicQuery(topics));
-    for (const rosbag::MessageInstance& message : view) {
-      const std::string& topic = message.getTopic();
-      if (topic == options.image_topic) {
-        contents.images.push_back(Instantiate<sensor_msgs::Image>(message, path));
-      } else if (topic == options.info_topic) {
-        if (contents.infos.empty()) contents.camera_name = ConnectionField(message, "camera_name");
-        AddByStamp(path, topic, Instantiate<sensor_msgs::CameraInfo>(message, path), &contents.infos);
-      } else if (topic == options.exposure_topic) {
-        AddByStamp(path, topic, Instantiate<sensor_msgs::TimeReference>(message, path),
-                   &contents.exposures);
-      } else if (topic == gt_image) {
-        AddByStamp(path, topic, Instantiate<sensor_msgs::Image>(message, path), &contents.gt_images);
-      } else if (topic == gt_depth) {
-        AddByStamp(path, topic, Instantiate<sensor_msgs::Image>(message, path), &contents.gt_depths);
-      } else if (topic == gt_info) {
-        if (contents.gt_infos.empty()) contents.gt_camera_name = ConnectionField(message, "camera_name");
-        AddByStamp(path, topic, Instantiate<sensor_msgs::CameraInfo>(message, path), &contents.gt_infos);
-      } else if (topic == gt_pose) {
-        AddByStamp(path, topic, Instantiate<geometry_msgs::PoseStamped>(message, path),
-                   &contents.gt_poses);
-      }
-    }
+    CheckTopics(options, bag);
+    ReadMessages(options, bag, &contents);
     bag.close();
   } catch (const InputError&) {
     throw;
@@ -469,6 +454,53 @@ void CheckSize(const cv::Mat& image, const sensor_msgs::CameraInfo& info, const 
 
 // ---------------------------------------------------------- the sequence
 
+// The exposure of the frame at stamp from the exposure topic: stamp - time_ref.
+double TopicExposure(const Options& options, const BagContents& bag, const ros::Time& stamp,
+                     const std::string& where) {
+  const auto exposure_it = bag.exposures.find(stamp.toNSec());
+  if (exposure_it == bag.exposures.end()) {
+    throw InputError(where + ": no " + options.exposure_topic +
+                     " message with the same stamp (every frame needs one, or pass --exposure "
+                     "SECONDS)");
+  }
+  const ros::Time& shutter_open = exposure_it->second->time_ref;
+  if (!(shutter_open < stamp)) {
+    throw InputError(options.input + ": " + options.exposure_topic + " at stamp " + StampText(stamp) +
+                     ": time_ref " + StampText(shutter_open) +
+                     " (shutter open) must be before header.stamp (shutter close)");
+  }
+  return (stamp - shutter_open).toSec();
+}
+
+// 0 < exposure <= frame interval, as ReadFramesCsv requires (with its
+// tolerance for decimal and epoch stamps). Stamps rounded to the nanosecond
+// may shorten an interval by 1 ns against an exposure that filled it: such
+// an excess (<= 2 ns) is clamped to the interval, anything more is an error.
+void ClampExposures(const Options& options, Sequence* sequence) {
+  constexpr double kRoundingSlack = 2e-9;
+  const std::size_t count = sequence->frames.size();
+  const bool exposure_from_topic = !options.exposure.has_value();
+  for (std::size_t i = 0; i < count && count > 1; ++i) {
+    deblur_sr_mvs::FrameRecord& frame = sequence->frames[i];
+    const bool first = i == 0;
+    const double a = first ? sequence->frames[0].stamp : sequence->frames[i - 1].stamp;
+    const double b = first ? sequence->frames[1].stamp : frame.stamp;
+    const double interval = b - a;
+    const double reader_tolerance =
+        1e-12 + 8.0 * std::numeric_limits<double>::epsilon() * std::max(std::abs(a), std::abs(b));
+    if (frame.exposure <= interval + reader_tolerance) continue;
+    if (frame.exposure <= interval + reader_tolerance + kRoundingSlack) {
+      frame.exposure = interval;
+      continue;
+    }
+    const std::string source =
+        exposure_from_topic ? options.input + ": " + options.exposure_topic : std::string("--exposure");
+    throw InputError(source + ": exposure " + Seconds(frame.exposure) + " s of the frame at stamp " +
+                     Seconds(frame.stamp) + " exceeds the frame interval " + Seconds(interval) +
+                     " s (gap to the " + (first ? "next" : "previous") + " stamp)");
+  }
+}
+
 Sequence ToSequence(const Options& options, const BagContents& bag) {
   const std::string& path = options.input;
   Sequence sequence;
@@ -520,50 +552,11 @@ Sequence ToSequence(const Options& options, const BagContents& bag) {
     deblur_sr_mvs::FrameRecord& frame = sequence.frames[i];
     frame.index = static_cast<int>(i);
     frame.stamp = stamp.toSec();
-    if (exposure_from_topic) {
-      const auto exposure_it = bag.exposures.find(stamp.toNSec());
-      if (exposure_it == bag.exposures.end()) {
-        throw InputError(where + ": no " + options.exposure_topic +
-                         " message with the same stamp (every frame needs one, or pass --exposure "
-                         "SECONDS)");
-      }
-      const ros::Time& shutter_open = exposure_it->second->time_ref;
-      if (!(shutter_open < stamp)) {
-        throw InputError(path + ": " + options.exposure_topic + " at stamp " + StampText(stamp) +
-                         ": time_ref " + StampText(shutter_open) +
-                         " (shutter open) must be before header.stamp (shutter close)");
-      }
-      frame.exposure = (stamp - shutter_open).toSec();
-    } else {
-      frame.exposure = *options.exposure;
-    }
+    frame.exposure = exposure_from_topic ? TopicExposure(options, bag, stamp, where) : *options.exposure;
     sequence.images[i] = std::move(image);
   }
 
-  // 0 < exposure <= frame interval, as ReadFramesCsv requires (with its
-  // tolerance for decimal and epoch stamps). Stamps rounded to the nanosecond
-  // may shorten an interval by 1 ns against an exposure that filled it: such
-  // an excess (<= 2 ns) is clamped to the interval, anything more is an error.
-  constexpr double kRoundingSlack = 2e-9;
-  for (std::size_t i = 0; i < count && count > 1; ++i) {
-    deblur_sr_mvs::FrameRecord& frame = sequence.frames[i];
-    const bool first = i == 0;
-    const double a = first ? sequence.frames[0].stamp : sequence.frames[i - 1].stamp;
-    const double b = first ? sequence.frames[1].stamp : frame.stamp;
-    const double interval = b - a;
-    const double reader_tolerance =
-        1e-12 + 8.0 * std::numeric_limits<double>::epsilon() * std::max(std::abs(a), std::abs(b));
-    if (frame.exposure <= interval + reader_tolerance) continue;
-    if (frame.exposure <= interval + reader_tolerance + kRoundingSlack) {
-      frame.exposure = interval;
-      continue;
-    }
-    const std::string source =
-        exposure_from_topic ? path + ": " + options.exposure_topic : std::string("--exposure");
-    throw InputError(source + ": exposure " + Seconds(frame.exposure) + " s of the frame at stamp " +
-                     Seconds(frame.stamp) + " exceeds the frame interval " + Seconds(interval) +
-                     " s (gap to the " + (first ? "next" : "previous") + " stamp)");
-  }
+  ClampExposures(options, &sequence);
   return sequence;
 }
 
@@ -660,12 +653,8 @@ void PrepareOutputFolder(const std::string& folder) {
 }
 
 int Run(int argc, char** argv) {
-  bool help = false;
-  const Options options = ParseOptions(argc, argv, &help);
-  if (help) {
-    std::cout << kUsage;
-    return 0;
-  }
+  Options options;
+  if (!ParseOptions(argc, argv, &options)) return 0;
   const BagContents bag = ReadBag(options);
   Sequence sequence = ToSequence(options, bag);
   if (options.ground_truth && bag.HasGroundTruth()) {

@@ -61,29 +61,10 @@ using deblur_sr_mvs::CameraCalibration;
 using deblur_sr_mvs::InputError;
 using deblur_sr_mvs::Sequence;
 
-constexpr char kUsage[] =
-    "usage: sequence_to_bag --input SEQ --output BAG [--frame-id ID]\n"
-    "                       [--image-topic T] [--info-topic T] [--exposure-topic T]\n"
-    "                       [--gt-namespace NS] [--world-frame F] [--no-ground-truth]\n"
-    "                       [--compression none|bz2|lz4]\n"
-    "\n"
+constexpr char kDescription[] =
     "Writes a sequence folder (camera.yaml, frames.csv, images/, optional gt/) as a\n"
     "rosbag. Every message of a frame is stamped with the frame's stamp (shutter\n"
-    "close time t_c); the bag time is the stamp.\n"
-    "\n"
-    "  --input SEQ             sequence folder to read\n"
-    "  --output BAG            bag file to write (replaced when it exists)\n"
-    "  --frame-id ID           header.frame_id of the camera messages (default camera)\n"
-    "  --image-topic T         sensor_msgs/Image, mono8 or rgb8 (default /camera/image_raw)\n"
-    "  --info-topic T          sensor_msgs/CameraInfo (default /camera/camera_info)\n"
-    "  --exposure-topic T      sensor_msgs/TimeReference: time_ref = shutter open time,\n"
-    "                          exposure = header.stamp - time_ref (default /camera/exposure)\n"
-    "  --gt-namespace NS       ground-truth topics NS/image, NS/depth (32FC1),\n"
-    "                          NS/camera_info, NS/pose (PoseStamped) (default /gt)\n"
-    "  --world-frame F         frame_id of the ground-truth poses (default world)\n"
-    "  --no-ground-truth       do not write gt/ even when the sequence has it\n"
-    "  --compression C         chunk compression: none, bz2 or lz4 (default none)\n"
-    "  --help                  this text\n";
+    "close time t_c); the bag time is the stamp.";
 
 struct Options {
   std::string input;
@@ -104,57 +85,42 @@ std::string StampText(double stamp) {
   return buffer;
 }
 
-Options ParseOptions(int argc, char** argv, bool* help) {
-  Options options;
-  *help = false;
-  for (int i = 1; i < argc; ++i) {
-    const std::string flag = argv[i];
-    if (flag == "--help" || flag == "-h") {
-      *help = true;
-      return options;
-    }
-    if (flag == "--no-ground-truth") {
-      options.ground_truth = false;
-      continue;
-    }
-    if (flag.rfind("--", 0) != 0) throw InputError("unexpected argument \"" + flag + "\" (see --help)");
-    std::string* target = nullptr;
-    if (flag == "--input") target = &options.input;
-    if (flag == "--output") target = &options.output;
-    if (flag == "--frame-id") target = &options.frame_id;
-    if (flag == "--image-topic") target = &options.image_topic;
-    if (flag == "--info-topic") target = &options.info_topic;
-    if (flag == "--exposure-topic") target = &options.exposure_topic;
-    if (flag == "--gt-namespace") target = &options.gt_namespace;
-    if (flag == "--world-frame") target = &options.world_frame;
-    const bool is_compression = flag == "--compression";
-    if (target == nullptr && !is_compression) throw InputError("unknown flag " + flag + " (see --help)");
-    if (i + 1 >= argc) throw InputError(flag + ": missing value");
-    const std::string value = argv[++i];
-    if (is_compression) {
-      if (value == "none") {
-        options.compression = rosbag::compression::Uncompressed;
-      } else if (value == "bz2") {
-        options.compression = rosbag::compression::BZ2;
-      } else if (value == "lz4") {
-        options.compression = rosbag::compression::LZ4;
-      } else {
-        throw InputError("--compression: expected none, bz2 or lz4, got \"" + value + "\"");
-      }
-    } else {
-      *target = value;
-    }
-  }
-  if (options.input.empty()) throw InputError("--input is required (see --help)");
-  if (options.output.empty()) throw InputError("--output is required (see --help)");
-  for (const std::string* topic : {&options.image_topic, &options.info_topic,
-                                   &options.exposure_topic, &options.gt_namespace}) {
+// Parses the command line; false after --help.
+bool ParseOptions(int argc, char** argv, Options* options) {
+  bool no_ground_truth = false;
+  std::string compression = "none";
+  deblur_sr_mvs::ToolCommandLine cli("sequence_to_bag", kDescription);
+  cli.add_option("--input", options->input, "sequence folder to read")
+      ->required()
+      ->check(CLI::ExistingDirectory);
+  cli.add_option("--output", options->output, "bag file to write (replaced when it exists)")->required();
+  cli.add_option("--frame-id", options->frame_id, "header.frame_id of the camera messages (default camera)");
+  cli.add_option("--image-topic", options->image_topic,
+                 "sensor_msgs/Image, mono8 or rgb8 (default /camera/image_raw)");
+  cli.add_option("--info-topic", options->info_topic, "sensor_msgs/CameraInfo (default /camera/camera_info)");
+  cli.add_option("--exposure-topic", options->exposure_topic,
+                 "sensor_msgs/TimeReference: time_ref = shutter open time, exposure = header.stamp - "
+                 "time_ref (default /camera/exposure)");
+  cli.add_option("--gt-namespace", options->gt_namespace,
+                 "ground-truth topics NS/image, NS/depth (32FC1), NS/camera_info, NS/pose (PoseStamped) "
+                 "(default /gt)");
+  cli.add_option("--world-frame", options->world_frame, "frame_id of the ground-truth poses (default world)");
+  cli.add_flag("--no-ground-truth", no_ground_truth, "do not write gt/ even when the sequence has it");
+  cli.add_option("--compression", compression, "chunk compression: none, bz2 or lz4 (default none)")
+      ->check(CLI::IsMember({"none", "bz2", "lz4"}));
+  if (!cli.Parse(argc, argv)) return false;
+  options->ground_truth = !no_ground_truth;
+  options->compression = compression == "bz2"   ? rosbag::compression::BZ2
+                         : compression == "lz4" ? rosbag::compression::LZ4
+                                                : rosbag::compression::Uncompressed;
+  for (const std::string* topic : {&options->image_topic, &options->info_topic, &options->exposure_topic,
+                                   &options->gt_namespace}) {
     if (topic->empty()) throw InputError("topic names must not be empty");
   }
-  while (options.gt_namespace.size() > 1 && options.gt_namespace.back() == '/') {
-    options.gt_namespace.pop_back();
+  while (options->gt_namespace.size() > 1 && options->gt_namespace.back() == '/') {
+    options->gt_namespace.pop_back();
   }
-  return options;
+  return true;
 }
 
 // ROS time: unsigned 32-bit seconds + nanoseconds, rounded to the nanosecond.
@@ -364,12 +330,8 @@ void WriteBag(const Options& options, const Sequence& sequence) {
 }
 
 int Run(int argc, char** argv) {
-  bool help = false;
-  const Options options = ParseOptions(argc, argv, &help);
-  if (help) {
-    std::cout << kUsage;
-    return 0;
-  }
+  Options options;
+  if (!ParseOptions(argc, argv, &options)) return 0;
   const Sequence sequence = deblur_sr_mvs::ReadSequence(options.input, options.ground_truth);
   if (sequence.frames.empty()) throw InputError(options.input + ": the sequence has no frames");
   WriteBag(options, sequence);

@@ -10,10 +10,11 @@
 #include <cstdio>
 #include <cstdlib>
 #include <iostream>
-#include <sstream>
 #include <limits>
 #include <string>
+#include <vector>
 
+#include "estimate_report.h"
 #include "tool_main.h"
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/estimation/estimator.h"
@@ -25,15 +26,20 @@ namespace dsm = deblur_sr_mvs;
 
 namespace {
 
-constexpr char kUsage[] =
-    "usage: estimate_sequence --input SEQ --output OUT [--mode joint|baseline] [--scale S]\n"
-    "                         [--iterations N] [--samples M] [--lambda-s X] [--lambda-d X]\n"
-    "                         [--lambda-i X] [--threads N] [--neighbours R] [--pose-neighbours R]\n"
-    "                         [--fixed-poses] [--structure-matching both|restored|blurred]\n"
-    "                         [--output-scale K] [--quiet]\n"
-    "Defaults are the paper's: joint, scale 2, 3 iterations, M 50, lambda_s 30,\n"
-    "lambda_d 0.1 (see README), lambda_i 0.45, neighbours 1; pose-neighbours 2,\n"
-    "structure-matching both (see README); threads 0 = all cores.\n";
+constexpr char kDescription[] =
+    "estimate_sequence: sequence folder -> result folder (HR latent images, HR depth maps,\n"
+    "poses, report.json). Defaults are the paper's: joint, scale 2, 3 iterations, M 50,\n"
+    "lambda_s 30, lambda_d 0.1 (see README), lambda_i 0.45, neighbours 1; pose-neighbours 2,\n"
+    "structure-matching both (see README); threads 0 = all cores.";
+
+struct Flags {
+  std::string input, output;
+  std::string mode = "joint";
+  std::string structure_matching = "both";
+  bool fixed_poses = false;
+  bool quiet = false;
+  int output_scale = 1;  // bicubic up-sampling of the outputs ("w/o SR + Bic.")
+};
 
 double PeakMemoryMiB() {
   rusage usage{};
@@ -41,108 +47,56 @@ double PeakMemoryMiB() {
   return usage.ru_maxrss / 1024.0;  // Linux: KiB
 }
 
-std::string JsonNumber(double value) {
-  if (!std::isfinite(value)) return "null";
-  std::ostringstream out;
-  out.precision(10);
-  out << value;
-  return out.str();
+// Parses the command line into flags and options; false after --help.
+bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions* options) {
+  dsm::ToolCommandLine cli("estimate_sequence", kDescription);
+  cli.add_option("--input", flags->input, "sequence folder (camera.yaml, frames.csv, images/)")
+      ->required()
+      ->check(CLI::ExistingDirectory);
+  cli.add_option("--output", flags->output, "result folder to write")->required();
+  cli.add_option("--mode", flags->mode, "joint or baseline")->check(CLI::IsMember({"joint", "baseline"}));
+  cli.add_option("--scale", options->scale, "super-resolution factor")->check(dsm::FlagInt());
+  cli.add_option("--iterations", options->max_iterations, "max_iter of Algorithm 1")->check(dsm::FlagInt());
+  cli.add_option("--samples", options->samples, "M, sub-exposure samples")->check(dsm::FlagInt());
+  cli.add_option("--lambda-s", options->lambda_s, "self-consistency weight")->check(dsm::FlagNumber());
+  cli.add_option("--lambda-d", options->structure.lambda_d, "depth TV weight")->check(dsm::FlagNumber());
+  cli.add_option("--lambda-i", options->image.lambda_i, "image TV weight")->check(dsm::FlagNumber());
+  cli.add_option("--threads", options->num_threads, "OpenMP threads, 0 = all cores")->check(dsm::FlagInt());
+  cli.add_option("--neighbours", options->neighbour_radius, "N(t) radius")->check(dsm::FlagInt());
+  cli.add_option("--pose-neighbours", options->pose_neighbour_radius, "pose update radius")
+      ->check(dsm::FlagInt());
+  cli.add_flag("--fixed-poses", flags->fixed_poses, "keep the initial poses");
+  cli.add_option("--structure-matching", flags->structure_matching, "both, restored or blurred")
+      ->check(CLI::IsMember({"both", "restored", "blurred"}));
+  cli.add_option("--output-scale", flags->output_scale, "bicubic up-sampling of the outputs, 1-4")
+      ->check(dsm::FlagInt(1, 4));
+  cli.add_flag("--quiet", flags->quiet, "no progress bar, no summary line");
+  if (!cli.Parse(argc, argv)) return false;
+  options->mode = dsm::ParseEstimatorMode(flags->mode);
+  options->structure_matching = dsm::ParseStructureMatching(flags->structure_matching);
+  if (flags->fixed_poses) options->update_poses = false;
+  options->Check();
+  return true;
 }
 
-std::string Report(const dsm::EstimatorOptions& options, const std::string& input,
-                   const dsm::EstimatorResult& result, double wall_seconds) {
-  std::ostringstream json;
-  json << "{\n  \"input\": \"" << input << "\",\n";
-  json << "  \"parameters\": {\"mode\": \"" << dsm::ToString(options.mode) << "\", \"scale\": "
-       << options.scale << ", \"iterations\": " << options.max_iterations
-       << ", \"samples\": " << options.samples << ", \"lambda_s\": " << JsonNumber(options.lambda_s)
-       << ", \"lambda_d\": " << JsonNumber(options.structure.lambda_d)
-       << ", \"lambda_i\": " << JsonNumber(options.image.lambda_i)
-       << ", \"neighbour_radius\": " << options.neighbour_radius
-       << ", \"pose_neighbour_radius\": " << options.pose_neighbour_radius
-       << ", \"update_poses\": " << (options.update_poses ? "true" : "false")
-       << ", \"structure_matching\": \"" << dsm::ToString(options.structure_matching) << "\""
-       << ", \"threads\": " << options.num_threads << "},\n";
-  json << "  \"energies\": [\n";
-  for (size_t i = 0; i < result.energies.size(); ++i) {
-    const dsm::EnergyRecord& e = result.energies[i];
-    json << "    {\"iteration\": " << e.iteration << ", \"stage\": \"" << e.stage
-         << "\", \"total\": " << JsonNumber(e.total) << ", \"matching\": " << JsonNumber(e.matching)
-         << ", \"self_consistency\": " << JsonNumber(e.self_consistency)
-         << ", \"image_tv\": " << JsonNumber(e.image_tv) << ", \"depth_tv\": " << JsonNumber(e.depth_tv)
-         << "}" << (i + 1 < result.energies.size() ? "," : "") << "\n";
-  }
-  json << "  ],\n  \"stage_seconds\": {";
-  for (size_t i = 0; i < result.timings.size(); ++i) {
-    json << (i ? ", " : "") << "\"" << result.timings[i].stage << "\": " << JsonNumber(result.timings[i].seconds);
-  }
-  json << "},\n  \"wall_seconds\": " << JsonNumber(wall_seconds)
-       << ",\n  \"peak_memory_mib\": " << JsonNumber(PeakMemoryMiB()) << ",\n";
-  std::string summary = result.initializer_summary;
-  for (char& c : summary) {
-    if (c == '"' || c == '\\') c = '\'';
-    if (c == '\n') c = ';';
-  }
-  json << "  \"initializer\": \"" << summary << "\",\n";
-  json << "  \"solver_notes\": [";
-  for (size_t i = 0; i < result.notes.size(); ++i) json << (i ? ", " : "") << "\"" << result.notes[i] << "\"";
-  json << "],\n";
-  json << "  \"monocular_scale\": \"arbitrary: the first two cameras are 1 unit apart\"\n}\n";
-  return json.str();
-}
-
-int Run(int argc, char** argv) {
-  std::string input, output;
-  dsm::EstimatorOptions options;
-  bool quiet = false;
-  int output_scale = 1;  // bicubic up-sampling of the outputs ("w/o SR + Bic.")
-  for (int i = 1; i < argc; ++i) {
-    const std::string flag = argv[i];
-    if (flag == "--help" || flag == "-h") {
-      std::cout << kUsage;
-      return 0;
-    }
-    if (flag == "--fixed-poses") {
-      options.update_poses = false;
-      continue;
-    }
-    if (flag == "--quiet") {
-      quiet = true;
-      continue;
-    }
-    if (i + 1 >= argc) throw dsm::InputError("flag " + flag + " needs a value");
-    const std::string value = argv[++i];
-    if (flag == "--input") input = value;
-    else if (flag == "--output") output = value;
-    else if (flag == "--mode") options.mode = dsm::ParseEstimatorMode(value);
-    else if (flag == "--scale") options.scale = dsm::ParseFlagInt(flag, value);
-    else if (flag == "--iterations") options.max_iterations = dsm::ParseFlagInt(flag, value);
-    else if (flag == "--samples") options.samples = dsm::ParseFlagInt(flag, value);
-    else if (flag == "--lambda-s") options.lambda_s = dsm::ParseFlagNumber(flag, value);
-    else if (flag == "--lambda-d") options.structure.lambda_d = dsm::ParseFlagNumber(flag, value);
-    else if (flag == "--lambda-i") options.image.lambda_i = dsm::ParseFlagNumber(flag, value);
-    else if (flag == "--threads") options.num_threads = dsm::ParseFlagInt(flag, value);
-    else if (flag == "--neighbours") options.neighbour_radius = dsm::ParseFlagInt(flag, value);
-    else if (flag == "--pose-neighbours") options.pose_neighbour_radius = dsm::ParseFlagInt(flag, value);
-    else if (flag == "--output-scale") output_scale = dsm::ParseFlagInt(flag, value);
-    else if (flag == "--structure-matching") options.structure_matching = dsm::ParseStructureMatching(value);
-    else throw dsm::InputError("unknown flag " + flag + " (see --help)");
-  }
-  if (input.empty() || output.empty()) throw dsm::InputError("--input and --output are required (see --help)");
-  if (output_scale < 1 || output_scale > 4) throw dsm::InputError("--output-scale must be in [1, 4]");
-  options.Check();
-
-  const auto start = std::chrono::steady_clock::now();
+// The sequence as the estimator's input (and the camera's name).
+dsm::EstimatorInput ReadInput(const std::string& input, std::string* camera_name) {
   const dsm::Sequence sequence = dsm::ReadSequence(input, /*read_ground_truth=*/false);
   if (sequence.frames.size() < 2) throw dsm::InputError(input + ": needs at least 2 frames");
   if (sequence.calibration.HasDistortion()) {
     throw dsm::InputError(input + "/camera.yaml: distortion is not zero; rectify the frames first");
   }
+  *camera_name = sequence.calibration.camera_name;
   dsm::EstimatorInput estimator_input;
   estimator_input.camera = sequence.calibration.camera;
   estimator_input.frames = sequence.frames;
   for (const cv::Mat& image : sequence.images) estimator_input.images.push_back(dsm::ToFloat01(image));
+  return estimator_input;
+}
 
+// Runs the estimator with a progress bar on stderr when it is a terminal.
+dsm::EstimatorResult Estimate(const dsm::EstimatorOptions& options, const dsm::EstimatorInput& input,
+                              const std::string& input_folder, bool quiet) {
   const bool draw = !quiet && isatty(STDERR_FILENO);
   dsm::ProgressCallback progress = [&](double fraction, const std::string& what) {
     if (!draw) return;
@@ -156,43 +110,62 @@ int Run(int argc, char** argv) {
   dsm::Estimator estimator(options);
   dsm::EstimatorResult result;
   try {
-    result = estimator.Run(estimator_input, progress);
+    result = estimator.Run(input, progress);
   } catch (const dsm::InitializationError& error) {
     if (draw) std::fprintf(stderr, "\n");
-    throw dsm::InputError(input + ": initialisation failed: " + error.what());
+    throw dsm::InputError(input_folder + ": initialisation failed: " + error.what());
   }
   if (draw) std::fprintf(stderr, "\n");
-  const double wall =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return result;
+}
 
-  dsm::SequenceResult out;
-  out.calibration = dsm::CameraCalibration::FromCamera(result.camera_hr.Upscaled(output_scale),
-                                                       sequence.calibration.camera_name);
-  out.frames = sequence.frames;
+// The result folder's images, depth maps and poses, up-sampled by output_scale.
+void FillOutputs(const dsm::EstimatorResult& result, const std::vector<dsm::FrameRecord>& frames,
+                 int output_scale, dsm::SequenceResult* out) {
+  out->frames = frames;
   for (size_t t = 0; t < result.latent.size(); ++t) {
     if (output_scale > 1) {
       // "Proposed (w/o SR) + Bic.": the estimate at the input resolution,
       // bicubic up-sampled (depth as inverse depth, NaN kept out).
-      out.latent.push_back(dsm::ToImage8(dsm::UpsampleBicubic(result.latent[t], output_scale)));
+      out->latent.push_back(dsm::ToImage8(dsm::UpsampleBicubic(result.latent[t], output_scale)));
       cv::Mat inverse;
       cv::divide(1.0, result.depth[t], inverse);
       cv::patchNaNs(inverse, 0.0);
       cv::Mat inverse_up = dsm::UpsampleBicubic(inverse, output_scale), depth_up;
       cv::divide(1.0, inverse_up, depth_up);
       depth_up.setTo(std::numeric_limits<float>::quiet_NaN(), inverse_up <= 0.0f);
-      out.depth.push_back(depth_up);
+      out->depth.push_back(depth_up);
     } else {
-      out.latent.push_back(dsm::ToImage8(result.latent[t]));
-      out.depth.push_back(result.depth[t]);
+      out->latent.push_back(dsm::ToImage8(result.latent[t]));
+      out->depth.push_back(result.depth[t]);
     }
-    out.poses.push_back({sequence.frames[t].stamp, result.T_world_cam[t]});
+    out->poses.push_back({frames[t].stamp, result.T_world_cam[t]});
   }
-  out.report_json = Report(options, input, result, wall);
-  dsm::WriteResult(output, out);
-  if (!quiet) {
+}
+
+int Run(int argc, char** argv) {
+  Flags flags;
+  dsm::EstimatorOptions options;
+  if (!ParseCommandLine(argc, argv, &flags, &options)) return 0;
+
+  const auto start = std::chrono::steady_clock::now();
+  std::string camera_name;
+  const dsm::EstimatorInput input = ReadInput(flags.input, &camera_name);
+  const dsm::EstimatorResult result = Estimate(options, input, flags.input, flags.quiet);
+  const double wall =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+
+  dsm::SequenceResult out;
+  out.calibration = dsm::CameraCalibration::FromCamera(result.camera_hr.Upscaled(flags.output_scale),
+                                                       camera_name);
+  FillOutputs(result, input.frames, flags.output_scale, &out);
+  out.report_json =
+      dsm::JsonText(dsm::EstimateReportJson(options, flags.input, result, wall, PeakMemoryMiB()));
+  dsm::WriteResult(flags.output, out);
+  if (!flags.quiet) {
     std::printf("estimate_sequence: %zu frames, %s, %.1f s, peak %.0f MiB, energy %.4g -> %.4g; wrote %s\n",
                 result.latent.size(), dsm::ToString(options.mode), wall, PeakMemoryMiB(),
-                result.energies.front().total, result.energies.back().total, output.c_str());
+                result.energies.front().total, result.energies.back().total, flags.output.c_str());
   }
   return 0;
 }

@@ -22,23 +22,13 @@ namespace fs = std::filesystem;
 
 namespace {
 
-constexpr char kUsage[] =
-    "usage: evaluate_sequence --result OUT --sequence SEQ [--crop F] [--json FILE]\n"
-    "                         [--method NAME]\n"
-    "\n"
+constexpr char kDescription[] =
     "Compares a result folder with the ground truth (gt/) of the sequence folder\n"
     "it was computed from and prints Markdown tables like the paper's:\n"
     "image PSNR (8-bit, whole image) beside bicubic up-sampling of the input;\n"
     "depth PSNR and rel. error (per-frame median scale alignment, centre crop);\n"
     "ATE RMSE of the positions after Sim(3) alignment. Metrics the result has\n"
-    "no data for (depth, poses) read n/a.\n"
-    "\n"
-    "  --result OUT     result folder (camera.yaml, frames.csv, latent/, ...)\n"
-    "  --sequence SEQ   sequence folder with gt/\n"
-    "  --crop F         depth centre-crop fraction in (0, 1] (default 0.7, as the paper)\n"
-    "  --json FILE      also write the numbers as JSON\n"
-    "  --method NAME    row label (default: the result folder's name)\n"
-    "  --help           this text\n";
+    "no data for (depth, poses) read n/a.";
 
 void WriteTextFile(const std::string& path, const std::string& content) {
   std::error_code error;
@@ -55,33 +45,19 @@ void WriteTextFile(const std::string& path, const std::string& content) {
 int Run(int argc, char** argv) {
   std::string result_dir, sequence_dir, json_path, method;
   dsm::EvaluationOptions options;
-  for (int i = 1; i < argc; ++i) {
-    const std::string flag = argv[i];
-    if (flag == "--help" || flag == "-h") {
-      std::cout << kUsage;
-      return 0;
-    }
-    if (flag != "--result" && flag != "--sequence" && flag != "--crop" && flag != "--json" &&
-        flag != "--method") {
-      throw dsm::InputError("unknown flag " + flag + " (see --help)");
-    }
-    if (i + 1 >= argc) throw dsm::InputError("flag " + flag + " needs a value");
-    const std::string value = argv[++i];
-    if (flag == "--result") {
-      result_dir = value;
-    } else if (flag == "--sequence") {
-      sequence_dir = value;
-    } else if (flag == "--crop") {
-      options.crop_fraction = dsm::ParseFlagNumber(flag, value, 1e-6, 1.0);
-    } else if (flag == "--json") {
-      json_path = value;
-    } else {
-      method = value;
-    }
-  }
-  if (result_dir.empty() || sequence_dir.empty()) {
-    throw dsm::InputError("--result and --sequence are required (see --help)");
-  }
+  dsm::ToolCommandLine cli("evaluate_sequence", kDescription);
+  cli.add_option("--result", result_dir, "result folder (camera.yaml, frames.csv, latent/, ...)")
+      ->required()
+      ->check(CLI::ExistingDirectory);
+  cli.add_option("--sequence", sequence_dir, "sequence folder with gt/")
+      ->required()
+      ->check(CLI::ExistingDirectory);
+  cli.add_option("--crop", options.crop_fraction,
+                 "depth centre-crop fraction in (0, 1] (default 0.7, as the paper)")
+      ->check(dsm::FlagNumber(1e-6, 1.0));
+  cli.add_option("--json", json_path, "also write the numbers as JSON");
+  cli.add_option("--method", method, "row label (default: the result folder's name)");
+  if (!cli.Parse(argc, argv)) return 0;
   if (method.empty()) {
     fs::path name = fs::path(result_dir).lexically_normal();
     if (name.filename().empty()) name = name.parent_path();  // "out/"

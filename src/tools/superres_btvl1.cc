@@ -18,6 +18,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/superres.hpp>
 
+#include "report_json.h"
 #include "tool_main.h"
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/imaging/image_ops.h"
@@ -28,25 +29,21 @@ namespace dsm = deblur_sr_mvs;
 
 namespace {
 
-constexpr char kUsage[] =
-    "usage: superres_btvl1 --input SEQ --output OUT [--scale S] [--iterations N]\n"
-    "                      [--temporal-radius R] [--threads N] [--no-centre-shift]\n"
-    "\n"
+constexpr char kDescription[] =
     "Multi-frame super-resolution of every frame of a sequence folder with OpenCV's\n"
     "BTV-L1 (cv::superres; Farsiu et al. 2004), the peer method of the benchmarks.\n"
     "Writes an image-only result folder (latent/, camera.yaml, frames.csv,\n"
     "report.json) for evaluate_sequence. Parameters are OpenCV's defaults except\n"
-    "the scale.\n"
-    "\n"
-    "  --input SEQ            sequence folder (camera.yaml, frames.csv, images/)\n"
-    "  --output OUT           result folder to write\n"
-    "  --scale S              up-sampling factor, 2..8 (default 2)\n"
-    "  --iterations N         BTV-L1 iterations per frame (default 180, OpenCV's)\n"
-    "  --temporal-radius R    frames on each side used per output (default 4,\n"
-    "                         OpenCV's; capped at frames - 1)\n"
-    "  --threads N            OpenCV worker threads (default: OpenCV's choice)\n"
-    "  --no-centre-shift      keep OpenCV's pixel grid (see report.json)\n"
-    "  --help                 this text\n";
+    "the scale.";
+
+struct Flags {
+  std::string input_dir, output_dir;
+  int scale = 2;
+  int iterations = -1;       // -1: OpenCV's default
+  int temporal_radius = -1;  // -1: OpenCV's default
+  int threads = -1;          // -1: OpenCV's default
+  bool no_centre_shift = false;
+};
 
 // Serves the sequence's images to cv::superres in order; empty at the end.
 class InMemoryFrameSource : public cv::superres::FrameSource {
@@ -66,27 +63,6 @@ class InMemoryFrameSource : public cv::superres::FrameSource {
   const std::vector<cv::Mat>& frames_;
   std::size_t next_ = 0;
 };
-
-std::string JsonString(const std::string& text) {
-  std::string out = "\"";
-  for (const char c : text) {
-    if (c == '"' || c == '\\') {
-      out += '\\';
-      out += c;
-    } else if (static_cast<unsigned char>(c) < 0x20) {
-      out += ' ';
-    } else {
-      out += c;
-    }
-  }
-  return out + "\"";
-}
-
-std::string Number(double value) {
-  char buffer[64];
-  std::snprintf(buffer, sizeof(buffer), "%.10g", value);
-  return buffer;
-}
 
 // BTV-L1 returns only the interior of the HR image (it crops its BTV kernel
 // size on every side, where the regulariser is undefined) and models LR pixel
@@ -116,128 +92,121 @@ cv::Mat ToFullFrame(const cv::Mat& interior, const cv::Mat& input, int scale, in
   return full;
 }
 
-int Run(int argc, char** argv) {
-  std::string input_dir, output_dir;
-  int scale = 2;
-  int iterations = -1;       // -1: OpenCV's default
-  int temporal_radius = -1;  // -1: OpenCV's default
-  int threads = -1;          // -1: OpenCV's default
-  bool centre_shift = true;
-  for (int i = 1; i < argc; ++i) {
-    const std::string flag = argv[i];
-    if (flag == "--help" || flag == "-h") {
-      std::cout << kUsage;
-      return 0;
-    }
-    if (flag == "--no-centre-shift") {
-      centre_shift = false;
-      continue;
-    }
-    if (flag != "--input" && flag != "--output" && flag != "--scale" && flag != "--iterations" &&
-        flag != "--temporal-radius" && flag != "--threads") {
-      throw dsm::InputError("unknown flag " + flag + " (see --help)");
-    }
-    if (i + 1 >= argc) throw dsm::InputError("flag " + flag + " needs a value");
-    const std::string value = argv[++i];
-    if (flag == "--input") {
-      input_dir = value;
-    } else if (flag == "--output") {
-      output_dir = value;
-    } else if (flag == "--scale") {
-      scale = dsm::ParseFlagInt(flag, value, 2, 8);  // BTV-L1 asserts scale > 1
-    } else if (flag == "--iterations") {
-      iterations = dsm::ParseFlagInt(flag, value, 1, 100000);
-    } else if (flag == "--temporal-radius") {
-      temporal_radius = dsm::ParseFlagInt(flag, value, 0, 1000);
-    } else {
-      threads = dsm::ParseFlagInt(flag, value, 1, 1024);
-    }
-  }
-  if (input_dir.empty() || output_dir.empty()) {
-    throw dsm::InputError("--input and --output are required (see --help)");
-  }
+// Parses the command line; false after --help.
+bool ParseCommandLine(int argc, char** argv, Flags* flags) {
+  dsm::ToolCommandLine cli("superres_btvl1", kDescription);
+  cli.add_option("--input", flags->input_dir, "sequence folder (camera.yaml, frames.csv, images/)")
+      ->required()
+      ->check(CLI::ExistingDirectory);
+  cli.add_option("--output", flags->output_dir, "result folder to write")->required();
+  cli.add_option("--scale", flags->scale, "up-sampling factor, 2..8 (default 2)")
+      ->check(dsm::FlagInt(2, 8));  // BTV-L1 asserts scale > 1
+  cli.add_option("--iterations", flags->iterations, "BTV-L1 iterations per frame (default 180, OpenCV's)")
+      ->check(dsm::FlagInt(1, 100000));
+  cli.add_option("--temporal-radius", flags->temporal_radius,
+                 "frames on each side used per output (default 4, OpenCV's; capped at frames - 1)")
+      ->check(dsm::FlagInt(0, 1000));
+  cli.add_option("--threads", flags->threads, "OpenCV worker threads (default: OpenCV's choice)")
+      ->check(dsm::FlagInt(1, 1024));
+  cli.add_flag("--no-centre-shift", flags->no_centre_shift, "keep OpenCV's pixel grid (see report.json)");
+  return cli.Parse(argc, argv);
+}
 
-  const dsm::Sequence sequence = dsm::ReadSequence(input_dir, /*read_ground_truth=*/false);
+// BTV-L1 reads radius frames ahead, then emits one output per input in
+// input order (output k is frame k; checked on shifted synthetic frames).
+// Returns the wall time in seconds.
+double SuperResolve(cv::superres::SuperResolution* btv, const dsm::Sequence& sequence, int scale,
+                    bool centre_shift, dsm::SequenceResult* result) {
+  const int num_frames = static_cast<int>(sequence.frames.size());
+  const int border = btv->getKernelSize();
+  result->latent.reserve(num_frames);
+  const auto start = std::chrono::steady_clock::now();
+  cv::Mat interior;
+  for (;;) {
+    btv->nextFrame(interior);
+    if (interior.empty()) break;
+    const int k = static_cast<int>(result->latent.size());
+    if (k >= num_frames) throw std::runtime_error("BTV-L1 returned more frames than it was given");
+    result->latent.push_back(ToFullFrame(interior, sequence.images[k], scale, border, centre_shift));
+    const double elapsed =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    std::printf("frame %d/%d  %.1f s\n", k + 1, num_frames, elapsed);
+    std::fflush(stdout);
+  }
+  if (static_cast<int>(result->latent.size()) != num_frames) {
+    throw std::runtime_error("BTV-L1 returned " + std::to_string(result->latent.size()) +
+                             " frames for " + std::to_string(num_frames) + " inputs");
+  }
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+dsm::Json Report(const cv::superres::SuperResolution& btv, const Flags& flags, int requested_radius,
+                 int num_frames, double wall_time) {
+  const int scale = btv.getScale();
+  dsm::Json report;
+  report["method"] = "btvl1";
+  report["implementation"] =
+      std::string("OpenCV ") + CV_VERSION + " cv::superres::createSuperResolution_BTVL1 (CPU)";
+  report["input"] = flags.input_dir;
+  report["parameters"] = {{"scale", scale},
+                          {"iterations", btv.getIterations()},
+                          {"tau", dsm::JsonNumber(btv.getTau())},
+                          {"lambda", dsm::JsonNumber(btv.getLambda())},
+                          {"alpha", dsm::JsonNumber(btv.getAlpha())},
+                          {"btv_kernel_size", btv.getKernelSize()},
+                          {"blur_kernel_size", btv.getBlurKernelSize()},
+                          {"blur_sigma", dsm::JsonNumber(btv.getBlurSigma())},
+                          {"temporal_radius", btv.getTemporalAreaRadius()},
+                          {"temporal_radius_requested", requested_radius},
+                          {"optical_flow", "Farneback (OpenCV default)"},
+                          {"threads", cv::getNumThreads()}};
+  report["border_px"] = btv.getKernelSize();
+  report["border_fill"] = "bicubic up-sampling of the input frame";
+  report["centre_shift_px"] = dsm::JsonNumber(flags.no_centre_shift ? 0.0 : (scale - 1) / 2.0);
+  report["frames"] = num_frames;
+  report["wall_time_s"] = dsm::JsonNumber(wall_time);
+  report["wall_time_per_frame_s"] = dsm::JsonNumber(wall_time / num_frames);
+  return report;
+}
+
+int Run(int argc, char** argv) {
+  Flags flags;
+  if (!ParseCommandLine(argc, argv, &flags)) return 0;
+  const int scale = flags.scale;
+  const dsm::Sequence sequence = dsm::ReadSequence(flags.input_dir, /*read_ground_truth=*/false);
   const int num_frames = static_cast<int>(sequence.frames.size());
   const dsm::PinholeCamera hr_camera = sequence.calibration.camera.Upscaled(scale);
 
   cv::ocl::setUseOpenCL(false);  // the CPU path; results independent of the GPU driver
-  if (threads > 0) cv::setNumThreads(threads);
+  if (flags.threads > 0) cv::setNumThreads(flags.threads);
   cv::Ptr<cv::superres::SuperResolution> btv = cv::superres::createSuperResolution_BTVL1();
   btv->setScale(scale);
-  if (iterations > 0) btv->setIterations(iterations);
-  const int requested_radius = temporal_radius >= 0 ? temporal_radius : btv->getTemporalAreaRadius();
+  if (flags.iterations > 0) btv->setIterations(flags.iterations);
+  const int requested_radius =
+      flags.temporal_radius >= 0 ? flags.temporal_radius : btv->getTemporalAreaRadius();
   // OpenCV's BTV-L1 indexes past its frame cache (and crashes) when the
   // sequence is shorter than radius + 1 frames.
-  const int radius = std::min(requested_radius, num_frames - 1);
-  btv->setTemporalAreaRadius(radius);
+  btv->setTemporalAreaRadius(std::min(requested_radius, num_frames - 1));
   const int border = btv->getKernelSize();
   if (hr_camera.width <= 2 * border + 2 || hr_camera.height <= 2 * border + 2) {
-    throw dsm::InputError(input_dir + "/camera.yaml: the HR frame " +
+    throw dsm::InputError(flags.input_dir + "/camera.yaml: the HR frame " +
                           std::to_string(hr_camera.width) + "x" + std::to_string(hr_camera.height) +
                           " is too small for BTV-L1 (it crops " + std::to_string(border) +
                           " px on every side)");
   }
   btv->setInput(cv::makePtr<InMemoryFrameSource>(sequence.images));
 
-  // BTV-L1 reads radius frames ahead, then emits one output per input in
-  // input order (output k is frame k; checked on shifted synthetic frames).
   dsm::SequenceResult result;
   result.calibration = dsm::CameraCalibration::FromCamera(hr_camera, sequence.calibration.camera_name);
   result.frames = sequence.frames;
-  result.latent.reserve(num_frames);
-  const auto start = std::chrono::steady_clock::now();
-  cv::Mat interior;
-  for (;;) {
-    btv->nextFrame(interior);
-    if (interior.empty()) break;
-    const int k = static_cast<int>(result.latent.size());
-    if (k >= num_frames) throw std::runtime_error("BTV-L1 returned more frames than it was given");
-    result.latent.push_back(ToFullFrame(interior, sequence.images[k], scale, border, centre_shift));
-    const double elapsed =
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-    std::printf("frame %d/%d  %.1f s\n", k + 1, num_frames, elapsed);
-    std::fflush(stdout);
-  }
-  const double wall_time =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  if (static_cast<int>(result.latent.size()) != num_frames) {
-    throw std::runtime_error("BTV-L1 returned " + std::to_string(result.latent.size()) +
-                             " frames for " + std::to_string(num_frames) + " inputs");
-  }
-
-  std::string report = "{\n";
-  report += "  \"method\": \"btvl1\",\n";
-  report += "  \"implementation\": " +
-            JsonString(std::string("OpenCV ") + CV_VERSION +
-                       " cv::superres::createSuperResolution_BTVL1 (CPU)") + ",\n";
-  report += "  \"input\": " + JsonString(input_dir) + ",\n";
-  report += "  \"parameters\": {\"scale\": " + std::to_string(btv->getScale()) +
-            ", \"iterations\": " + std::to_string(btv->getIterations()) +
-            ", \"tau\": " + Number(btv->getTau()) + ", \"lambda\": " + Number(btv->getLambda()) +
-            ", \"alpha\": " + Number(btv->getAlpha()) +
-            ", \"btv_kernel_size\": " + std::to_string(btv->getKernelSize()) +
-            ", \"blur_kernel_size\": " + std::to_string(btv->getBlurKernelSize()) +
-            ", \"blur_sigma\": " + Number(btv->getBlurSigma()) +
-            ", \"temporal_radius\": " + std::to_string(radius) +
-            ", \"temporal_radius_requested\": " + std::to_string(requested_radius) +
-            ", \"optical_flow\": \"Farneback (OpenCV default)\"" +
-            ", \"threads\": " + std::to_string(cv::getNumThreads()) + "},\n";
-  report += "  \"border_px\": " + std::to_string(border) + ",\n";
-  report += "  \"border_fill\": \"bicubic up-sampling of the input frame\",\n";
-  report += "  \"centre_shift_px\": " + Number(centre_shift ? (scale - 1) / 2.0 : 0.0) + ",\n";
-  report += "  \"frames\": " + std::to_string(num_frames) + ",\n";
-  report += "  \"wall_time_s\": " + Number(wall_time) + ",\n";
-  report += "  \"wall_time_per_frame_s\": " + Number(wall_time / num_frames) + "\n";
-  report += "}\n";
-  result.report_json = report;
-  dsm::WriteResult(output_dir, result);
-  std::printf("%s: %d frames x%d (%dx%d) in %.1f s (%.2f s/frame)\n", output_dir.c_str(),
+  const double wall_time = SuperResolve(btv.get(), sequence, scale, !flags.no_centre_shift, &result);
+  result.report_json = dsm::JsonText(Report(*btv, flags, requested_radius, num_frames, wall_time));
+  dsm::WriteResult(flags.output_dir, result);
+  std::printf("%s: %d frames x%d (%dx%d) in %.1f s (%.2f s/frame)\n", flags.output_dir.c_str(),
               num_frames, scale, hr_camera.width, hr_camera.height, wall_time,
               wall_time / num_frames);
   return 0;
 }
-
 
 }  // namespace
 

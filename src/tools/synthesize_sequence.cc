@@ -23,54 +23,80 @@
 
 namespace {
 
+namespace dsm = deblur_sr_mvs;
 using deblur_sr_mvs::InputError;
-using deblur_sr_mvs::ParseFlagInt;
-using deblur_sr_mvs::ParseFlagNumber;
 
-constexpr char kUsage[] =
-    "usage: synthesize_sequence --scene DIR --output SEQ [--frames N] [--scale S]\n"
-    "                           [--exposure-ratio R] [--path lateral|arc|forward]\n"
-    "                           [--noise SIGMA] [--seed N] [--blur-px PX] [--subframes S]\n"
-    "                           [--fps F] [--arc-fixation F] [--forward-cap F]\n"
-    "                           [--hr-width W --hr-height H] [--scene-zoom Z]\n"
-    "\n"
+constexpr char kDescription[] =
     "Renders a camera path through a Middlebury scene (view1/view5, disp1/disp5,\n"
     "dmin.txt), averages sub-frames over each exposure, box-downsamples by the\n"
-    "scale and writes a sequence folder with gt/ (SPEC section 3).\n"
-    "\n"
-    "  --scene DIR           Middlebury scene folder (third-size images)\n"
-    "  --output SEQ          sequence folder to write\n"
-    "  --frames N            number of frames (default 10)\n"
-    "  --scale S             super-resolution factor, LR = HR / S (default 2)\n"
-    "  --exposure-ratio R    exposure / frame interval, in (0, 1] (default 0.8)\n"
-    "  --path P              lateral, arc or forward (default lateral)\n"
-    "  --noise SIGMA         Gaussian noise on the LR frames, 8-bit units (default 0)\n"
-    "  --seed N              noise seed (default 0)\n"
-    "  --blur-px PX          median HR image motion per exposure (default 14)\n"
-    "  --subframes S         renders per exposure, > 50 (default 200)\n"
-    "  --fps F               frame rate, stamps are (i + 1) / F (default 30)\n"
-    "  --arc-fixation F      arc: fixation point at F x the median depth (default 2)\n"
-    "  --forward-cap F       forward: total travel <= F x the nearest depth (default 0.4)\n"
-    "  --scene-zoom Z          see the scene with Z times the focal length and size\n"
-    "                          (1-4, default 1; bicubic texture), e.g. for 640x480 HR\n"
-    "  --hr-width W, --hr-height H\n"
-    "                        HR size (default: automatic covered crop)\n"
-    "  --help                this text\n";
+    "scale and writes a sequence folder with gt/ (SPEC section 3).";
 
-std::uint64_t ParseSeed(const std::string& flag, const std::string& text) {
-  std::size_t used = 0;
-  unsigned long long value = 0;
-  if (!text.empty() && text[0] != '-') {
-    try {
-      value = std::stoull(text, &used);
-    } catch (const std::exception&) {
-      used = 0;
-    }
-  }
-  if (used == 0 || used != text.size()) {
-    throw InputError(flag + ": expected a non-negative integer, got \"" + text + "\"");
-  }
-  return value;
+// --seed: a non-negative integer of up to 64 bits.
+CLI::Validator SeedValidator() {
+  return CLI::Validator(
+      [](std::string& text) -> std::string {
+        std::size_t used = 0;
+        if (!text.empty() && text[0] != '-') {
+          try {
+            std::stoull(text, &used);
+          } catch (const std::exception&) {
+            used = 0;
+          }
+        }
+        if (used == 0 || used != text.size()) return "expected a non-negative integer, got \"" + text + "\"";
+        return std::string();
+      },
+      "SEED");
+}
+
+struct Flags {
+  std::string scene_folder, output_folder;
+  std::string path = "lateral";
+  double scene_zoom = 1.0;
+};
+
+// Parses the command line into flags and options; false after --help.
+bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::SynthesisOptions* options) {
+  dsm::ToolCommandLine cli("synthesize_sequence", kDescription);
+  cli.add_option("--scene", flags->scene_folder, "Middlebury scene folder (third-size images)")
+      ->required()
+      ->check(CLI::ExistingDirectory);
+  cli.add_option("--output", flags->output_folder, "sequence folder to write")->required();
+  cli.add_option("--frames", options->num_frames, "number of frames (default 10)")->check(dsm::FlagInt());
+  cli.add_option("--scale", options->scale, "super-resolution factor, LR = HR / S (default 2)")
+      ->check(dsm::FlagInt());
+  cli.add_option("--exposure-ratio", options->exposure_ratio,
+                 "exposure / frame interval, in (0, 1] (default 0.8)")
+      ->check(dsm::FlagNumber());
+  cli.add_option("--path", flags->path, "lateral, arc or forward (default lateral)")
+      ->check(CLI::IsMember({"lateral", "arc", "forward"}));
+  cli.add_option("--noise", options->noise_sigma, "Gaussian noise on the LR frames, 8-bit units (default 0)")
+      ->check(dsm::FlagNumber());
+  cli.add_option("--seed", options->seed, "noise seed (default 0)")->check(SeedValidator());
+  cli.add_option("--blur-px", options->blur_px, "median HR image motion per exposure (default 14)")
+      ->check(dsm::FlagNumber());
+  cli.add_option("--subframes", options->subframes, "renders per exposure, > 50 (default 200)")
+      ->check(dsm::FlagInt());
+  cli.add_option("--fps", options->fps, "frame rate, stamps are (i + 1) / F (default 30)")
+      ->check(dsm::FlagNumber());
+  cli.add_option("--arc-fixation", options->arc_fixation_factor,
+                 "arc: fixation point at F x the median depth (default 2)")
+      ->check(dsm::FlagNumber());
+  cli.add_option("--forward-cap", options->forward_travel_cap,
+                 "forward: total travel <= F x the nearest depth (default 0.4)")
+      ->check(dsm::FlagNumber());
+  cli.add_option("--hr-width", options->hr_width, "HR width (default: automatic covered crop)")
+      ->check(dsm::FlagInt());
+  cli.add_option("--hr-height", options->hr_height, "HR height (default: automatic covered crop)")
+      ->check(dsm::FlagInt());
+  cli.add_option("--scene-zoom", flags->scene_zoom,
+                 "see the scene with Z times the focal length and size (1-4, default 1; bicubic "
+                 "texture), e.g. for 640x480 HR")
+      ->check(dsm::FlagNumber());
+  if (!cli.Parse(argc, argv)) return false;
+  options->path = dsm::ParseCameraPathType(flags->path);
+  options->Check();
+  return true;
 }
 
 // Rewriting a sequence folder with fewer frames must not leave the old
@@ -94,80 +120,10 @@ void RemoveStaleFrames(const std::string& folder) {
   }
 }
 
-int Run(int argc, char** argv) {
-  deblur_sr_mvs::SynthesisOptions options;
-  std::string scene_folder, output_folder;
-  double scene_zoom = 1.0;  // --scene-zoom
-  for (int i = 1; i < argc; ++i) {
-    const std::string flag = argv[i];
-    if (flag == "--help" || flag == "-h") {
-      std::cout << kUsage;
-      return 0;
-    }
-    if (flag.rfind("--", 0) != 0) throw InputError("unexpected argument \"" + flag + "\"");
-    static const char* const kFlags[] = {
-        "--scene", "--output", "--frames", "--scale", "--exposure-ratio", "--path",
-        "--noise", "--seed", "--blur-px", "--subframes", "--fps", "--arc-fixation",
-        "--forward-cap", "--hr-width", "--hr-height", "--scene-zoom"};
-    if (std::find(std::begin(kFlags), std::end(kFlags), flag) == std::end(kFlags)) {
-      throw InputError("unknown flag " + flag + " (see --help)");
-    }
-    if (i + 1 >= argc) throw InputError(flag + ": missing value");
-    const std::string value = argv[++i];
-    if (flag == "--scene") {
-      scene_folder = value;
-    } else if (flag == "--output") {
-      output_folder = value;
-    } else if (flag == "--frames") {
-      options.num_frames = ParseFlagInt(flag, value);
-    } else if (flag == "--scale") {
-      options.scale = ParseFlagInt(flag, value);
-    } else if (flag == "--exposure-ratio") {
-      options.exposure_ratio = ParseFlagNumber(flag, value);
-    } else if (flag == "--path") {
-      options.path = deblur_sr_mvs::ParseCameraPathType(value);
-    } else if (flag == "--noise") {
-      options.noise_sigma = ParseFlagNumber(flag, value);
-    } else if (flag == "--seed") {
-      options.seed = ParseSeed(flag, value);
-    } else if (flag == "--blur-px") {
-      options.blur_px = ParseFlagNumber(flag, value);
-    } else if (flag == "--subframes") {
-      options.subframes = ParseFlagInt(flag, value);
-    } else if (flag == "--fps") {
-      options.fps = ParseFlagNumber(flag, value);
-    } else if (flag == "--arc-fixation") {
-      options.arc_fixation_factor = ParseFlagNumber(flag, value);
-    } else if (flag == "--forward-cap") {
-      options.forward_travel_cap = ParseFlagNumber(flag, value);
-    } else if (flag == "--hr-width") {
-      options.hr_width = ParseFlagInt(flag, value);
-    } else if (flag == "--hr-height") {
-      options.hr_height = ParseFlagInt(flag, value);
-    } else if (flag == "--scene-zoom") {
-      scene_zoom = ParseFlagNumber(flag, value);
-    } else {
-      throw InputError("unknown flag " + flag + " (see --help)");
-    }
-  }
-  if (scene_folder.empty()) throw InputError("--scene is required (see --help)");
-  if (output_folder.empty()) throw InputError("--output is required (see --help)");
-  options.Check();
-
-  deblur_sr_mvs::StereoScene scene = deblur_sr_mvs::LoadMiddleburyScene(scene_folder);
-  if (scene_zoom != 1.0) scene = deblur_sr_mvs::ZoomScene(scene, scene_zoom);
-  {
-    // Fail before the rendering, not after it, when the output cannot be made.
-    std::error_code error;
-    std::filesystem::create_directories(output_folder, error);
-    if (error) throw InputError(output_folder + ": cannot create the folder: " + error.message());
-  }
-  const deblur_sr_mvs::SynthesisResult result =
-      deblur_sr_mvs::SynthesizeSequence(scene, options, &std::cout);
-  RemoveStaleFrames(output_folder);
-  deblur_sr_mvs::WriteSequence(output_folder, result.sequence);
-  deblur_sr_mvs::WriteSynthesisYaml(output_folder + "/gt/synthesis.yaml", scene, options, result);
-
+// What was written, the blur and the holes the renderer had to fill.
+void PrintSummary(const std::string& output_folder, const deblur_sr_mvs::StereoScene& scene,
+                  const deblur_sr_mvs::SynthesisOptions& options,
+                  const deblur_sr_mvs::SynthesisResult& result) {
   double blur_min = 1e30, blur_max = 0.0, holes_max = 0.0, holes_mean = 0.0;
   for (const auto& stats : result.frame_stats) {
     blur_min = std::min(blur_min, stats.blur.median_px);
@@ -196,6 +152,30 @@ int Run(int argc, char** argv) {
                  "from their background (unknown disparity, or a path reaching far beyond the "
                  "views: fewer frames or less blur help)\n";
   }
+}
+
+int Run(int argc, char** argv) {
+  Flags flags;
+  deblur_sr_mvs::SynthesisOptions options;
+  if (!ParseCommandLine(argc, argv, &flags, &options)) return 0;
+  const std::string& output_folder = flags.output_folder;
+  const double scene_zoom = flags.scene_zoom;
+
+  deblur_sr_mvs::StereoScene scene = deblur_sr_mvs::LoadMiddleburyScene(flags.scene_folder);
+  if (scene_zoom != 1.0) scene = deblur_sr_mvs::ZoomScene(scene, scene_zoom);
+  {
+    // Fail before the rendering, not after it, when the output cannot be made.
+    std::error_code error;
+    std::filesystem::create_directories(output_folder, error);
+    if (error) throw InputError(output_folder + ": cannot create the folder: " + error.message());
+  }
+  const deblur_sr_mvs::SynthesisResult result =
+      deblur_sr_mvs::SynthesizeSequence(scene, options, &std::cout);
+  RemoveStaleFrames(output_folder);
+  deblur_sr_mvs::WriteSequence(output_folder, result.sequence);
+  deblur_sr_mvs::WriteSynthesisYaml(output_folder + "/gt/synthesis.yaml", scene, options, result);
+
+  PrintSummary(output_folder, scene, options, result);
   return 0;
 }
 

@@ -14,11 +14,13 @@
 #include <fstream>
 #include <functional>
 #include <iterator>
+#include <limits>
 #include <random>
 #include <sstream>
 #include <string>
 #include <vector>
 
+#include <boost/make_shared.hpp>
 #include <gtest/gtest.h>
 #include <rosbag/bag.h>
 #include <rosbag/view.h>
@@ -27,7 +29,10 @@
 #include <sensor_msgs/TimeReference.h>
 #include <geometry_msgs/PoseStamped.h>
 
+#include <nlohmann/json.hpp>
+
 #include "deblur_sr_mvs/core/io/sequence_io.h"
+#include "status_report.h"
 
 namespace deblur_sr_mvs {
 namespace {
@@ -505,6 +510,35 @@ TEST_F(BagToolsTest, BadCommandLinesAndFoldersExitWithOneLine) {
   EXPECT_FALSE(fs::exists(dir_ / "replaced" / "gt"));
   EXPECT_TRUE(fs::exists(dir_ / "replaced" / "notes.txt"));
   EXPECT_FALSE(ReadSequence((dir_ / "replaced").string(), true).ground_truth.has_value());
+}
+
+// bag_to_result's report.json: a window whose iteration was undone has a NaN
+// energy; the report is strict JSON with null in its place.
+TEST(BagToResultReport, NanEnergyBecomesNullInStrictJson) {
+  auto status = boost::make_shared<EstimatorStatus>();
+  status->window_index = 1;
+  status->success = true;
+  status->frame_stamps.resize(3);
+  status->message = "iteration 1 lost the energy (not finite): undone, \"quoted\" \\ text";
+  status->energies = {12.5, std::numeric_limits<double>::quiet_NaN(), 11.0};
+  status->stage_names = {"image update", "structure update"};
+  status->stage_seconds = {0.25, std::numeric_limits<double>::infinity()};
+  status->processing_seconds = 1.5;
+  status->scale_note = "arbitrary";
+  const std::vector<EstimatorStatusConstPtr> statuses = {status};
+  const std::string text = JsonText(StatusReportJson(statuses));
+  nlohmann::json report;
+  ASSERT_NO_THROW(report = nlohmann::json::parse(text)) << text;
+  ASSERT_EQ(report["windows"].size(), 1u);
+  const nlohmann::json& window = report["windows"][0];
+  EXPECT_EQ(window["frames"], 3);
+  EXPECT_EQ(window["message"], status->message);
+  ASSERT_EQ(window["energies"].size(), 3u);
+  EXPECT_EQ(window["energies"][0].get<double>(), 12.5);
+  EXPECT_TRUE(window["energies"][1].is_null());
+  EXPECT_TRUE(window["stages"]["structure update"].is_null());
+  EXPECT_EQ(report["scale_note"], "arbitrary");
+  EXPECT_EQ(nlohmann::json::parse(JsonText(StatusReportJson({})))["windows"].size(), 0u);
 }
 
 }  // namespace

@@ -20,7 +20,6 @@
 #include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/evaluation/metrics.h"
 #include "deblur_sr_mvs/core/io/sequence_io.h"
-#include "tool_main.h"
 
 namespace deblur_sr_mvs {
 namespace {
@@ -204,56 +203,6 @@ TEST(Estimator, JointBeatsBicubicAndBaselineFromScratch) {
 
 namespace deblur_sr_mvs {
 namespace {
-
-// estimate_sequence: bad input gives exit code 2 and exactly one line on stderr.
-TEST(EstimateSequenceTool, BadInputGivesOneLineAndExitCode2) {
-  const std::string tool = std::string(DSM_TOOL_DIR) + "/estimate_sequence";
-  const std::string log = testing::TempDir() + "/dsm_estimate_error_" + std::to_string(::getpid()) + ".txt";
-  const std::vector<std::string> bad_arguments = {
-      "--input /nonexistent/seq --output " + testing::TempDir() + "/out",
-      "--input x --output y --mode fancy",
-      "--input x --output y --samples 0",
-      "--input x --output y --lambda-d abc",
-      "--output y",
-  };
-  for (const std::string& arguments : bad_arguments) {
-    const int status = std::system((tool + " " + arguments + " 2> " + log + " > /dev/null").c_str());
-    ASSERT_TRUE(WIFEXITED(status)) << arguments;
-    EXPECT_EQ(WEXITSTATUS(status), 2) << arguments;
-    std::ifstream in(log);
-    std::string line;
-    int lines = 0;
-    while (std::getline(in, line)) ++lines;
-    EXPECT_EQ(lines, 1) << arguments;
-  }
-}
-
-// The flag parsers every tool shares: whole text, finite, in range; the
-// message names the flag, the range and the text.
-TEST(ToolFlags, ParseWholeFiniteValuesInRange) {
-  EXPECT_EQ(ParseFlagInt("--n", "12"), 12);
-  EXPECT_EQ(ParseFlagInt("--n", "-3"), -3);
-  EXPECT_DOUBLE_EQ(ParseFlagNumber("--x", "0.25"), 0.25);
-  EXPECT_DOUBLE_EQ(ParseFlagNumber("--x", "1e-3", 0.0, 1.0), 1e-3);
-  for (const char* bad : {"", "1.5", "12a", "a", " ", "99999999999"}) {
-    EXPECT_THROW(ParseFlagInt("--n", bad), InputError) << bad;
-  }
-  for (const char* bad : {"", "nan", "inf", "1..2", "0.5x"}) {
-    EXPECT_THROW(ParseFlagNumber("--x", bad), InputError) << bad;
-  }
-  auto message_of = [](const auto& parse) {
-    try {
-      parse();
-    } catch (const InputError& error) {
-      return std::string(error.what());
-    }
-    return std::string("(accepted)");
-  };
-  EXPECT_EQ(message_of([] { ParseFlagInt("--scale", "1", 2, 8); }),
-            "--scale expects an integer in [2, 8], got '1'");
-  EXPECT_EQ(message_of([] { ParseFlagNumber("--exposure", "-1", 1e-6); }),
-            "--exposure expects a number >= 1e-06, got '-1'");
-}
 
 TEST(EstimatorSafety, ExtremeBlurStillRestoresAndStaysFinite) {
   // Exposure = the whole frame interval and 30 px of motion blur per frame.
