@@ -1,12 +1,11 @@
 // Initialisation of poses and LR depths (paper Sec. optInitialization).
 //
 // Stages (timed in InitialStructure::summary):
-//  1. tracking: Shi-Tomasi corners followed frame to frame by pyramidal
-//     Lucas-Kanade with a forward-backward check. Consecutive frames of a
-//     smoothly moving camera carry nearly the same blur, so brightness
-//     constancy holds between them far better than descriptor repeatability
-//     does on tiny, smeared LR frames (OpenCV's own LK lives in the video
-//     module, which the package does not link, hence the small tracker here).
+//  1. tracking: Shi-Tomasi corners followed frame to frame by OpenCV's
+//     pyramidal Lucas-Kanade with a forward-backward check. Consecutive
+//     frames of a smoothly moving camera carry nearly the same blur, so
+//     brightness constancy holds between them far better than descriptor
+//     repeatability does on tiny, smeared LR frames.
 //  2. two-view: essential matrix (RANSAC) and recoverPose on frames 0-1, the
 //     paper's SfM step, plus a pure-translation start; both refined with a
 //     rotation prior that settles the rotation / translation ambiguity of
@@ -44,6 +43,7 @@
 #include <ceres/rotation.h>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
+#include <opencv2/video/tracking.hpp>
 
 #include "deblur_sr_mvs/core/imaging/capture_operator.h"
 #include "deblur_sr_mvs/core/common/errors.h"
@@ -78,139 +78,35 @@ double Percentile(std::vector<double> values, double fraction) {
   return values[index];
 }
 
-// Bilinear read of a single-channel float image, border clamped.
-inline float Sample(const cv::Mat& image, float x, float y) {
-  x = std::min(std::max(x, 0.0f), static_cast<float>(image.cols - 1));
-  y = std::min(std::max(y, 0.0f), static_cast<float>(image.rows - 1));
-  const int x0 = std::min(static_cast<int>(x), image.cols - 2);
-  const int y0 = std::min(static_cast<int>(y), image.rows - 2);
-  const float fx = x - x0;
-  const float fy = y - y0;
-  const float* row0 = image.ptr<float>(y0) + x0;
-  const float* row1 = image.ptr<float>(y0 + 1) + x0;
-  return (1.0f - fy) * ((1.0f - fx) * row0[0] + fx * row0[1]) +
-         fy * ((1.0f - fx) * row1[0] + fx * row1[1]);
-}
-
 // ------------------------------------------------------------------ tracking
 
-// Gray image pyramid with central-difference gradients, for the LK tracker.
-struct Pyramid {
-  std::vector<cv::Mat> image, grad_x, grad_y;  // CV_32FC1, level 0 = full size
+// Lucas-Kanade settings (cv::calcOpticalFlowPyrLK) shared by the forward and
+// backward passes. OpenCV reads 8-bit images: its residual is in 8-bit
+// intensity units and its minimum eigenvalue is that of the mean structure
+// tensor of Scharr derivatives (32x the central difference, 8-bit units)
+// scaled by 2^-10.
+struct LucasKanadeSettings {
+  cv::Size window;
+  int max_level = 0;                  // 0-based: klt_levels - 1
+  cv::TermCriteria criteria;
+  double min_eigen = 0.0;             // OpenCV's minEigThreshold
+  float max_error = 0.0f;             // mean |difference| (8-bit units) of a kept match
+  float margin = 0.0f;                // a tracked point keeps this far (px) from the border
 };
 
-Pyramid BuildPyramid(const cv::Mat& gray, int levels) {
-  Pyramid pyramid;
-  cv::Mat current = gray;
-  for (int level = 0; level < levels; ++level) {
-    if (level > 0) {
-      if (current.cols < 16 || current.rows < 16) break;
-      cv::Mat down;
-      cv::pyrDown(current, down);
-      current = down;
-    }
-    cv::Mat gx, gy;
-    cv::Sobel(current, gx, CV_32F, 1, 0, 1, 0.5, 0.0, cv::BORDER_REPLICATE);
-    cv::Sobel(current, gy, CV_32F, 0, 1, 1, 0.5, 0.0, cv::BORDER_REPLICATE);
-    pyramid.image.push_back(current);
-    pyramid.grad_x.push_back(gx);
-    pyramid.grad_y.push_back(gy);
-  }
-  return pyramid;
-}
-
-// Pyramidal Lucas-Kanade (Bouguet) for one point: the translation of the
-// window around `from` in `source` that matches `target`, starting from the
-// displacement `guess`. Returns false when the window is untextured, leaves
-// the image or does not converge to a small residual.
-struct LucasKanadeParams {
-  int radius = 7;
-  int iterations = 20;
-  float min_eigen = 1e-4f;      // min eigenvalue of the mean structure tensor
-  float max_residual = 0.08f;   // mean |difference| after convergence (intensity)
-};
-
-bool TrackLucasKanade(const Pyramid& source, const Pyramid& target, const cv::Point2f& from,
-                      const cv::Point2f& guess, const LucasKanadeParams& params,
-                      std::vector<float>* scratch, cv::Point2f* to) {
-  const int levels = static_cast<int>(std::min(source.image.size(), target.image.size()));
-  const int side = 2 * params.radius + 1;
-  scratch->resize(static_cast<size_t>(3) * side * side);
-  float* template_values = scratch->data();
-  float* template_gx = template_values + side * side;
-  float* template_gy = template_gx + side * side;
-  float dx = guess.x / static_cast<float>(1 << (levels - 1));
-  float dy = guess.y / static_cast<float>(1 << (levels - 1));
-  float residual = 0.0f;
-  for (int level = levels - 1; level >= 0; --level) {
-    const float scale = 1.0f / static_cast<float>(1 << level);
-    const float px = from.x * scale;
-    const float py = from.y * scale;
-    const cv::Mat& image0 = source.image[level];
-    const cv::Mat& image1 = target.image[level];
-    double gxx = 0.0, gxy = 0.0, gyy = 0.0;
-    int k = 0;
-    for (int wy = -params.radius; wy <= params.radius; ++wy) {
-      for (int wx = -params.radius; wx <= params.radius; ++wx, ++k) {
-        const float x = px + wx;
-        const float y = py + wy;
-        template_values[k] = Sample(image0, x, y);
-        template_gx[k] = Sample(source.grad_x[level], x, y);
-        template_gy[k] = Sample(source.grad_y[level], x, y);
-        gxx += template_gx[k] * template_gx[k];
-        gxy += template_gx[k] * template_gy[k];
-        gyy += template_gy[k] * template_gy[k];
-      }
-    }
-    const double area = static_cast<double>(side) * side;
-    const double trace = (gxx + gyy) / area;
-    const double det = (gxx * gyy - gxy * gxy) / (area * area);
-    const double min_eigen = 0.5 * (trace - std::sqrt(std::max(0.0, trace * trace - 4.0 * det)));
-    if (level == 0 && min_eigen < params.min_eigen) return false;
-    if (min_eigen < 1e-9) {
-      if (level > 0) {
-        dx *= 2.0f;
-        dy *= 2.0f;
-        continue;
-      }
-      return false;
-    }
-    const double inv_det = 1.0 / (gxx * gyy - gxy * gxy);
-    for (int iteration = 0; iteration < params.iterations; ++iteration) {
-      double bx = 0.0, by = 0.0;
-      double abs_sum = 0.0;
-      k = 0;
-      for (int wy = -params.radius; wy <= params.radius; ++wy) {
-        for (int wx = -params.radius; wx <= params.radius; ++wx, ++k) {
-          const float difference =
-              Sample(image1, px + dx + wx, py + dy + wy) - template_values[k];
-          bx += difference * template_gx[k];
-          by += difference * template_gy[k];
-          abs_sum += std::abs(difference);
-        }
-      }
-      residual = static_cast<float>(abs_sum / area);
-      const double step_x = -(gyy * bx - gxy * by) * inv_det;
-      const double step_y = -(gxx * by - gxy * bx) * inv_det;
-      dx += static_cast<float>(step_x);
-      dy += static_cast<float>(step_y);
-      if (step_x * step_x + step_y * step_y < 1e-4) break;
-    }
-    if (level > 0) {
-      dx *= 2.0f;
-      dy *= 2.0f;
-    }
-  }
-  to->x = from.x + dx;
-  to->y = from.y + dy;
-  const float margin = static_cast<float>(params.radius) * 0.5f;
-  const float width = static_cast<float>(source.image[0].cols);
-  const float height = static_cast<float>(source.image[0].rows);
-  if (!(to->x >= margin && to->y >= margin && to->x <= width - 1 - margin &&
-        to->y <= height - 1 - margin)) {
-    return false;
-  }
-  return residual <= params.max_residual;
+LucasKanadeSettings MakeLucasKanadeSettings(const InitializerOptions& options) {
+  // Mean-structure-tensor eigenvalue floor on [0,1] images with central
+  // differences, in OpenCV's units: (255 * 32)^2 / 2^20 = 255^2 / 1024.
+  constexpr double kMinEigen01 = 1e-4;
+  LucasKanadeSettings settings;
+  const int side = 2 * options.klt_window_radius_px + 1;
+  settings.window = cv::Size(side, side);
+  settings.max_level = options.klt_levels - 1;
+  settings.criteria = cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 20, 0.01);
+  settings.min_eigen = kMinEigen01 * 255.0 * 255.0 / 1024.0;
+  settings.max_error = static_cast<float>(options.klt_max_residual * 255.0);
+  settings.margin = static_cast<float>(options.klt_window_radius_px) * 0.5f;
+  return settings;
 }
 
 // A feature followed over consecutive frames [first_frame, first_frame + n).
@@ -229,90 +125,111 @@ struct TrackingResult {
   std::vector<int> alive;     // tracks followed into each frame from the previous one
 };
 
+// Whether OpenCV's match of one point is kept: tracked, small residual, and
+// at least `margin` inside the image.
+bool GoodMatch(uchar status, float error, const cv::Point2f& point, const cv::Size& size,
+               const LucasKanadeSettings& settings) {
+  return status != 0 && error <= settings.max_error && point.x >= settings.margin &&
+         point.y >= settings.margin && point.x <= size.width - 1 - settings.margin &&
+         point.y <= size.height - 1 - settings.margin;
+}
+
+// Follows the active tracks from frame t - 1 into t: a forward pass started
+// from each track's last velocity, a backward pass from the forward result,
+// and a forward-backward check. Tracks that survive get their point in t and
+// stay active.
+void FollowTracks(const std::vector<cv::Mat>& previous_pyramid,
+                  const std::vector<cv::Mat>& pyramid, const cv::Size& size,
+                  const LucasKanadeSettings& settings, double max_forward_backward_px,
+                  std::vector<int>* active, std::vector<Track>* tracks) {
+  if (active->empty()) return;
+  const size_t count = active->size();
+  std::vector<cv::Point2f> from(count), forward(count);
+  for (size_t a = 0; a < count; ++a) {
+    const Track& track = (*tracks)[(*active)[a]];
+    from[a] = track.points.back();
+    cv::Point2f guess(0.0f, 0.0f);
+    if (track.points.size() >= 2) guess = from[a] - track.points[track.points.size() - 2];
+    forward[a] = from[a] + guess;
+  }
+  std::vector<uchar> forward_status, backward_status;
+  std::vector<float> forward_error, backward_error;
+  cv::calcOpticalFlowPyrLK(previous_pyramid, pyramid, from, forward, forward_status,
+                           forward_error, settings.window, settings.max_level, settings.criteria,
+                           cv::OPTFLOW_USE_INITIAL_FLOW, settings.min_eigen);
+  std::vector<cv::Point2f> backward = from;
+  cv::calcOpticalFlowPyrLK(pyramid, previous_pyramid, forward, backward, backward_status,
+                           backward_error, settings.window, settings.max_level, settings.criteria,
+                           cv::OPTFLOW_USE_INITIAL_FLOW, settings.min_eigen);
+  const double max_squared = max_forward_backward_px * max_forward_backward_px;
+  std::vector<int> still_active;
+  for (size_t a = 0; a < count; ++a) {
+    if (!GoodMatch(forward_status[a], forward_error[a], forward[a], size, settings) ||
+        !GoodMatch(backward_status[a], backward_error[a], backward[a], size, settings)) {
+      continue;
+    }
+    const cv::Point2f error = backward[a] - from[a];
+    if (error.dot(error) > max_squared) continue;
+    (*tracks)[(*active)[a]].points.push_back(forward[a]);
+    still_active.push_back((*active)[a]);
+  }
+  active->swap(still_active);
+}
+
+// Starts new tracks in frame t at Shi-Tomasi corners away from the active
+// ones, up to options.max_features active tracks.
+void DetectNewTracks(const cv::Mat& gray8, int t, const InitializerOptions& options,
+                     std::vector<int>* active, TrackingResult* result) {
+  const float min_distance = static_cast<float>(options.min_feature_distance_px);
+  cv::Mat mask(gray8.size(), CV_8UC1, cv::Scalar(255));
+  for (int index : *active) {
+    cv::circle(mask, result->tracks[index].points.back(), static_cast<int>(min_distance + 0.5f),
+               cv::Scalar(0), -1);
+  }
+  const int wanted = options.max_features - static_cast<int>(active->size());
+  if (wanted <= 0) return;
+  std::vector<cv::Point2f> corners;
+  cv::goodFeaturesToTrack(gray8, corners, wanted, options.feature_quality, min_distance, mask,
+                          options.feature_block_size);
+  const float border = static_cast<float>(options.klt_window_radius_px);
+  for (const cv::Point2f& corner : corners) {
+    if (corner.x < border || corner.y < border || corner.x > gray8.cols - 1 - border ||
+        corner.y > gray8.rows - 1 - border) {
+      continue;
+    }
+    Track track;
+    track.first_frame = t;
+    track.points.push_back(corner);
+    active->push_back(static_cast<int>(result->tracks.size()));
+    result->tracks.push_back(track);
+    ++result->detected[t];
+  }
+}
+
+// Shi-Tomasi corners followed frame to frame by pyramidal Lucas-Kanade with a
+// forward-backward check, replenished in every frame but the last.
 TrackingResult TrackFeatures(const std::vector<cv::Mat>& gray, const InitializerOptions& options,
                              int threads) {
   const int num_frames = static_cast<int>(gray.size());
-  LucasKanadeParams params;
-  params.radius = options.klt_window_radius_px;
-  params.max_residual = static_cast<float>(options.klt_max_residual);
-  std::vector<Pyramid> pyramids(num_frames);
+  const LucasKanadeSettings settings = MakeLucasKanadeSettings(options);
+  std::vector<cv::Mat> gray8(num_frames);
+  std::vector<std::vector<cv::Mat>> pyramids(num_frames);
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
-  for (int t = 0; t < num_frames; ++t) pyramids[t] = BuildPyramid(gray[t], options.klt_levels);
-
+  for (int t = 0; t < num_frames; ++t) {
+    gray[t].convertTo(gray8[t], CV_8U, 255.0);
+    cv::buildOpticalFlowPyramid(gray8[t], pyramids[t], settings.window, settings.max_level);
+  }
   TrackingResult result;
   result.detected.assign(num_frames, 0);
   result.alive.assign(num_frames, 0);
   std::vector<int> active;  // tracks that reached the current frame
-  const float min_distance = static_cast<float>(options.min_feature_distance_px);
   for (int t = 0; t < num_frames; ++t) {
     if (t > 0) {
-      // Follow the active tracks into t, predicting with their last velocity.
-      std::vector<char> keep(active.size(), 0);
-      std::vector<cv::Point2f> next(active.size());
-#pragma omp parallel num_threads(threads)
-      {
-        std::vector<float> scratch;
-#pragma omp for schedule(dynamic, 16)
-        for (int a = 0; a < static_cast<int>(active.size()); ++a) {
-          const Track& track = result.tracks[active[a]];
-          const cv::Point2f from = track.points.back();
-          cv::Point2f guess(0.0f, 0.0f);
-          if (track.points.size() >= 2) guess = from - track.points[track.points.size() - 2];
-          cv::Point2f forward, backward;
-          if (!TrackLucasKanade(pyramids[t - 1], pyramids[t], from, guess, params, &scratch,
-                                &forward)) {
-            continue;
-          }
-          if (!TrackLucasKanade(pyramids[t], pyramids[t - 1], forward, from - forward, params,
-                                &scratch, &backward)) {
-            continue;
-          }
-          const cv::Point2f error = backward - from;
-          if (error.dot(error) > options.max_forward_backward_px * options.max_forward_backward_px) {
-            continue;
-          }
-          keep[a] = 1;
-          next[a] = forward;
-        }
-      }
-      std::vector<int> still_active;
-      for (size_t a = 0; a < active.size(); ++a) {
-        if (!keep[a]) continue;
-        result.tracks[active[a]].points.push_back(next[a]);
-        still_active.push_back(active[a]);
-      }
-      active.swap(still_active);
+      FollowTracks(pyramids[t - 1], pyramids[t], gray[t].size(), settings,
+                   options.max_forward_backward_px, &active, &result.tracks);
     }
     result.alive[t] = static_cast<int>(active.size());
-    // Replenish with corners away from the tracks that reached t.
-    if (t + 1 < num_frames) {
-      cv::Mat mask(gray[t].size(), CV_8UC1, cv::Scalar(255));
-      for (int index : active) {
-        cv::circle(mask, result.tracks[index].points.back(), static_cast<int>(min_distance + 0.5f),
-                   cv::Scalar(0), -1);
-      }
-      const int wanted = options.max_features - static_cast<int>(active.size());
-      if (wanted > 0) {
-        std::vector<cv::Point2f> corners;
-        cv::Mat gray8;
-        gray[t].convertTo(gray8, CV_8U, 255.0);
-        cv::goodFeaturesToTrack(gray8, corners, wanted, options.feature_quality, min_distance,
-                                mask, options.feature_block_size);
-        const float border = static_cast<float>(options.klt_window_radius_px);
-        for (const cv::Point2f& corner : corners) {
-          if (corner.x < border || corner.y < border || corner.x > gray[t].cols - 1 - border ||
-              corner.y > gray[t].rows - 1 - border) {
-            continue;
-          }
-          Track track;
-          track.first_frame = t;
-          track.points.push_back(corner);
-          active.push_back(static_cast<int>(result.tracks.size()));
-          result.tracks.push_back(track);
-          ++result.detected[t];
-        }
-      }
-    }
+    if (t + 1 < num_frames) DetectNewTracks(gray8[t], t, options, &active, &result);
   }
   return result;
 }

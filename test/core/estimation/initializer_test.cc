@@ -216,8 +216,12 @@ TEST(InitializerTest, UnrelatedFramesGiveInitializationError) {
     noise.push_back(image);
   }
   const std::vector<FrameRecord> frames(sequence.frames.begin(), sequence.frames.begin() + 3);
+  // Lucas-Kanade follows some blurred-noise corners consistently forward and
+  // backward (OpenCV's tracker ~100 of 600, the earlier hand-written one ~50),
+  // so the pair fails on too few tracks or, with enough, on too few points
+  // that triangulate: either way frames 0-1 are named.
   ExpectThrowsWith<InitializationError>(
-      [&] { InitializeStructure(noise, camera, frames, InitializerOptions()); }, "frames 0-1: only");
+      [&] { InitializeStructure(noise, camera, frames, InitializerOptions()); }, "frames 0-1");
 }
 
 // The frames carry no depth (the camera did not translate): initialisation
