@@ -46,6 +46,7 @@
 
 #include "deblur_sr_mvs/core/imaging/capture_operator.h"
 #include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/common/runtime.h"
 #include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/geometry/visibility.h"
@@ -60,6 +61,14 @@ std::string Format(const char* format, double a = 0, double b = 0, double c = 0,
   char buffer[512];
   std::snprintf(buffer, sizeof(buffer), format, a, b, c, d, e, f);
   return buffer;
+}
+
+// Throws unless 0 < value < 1 (and finite), in the message style of
+// options_check.h, which has no open interval.
+void CheckInOpenUnitInterval(const std::string& name, double value) {
+  if (!(value > 0.0 && value < 1.0)) {
+    throw InputError(name + " must be in (0, 1), got " + options_check_detail::Text(value));
+  }
 }
 
 double Median(std::vector<double> values) {
@@ -1427,59 +1436,45 @@ void UpsampleInverseDepth(int width, int height, double rho_min, double rho_max,
 }  // namespace
 
 void InitializerOptions::Check() const {
-  auto fail = [](const std::string& field, const std::string& problem) {
-    throw InputError("initializer: " + field + " " + problem);
-  };
-  if (num_threads < 0) fail("num_threads", "must be >= 0, got " + std::to_string(num_threads));
-  if (max_features < 8) fail("max_features", "must be >= 8, got " + std::to_string(max_features));
-  if (!(feature_quality > 0.0 && feature_quality < 1.0)) {
-    fail("feature_quality", "must be in (0, 1)");
-  }
-  if (!(min_feature_distance_px >= 1.0)) fail("min_feature_distance_px", "must be >= 1");
-  if (feature_block_size < 3 || feature_block_size > 31) {
-    fail("feature_block_size", "must be in [3, 31]");
-  }
-  if (klt_window_radius_px < 2 || klt_window_radius_px > 32) {
-    fail("klt_window_radius_px", "must be in [2, 32]");
-  }
-  if (klt_levels < 1 || klt_levels > 6) fail("klt_levels", "must be in [1, 6]");
-  if (!(klt_max_residual > 0.0)) fail("klt_max_residual", "must be > 0");
-  if (!(max_forward_backward_px > 0.0)) fail("max_forward_backward_px", "must be > 0");
-  if (!(ransac_threshold_px > 0.0)) fail("ransac_threshold_px", "must be > 0");
-  if (!(ransac_confidence > 0.0 && ransac_confidence < 1.0)) {
-    fail("ransac_confidence", "must be in (0, 1)");
-  }
-  if (min_inliers < 8) fail("min_inliers", "must be >= 8, got " + std::to_string(min_inliers));
-  if (!(min_parallax_px >= 0.0)) fail("min_parallax_px", "must be >= 0");
-  if (!(min_rotation_free_parallax_px >= 0.0)) fail("min_rotation_free_parallax_px", "must be >= 0");
-  if (!(min_triangulation_parallax_px >= 0.0)) {
-    fail("min_triangulation_parallax_px", "must be >= 0");
-  }
-  if (!(pnp_threshold_px > 0.0)) fail("pnp_threshold_px", "must be > 0");
-  if (min_pnp_inliers < 6) fail("min_pnp_inliers", "must be >= 6");
-  if (!(ba_loss_px > 0.0)) fail("ba_loss_px", "must be > 0");
-  if (!(rotation_prior_px > 0.0)) fail("rotation_prior_px", "must be > 0");
-  if (ba_max_iterations < 0) fail("ba_max_iterations", "must be >= 0");
-  if (capture_samples < 1 || capture_samples > 1000) fail("capture_samples", "must be in [1, 1000]");
-  if (neighbours_per_side < 1 || neighbours_per_side > 5) {
-    fail("neighbours_per_side", "must be in [1, 5]");
-  }
-  if (num_planes < 4 || num_planes > 512) fail("num_planes", "must be in [4, 512]");
-  if (refine_planes < 3 || refine_planes > 256) fail("refine_planes", "must be in [3, 256]");
-  if (depth_levels < 1 || depth_levels > 5) fail("depth_levels", "must be in [1, 5]");
-  if (!(refine_band > 0.0)) fail("refine_band", "must be > 0");
-  if (patch_radius_px < 0 || patch_radius_px > 10) fail("patch_radius_px", "must be in [0, 10]");
-  if (!(cost_truncation > 0.0)) fail("cost_truncation", "must be > 0");
-  if (!(depth_range_margin >= 0.0)) fail("depth_range_margin", "must be >= 0");
-  if (!(depth_tv_weight >= 0.0)) fail("depth_tv_weight", "must be >= 0");
-  if (tv_iterations < 2) fail("tv_iterations", "must be >= 2");
-  if (!(theta_start > 0.0 && theta_end > 0.0 && theta_end <= theta_start)) {
-    fail("theta_start/theta_end", "must satisfy 0 < theta_end <= theta_start");
-  }
+  const std::string prefix = "initializer: ";
+  CheckAtLeast(prefix + "num_threads", num_threads, 0);
+  CheckAtLeast(prefix + "max_features", max_features, 8);
+  CheckInOpenUnitInterval(prefix + "feature_quality", feature_quality);
+  CheckAtLeast(prefix + "min_feature_distance_px", min_feature_distance_px, 1.0);
+  CheckInRange(prefix + "feature_block_size", feature_block_size, 3, 31);
+  CheckInRange(prefix + "klt_window_radius_px", klt_window_radius_px, 2, 32);
+  CheckInRange(prefix + "klt_levels", klt_levels, 1, 6);
+  CheckAbove(prefix + "klt_max_residual", klt_max_residual, 0.0);
+  CheckAbove(prefix + "max_forward_backward_px", max_forward_backward_px, 0.0);
+  CheckAbove(prefix + "ransac_threshold_px", ransac_threshold_px, 0.0);
+  CheckInOpenUnitInterval(prefix + "ransac_confidence", ransac_confidence);
+  CheckAtLeast(prefix + "min_inliers", min_inliers, 8);
+  CheckAtLeast(prefix + "min_parallax_px", min_parallax_px, 0.0);
+  CheckAtLeast(prefix + "min_rotation_free_parallax_px", min_rotation_free_parallax_px, 0.0);
+  CheckAtLeast(prefix + "min_triangulation_parallax_px", min_triangulation_parallax_px, 0.0);
+  CheckAbove(prefix + "pnp_threshold_px", pnp_threshold_px, 0.0);
+  CheckAtLeast(prefix + "min_pnp_inliers", min_pnp_inliers, 6);
+  CheckAbove(prefix + "ba_loss_px", ba_loss_px, 0.0);
+  CheckAbove(prefix + "rotation_prior_px", rotation_prior_px, 0.0);
+  CheckAtLeast(prefix + "ba_max_iterations", ba_max_iterations, 0);
+  CheckInRange(prefix + "capture_samples", capture_samples, 1, 1000);
+  CheckInRange(prefix + "neighbours_per_side", neighbours_per_side, 1, 5);
+  CheckInRange(prefix + "num_planes", num_planes, 4, 512);
+  CheckInRange(prefix + "refine_planes", refine_planes, 3, 256);
+  CheckInRange(prefix + "depth_levels", depth_levels, 1, 5);
+  CheckAbove(prefix + "refine_band", refine_band, 0.0);
+  CheckInRange(prefix + "patch_radius_px", patch_radius_px, 0, 10);
+  CheckAbove(prefix + "cost_truncation", cost_truncation, 0.0);
+  CheckAtLeast(prefix + "depth_range_margin", depth_range_margin, 0.0);
+  CheckAtLeast(prefix + "depth_tv_weight", depth_tv_weight, 0.0);
+  CheckAtLeast(prefix + "tv_iterations", tv_iterations, 2);
+  CheckAbove(prefix + "theta_start", theta_start, 0.0);
+  CheckAbove(prefix + "theta_end", theta_end, 0.0);
+  CheckInRange(prefix + "theta_end", theta_end, 0.0, theta_start);
   try {
     edge_weight.Check();
   } catch (const InputError& error) {
-    fail("edge_weight", std::string("invalid: ") + error.what());
+    throw InputError(prefix + "edge_weight: " + error.what());
   }
 }
 

@@ -7,6 +7,7 @@
 #include <sstream>
 
 #include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/common/runtime.h"
 #include "deblur_sr_mvs/core/geometry/warp.h"
 
@@ -147,17 +148,9 @@ std::vector<SE3> VirtualCameraPoses(const CaptureGeometry& geometry, int samples
 }
 
 void CaptureOperatorOptions::Check() const {
-  if (samples < 1 || samples > 10000) {
-    throw InputError("capture operator: samples (M) must be in [1, 10000], got " +
-                     std::to_string(samples));
-  }
-  if (scale < 1 || scale > 8) {
-    throw InputError("capture operator: scale must be in [1, 8], got " + std::to_string(scale));
-  }
-  if (num_threads < 0) {
-    throw InputError("capture operator: num_threads must be >= 0, got " +
-                     std::to_string(num_threads));
-  }
+  CheckInRange("capture operator: samples (M)", samples, 1, 10000);
+  CheckInRange("capture operator: scale", scale, 1, 8);
+  CheckAtLeast("capture operator: num_threads", num_threads, 0);
 }
 
 void CaptureOperator::Apply(const cv::Mat& hr, cv::Mat* lr) const {
