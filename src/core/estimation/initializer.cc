@@ -1,12 +1,11 @@
 // Initialisation of poses and LR depths (paper Sec. optInitialization).
 //
 // Stages (timed in InitialStructure::summary):
-//  1. tracking: Shi-Tomasi corners followed frame to frame by pyramidal
-//     Lucas-Kanade with a forward-backward check. Consecutive frames of a
-//     smoothly moving camera carry nearly the same blur, so brightness
-//     constancy holds between them far better than descriptor repeatability
-//     does on tiny, smeared LR frames (OpenCV's own LK lives in the video
-//     module, which the package does not link, hence the small tracker here).
+//  1. tracking: Shi-Tomasi corners followed frame to frame by OpenCV's
+//     pyramidal Lucas-Kanade with a forward-backward check. Consecutive
+//     frames of a smoothly moving camera carry nearly the same blur, so
+//     brightness constancy holds between them far better than descriptor
+//     repeatability does on tiny, smeared LR frames.
 //  2. two-view: essential matrix (RANSAC) and recoverPose on frames 0-1, the
 //     paper's SfM step, plus a pure-translation start; both refined with a
 //     rotation prior that settles the rotation / translation ambiguity of
@@ -32,7 +31,6 @@
 
 #include <algorithm>
 #include <array>
-#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -44,9 +42,11 @@
 #include <ceres/rotation.h>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
+#include <opencv2/video/tracking.hpp>
 
 #include "deblur_sr_mvs/core/imaging/capture_operator.h"
 #include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/common/runtime.h"
 #include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/geometry/visibility.h"
@@ -61,6 +61,14 @@ std::string Format(const char* format, double a = 0, double b = 0, double c = 0,
   char buffer[512];
   std::snprintf(buffer, sizeof(buffer), format, a, b, c, d, e, f);
   return buffer;
+}
+
+// Throws unless 0 < value < 1 (and finite), in the message style of
+// options_check.h, which has no open interval.
+void CheckInOpenUnitInterval(const std::string& name, double value) {
+  if (!(value > 0.0 && value < 1.0)) {
+    throw InputError(name + " must be in (0, 1), got " + options_check_detail::Text(value));
+  }
 }
 
 double Median(std::vector<double> values) {
@@ -78,139 +86,35 @@ double Percentile(std::vector<double> values, double fraction) {
   return values[index];
 }
 
-// Bilinear read of a single-channel float image, border clamped.
-inline float Sample(const cv::Mat& image, float x, float y) {
-  x = std::min(std::max(x, 0.0f), static_cast<float>(image.cols - 1));
-  y = std::min(std::max(y, 0.0f), static_cast<float>(image.rows - 1));
-  const int x0 = std::min(static_cast<int>(x), image.cols - 2);
-  const int y0 = std::min(static_cast<int>(y), image.rows - 2);
-  const float fx = x - x0;
-  const float fy = y - y0;
-  const float* row0 = image.ptr<float>(y0) + x0;
-  const float* row1 = image.ptr<float>(y0 + 1) + x0;
-  return (1.0f - fy) * ((1.0f - fx) * row0[0] + fx * row0[1]) +
-         fy * ((1.0f - fx) * row1[0] + fx * row1[1]);
-}
-
 // ------------------------------------------------------------------ tracking
 
-// Gray image pyramid with central-difference gradients, for the LK tracker.
-struct Pyramid {
-  std::vector<cv::Mat> image, grad_x, grad_y;  // CV_32FC1, level 0 = full size
+// Lucas-Kanade settings (cv::calcOpticalFlowPyrLK) shared by the forward and
+// backward passes. OpenCV reads 8-bit images: its residual is in 8-bit
+// intensity units and its minimum eigenvalue is that of the mean structure
+// tensor of Scharr derivatives (32x the central difference, 8-bit units)
+// scaled by 2^-10.
+struct LucasKanadeSettings {
+  cv::Size window;
+  int max_level = 0;                  // 0-based: klt_levels - 1
+  cv::TermCriteria criteria;
+  double min_eigen = 0.0;             // OpenCV's minEigThreshold
+  float max_error = 0.0f;             // mean |difference| (8-bit units) of a kept match
+  float margin = 0.0f;                // a tracked point keeps this far (px) from the border
 };
 
-Pyramid BuildPyramid(const cv::Mat& gray, int levels) {
-  Pyramid pyramid;
-  cv::Mat current = gray;
-  for (int level = 0; level < levels; ++level) {
-    if (level > 0) {
-      if (current.cols < 16 || current.rows < 16) break;
-      cv::Mat down;
-      cv::pyrDown(current, down);
-      current = down;
-    }
-    cv::Mat gx, gy;
-    cv::Sobel(current, gx, CV_32F, 1, 0, 1, 0.5, 0.0, cv::BORDER_REPLICATE);
-    cv::Sobel(current, gy, CV_32F, 0, 1, 1, 0.5, 0.0, cv::BORDER_REPLICATE);
-    pyramid.image.push_back(current);
-    pyramid.grad_x.push_back(gx);
-    pyramid.grad_y.push_back(gy);
-  }
-  return pyramid;
-}
-
-// Pyramidal Lucas-Kanade (Bouguet) for one point: the translation of the
-// window around `from` in `source` that matches `target`, starting from the
-// displacement `guess`. Returns false when the window is untextured, leaves
-// the image or does not converge to a small residual.
-struct LucasKanadeParams {
-  int radius = 7;
-  int iterations = 20;
-  float min_eigen = 1e-4f;      // min eigenvalue of the mean structure tensor
-  float max_residual = 0.08f;   // mean |difference| after convergence (intensity)
-};
-
-bool TrackLucasKanade(const Pyramid& source, const Pyramid& target, const cv::Point2f& from,
-                      const cv::Point2f& guess, const LucasKanadeParams& params,
-                      std::vector<float>* scratch, cv::Point2f* to) {
-  const int levels = static_cast<int>(std::min(source.image.size(), target.image.size()));
-  const int side = 2 * params.radius + 1;
-  scratch->resize(static_cast<size_t>(3) * side * side);
-  float* template_values = scratch->data();
-  float* template_gx = template_values + side * side;
-  float* template_gy = template_gx + side * side;
-  float dx = guess.x / static_cast<float>(1 << (levels - 1));
-  float dy = guess.y / static_cast<float>(1 << (levels - 1));
-  float residual = 0.0f;
-  for (int level = levels - 1; level >= 0; --level) {
-    const float scale = 1.0f / static_cast<float>(1 << level);
-    const float px = from.x * scale;
-    const float py = from.y * scale;
-    const cv::Mat& image0 = source.image[level];
-    const cv::Mat& image1 = target.image[level];
-    double gxx = 0.0, gxy = 0.0, gyy = 0.0;
-    int k = 0;
-    for (int wy = -params.radius; wy <= params.radius; ++wy) {
-      for (int wx = -params.radius; wx <= params.radius; ++wx, ++k) {
-        const float x = px + wx;
-        const float y = py + wy;
-        template_values[k] = Sample(image0, x, y);
-        template_gx[k] = Sample(source.grad_x[level], x, y);
-        template_gy[k] = Sample(source.grad_y[level], x, y);
-        gxx += template_gx[k] * template_gx[k];
-        gxy += template_gx[k] * template_gy[k];
-        gyy += template_gy[k] * template_gy[k];
-      }
-    }
-    const double area = static_cast<double>(side) * side;
-    const double trace = (gxx + gyy) / area;
-    const double det = (gxx * gyy - gxy * gxy) / (area * area);
-    const double min_eigen = 0.5 * (trace - std::sqrt(std::max(0.0, trace * trace - 4.0 * det)));
-    if (level == 0 && min_eigen < params.min_eigen) return false;
-    if (min_eigen < 1e-9) {
-      if (level > 0) {
-        dx *= 2.0f;
-        dy *= 2.0f;
-        continue;
-      }
-      return false;
-    }
-    const double inv_det = 1.0 / (gxx * gyy - gxy * gxy);
-    for (int iteration = 0; iteration < params.iterations; ++iteration) {
-      double bx = 0.0, by = 0.0;
-      double abs_sum = 0.0;
-      k = 0;
-      for (int wy = -params.radius; wy <= params.radius; ++wy) {
-        for (int wx = -params.radius; wx <= params.radius; ++wx, ++k) {
-          const float difference =
-              Sample(image1, px + dx + wx, py + dy + wy) - template_values[k];
-          bx += difference * template_gx[k];
-          by += difference * template_gy[k];
-          abs_sum += std::abs(difference);
-        }
-      }
-      residual = static_cast<float>(abs_sum / area);
-      const double step_x = -(gyy * bx - gxy * by) * inv_det;
-      const double step_y = -(gxx * by - gxy * bx) * inv_det;
-      dx += static_cast<float>(step_x);
-      dy += static_cast<float>(step_y);
-      if (step_x * step_x + step_y * step_y < 1e-4) break;
-    }
-    if (level > 0) {
-      dx *= 2.0f;
-      dy *= 2.0f;
-    }
-  }
-  to->x = from.x + dx;
-  to->y = from.y + dy;
-  const float margin = static_cast<float>(params.radius) * 0.5f;
-  const float width = static_cast<float>(source.image[0].cols);
-  const float height = static_cast<float>(source.image[0].rows);
-  if (!(to->x >= margin && to->y >= margin && to->x <= width - 1 - margin &&
-        to->y <= height - 1 - margin)) {
-    return false;
-  }
-  return residual <= params.max_residual;
+LucasKanadeSettings MakeLucasKanadeSettings(const InitializerOptions& options) {
+  // Mean-structure-tensor eigenvalue floor on [0,1] images with central
+  // differences, in OpenCV's units: (255 * 32)^2 / 2^20 = 255^2 / 1024.
+  constexpr double kMinEigen01 = 1e-4;
+  LucasKanadeSettings settings;
+  const int side = 2 * options.klt_window_radius_px + 1;
+  settings.window = cv::Size(side, side);
+  settings.max_level = options.klt_levels - 1;
+  settings.criteria = cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 20, 0.01);
+  settings.min_eigen = kMinEigen01 * 255.0 * 255.0 / 1024.0;
+  settings.max_error = static_cast<float>(options.klt_max_residual * 255.0);
+  settings.margin = static_cast<float>(options.klt_window_radius_px) * 0.5f;
+  return settings;
 }
 
 // A feature followed over consecutive frames [first_frame, first_frame + n).
@@ -229,90 +133,111 @@ struct TrackingResult {
   std::vector<int> alive;     // tracks followed into each frame from the previous one
 };
 
+// Whether OpenCV's match of one point is kept: tracked, small residual, and
+// at least `margin` inside the image.
+bool GoodMatch(uchar status, float error, const cv::Point2f& point, const cv::Size& size,
+               const LucasKanadeSettings& settings) {
+  return status != 0 && error <= settings.max_error && point.x >= settings.margin &&
+         point.y >= settings.margin && point.x <= size.width - 1 - settings.margin &&
+         point.y <= size.height - 1 - settings.margin;
+}
+
+// Follows the active tracks from frame t - 1 into t: a forward pass started
+// from each track's last velocity, a backward pass from the forward result,
+// and a forward-backward check. Tracks that survive get their point in t and
+// stay active.
+void FollowTracks(const std::vector<cv::Mat>& previous_pyramid,
+                  const std::vector<cv::Mat>& pyramid, const cv::Size& size,
+                  const LucasKanadeSettings& settings, double max_forward_backward_px,
+                  std::vector<int>* active, std::vector<Track>* tracks) {
+  if (active->empty()) return;
+  const size_t count = active->size();
+  std::vector<cv::Point2f> from(count), forward(count);
+  for (size_t a = 0; a < count; ++a) {
+    const Track& track = (*tracks)[(*active)[a]];
+    from[a] = track.points.back();
+    cv::Point2f guess(0.0f, 0.0f);
+    if (track.points.size() >= 2) guess = from[a] - track.points[track.points.size() - 2];
+    forward[a] = from[a] + guess;
+  }
+  std::vector<uchar> forward_status, backward_status;
+  std::vector<float> forward_error, backward_error;
+  cv::calcOpticalFlowPyrLK(previous_pyramid, pyramid, from, forward, forward_status,
+                           forward_error, settings.window, settings.max_level, settings.criteria,
+                           cv::OPTFLOW_USE_INITIAL_FLOW, settings.min_eigen);
+  std::vector<cv::Point2f> backward = from;
+  cv::calcOpticalFlowPyrLK(pyramid, previous_pyramid, forward, backward, backward_status,
+                           backward_error, settings.window, settings.max_level, settings.criteria,
+                           cv::OPTFLOW_USE_INITIAL_FLOW, settings.min_eigen);
+  const double max_squared = max_forward_backward_px * max_forward_backward_px;
+  std::vector<int> still_active;
+  for (size_t a = 0; a < count; ++a) {
+    if (!GoodMatch(forward_status[a], forward_error[a], forward[a], size, settings) ||
+        !GoodMatch(backward_status[a], backward_error[a], backward[a], size, settings)) {
+      continue;
+    }
+    const cv::Point2f error = backward[a] - from[a];
+    if (error.dot(error) > max_squared) continue;
+    (*tracks)[(*active)[a]].points.push_back(forward[a]);
+    still_active.push_back((*active)[a]);
+  }
+  active->swap(still_active);
+}
+
+// Starts new tracks in frame t at Shi-Tomasi corners away from the active
+// ones, up to options.max_features active tracks.
+void DetectNewTracks(const cv::Mat& gray8, int t, const InitializerOptions& options,
+                     std::vector<int>* active, TrackingResult* result) {
+  const float min_distance = static_cast<float>(options.min_feature_distance_px);
+  cv::Mat mask(gray8.size(), CV_8UC1, cv::Scalar(255));
+  for (int index : *active) {
+    cv::circle(mask, result->tracks[index].points.back(), static_cast<int>(min_distance + 0.5f),
+               cv::Scalar(0), -1);
+  }
+  const int wanted = options.max_features - static_cast<int>(active->size());
+  if (wanted <= 0) return;
+  std::vector<cv::Point2f> corners;
+  cv::goodFeaturesToTrack(gray8, corners, wanted, options.feature_quality, min_distance, mask,
+                          options.feature_block_size);
+  const float border = static_cast<float>(options.klt_window_radius_px);
+  for (const cv::Point2f& corner : corners) {
+    if (corner.x < border || corner.y < border || corner.x > gray8.cols - 1 - border ||
+        corner.y > gray8.rows - 1 - border) {
+      continue;
+    }
+    Track track;
+    track.first_frame = t;
+    track.points.push_back(corner);
+    active->push_back(static_cast<int>(result->tracks.size()));
+    result->tracks.push_back(track);
+    ++result->detected[t];
+  }
+}
+
+// Shi-Tomasi corners followed frame to frame by pyramidal Lucas-Kanade with a
+// forward-backward check, replenished in every frame but the last.
 TrackingResult TrackFeatures(const std::vector<cv::Mat>& gray, const InitializerOptions& options,
                              int threads) {
   const int num_frames = static_cast<int>(gray.size());
-  LucasKanadeParams params;
-  params.radius = options.klt_window_radius_px;
-  params.max_residual = static_cast<float>(options.klt_max_residual);
-  std::vector<Pyramid> pyramids(num_frames);
+  const LucasKanadeSettings settings = MakeLucasKanadeSettings(options);
+  std::vector<cv::Mat> gray8(num_frames);
+  std::vector<std::vector<cv::Mat>> pyramids(num_frames);
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
-  for (int t = 0; t < num_frames; ++t) pyramids[t] = BuildPyramid(gray[t], options.klt_levels);
-
+  for (int t = 0; t < num_frames; ++t) {
+    gray[t].convertTo(gray8[t], CV_8U, 255.0);
+    cv::buildOpticalFlowPyramid(gray8[t], pyramids[t], settings.window, settings.max_level);
+  }
   TrackingResult result;
   result.detected.assign(num_frames, 0);
   result.alive.assign(num_frames, 0);
   std::vector<int> active;  // tracks that reached the current frame
-  const float min_distance = static_cast<float>(options.min_feature_distance_px);
   for (int t = 0; t < num_frames; ++t) {
     if (t > 0) {
-      // Follow the active tracks into t, predicting with their last velocity.
-      std::vector<char> keep(active.size(), 0);
-      std::vector<cv::Point2f> next(active.size());
-#pragma omp parallel num_threads(threads)
-      {
-        std::vector<float> scratch;
-#pragma omp for schedule(dynamic, 16)
-        for (int a = 0; a < static_cast<int>(active.size()); ++a) {
-          const Track& track = result.tracks[active[a]];
-          const cv::Point2f from = track.points.back();
-          cv::Point2f guess(0.0f, 0.0f);
-          if (track.points.size() >= 2) guess = from - track.points[track.points.size() - 2];
-          cv::Point2f forward, backward;
-          if (!TrackLucasKanade(pyramids[t - 1], pyramids[t], from, guess, params, &scratch,
-                                &forward)) {
-            continue;
-          }
-          if (!TrackLucasKanade(pyramids[t], pyramids[t - 1], forward, from - forward, params,
-                                &scratch, &backward)) {
-            continue;
-          }
-          const cv::Point2f error = backward - from;
-          if (error.dot(error) > options.max_forward_backward_px * options.max_forward_backward_px) {
-            continue;
-          }
-          keep[a] = 1;
-          next[a] = forward;
-        }
-      }
-      std::vector<int> still_active;
-      for (size_t a = 0; a < active.size(); ++a) {
-        if (!keep[a]) continue;
-        result.tracks[active[a]].points.push_back(next[a]);
-        still_active.push_back(active[a]);
-      }
-      active.swap(still_active);
+      FollowTracks(pyramids[t - 1], pyramids[t], gray[t].size(), settings,
+                   options.max_forward_backward_px, &active, &result.tracks);
     }
     result.alive[t] = static_cast<int>(active.size());
-    // Replenish with corners away from the tracks that reached t.
-    if (t + 1 < num_frames) {
-      cv::Mat mask(gray[t].size(), CV_8UC1, cv::Scalar(255));
-      for (int index : active) {
-        cv::circle(mask, result.tracks[index].points.back(), static_cast<int>(min_distance + 0.5f),
-                   cv::Scalar(0), -1);
-      }
-      const int wanted = options.max_features - static_cast<int>(active.size());
-      if (wanted > 0) {
-        std::vector<cv::Point2f> corners;
-        cv::Mat gray8;
-        gray[t].convertTo(gray8, CV_8U, 255.0);
-        cv::goodFeaturesToTrack(gray8, corners, wanted, options.feature_quality, min_distance,
-                                mask, options.feature_block_size);
-        const float border = static_cast<float>(options.klt_window_radius_px);
-        for (const cv::Point2f& corner : corners) {
-          if (corner.x < border || corner.y < border || corner.x > gray[t].cols - 1 - border ||
-              corner.y > gray[t].rows - 1 - border) {
-            continue;
-          }
-          Track track;
-          track.first_frame = t;
-          track.points.push_back(corner);
-          active.push_back(static_cast<int>(result.tracks.size()));
-          result.tracks.push_back(track);
-          ++result.detected[t];
-        }
-      }
-    }
+    if (t + 1 < num_frames) DetectNewTracks(gray8[t], t, options, &active, &result);
   }
   return result;
 }
@@ -336,13 +261,16 @@ PoseParameters ToParameters(const SE3& T_cam_world) {
   return parameters;
 }
 
-SE3 FromParameters(const PoseParameters& parameters) {
-  const Eigen::Vector3d rotation(parameters.rotation);
+// The rotation matrix of an angle-axis vector (the identity near 0).
+Eigen::Matrix3d RotationFromAngleAxis(const Eigen::Vector3d& rotation) {
   const double angle = rotation.norm();
-  const Eigen::Matrix3d R =
-      angle < 1e-15 ? Eigen::Matrix3d::Identity()
-                    : Eigen::AngleAxisd(angle, rotation / angle).toRotationMatrix();
-  return SE3(R, Eigen::Vector3d(parameters.translation));
+  return angle < 1e-15 ? Eigen::Matrix3d::Identity()
+                       : Eigen::Matrix3d(Eigen::AngleAxisd(angle, rotation / angle).toRotationMatrix());
+}
+
+SE3 FromParameters(const PoseParameters& parameters) {
+  return SE3(RotationFromAngleAxis(Eigen::Vector3d(parameters.rotation)),
+             Eigen::Vector3d(parameters.translation));
 }
 
 SE3 FromOpenCv(const cv::Mat& rvec, const cv::Mat& tvec) {
@@ -365,6 +293,21 @@ void ToOpenCv(const SE3& T_cam_world, cv::Mat* rvec, cv::Mat* tvec) {
     tvec->at<double>(r) = T_cam_world.translation()[r];
   }
   cv::Rodrigues(R, *rvec);
+}
+
+// Levenberg-Marquardt (dense Schur) on `threads` threads, silent, with the
+// bundle-adjustment iteration cap: the solver of the two-view refinement and
+// the bundle adjustment.
+ceres::Solver::Summary SolveQuietly(const InitializerOptions& options, int threads,
+                                    ceres::Problem* problem) {
+  ceres::Solver::Options solver_options;
+  solver_options.linear_solver_type = ceres::DENSE_SCHUR;
+  solver_options.max_num_iterations = options.ba_max_iterations;
+  solver_options.num_threads = threads;
+  solver_options.logging_type = ceres::SILENT;
+  ceres::Solver::Summary summary;
+  ceres::Solve(solver_options, problem, &summary);
+  return summary;
 }
 
 struct ReprojectionResidual {
@@ -615,14 +558,7 @@ TwoViewSolution RefineTwoView(const PinholeCamera& camera, const InitializerOpti
                                new AbsoluteRotationPrior(camera.fx / options.rotation_prior_px)),
                            nullptr, solution.rotation.data());
   problem.SetManifold(solution.translation.data(), new ceres::SphereManifold<3>());
-  ceres::Solver::Options solver_options;
-  solver_options.linear_solver_type = ceres::DENSE_SCHUR;
-  solver_options.max_num_iterations = options.ba_max_iterations;
-  solver_options.num_threads = threads;
-  solver_options.logging_type = ceres::SILENT;
-  ceres::Solver::Summary summary;
-  ceres::Solve(solver_options, &problem, &summary);
-  solution.cost = summary.final_cost;
+  solution.cost = SolveQuietly(options, threads, &problem).final_cost;
   // (t, rho) and (-t, -rho) fit equally: keep the points in front.
   int in_front = 0;
   for (double rho : solution.inverse_depth) in_front += rho > 0.0 ? 1 : -1;
@@ -690,6 +626,115 @@ Eigen::Vector3d PureTranslationEpipole(const PinholeCamera& camera,
   return in_front < 0 ? Eigen::Vector3d(-t) : t;
 }
 
+// The tracks that start in frame 0 and reach frame 1: their points in both
+// frames and their indices.
+struct TwoViewMatches {
+  std::vector<cv::Point2f> points0, points1;
+  std::vector<int> track_index;
+  int Count() const { return static_cast<int>(points0.size()); }
+};
+
+TwoViewMatches CollectTwoViewMatches(const std::vector<Track>& tracks) {
+  TwoViewMatches matches;
+  for (size_t i = 0; i < tracks.size(); ++i) {
+    const Track& track = tracks[i];
+    if (track.first_frame == 0 && track.Sees(1)) {
+      matches.points0.push_back(track.At(0));
+      matches.points1.push_back(track.At(1));
+      matches.track_index.push_back(static_cast<int>(i));
+    }
+  }
+  return matches;
+}
+
+// The essential-matrix start of frames 0-1: E by RANSAC, then recoverPose.
+// Throws InitializationError when E is degenerate or has too few inliers.
+struct EssentialStart {
+  Eigen::Matrix3d R = Eigen::Matrix3d::Identity();  // R_cam1_cam0
+  Eigen::Vector3d t = Eigen::Vector3d::UnitX();
+  int ransac_inliers = 0;
+  int pose_inliers = 0;  // RANSAC inliers that pass the cheirality check
+};
+
+EssentialStart EssentialMatrixStart(const PinholeCamera& camera, const InitializerOptions& options,
+                                    const TwoViewMatches& matches) {
+  const cv::Mat K = CameraMatrix(camera);
+  cv::Mat inlier_mask;
+  cv::Mat E = cv::findEssentialMat(matches.points0, matches.points1, K, cv::RANSAC,
+                                   options.ransac_confidence, options.ransac_threshold_px,
+                                   inlier_mask);
+  if (E.rows > 3 && E.cols == 3) E = E.rowRange(0, 3).clone();  // ambiguous minimal sets
+  if (E.rows != 3 || E.cols != 3) {
+    throw InitializationError("initialisation: frames 0-1 give no essential matrix (" +
+                              std::to_string(matches.Count()) + " matches; degenerate geometry)");
+  }
+  EssentialStart start;
+  start.ransac_inliers = cv::countNonZero(inlier_mask);
+  if (start.ransac_inliers < options.min_inliers) {
+    throw InitializationError("initialisation: frames 0-1: only " +
+                              std::to_string(start.ransac_inliers) + " of " +
+                              std::to_string(matches.Count()) +
+                              " matches consistent with one relative pose (need " +
+                              std::to_string(options.min_inliers) + ")");
+  }
+  // The default far-point cut (50 baselines) would drop most points: the
+  // baseline of two consecutive frames is ~1 % of the scene depth.
+  cv::Mat R_cv, t_cv, triangulated_points;
+  cv::Mat pose_mask = inlier_mask.clone();
+  start.pose_inliers = cv::recoverPose(E, matches.points0, matches.points1, K, R_cv, t_cv,
+                                       /*distanceThresh=*/1e6, pose_mask, triangulated_points);
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) start.R(r, c) = R_cv.at<double>(r, c);
+    start.t[r] = t_cv.at<double>(r);
+  }
+  return start;
+}
+
+// Median parallax of the 0-1 matches that the rotation of T_cam1_cam0 leaves.
+// A static camera or a pure rotation leaves none: the scale (|c1 - c0| = 1)
+// and the depths would be undefined, so too little throws.
+double CheckTwoViewParallax(const PinholeCamera& camera, const InitializerOptions& options,
+                            const TwoViewMatches& matches, const SE3& T_cam1_cam0) {
+  std::vector<double> parallaxes;
+  for (int k = 0; k < matches.Count(); ++k) {
+    parallaxes.push_back(
+        TranslationalParallax(camera, T_cam1_cam0, matches.points0[k], matches.points1[k]));
+  }
+  const double parallax = Median(parallaxes);
+  if (parallax < options.min_parallax_px) {
+    throw InitializationError(Format(
+        "initialisation: frames 0-1 have too little parallax (median %.2f px not explained by "
+        "rotation, need %.2f px); the camera must translate between them",
+        parallax, options.min_parallax_px));
+  }
+  return parallax;
+}
+
+// The points of the chosen two-view solution that lie in front of camera 0
+// and reproject into frame 1: added to the structure, linked to their tracks.
+// Returns how many.
+int AddTwoViewPoints(const PinholeCamera& camera, const InitializerOptions& options,
+                     const TwoViewMatches& matches, const std::vector<Eigen::Vector3d>& rays0,
+                     const TwoViewSolution& solution, std::vector<Track>* tracks,
+                     SparseStructure* structure) {
+  int triangulated = 0;
+  for (int k = 0; k < matches.Count(); ++k) {
+    const double rho = solution.inverse_depth[k];
+    if (!(rho > 1e-9)) continue;
+    const Eigen::Vector3d point = rays0[k] / rho;
+    Track& track = (*tracks)[matches.track_index[k]];
+    if (ReprojectionError(camera, structure->T_cam_world[1], point, track.At(1)) >
+        2.0 * options.ransac_threshold_px) {
+      continue;
+    }
+    track.point_id = static_cast<int>(structure->points_world.size());
+    structure->points_world.push_back(point);
+    structure->point_inlier.push_back(1);
+    ++triangulated;
+  }
+  return triangulated;
+}
+
 // Frames 0-1: the paper's SfM step. Essential matrix (RANSAC) + recoverPose
 // give one start; because a narrow field of view leaves the rotation /
 // translation split nearly unobservable (see RotationPrior), a second start
@@ -699,19 +744,12 @@ Eigen::Vector3d PureTranslationEpipole(const PinholeCamera& camera,
 // does not allow it.
 void TwoViewInitialisation(const PinholeCamera& camera, const InitializerOptions& options,
                            int threads, std::vector<Track>* tracks, SparseStructure* structure) {
-  std::vector<cv::Point2f> points0, points1;
-  std::vector<int> track_index;
-  for (size_t i = 0; i < tracks->size(); ++i) {
-    const Track& track = (*tracks)[i];
-    if (track.first_frame == 0 && track.Sees(1)) {
-      points0.push_back(track.At(0));
-      points1.push_back(track.At(1));
-      track_index.push_back(static_cast<int>(i));
-    }
-  }
-  const int matches = static_cast<int>(points0.size());
-  if (matches < options.min_inliers) {
-    throw InitializationError("initialisation: frames 0-1: only " + std::to_string(matches) +
+  const TwoViewMatches matches = CollectTwoViewMatches(*tracks);
+  const std::vector<cv::Point2f>& points0 = matches.points0;
+  const std::vector<cv::Point2f>& points1 = matches.points1;
+  const int count = matches.Count();
+  if (count < options.min_inliers) {
+    throw InitializationError("initialisation: frames 0-1: only " + std::to_string(count) +
                               " features tracked from frame 0 to frame 1 (need " +
                               std::to_string(options.min_inliers) + ")");
   }
@@ -726,86 +764,27 @@ void TwoViewInitialisation(const PinholeCamera& camera, const InitializerOptions
         "(need %.2f px); the camera must translate, not only rotate",
         rotation_free_parallax, options.min_rotation_free_parallax_px));
   }
-  const cv::Mat K = CameraMatrix(camera);
-  cv::Mat inlier_mask;
-  cv::Mat E = cv::findEssentialMat(points0, points1, K, cv::RANSAC, options.ransac_confidence,
-                                   options.ransac_threshold_px, inlier_mask);
-  if (E.rows > 3 && E.cols == 3) E = E.rowRange(0, 3).clone();  // ambiguous minimal sets
-  if (E.rows != 3 || E.cols != 3) {
-    throw InitializationError("initialisation: frames 0-1 give no essential matrix (" +
-                              std::to_string(matches) + " matches; degenerate geometry)");
-  }
-  const int ransac_inliers = cv::countNonZero(inlier_mask);
-  if (ransac_inliers < options.min_inliers) {
-    throw InitializationError("initialisation: frames 0-1: only " +
-                              std::to_string(ransac_inliers) + " of " + std::to_string(matches) +
-                              " matches consistent with one relative pose (need " +
-                              std::to_string(options.min_inliers) + ")");
-  }
-  // The default far-point cut (50 baselines) would drop most points: the
-  // baseline of two consecutive frames is ~1 % of the scene depth.
-  cv::Mat R_cv, t_cv, triangulated_points;
-  cv::Mat pose_mask = inlier_mask.clone();
-  const int pose_inliers = cv::recoverPose(E, points0, points1, K, R_cv, t_cv,
-                                           /*distanceThresh=*/1e6, pose_mask, triangulated_points);
-  Eigen::Matrix3d R_essential;
-  Eigen::Vector3d t_essential;
-  for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 3; ++c) R_essential(r, c) = R_cv.at<double>(r, c);
-    t_essential[r] = t_cv.at<double>(r);
-  }
+  const EssentialStart essential = EssentialMatrixStart(camera, options, matches);
 
   // Both starts are refined on all matches (Cauchy loss), so that their final
   // costs compare; points that stay off are not triangulated below.
-  std::vector<Eigen::Vector3d> rays0(matches);
-  for (int k = 0; k < matches; ++k) rays0[k] = camera.Ray(points0[k].x, points0[k].y);
+  std::vector<Eigen::Vector3d> rays0(count);
+  for (int k = 0; k < count; ++k) rays0[k] = camera.Ray(points0[k].x, points0[k].y);
   const Eigen::Vector3d t_translation =
       PureTranslationEpipole(camera, points0, points1, options.ransac_threshold_px);
   const TwoViewSolution from_essential =
-      RefineTwoView(camera, options, threads, rays0, points1, R_essential, t_essential);
+      RefineTwoView(camera, options, threads, rays0, points1, essential.R, essential.t);
   const TwoViewSolution from_translation = RefineTwoView(
       camera, options, threads, rays0, points1, Eigen::Matrix3d::Identity(), t_translation);
   const bool essential_wins = from_essential.cost <= from_translation.cost;
   const TwoViewSolution& best = essential_wins ? from_essential : from_translation;
 
-  const Eigen::Vector3d& aa = best.rotation;
-  const double angle = aa.norm();
-  const Eigen::Matrix3d R =
-      angle < 1e-15 ? Eigen::Matrix3d::Identity()
-                    : Eigen::AngleAxisd(angle, aa / angle).toRotationMatrix();
   // T_cam1_cam0 with |t| = 1: world = camera 0, centres 1 apart.
   structure->T_cam_world[0] = SE3();
-  structure->T_cam_world[1] = SE3(R, best.translation.normalized());
-  // Parallax of the chosen solution: the displacement its rotation leaves.
-  // A static camera or a pure rotation leaves none: the scale (|c1 - c0| = 1)
-  // and the depths would be undefined.
-  std::vector<double> parallaxes;
-  for (int k = 0; k < matches; ++k) {
-    parallaxes.push_back(
-        TranslationalParallax(camera, structure->T_cam_world[1], points0[k], points1[k]));
-  }
-  const double parallax = Median(parallaxes);
-  if (parallax < options.min_parallax_px) {
-    throw InitializationError(Format(
-        "initialisation: frames 0-1 have too little parallax (median %.2f px not explained by "
-        "rotation, need %.2f px); the camera must translate between them",
-        parallax, options.min_parallax_px));
-  }
-  int triangulated = 0;
-  for (int k = 0; k < matches; ++k) {
-    const double rho = best.inverse_depth[k];
-    if (!(rho > 1e-9)) continue;
-    const Eigen::Vector3d point = rays0[k] / rho;
-    Track& track = (*tracks)[track_index[k]];
-    if (ReprojectionError(camera, structure->T_cam_world[1], point, track.At(1)) >
-        2.0 * options.ransac_threshold_px) {
-      continue;
-    }
-    track.point_id = static_cast<int>(structure->points_world.size());
-    structure->points_world.push_back(point);
-    structure->point_inlier.push_back(1);
-    ++triangulated;
-  }
+  structure->T_cam_world[1] = SE3(RotationFromAngleAxis(best.rotation), best.translation.normalized());
+  const double parallax = CheckTwoViewParallax(camera, options, matches, structure->T_cam_world[1]);
+  const int triangulated =
+      AddTwoViewPoints(camera, options, matches, rays0, best, tracks, structure);
   if (triangulated < options.min_inliers) {
     throw InitializationError("initialisation: only " + std::to_string(triangulated) +
                               " points of frames 0-1 triangulate in front of both cameras "
@@ -814,7 +793,8 @@ void TwoViewInitialisation(const PinholeCamera& camera, const InitializerOptions
   structure->log.push_back(Format(
       "two-view 0-1: %.0f matches, %.0f RANSAC inliers, %.0f pass cheirality, parallax %.2f px "
       "(%.2f px not explained by any rotation), %.0f points",
-      matches, ransac_inliers, pose_inliers, parallax, rotation_free_parallax, triangulated));
+      count, essential.ransac_inliers, essential.pose_inliers, parallax, rotation_free_parallax,
+      triangulated));
   structure->log.push_back(Format(
       "two-view 0-1: refined cost from E %.4g (rotation %.3f deg), from pure translation %.4g "
       "(rotation %.3f deg)",
@@ -871,6 +851,56 @@ void LocaliseFrame(const PinholeCamera& camera, const InitializerOptions& option
                                   object.size()));
 }
 
+// Adds the reprojection residuals of every observation of an inlier point to
+// `problem`; from round 1 on, observations beyond `outlier_px` stay out.
+// Returns how many were added.
+int AddReprojectionResiduals(const PinholeCamera& camera, const InitializerOptions& options,
+                             const std::vector<Track>& tracks, const SparseStructure& structure,
+                             int round, std::vector<PoseParameters>* poses,
+                             std::vector<std::array<double, 3>>* points, ceres::Problem* problem) {
+  const double outlier_px = options.pnp_threshold_px;
+  int observations = 0;
+  for (const Track& track : tracks) {
+    if (track.point_id < 0 || !structure.point_inlier[track.point_id]) continue;
+    double* point = (*points)[track.point_id].data();
+    for (int f = track.first_frame; f <= track.LastFrame(); ++f) {
+      if (round > 0 && ReprojectionError(camera, FromParameters((*poses)[f]),
+                                         Eigen::Vector3d(point), track.At(f)) > outlier_px) {
+        continue;
+      }
+      problem->AddResidualBlock(
+          new ceres::AutoDiffCostFunction<ReprojectionResidual, 2, 3, 3, 3>(
+              new ReprojectionResidual(track.At(f), camera)),
+          new ceres::CauchyLoss(options.ba_loss_px), (*poses)[f].rotation,
+          (*poses)[f].translation, point);
+      ++observations;
+    }
+  }
+  return observations;
+}
+
+// RMS reprojection error (px) of the observations of inlier points within
+// `outlier_px`.
+double InlierRms(const PinholeCamera& camera, const std::vector<Track>& tracks,
+                 const SparseStructure& structure, const std::vector<PoseParameters>& poses,
+                 const std::vector<std::array<double, 3>>& points, double outlier_px) {
+  double squares = 0.0;
+  int inliers = 0;
+  for (const Track& track : tracks) {
+    if (track.point_id < 0 || !structure.point_inlier[track.point_id]) continue;
+    for (int f = track.first_frame; f <= track.LastFrame(); ++f) {
+      const double error = ReprojectionError(camera, FromParameters(poses[f]),
+                                             Eigen::Vector3d(points[track.point_id].data()),
+                                             track.At(f));
+      if (error <= outlier_px) {
+        squares += error * error;
+        ++inliers;
+      }
+    }
+  }
+  return std::sqrt(squares / std::max(1, inliers));
+}
+
 // All poses and points by reprojection error (Cauchy loss) plus the
 // frame-to-frame RotationPrior, camera 0 fixed and |t_1| = |c_1 - c_0| = 1 on
 // a sphere: the gauge of SPEC section 2. Two rounds, dropping observations
@@ -890,23 +920,8 @@ double BundleAdjust(const PinholeCamera& camera, const InitializerOptions& optio
   double rms = 0.0;
   for (int round = 0; round < 2; ++round) {
     ceres::Problem problem;
-    int observations = 0;
-    for (const Track& track : tracks) {
-      if (track.point_id < 0 || !structure->point_inlier[track.point_id]) continue;
-      for (int f = track.first_frame; f <= track.LastFrame(); ++f) {
-        if (round > 0 && ReprojectionError(camera, FromParameters(poses[f]),
-                                           Eigen::Vector3d(points[track.point_id].data()),
-                                           track.At(f)) > outlier_px) {
-          continue;
-        }
-        problem.AddResidualBlock(
-            new ceres::AutoDiffCostFunction<ReprojectionResidual, 2, 3, 3, 3>(
-                new ReprojectionResidual(track.At(f), camera)),
-            new ceres::CauchyLoss(options.ba_loss_px), poses[f].rotation, poses[f].translation,
-            points[track.point_id].data());
-        ++observations;
-      }
-    }
+    const int observations = AddReprojectionResiduals(camera, options, tracks, *structure, round,
+                                                      &poses, &points, &problem);
     if (problem.NumResidualBlocks() == 0) break;
     for (int t = 1; t < num_frames; ++t) {
       problem.AddResidualBlock(new ceres::AutoDiffCostFunction<RotationPrior, 3, 3, 3>(
@@ -920,28 +935,8 @@ double BundleAdjust(const PinholeCamera& camera, const InitializerOptions& optio
     if (num_frames > 1 && problem.HasParameterBlock(poses[1].translation)) {
       problem.SetManifold(poses[1].translation, new ceres::SphereManifold<3>());
     }
-    ceres::Solver::Options solver_options;
-    solver_options.linear_solver_type = ceres::DENSE_SCHUR;
-    solver_options.max_num_iterations = options.ba_max_iterations;
-    solver_options.num_threads = threads;
-    solver_options.logging_type = ceres::SILENT;
-    ceres::Solver::Summary summary;
-    ceres::Solve(solver_options, &problem, &summary);
-    double squares = 0.0;
-    int inliers = 0;
-    for (const Track& track : tracks) {
-      if (track.point_id < 0 || !structure->point_inlier[track.point_id]) continue;
-      for (int f = track.first_frame; f <= track.LastFrame(); ++f) {
-        const double error = ReprojectionError(camera, FromParameters(poses[f]),
-                                               Eigen::Vector3d(points[track.point_id].data()),
-                                               track.At(f));
-        if (error <= outlier_px) {
-          squares += error * error;
-          ++inliers;
-        }
-      }
-    }
-    rms = std::sqrt(squares / std::max(1, inliers));
+    SolveQuietly(options, threads, &problem);
+    rms = InlierRms(camera, tracks, *structure, poses, points, outlier_px);
     *num_observations = observations;
   }
   for (int t = 0; t < num_frames; ++t) structure->T_cam_world[t] = FromParameters(poses[t]);
@@ -1163,18 +1158,11 @@ void ComputeCostVolume(const std::vector<NeighbourImages>& neighbours, const Pla
   }
 }
 
-// min_u sum_x [ w g(x) |grad u(x)| + C(x, u(x)) ] over the sampled
-// hypotheses: the TV-L1 energy of eq:initializationScene with the edge weight
-// of eq:regularizingTerm. Solved as in DTAM (Newcombe et al. 2011): the
-// auxiliary a(x) carries the (non-convex, sampled) data term and is coupled to
-// u by (u - a)^2 / (2 theta); u is a weighted ROF problem (primal-dual
-// steps), a a point-wise search; theta decreases geometrically. The last a is
-// refined below the plane spacing by a parabola through the neighbouring
-// costs. Returns u in ws->u.
-void SolveTvL1(const PlaneSet& planes, const cv::Mat& edge_weight,
-               const InitializerOptions& options, int width, int height, double theta_start,
-               double theta_end, const std::vector<float>* u_init, DepthWorkspace* ws) {
-  const int pixels = width * height;
+// Per pixel of the cost volume in ws->cost: the cost range (it bounds the
+// search for a below) and the best plane, which starts a; u starts at u_init
+// (or at a), the dual p at 0.
+void InitialiseTvL1(const PlaneSet& planes, int pixels, const std::vector<float>* u_init,
+                    DepthWorkspace* ws) {
   const int L = planes.planes;
   const float* cost = ws->cost.data();
   ws->a.resize(pixels);
@@ -1201,6 +1189,111 @@ void SolveTvL1(const PlaneSet& planes, const cv::Mat& edge_weight,
     ws->u[pixel] = u_init != nullptr ? (*u_init)[pixel] : ws->a[pixel];
   }
   ws->u_bar = ws->u;
+}
+
+// Primal-dual step sizes of the ROF coupling, sigma * tau * ||grad||^2 <= 1
+// (||grad||^2 <= 8).
+constexpr float kDualStep = 0.5f;    // sigma
+constexpr float kPrimalStep = 0.25f;  // tau
+
+// One primal-dual step of the ROF coupling (Chambolle-Pock): dual ascent on
+// p projected onto |p| <= w g (ws->tv_weight), then the proximal step of
+// (u - a)^2 / (2 theta).
+void RofStep(int width, int height, float theta, DepthWorkspace* ws) {
+  const float sigma = kDualStep;
+  const float tau = kPrimalStep;
+  const std::vector<float>& weight = ws->tv_weight;
+  for (int y = 0; y < height; ++y) {
+    for (int x = 0; x < width; ++x) {
+      const int pixel = y * width + x;
+      const float gx = x + 1 < width ? ws->u_bar[pixel + 1] - ws->u_bar[pixel] : 0.0f;
+      const float gy = y + 1 < height ? ws->u_bar[pixel + width] - ws->u_bar[pixel] : 0.0f;
+      float qx = ws->px[pixel] + sigma * gx;
+      float qy = ws->py[pixel] + sigma * gy;
+      const float norm = std::sqrt(qx * qx + qy * qy);
+      const float limit = weight[pixel];
+      if (norm > limit) {
+        const float shrink = limit / norm;
+        qx *= shrink;
+        qy *= shrink;
+      }
+      ws->px[pixel] = qx;
+      ws->py[pixel] = qy;
+    }
+  }
+  for (int y = 0; y < height; ++y) {
+    for (int x = 0; x < width; ++x) {
+      const int pixel = y * width + x;
+      float divergence = 0.0f;
+      divergence += (x + 1 < width ? ws->px[pixel] : 0.0f) - (x > 0 ? ws->px[pixel - 1] : 0.0f);
+      divergence +=
+          (y + 1 < height ? ws->py[pixel] : 0.0f) - (y > 0 ? ws->py[pixel - width] : 0.0f);
+      const float previous = ws->u[pixel];
+      const float updated =
+          (previous + tau * (divergence + ws->a[pixel] / theta)) / (1.0f + tau / theta);
+      ws->u[pixel] = updated;
+      ws->u_bar[pixel] = 2.0f * updated - previous;
+    }
+  }
+}
+
+// Point-wise a: the hypothesis of least data cost plus coupling
+// (u - a)^2 / (2 theta). Only hypotheses whose coupling cost stays below the
+// cost range can win, which bounds the search window. On the `last`
+// alternation a is refined below the plane spacing: the vertex of the
+// parabola through the neighbouring total energies.
+void UpdateAuxiliary(const PlaneSet& planes, int pixels, float theta, bool last,
+                     DepthWorkspace* ws) {
+  const int L = planes.planes;
+  const float* cost = ws->cost.data();
+  const float inv_step = 1.0f / planes.step;
+  for (int pixel = 0; pixel < pixels; ++pixel) {
+    const float* c = cost + static_cast<size_t>(pixel) * L;
+    const float u = ws->u[pixel];
+    const float reach = std::sqrt(2.0f * theta * (ws->cost_max[pixel] - ws->cost_min[pixel]));
+    const float centre = (u - (*planes.base)[pixel]) * inv_step + planes.centre;
+    const int lo = std::max(0, static_cast<int>(std::floor(centre - reach * inv_step)));
+    const int hi = std::min(L - 1, static_cast<int>(std::ceil(centre + reach * inv_step)));
+    const float inv_two_theta = 0.5f / theta;
+    int best = std::min(std::max(static_cast<int>(std::lround(centre)), 0), L - 1);
+    float best_energy = std::numeric_limits<float>::infinity();
+    for (int i = lo; i <= hi; ++i) {
+      const float d = u - planes.U(pixel, i);
+      const float energy = d * d * inv_two_theta + c[i];
+      if (energy < best_energy) {
+        best_energy = energy;
+        best = i;
+      }
+    }
+    float a = planes.U(pixel, best);
+    if (last && best > 0 && best + 1 < L) {
+      const float d_minus = u - planes.U(pixel, best - 1);
+      const float d_plus = u - planes.U(pixel, best + 1);
+      const float e_minus = d_minus * d_minus * inv_two_theta + c[best - 1];
+      const float e_plus = d_plus * d_plus * inv_two_theta + c[best + 1];
+      const float curvature = e_minus - 2.0f * best_energy + e_plus;
+      if (curvature > 1e-9f) {
+        const float shift = std::min(0.5f, std::max(-0.5f, 0.5f * (e_minus - e_plus) / curvature));
+        a += shift * planes.step;
+      }
+    }
+    ws->a[pixel] = a;
+  }
+}
+
+// min_u sum_x [ w g(x) |grad u(x)| + C(x, u(x)) ] over the sampled
+// hypotheses: the TV-L1 energy of eq:initializationScene with the edge weight
+// of eq:regularizingTerm. Solved as in DTAM (Newcombe et al. 2011): the
+// auxiliary a(x) carries the (non-convex, sampled) data term and is coupled to
+// u by (u - a)^2 / (2 theta); u is a weighted ROF problem (primal-dual
+// steps), a a point-wise search; theta decreases geometrically. The last a is
+// refined below the plane spacing by a parabola through the neighbouring
+// costs. Returns u in ws->u.
+void SolveTvL1(const PlaneSet& planes, const cv::Mat& edge_weight,
+               const InitializerOptions& options, int width, int height, double theta_start,
+               double theta_end, const std::vector<float>* u_init, DepthWorkspace* ws) {
+  const int pixels = width * height;
+  InitialiseTvL1(planes, pixels, u_init, ws);
   const float tv_weight = static_cast<float>(options.depth_tv_weight);
   std::vector<float>& weight = ws->tv_weight;
   weight.resize(pixels);
@@ -1208,92 +1301,18 @@ void SolveTvL1(const PlaneSet& planes, const cv::Mat& edge_weight,
     const float* g = edge_weight.ptr<float>(y);
     for (int x = 0; x < width; ++x) weight[y * width + x] = tv_weight * g[x];
   }
-  // Step sizes with sigma * tau * ||grad||^2 <= 1 (||grad||^2 <= 8).
-  const float sigma = 0.5f;
-  const float tau = 0.25f;
   const int iterations = std::max(2, options.tv_iterations);
-  const float inv_step = 1.0f / planes.step;
-  // One primal-dual step of the ROF coupling (Chambolle-Pock): dual ascent on
-  // p projected onto |p| <= w g, then the proximal step of (u - a)^2 / (2 theta).
-  auto rof_step = [&](float theta) {
-    for (int y = 0; y < height; ++y) {
-      for (int x = 0; x < width; ++x) {
-        const int pixel = y * width + x;
-        const float gx = x + 1 < width ? ws->u_bar[pixel + 1] - ws->u_bar[pixel] : 0.0f;
-        const float gy = y + 1 < height ? ws->u_bar[pixel + width] - ws->u_bar[pixel] : 0.0f;
-        float qx = ws->px[pixel] + sigma * gx;
-        float qy = ws->py[pixel] + sigma * gy;
-        const float norm = std::sqrt(qx * qx + qy * qy);
-        const float limit = weight[pixel];
-        if (norm > limit) {
-          const float shrink = limit / norm;
-          qx *= shrink;
-          qy *= shrink;
-        }
-        ws->px[pixel] = qx;
-        ws->py[pixel] = qy;
-      }
-    }
-    for (int y = 0; y < height; ++y) {
-      for (int x = 0; x < width; ++x) {
-        const int pixel = y * width + x;
-        float divergence = 0.0f;
-        divergence += (x + 1 < width ? ws->px[pixel] : 0.0f) - (x > 0 ? ws->px[pixel - 1] : 0.0f);
-        divergence +=
-            (y + 1 < height ? ws->py[pixel] : 0.0f) - (y > 0 ? ws->py[pixel - width] : 0.0f);
-        const float previous = ws->u[pixel];
-        const float updated =
-            (previous + tau * (divergence + ws->a[pixel] / theta)) / (1.0f + tau / theta);
-        ws->u[pixel] = updated;
-        ws->u_bar[pixel] = 2.0f * updated - previous;
-      }
-    }
-  };
   for (int iteration = 0; iteration < iterations; ++iteration) {
     const double progress = static_cast<double>(iteration) / (iterations - 1);
     const float theta =
         static_cast<float>(theta_start * std::pow(theta_end / theta_start, progress));
-    const bool last = iteration + 1 == iterations;
-    rof_step(theta);
-    // Point-wise a: only hypotheses whose coupling cost stays below the
-    // cost range can win, which bounds the search window.
-    for (int pixel = 0; pixel < pixels; ++pixel) {
-      const float* c = cost + static_cast<size_t>(pixel) * L;
-      const float u = ws->u[pixel];
-      const float reach = std::sqrt(2.0f * theta * (ws->cost_max[pixel] - ws->cost_min[pixel]));
-      const float centre = (u - (*planes.base)[pixel]) * inv_step + planes.centre;
-      const int lo = std::max(0, static_cast<int>(std::floor(centre - reach * inv_step)));
-      const int hi = std::min(L - 1, static_cast<int>(std::ceil(centre + reach * inv_step)));
-      const float inv_two_theta = 0.5f / theta;
-      int best = std::min(std::max(static_cast<int>(std::lround(centre)), 0), L - 1);
-      float best_energy = std::numeric_limits<float>::infinity();
-      for (int i = lo; i <= hi; ++i) {
-        const float d = u - planes.U(pixel, i);
-        const float energy = d * d * inv_two_theta + c[i];
-        if (energy < best_energy) {
-          best_energy = energy;
-          best = i;
-        }
-      }
-      float a = planes.U(pixel, best);
-      if (last && best > 0 && best + 1 < L) {
-        // Sub-plane refinement: vertex of the parabola through the
-        // neighbouring total energies.
-        const float d_minus = u - planes.U(pixel, best - 1);
-        const float d_plus = u - planes.U(pixel, best + 1);
-        const float e_minus = d_minus * d_minus * inv_two_theta + c[best - 1];
-        const float e_plus = d_plus * d_plus * inv_two_theta + c[best + 1];
-        const float curvature = e_minus - 2.0f * best_energy + e_plus;
-        if (curvature > 1e-9f) {
-          const float shift = std::min(0.5f, std::max(-0.5f, 0.5f * (e_minus - e_plus) / curvature));
-          a += shift * planes.step;
-        }
-      }
-      ws->a[pixel] = a;
-    }
+    RofStep(width, height, theta, ws);
+    UpdateAuxiliary(planes, pixels, theta, iteration + 1 == iterations, ws);
   }
   // A few ROF steps so that u settles on the refined a.
-  for (int iteration = 0; iteration < 10; ++iteration) rof_step(static_cast<float>(theta_end));
+  for (int iteration = 0; iteration < 10; ++iteration) {
+    RofStep(width, height, static_cast<float>(theta_end), ws);
+  }
 }
 
 // Equal-blur image pairs for every frame and neighbour (the Psi_t o B_s and
@@ -1417,68 +1436,55 @@ void UpsampleInverseDepth(int width, int height, double rho_min, double rho_max,
 }  // namespace
 
 void InitializerOptions::Check() const {
-  auto fail = [](const std::string& field, const std::string& problem) {
-    throw InputError("initializer: " + field + " " + problem);
-  };
-  if (num_threads < 0) fail("num_threads", "must be >= 0, got " + std::to_string(num_threads));
-  if (max_features < 8) fail("max_features", "must be >= 8, got " + std::to_string(max_features));
-  if (!(feature_quality > 0.0 && feature_quality < 1.0)) {
-    fail("feature_quality", "must be in (0, 1)");
-  }
-  if (!(min_feature_distance_px >= 1.0)) fail("min_feature_distance_px", "must be >= 1");
-  if (feature_block_size < 3 || feature_block_size > 31) {
-    fail("feature_block_size", "must be in [3, 31]");
-  }
-  if (klt_window_radius_px < 2 || klt_window_radius_px > 32) {
-    fail("klt_window_radius_px", "must be in [2, 32]");
-  }
-  if (klt_levels < 1 || klt_levels > 6) fail("klt_levels", "must be in [1, 6]");
-  if (!(klt_max_residual > 0.0)) fail("klt_max_residual", "must be > 0");
-  if (!(max_forward_backward_px > 0.0)) fail("max_forward_backward_px", "must be > 0");
-  if (!(ransac_threshold_px > 0.0)) fail("ransac_threshold_px", "must be > 0");
-  if (!(ransac_confidence > 0.0 && ransac_confidence < 1.0)) {
-    fail("ransac_confidence", "must be in (0, 1)");
-  }
-  if (min_inliers < 8) fail("min_inliers", "must be >= 8, got " + std::to_string(min_inliers));
-  if (!(min_parallax_px >= 0.0)) fail("min_parallax_px", "must be >= 0");
-  if (!(min_rotation_free_parallax_px >= 0.0)) fail("min_rotation_free_parallax_px", "must be >= 0");
-  if (!(min_triangulation_parallax_px >= 0.0)) {
-    fail("min_triangulation_parallax_px", "must be >= 0");
-  }
-  if (!(pnp_threshold_px > 0.0)) fail("pnp_threshold_px", "must be > 0");
-  if (min_pnp_inliers < 6) fail("min_pnp_inliers", "must be >= 6");
-  if (!(ba_loss_px > 0.0)) fail("ba_loss_px", "must be > 0");
-  if (!(rotation_prior_px > 0.0)) fail("rotation_prior_px", "must be > 0");
-  if (ba_max_iterations < 0) fail("ba_max_iterations", "must be >= 0");
-  if (capture_samples < 1 || capture_samples > 1000) fail("capture_samples", "must be in [1, 1000]");
-  if (neighbours_per_side < 1 || neighbours_per_side > 5) {
-    fail("neighbours_per_side", "must be in [1, 5]");
-  }
-  if (num_planes < 4 || num_planes > 512) fail("num_planes", "must be in [4, 512]");
-  if (refine_planes < 3 || refine_planes > 256) fail("refine_planes", "must be in [3, 256]");
-  if (depth_levels < 1 || depth_levels > 5) fail("depth_levels", "must be in [1, 5]");
-  if (!(refine_band > 0.0)) fail("refine_band", "must be > 0");
-  if (patch_radius_px < 0 || patch_radius_px > 10) fail("patch_radius_px", "must be in [0, 10]");
-  if (!(cost_truncation > 0.0)) fail("cost_truncation", "must be > 0");
-  if (!(depth_range_margin >= 0.0)) fail("depth_range_margin", "must be >= 0");
-  if (!(depth_tv_weight >= 0.0)) fail("depth_tv_weight", "must be >= 0");
-  if (tv_iterations < 2) fail("tv_iterations", "must be >= 2");
-  if (!(theta_start > 0.0 && theta_end > 0.0 && theta_end <= theta_start)) {
-    fail("theta_start/theta_end", "must satisfy 0 < theta_end <= theta_start");
-  }
+  const std::string prefix = "initializer: ";
+  CheckAtLeast(prefix + "num_threads", num_threads, 0);
+  CheckAtLeast(prefix + "max_features", max_features, 8);
+  CheckInOpenUnitInterval(prefix + "feature_quality", feature_quality);
+  CheckAtLeast(prefix + "min_feature_distance_px", min_feature_distance_px, 1.0);
+  CheckInRange(prefix + "feature_block_size", feature_block_size, 3, 31);
+  CheckInRange(prefix + "klt_window_radius_px", klt_window_radius_px, 2, 32);
+  CheckInRange(prefix + "klt_levels", klt_levels, 1, 6);
+  CheckAbove(prefix + "klt_max_residual", klt_max_residual, 0.0);
+  CheckAbove(prefix + "max_forward_backward_px", max_forward_backward_px, 0.0);
+  CheckAbove(prefix + "ransac_threshold_px", ransac_threshold_px, 0.0);
+  CheckInOpenUnitInterval(prefix + "ransac_confidence", ransac_confidence);
+  CheckAtLeast(prefix + "min_inliers", min_inliers, 8);
+  CheckAtLeast(prefix + "min_parallax_px", min_parallax_px, 0.0);
+  CheckAtLeast(prefix + "min_rotation_free_parallax_px", min_rotation_free_parallax_px, 0.0);
+  CheckAtLeast(prefix + "min_triangulation_parallax_px", min_triangulation_parallax_px, 0.0);
+  CheckAbove(prefix + "pnp_threshold_px", pnp_threshold_px, 0.0);
+  CheckAtLeast(prefix + "min_pnp_inliers", min_pnp_inliers, 6);
+  CheckAbove(prefix + "ba_loss_px", ba_loss_px, 0.0);
+  CheckAbove(prefix + "rotation_prior_px", rotation_prior_px, 0.0);
+  CheckAtLeast(prefix + "ba_max_iterations", ba_max_iterations, 0);
+  CheckInRange(prefix + "capture_samples", capture_samples, 1, 1000);
+  CheckInRange(prefix + "neighbours_per_side", neighbours_per_side, 1, 5);
+  CheckInRange(prefix + "num_planes", num_planes, 4, 512);
+  CheckInRange(prefix + "refine_planes", refine_planes, 3, 256);
+  CheckInRange(prefix + "depth_levels", depth_levels, 1, 5);
+  CheckAbove(prefix + "refine_band", refine_band, 0.0);
+  CheckInRange(prefix + "patch_radius_px", patch_radius_px, 0, 10);
+  CheckAbove(prefix + "cost_truncation", cost_truncation, 0.0);
+  CheckAtLeast(prefix + "depth_range_margin", depth_range_margin, 0.0);
+  CheckAtLeast(prefix + "depth_tv_weight", depth_tv_weight, 0.0);
+  CheckAtLeast(prefix + "tv_iterations", tv_iterations, 2);
+  CheckAbove(prefix + "theta_start", theta_start, 0.0);
+  CheckAbove(prefix + "theta_end", theta_end, 0.0);
+  CheckInRange(prefix + "theta_end", theta_end, 0.0, theta_start);
   try {
     edge_weight.Check();
   } catch (const InputError& error) {
-    fail("edge_weight", std::string("invalid: ") + error.what());
+    throw InputError(prefix + "edge_weight: " + error.what());
   }
 }
 
 namespace {
 
-InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images_lr,
-                                              const PinholeCamera& camera_lr,
-                                              const std::vector<FrameRecord>& frames,
-                                              const InitializerOptions& options) {
+// Throws InputError unless the options, the camera, the images and the frame
+// records fit together.
+void CheckInitializerInputs(const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
+                            const std::vector<FrameRecord>& frames,
+                            const InitializerOptions& options) {
   options.Check();
   {
     const std::string problem = camera_lr.Problem();
@@ -1509,9 +1515,297 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
   if (camera_lr.width < 16 || camera_lr.height < 16) {
     throw InputError("initializer: images must be at least 16x16");
   }
-  const int threads = ResolveThreads(options.num_threads);
+}
+
+// Stage 1: the tracks; throws when frame 0 has too few corners.
+TrackingResult TrackStage(const std::vector<cv::Mat>& gray, const InitializerOptions& options,
+                          int threads, std::ostringstream* summary) {
+  const int num_frames = static_cast<int>(gray.size());
+  const double stage_ms = NowMs();
+  TrackingResult tracking = TrackFeatures(gray, options, threads);
+  if (tracking.detected[0] < options.min_inliers) {
+    throw InitializationError("initialisation: only " + std::to_string(tracking.detected[0]) +
+                              " features found in frame 0 (need " +
+                              std::to_string(options.min_inliers) +
+                              "); is the image blank or untextured?");
+  }
+  *summary << Format("tracking: %.0f tracks, %.0f in frame 0, %.0f followed into frame 1, %.0f into "
+                     "the last frame; %.1f ms\n",
+                     tracking.tracks.size(), tracking.detected[0], tracking.alive[1],
+                     tracking.alive[num_frames - 1], NowMs() - stage_ms);
+  return tracking;
+}
+
+// Stages 2-3: frames 0-1, then every later frame by PnP, then all together.
+// The poses are those of mid-exposure (T_cam_world), camera 0 the world.
+SparseStructure SparseStage(const PinholeCamera& camera_lr, const InitializerOptions& options,
+                            int threads, int num_frames, std::vector<Track>* tracks,
+                            std::ostringstream* summary) {
+  double stage_ms = NowMs();
+  SparseStructure structure;
+  structure.T_cam_world.assign(num_frames, SE3());
+  TwoViewInitialisation(camera_lr, options, threads, tracks, &structure);
+  std::vector<char> has_pose(num_frames, 0);
+  has_pose[0] = has_pose[1] = 1;
+  for (int t = 2; t < num_frames; ++t) {
+    LocaliseFrame(camera_lr, options, t, *tracks, &structure);
+    has_pose[t] = 1;
+    TriangulateNewPoints(camera_lr, options, t, has_pose, tracks, &structure);
+  }
+  for (const std::string& line : structure.log) *summary << line << "\n";
+  *summary << Format("two-view + pnp: %.1f ms\n", NowMs() - stage_ms);
+  stage_ms = NowMs();
+  int observations = 0;
+  const double rms = BundleAdjust(camera_lr, options, threads, *tracks, &structure, &observations);
+  *summary << Format("bundle adjustment: %.0f points, %.0f observations, rms %.3f px; %.1f ms\n",
+                     structure.points_world.size(), observations, rms, NowMs() - stage_ms);
+  return structure;
+}
+
+// The tracks follow the blurred patterns, i.e. the blur centroids: the
+// sparse poses are those of mid-exposure, t_c - exposure / 2 (exact for
+// motion that is linear in the image over an exposure). The output poses
+// are at the shutter close t_c (SPEC 3, the stamps): each is moved along
+// the geodesic through the neighbouring mid-exposure poses
+// (eq:interpolatingP, extrapolated by half an exposure; frame 0 uses frames
+// 0-1). World = camera 0 at t_c, |c1 - c0| = 1 (exact, re-applied here); the
+// points follow.
+void MoveToShutterClose(const std::vector<FrameRecord>& frames, SparseStructure* structure,
+                        std::vector<SE3>* T_world_cam, std::vector<SE3>* T_world_mid,
+                        std::ostringstream* summary) {
+  const int num_frames = static_cast<int>(frames.size());
+  T_world_mid->resize(num_frames);
+  for (int t = 0; t < num_frames; ++t) (*T_world_mid)[t] = structure->T_cam_world[t].Inverse();
+  T_world_cam->resize(num_frames);
+  for (int t = 0; t < num_frames; ++t) {
+    const int a = t > 0 ? t - 1 : 0;
+    const int b = t > 0 ? t : 1;
+    const double mid_a = frames[a].stamp - 0.5 * frames[a].exposure;
+    const double mid_b = frames[b].stamp - 0.5 * frames[b].exposure;
+    const double alpha = (frames[t].stamp - mid_a) / (mid_b - mid_a);
+    (*T_world_cam)[t] = InterpolatePose((*T_world_mid)[a], (*T_world_mid)[b], alpha);
+  }
+  const SE3 T_new_old = (*T_world_cam)[0].Inverse();
+  const double baseline = ((*T_world_cam)[1].translation() - (*T_world_cam)[0].translation()).norm();
+  if (!(baseline > 1e-9)) {
+    throw InitializationError("initialisation: frames 0-1 collapsed onto one centre "
+                              "(degenerate geometry)");
+  }
+  auto normalise = [&](const SE3& T_old_cam) {
+    const SE3 T = T_new_old * T_old_cam;
+    return SE3(T.rotation(), T.translation() / baseline);
+  };
+  for (int t = 0; t < num_frames; ++t) {
+    (*T_world_cam)[t] = normalise((*T_world_cam)[t]);
+    (*T_world_mid)[t] = normalise((*T_world_mid)[t]);
+  }
+  for (auto& point : structure->points_world) point = (T_new_old * point) / baseline;
+  *summary << Format("poses moved from mid-exposure to shutter close: %.3f (frame 0), %.3f (last) "
+                     "baselines\n",
+                     ((*T_world_mid)[0].translation() - (*T_world_cam)[0].translation()).norm(),
+                     ((*T_world_mid)[num_frames - 1].translation() -
+                      (*T_world_cam)[num_frames - 1].translation())
+                         .norm());
+}
+
+// Inverse-depth range of each frame's sweep and its median depth (the start
+// of the first pass), from the triangulated points it sees.
+struct DepthRanges {
+  std::vector<double> rho_min, rho_max, median_depth;
+};
+
+DepthRanges ComputeDepthRanges(const std::vector<Track>& tracks, const SparseStructure& structure,
+                               const std::vector<SE3>& T_world_cam,
+                               const InitializerOptions& options) {
+  const int num_frames = static_cast<int>(T_world_cam.size());
+  DepthRanges ranges;
+  ranges.rho_min.resize(num_frames);
+  ranges.rho_max.resize(num_frames);
+  ranges.median_depth.resize(num_frames);
+  std::vector<double> all_depths;
+  std::vector<std::vector<double>> frame_depths(num_frames);
+  for (const Track& track : tracks) {
+    if (track.point_id < 0 || !structure.point_inlier[track.point_id]) continue;
+    for (int f = track.first_frame; f <= track.LastFrame(); ++f) {
+      const double z = (T_world_cam[f].Inverse() * structure.points_world[track.point_id]).z();
+      if (z > 0.0) {
+        frame_depths[f].push_back(z);
+        all_depths.push_back(z);
+      }
+    }
+  }
+  if (all_depths.size() < 8) {
+    throw InitializationError("initialisation: too few triangulated points in front of the "
+                              "cameras (degenerate geometry)");
+  }
+  for (int t = 0; t < num_frames; ++t) {
+    const std::vector<double>& depths = frame_depths[t].size() >= 8 ? frame_depths[t] : all_depths;
+    const double near = Percentile(depths, 0.02);
+    const double far = Percentile(depths, 0.98);
+    ranges.median_depth[t] = Median(depths);
+    const double rho_near = 1.0 / near, rho_far = 1.0 / far;
+    // At least +-10 % of the median: a near-planar scene still gets a range.
+    const double margin = std::max(options.depth_range_margin * (rho_near - rho_far),
+                                   0.1 / ranges.median_depth[t]);
+    ranges.rho_max[t] = rho_near + margin;
+    ranges.rho_min[t] = std::max(rho_far - margin, 0.5 * rho_far);
+  }
+  return ranges;
+}
+
+// One level of the coarse-to-fine depth passes: the input box-downsampled by
+// `factor` (an odd last column / row dropped), its camera and the edge
+// weights g_t of eq:regularizingTerm.
+struct DepthLevel {
+  int factor = 1;
+  int width = 0;
+  int height = 0;
+  PinholeCamera camera;
+  std::vector<cv::Mat> images, edge_weight;
+};
+
+DepthLevel MakeDepthLevel(const std::vector<cv::Mat>& images, const PinholeCamera& camera_lr,
+                          int factor, const InitializerOptions& options) {
+  const int num_frames = static_cast<int>(images.size());
+  DepthLevel level;
+  level.factor = factor;
+  level.width = camera_lr.width / factor;
+  level.height = camera_lr.height / factor;
+  level.camera = PinholeCamera(level.width * factor, level.height * factor, camera_lr.fx,
+                               camera_lr.fy, camera_lr.cx, camera_lr.cy)
+                     .Downscaled(factor);
+  level.images.resize(num_frames);
+  level.edge_weight.resize(num_frames);
+  for (int t = 0; t < num_frames; ++t) {
+    const cv::Mat cropped = images[t](cv::Rect(0, 0, level.width * factor, level.height * factor));
+    level.images[t] = factor == 1 ? images[t] : DownsampleBox(cropped.clone(), factor);
+    level.edge_weight[t] = EdgeWeight(level.images[t], options.edge_weight);
+  }
+  return level;
+}
+
+// Wall and thread time of the depth passes, for the summary.
+struct DepthTimings {
+  double blur_ms = 0.0, sweep_ms = 0.0, cost_thread_ms = 0.0, tv_thread_ms = 0.0;
+};
+
+// One pass over every frame (in parallel): the cost volume of the pass's
+// hypotheses (the whole range at pass 0, else a band of `span` around the
+// up-sampled estimate), TV-L1, and the depth that follows. u[t] and depth[t]
+// are read as the previous estimate and replaced.
+void DepthPass(const DepthLevel& level, int pass, double span,
+               const std::vector<std::vector<NeighbourImages>>& pairs, const DepthRanges& ranges,
+               const InitializerOptions& options, int threads,
+               std::vector<DepthWorkspace>* workspaces, std::vector<std::vector<float>>* u,
+               std::vector<cv::Mat>* depth, DepthTimings* timings) {
+  const int num_frames = static_cast<int>(depth->size());
+  const std::vector<float> zero_base(static_cast<size_t>(level.width) * level.height, 0.0f);
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
+  for (int t = 0; t < num_frames; ++t) {
+    DepthWorkspace& ws = (*workspaces)[omp_get_thread_num()];
+    PlaneSet planes;
+    planes.rho_min = ranges.rho_min[t];
+    planes.rho_max = ranges.rho_max[t];
+    if (pass == 0) {
+      planes.planes = options.num_planes;
+      planes.centre = 0.0f;
+      planes.step = 1.0f / (options.num_planes - 1);
+      planes.base = &zero_base;
+    } else {
+      planes.planes = options.refine_planes;
+      planes.centre = 0.5f * (options.refine_planes - 1);
+      planes.step = static_cast<float>(span / (options.refine_planes - 1));
+      planes.base = &(*u)[t];
+    }
+    const double sweep_start = NowMs();
+    ComputeCostVolume(pairs[t], planes, options, level.width, level.height, &ws);
+    const double tv_start = NowMs();
+    SolveTvL1(planes, level.edge_weight[t], options, level.width, level.height,
+              options.theta_start * span * span, options.theta_end * span * span,
+              pass == 0 ? nullptr : &(*u)[t], &ws);
+    const double tv_end = NowMs();
+#pragma omp critical(initializer_timers)
+    {
+      timings->cost_thread_ms += tv_start - sweep_start;
+      timings->tv_thread_ms += tv_end - tv_start;
+    }
+    (*u)[t] = ws.u;
+    InverseDepthToDepth((*u)[t], level.width, level.height, ranges.rho_min[t], ranges.rho_max[t],
+                        &(*depth)[t]);
+  }
+}
+
+// Stage 4: eq:initializationScene per frame, coarse to fine over an image
+// pyramid: pass 0 sweeps the whole range on the coarsest level (global, so no
+// local minima to escape), each finer pass re-builds the blur operators with
+// the depths so far (Psi depends on D_t) and sweeps a narrow band around the
+// up-sampled estimate. Returns the LR depth maps of the input size.
+std::vector<cv::Mat> DepthStage(const std::vector<cv::Mat>& images, const PinholeCamera& camera_lr,
+                                const std::vector<FrameRecord>& frames,
+                                const std::vector<SE3>& T_world_cam,
+                                const std::vector<SE3>& T_world_mid, const DepthRanges& ranges,
+                                const InitializerOptions& options, int threads,
+                                std::ostringstream* summary) {
+  const int num_frames = static_cast<int>(images.size());
   const int width = camera_lr.width;
   const int height = camera_lr.height;
+  const int num_levels = PyramidLevels(width, height, options.depth_levels);
+  std::vector<std::vector<float>> u(num_frames);  // normalised inverse depth
+  std::vector<cv::Mat> depth(num_frames);
+  DepthTimings timings;
+  std::vector<std::vector<NeighbourImages>> pairs;
+  std::vector<DepthWorkspace> workspaces(threads);
+  double span = 1.0;  // u-range covered by a pass's hypotheses
+  for (int pass = 0; pass < num_levels; ++pass) {
+    const DepthLevel level =
+        MakeDepthLevel(images, camera_lr, 1 << (num_levels - 1 - pass), options);
+    for (int t = 0; t < num_frames; ++t) {
+      if (pass == 0) {
+        u[t].clear();
+        depth[t] = cv::Mat(level.height, level.width, CV_32FC1,
+                           cv::Scalar(static_cast<float>(ranges.median_depth[t])));
+      } else {
+        UpsampleInverseDepth(level.width, level.height, ranges.rho_min[t], ranges.rho_max[t], &u[t],
+                             &depth[t]);
+      }
+    }
+    double stage_ms = NowMs();
+    BuildBlurredPairs(level.images, level.camera, frames, T_world_cam, T_world_mid, depth, options,
+                      threads, &pairs);
+    timings.blur_ms += NowMs() - stage_ms;
+    stage_ms = NowMs();
+    if (pass > 0) {
+      span = 2.0 * options.refine_band * span /
+             ((pass == 1 ? options.num_planes : options.refine_planes) - 1);
+    }
+    DepthPass(level, pass, span, pairs, ranges, options, threads, &workspaces, &u, &depth, &timings);
+    timings.sweep_ms += NowMs() - stage_ms;
+    *summary << Format("depth pass %.0f: %.0fx%.0f px, %.0f hypotheses over %.4f of the "
+                       "inverse-depth range\n",
+                       pass, level.width, level.height,
+                       pass == 0 ? options.num_planes : options.refine_planes, span);
+  }
+  // The finest pass may have dropped an odd last column / row: replicate.
+  for (int t = 0; t < num_frames; ++t) {
+    if (depth[t].cols != width || depth[t].rows != height) {
+      cv::copyMakeBorder(depth[t].clone(), depth[t], 0, height - depth[t].rows, 0,
+                         width - depth[t].cols, cv::BORDER_REPLICATE);
+    }
+  }
+  *summary << Format("depth: blur-aware pairs %.1f ms, sweep + TV-L1 %.1f ms (thread time: cost "
+                     "volumes %.1f ms, TV-L1 %.1f ms)\n",
+                     timings.blur_ms, timings.sweep_ms, timings.cost_thread_ms,
+                     timings.tv_thread_ms);
+  return depth;
+}
+
+InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images_lr,
+                                              const PinholeCamera& camera_lr,
+                                              const std::vector<FrameRecord>& frames,
+                                              const InitializerOptions& options) {
+  CheckInitializerInputs(images_lr, camera_lr, frames, options);
+  const int num_frames = static_cast<int>(images_lr.size());
+  const int threads = ResolveThreads(options.num_threads);
   InitialStructure result;
   std::ostringstream summary;
   const double start_ms = NowMs();
@@ -1526,210 +1820,16 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
       gray[t] = images[t];
     }
   }
-
-  // 1. Tracks.
-  double stage_ms = NowMs();
-  TrackingResult tracking = TrackFeatures(gray, options, threads);
-  if (tracking.detected[0] < options.min_inliers) {
-    throw InitializationError("initialisation: only " + std::to_string(tracking.detected[0]) +
-                              " features found in frame 0 (need " +
-                              std::to_string(options.min_inliers) +
-                              "); is the image blank or untextured?");
-  }
-  summary << Format("tracking: %.0f tracks, %.0f in frame 0, %.0f followed into frame 1, %.0f into "
-                    "the last frame; %.1f ms\n",
-                    tracking.tracks.size(), tracking.detected[0], tracking.alive[1],
-                    tracking.alive[num_frames - 1], NowMs() - stage_ms);
-
-  // 2.-3. Frames 0-1, then every later frame by PnP, then all together.
-  stage_ms = NowMs();
-  SparseStructure structure;
-  structure.T_cam_world.assign(num_frames, SE3());
-  TwoViewInitialisation(camera_lr, options, threads, &tracking.tracks, &structure);
-  std::vector<char> has_pose(num_frames, 0);
-  has_pose[0] = has_pose[1] = 1;
-  for (int t = 2; t < num_frames; ++t) {
-    LocaliseFrame(camera_lr, options, t, tracking.tracks, &structure);
-    has_pose[t] = 1;
-    TriangulateNewPoints(camera_lr, options, t, has_pose, &tracking.tracks, &structure);
-  }
-  for (const std::string& line : structure.log) summary << line << "\n";
-  summary << Format("two-view + pnp: %.1f ms\n", NowMs() - stage_ms);
-  stage_ms = NowMs();
-  int observations = 0;
-  const double rms = BundleAdjust(camera_lr, options, threads, tracking.tracks, &structure,
-                                  &observations);
-  summary << Format("bundle adjustment: %.0f points, %.0f observations, rms %.3f px; %.1f ms\n",
-                    structure.points_world.size(), observations, rms, NowMs() - stage_ms);
-  // The tracks follow the blurred patterns, i.e. the blur centroids: the
-  // poses so far are those of mid-exposure, t_c - exposure / 2 (exact for
-  // motion that is linear in the image over an exposure). The output poses
-  // are at the shutter close t_c (SPEC 3, the stamps): each is moved along
-  // the geodesic through the neighbouring mid-exposure poses
-  // (eq:interpolatingP, extrapolated by half an exposure; frame 0 uses frames
-  // 0-1). World = camera 0 at t_c, |c1 - c0| = 1 (exact, re-applied here).
-  std::vector<SE3> T_world_mid(num_frames);
-  for (int t = 0; t < num_frames; ++t) T_world_mid[t] = structure.T_cam_world[t].Inverse();
-  result.T_world_cam.resize(num_frames);
-  for (int t = 0; t < num_frames; ++t) {
-    const int a = t > 0 ? t - 1 : 0;
-    const int b = t > 0 ? t : 1;
-    const double mid_a = frames[a].stamp - 0.5 * frames[a].exposure;
-    const double mid_b = frames[b].stamp - 0.5 * frames[b].exposure;
-    const double alpha = (frames[t].stamp - mid_a) / (mid_b - mid_a);
-    result.T_world_cam[t] = InterpolatePose(T_world_mid[a], T_world_mid[b], alpha);
-  }
-  {
-    const SE3 T_new_old = result.T_world_cam[0].Inverse();
-    const double baseline =
-        (result.T_world_cam[1].translation() - result.T_world_cam[0].translation()).norm();
-    if (!(baseline > 1e-9)) {
-      throw InitializationError("initialisation: frames 0-1 collapsed onto one centre "
-                                "(degenerate geometry)");
-    }
-    auto normalise = [&](const SE3& T_old_cam) {
-      const SE3 T = T_new_old * T_old_cam;
-      return SE3(T.rotation(), T.translation() / baseline);
-    };
-    for (int t = 0; t < num_frames; ++t) {
-      result.T_world_cam[t] = normalise(result.T_world_cam[t]);
-      T_world_mid[t] = normalise(T_world_mid[t]);
-    }
-    for (auto& point : structure.points_world) point = (T_new_old * point) / baseline;
-  }
-  summary << Format("poses moved from mid-exposure to shutter close: %.3f (frame 0), %.3f (last) "
-                    "baselines\n",
-                    (T_world_mid[0].translation() - result.T_world_cam[0].translation()).norm(),
-                    (T_world_mid[num_frames - 1].translation() -
-                     result.T_world_cam[num_frames - 1].translation())
-                        .norm());
-
-  // 4. Depths. Inverse-depth range per frame from the points it sees.
-  std::vector<double> rho_min(num_frames), rho_max(num_frames), median_depth(num_frames);
-  {
-    std::vector<double> all_depths;
-    std::vector<std::vector<double>> frame_depths(num_frames);
-    for (const Track& track : tracking.tracks) {
-      if (track.point_id < 0 || !structure.point_inlier[track.point_id]) continue;
-      for (int f = track.first_frame; f <= track.LastFrame(); ++f) {
-        const double z =
-            (result.T_world_cam[f].Inverse() * structure.points_world[track.point_id]).z();
-        if (z > 0.0) {
-          frame_depths[f].push_back(z);
-          all_depths.push_back(z);
-        }
-      }
-    }
-    if (all_depths.size() < 8) {
-      throw InitializationError("initialisation: too few triangulated points in front of the "
-                                "cameras (degenerate geometry)");
-    }
-    for (int t = 0; t < num_frames; ++t) {
-      const std::vector<double>& depths =
-          frame_depths[t].size() >= 8 ? frame_depths[t] : all_depths;
-      const double near = Percentile(depths, 0.02);
-      const double far = Percentile(depths, 0.98);
-      median_depth[t] = Median(depths);
-      const double rho_near = 1.0 / near, rho_far = 1.0 / far;
-      // At least +-10 % of the median: a near-planar scene still gets a range.
-      const double margin = std::max(options.depth_range_margin * (rho_near - rho_far),
-                                     0.1 / median_depth[t]);
-      rho_max[t] = rho_near + margin;
-      rho_min[t] = std::max(rho_far - margin, 0.5 * rho_far);
-    }
-  }
-  // Coarse to fine over an image pyramid: pass 0 sweeps the whole range on
-  // the coarsest level (global, so no local minima to escape), each finer pass
-  // re-builds the blur operators with the depths so far (Psi depends on D_t)
-  // and sweeps a narrow band around the up-sampled estimate.
-  const int num_levels = PyramidLevels(width, height, options.depth_levels);
-  std::vector<std::vector<float>> u(num_frames);  // normalised inverse depth
-  std::vector<cv::Mat> depth(num_frames);
-  double blur_ms = 0.0, sweep_ms = 0.0, cost_thread_ms = 0.0, tv_thread_ms = 0.0;
-  std::vector<std::vector<NeighbourImages>> pairs;
-  std::vector<DepthWorkspace> workspaces(threads);
-  double span = 1.0;  // u-range covered by a pass's hypotheses
-  for (int level = 0; level < num_levels; ++level) {
-    const int factor = 1 << (num_levels - 1 - level);
-    const int level_width = width / factor;
-    const int level_height = height / factor;
-    const PinholeCamera level_camera =
-        PinholeCamera(level_width * factor, level_height * factor, camera_lr.fx, camera_lr.fy,
-                      camera_lr.cx, camera_lr.cy)
-            .Downscaled(factor);
-    std::vector<cv::Mat> level_images(num_frames), edge_weight(num_frames);
-    for (int t = 0; t < num_frames; ++t) {
-      const cv::Mat cropped = images[t](cv::Rect(0, 0, level_width * factor, level_height * factor));
-      level_images[t] = factor == 1 ? images[t] : DownsampleBox(cropped.clone(), factor);
-      edge_weight[t] = EdgeWeight(level_images[t], options.edge_weight);
-      if (level == 0) {
-        u[t].clear();
-        depth[t] = cv::Mat(level_height, level_width, CV_32FC1,
-                           cv::Scalar(static_cast<float>(median_depth[t])));
-      } else {
-        UpsampleInverseDepth(level_width, level_height, rho_min[t], rho_max[t], &u[t], &depth[t]);
-      }
-    }
-    stage_ms = NowMs();
-    BuildBlurredPairs(level_images, level_camera, frames, result.T_world_cam, T_world_mid, depth,
-                      options, threads, &pairs);
-    blur_ms += NowMs() - stage_ms;
-    stage_ms = NowMs();
-    if (level > 0) {
-      span = 2.0 * options.refine_band * span /
-             ((level == 1 ? options.num_planes : options.refine_planes) - 1);
-    }
-    const std::vector<float> zero_base(static_cast<size_t>(level_width) * level_height, 0.0f);
-#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
-    for (int t = 0; t < num_frames; ++t) {
-      DepthWorkspace& ws = workspaces[omp_get_thread_num()];
-      PlaneSet planes;
-      planes.rho_min = rho_min[t];
-      planes.rho_max = rho_max[t];
-      if (level == 0) {
-        planes.planes = options.num_planes;
-        planes.centre = 0.0f;
-        planes.step = 1.0f / (options.num_planes - 1);
-        planes.base = &zero_base;
-      } else {
-        planes.planes = options.refine_planes;
-        planes.centre = 0.5f * (options.refine_planes - 1);
-        planes.step = static_cast<float>(span / (options.refine_planes - 1));
-        planes.base = &u[t];
-      }
-      const double sweep_start = NowMs();
-      ComputeCostVolume(pairs[t], planes, options, level_width, level_height, &ws);
-      const double tv_start = NowMs();
-      SolveTvL1(planes, edge_weight[t], options, level_width, level_height,
-                options.theta_start * span * span, options.theta_end * span * span,
-                level == 0 ? nullptr : &u[t], &ws);
-      const double tv_end = NowMs();
-#pragma omp critical(initializer_timers)
-      {
-        cost_thread_ms += tv_start - sweep_start;
-        tv_thread_ms += tv_end - tv_start;
-      }
-      u[t] = ws.u;
-      InverseDepthToDepth(u[t], level_width, level_height, rho_min[t], rho_max[t], &depth[t]);
-    }
-    sweep_ms += NowMs() - stage_ms;
-    summary << Format("depth pass %.0f: %.0fx%.0f px, %.0f hypotheses over %.4f of the inverse-depth "
-                      "range\n",
-                      level, level_width, level_height,
-                      level == 0 ? options.num_planes : options.refine_planes, span);
-  }
-  // The finest pass may have dropped an odd last column / row: replicate.
-  for (int t = 0; t < num_frames; ++t) {
-    if (depth[t].cols != width || depth[t].rows != height) {
-      cv::copyMakeBorder(depth[t].clone(), depth[t], 0, height - depth[t].rows, 0,
-                         width - depth[t].cols, cv::BORDER_REPLICATE);
-    }
-  }
-  summary << Format("depth: blur-aware pairs %.1f ms, sweep + TV-L1 %.1f ms (thread time: cost "
-                    "volumes %.1f ms, TV-L1 %.1f ms)\n",
-                    blur_ms, sweep_ms, cost_thread_ms, tv_thread_ms);
+  TrackingResult tracking = TrackStage(gray, options, threads, &summary);
+  SparseStructure structure =
+      SparseStage(camera_lr, options, threads, num_frames, &tracking.tracks, &summary);
+  std::vector<SE3> T_world_mid;
+  MoveToShutterClose(frames, &structure, &result.T_world_cam, &T_world_mid, &summary);
+  const DepthRanges ranges =
+      ComputeDepthRanges(tracking.tracks, structure, result.T_world_cam, options);
+  result.depth_lr = DepthStage(images, camera_lr, frames, result.T_world_cam, T_world_mid, ranges,
+                               options, threads, &summary);
   summary << Format("total: %.1f ms", NowMs() - start_ms);
-  result.depth_lr = depth;
   result.summary = summary.str();
   return result;
 }

@@ -6,13 +6,17 @@
 #include <opencv2/imgproc.hpp>
 
 #include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/geometry/warp.h"
 
 namespace deblur_sr_mvs {
 
 void VisibilityOptions::Check() const {
-  if (!(depth_tolerance >= 0.0 && depth_tolerance < 1.0)) {
-    throw InputError("visibility: depth_tolerance must be in [0, 1)");
+  CheckAtLeast("visibility: depth_tolerance", depth_tolerance, 0.0);
+  // [0, 1): options_check.h has no half-open interval.
+  if (!(depth_tolerance < 1.0)) {
+    throw InputError("visibility: depth_tolerance must be in [0, 1), got " +
+                     options_check_detail::Text(depth_tolerance));
   }
 }
 
@@ -82,9 +86,8 @@ cv::Mat DownscaleMaskAll(const cv::Mat& mask_hr, int scale) {
 }
 
 void EdgeWeightOptions::Check() const {
-  if (!(sigma > 0.0) || !(exponent > 0.0)) {
-    throw InputError("edge weight: sigma and exponent must be > 0");
-  }
+  CheckAbove("edge weight: sigma", sigma, 0.0);
+  CheckAbove("edge weight: exponent", exponent, 0.0);
 }
 
 cv::Mat EdgeWeight(const cv::Mat& image, const EdgeWeightOptions& options) {

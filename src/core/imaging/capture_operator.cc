@@ -3,11 +3,11 @@
 #include <omp.h>
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <sstream>
 
 #include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/common/runtime.h"
 #include "deblur_sr_mvs/core/geometry/warp.h"
 
@@ -148,17 +148,9 @@ std::vector<SE3> VirtualCameraPoses(const CaptureGeometry& geometry, int samples
 }
 
 void CaptureOperatorOptions::Check() const {
-  if (samples < 1 || samples > 10000) {
-    throw InputError("capture operator: samples (M) must be in [1, 10000], got " +
-                     std::to_string(samples));
-  }
-  if (scale < 1 || scale > 8) {
-    throw InputError("capture operator: scale must be in [1, 8], got " + std::to_string(scale));
-  }
-  if (num_threads < 0) {
-    throw InputError("capture operator: num_threads must be >= 0, got " +
-                     std::to_string(num_threads));
-  }
+  CheckInRange("capture operator: samples (M)", samples, 1, 10000);
+  CheckInRange("capture operator: scale", scale, 1, 8);
+  CheckAtLeast("capture operator: num_threads", num_threads, 0);
 }
 
 void CaptureOperator::Apply(const cv::Mat& hr, cv::Mat* lr) const {
@@ -204,16 +196,11 @@ void CaptureOperator::ApplyAdjoint(const cv::Mat& lr, cv::Mat* hr) const {
   }
 }
 
-CaptureOperatorBuilder::CaptureOperatorBuilder(const CaptureOperatorOptions& options)
-    : options_(options) {
-  options_.Check();
-}
+namespace {
 
-void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOperator* op) {
+// Throws InputError unless the geometry fits an operator of factor `scale`.
+void CheckCaptureGeometry(const CaptureGeometry& geometry, int scale) {
   const PinholeCamera& camera = geometry.camera_hr;
-  const int scale = options_.scale;
-  const int samples = options_.samples;
-  const int threads = ResolveThreads(options_.num_threads);
   {
     const std::string problem = camera.Problem();
     if (!problem.empty()) throw InputError("capture operator: " + problem);
@@ -235,6 +222,292 @@ void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOpera
   if (!std::isfinite(frame_gap) || frame_gap == 0.0) {
     throw InputError("capture operator: the neighbour's stamp must differ from the frame's");
   }
+}
+
+// Everything the rows of one operator share: sizes, the M warps
+// W^{tau_m -> src} (eq:warpingFunction) as structure-of-arrays over m so that
+// the per-sample loop vectorises, with their row-constant parts precomputed
+// per HR row, and the depth D_tau_m each virtual camera sees.
+struct AssemblyContext {
+  int hr_width = 0, hr_height = 0, lr_width = 0, lr_height = 0;
+  int scale = 1, samples = 1, samples_per_pixel = 1;
+  float sample_weight = 1.0f;
+  float max_u = 0.0f, max_v = 0.0f;
+  std::vector<const float*> virtual_depth;  // D_tau_m, row-major HR
+  std::vector<float> h0, h3, h6, t0, t1, t2;
+  std::vector<float> row_bases;  // [(y * 3 + k) * samples + m]
+
+  AssemblyContext(const PinholeCamera& camera, int scale_in, int samples_in,
+                  const std::vector<PixelTransferF>& transfers,
+                  const std::vector<const cv::Mat*>& depth)
+      : hr_width(camera.width), hr_height(camera.height), lr_width(camera.width / scale_in),
+        lr_height(camera.height / scale_in), scale(scale_in), samples(samples_in),
+        samples_per_pixel(samples_in * scale_in * scale_in),
+        sample_weight(1.0f / static_cast<float>(samples_in * scale_in * scale_in)),
+        max_u(static_cast<float>(camera.width - 1)), max_v(static_cast<float>(camera.height - 1)),
+        virtual_depth(samples_in), h0(samples_in), h3(samples_in), h6(samples_in),
+        t0(samples_in), t1(samples_in), t2(samples_in),
+        row_bases(static_cast<size_t>(camera.height) * 3 * samples_in) {
+    for (int m = 0; m < samples; ++m) virtual_depth[m] = depth[m]->ptr<float>();
+    for (int m = 0; m < samples; ++m) {
+      h0[m] = transfers[m].h[0];
+      h3[m] = transfers[m].h[3];
+      h6[m] = transfers[m].h[6];
+      t0[m] = transfers[m].t[0];
+      t1[m] = transfers[m].t[1];
+      t2[m] = transfers[m].t[2];
+      for (int y = 0; y < hr_height; ++y) {
+        float base[3];
+        transfers[m].RowBase(static_cast<float>(y), base);
+        for (int k = 0; k < 3; ++k) row_bases[(static_cast<size_t>(y) * 3 + k) * samples + m] = base[k];
+      }
+    }
+  }
+};
+
+// Per-thread scratch of one LR pixel: its M * scale^2 bilinear taps
+// (structure of arrays) and the buffers that merge them.
+struct PixelScratch {
+  std::vector<float> depth;
+  std::vector<int> tap_x, tap_y;
+  std::vector<float> frac_x, frac_y;
+  std::vector<float> cells;
+  std::vector<float> scatter;  // fallback for huge footprints
+  std::vector<int> touched;
+
+  explicit PixelScratch(const AssemblyContext& context)
+      : depth(context.samples), tap_x(context.samples_per_pixel),
+        tap_y(context.samples_per_pixel), frac_x(context.samples_per_pixel),
+        frac_y(context.samples_per_pixel), cells(4 * kMaxLocalGrid) {}
+};
+
+// The taps of HR pixel (x, y) for every virtual camera, written at `offset`
+// of the scratch; returns how many samples missed the source image.
+inline int WarpHrPixel(const AssemblyContext& context, int x, int y, int offset,
+                       PixelScratch* scratch) {
+  const int samples = context.samples;
+  const float* base0 = &context.row_bases[(static_cast<size_t>(y) * 3 + 0) * samples];
+  const float* base1 = base0 + samples;
+  const float* base2 = base1 + samples;
+  const size_t pixel = static_cast<size_t>(y) * context.hr_width + x;
+  for (int m = 0; m < samples; ++m) scratch->depth[m] = context.virtual_depth[m][pixel];
+  int* out_x = scratch->tap_x.data() + offset;
+  int* out_y = scratch->tap_y.data() + offset;
+  float* out_fx = scratch->frac_x.data() + offset;
+  float* out_fy = scratch->frac_y.data() + offset;
+  const float xf = static_cast<float>(x);
+  const float yf = static_cast<float>(y);
+  const float max_u = context.max_u;
+  const float max_v = context.max_v;
+  const int hr_width = context.hr_width;
+  const int hr_height = context.hr_height;
+  // W^{tau_m -> src}(x) for every virtual camera (eq:warpingFunction);
+  // unknown depth or a point behind the camera samples x itself, and
+  // samples outside the image are clamped (border replicated); both
+  // count as misses in the coverage.
+  const float* __restrict depth_m = scratch->depth.data();
+  const float* __restrict c_h0 = context.h0.data();
+  const float* __restrict c_h3 = context.h3.data();
+  const float* __restrict c_h6 = context.h6.data();
+  const float* __restrict c_t0 = context.t0.data();
+  const float* __restrict c_t1 = context.t1.data();
+  const float* __restrict c_t2 = context.t2.data();
+  int misses = 0;
+#pragma omp simd reduction(+ : misses)
+  for (int m = 0; m < samples; ++m) {
+    const float d = depth_m[m];
+    const float z = d * (c_h6[m] * xf + base2[m]) + c_t2[m];
+    const float inv_z = 1.0f / z;
+    float u = (d * (c_h0[m] * xf + base0[m]) + c_t0[m]) * inv_z;
+    float v = (d * (c_h3[m] * xf + base1[m]) + c_t1[m]) * inv_z;
+    // Bitwise & (no short-circuit branches) keeps the loop vectorisable.
+    const bool usable = (d > 0.0f) & (d < 1e30f) & (z > 1e-9f);
+    u = usable ? u : xf;
+    v = usable ? v : yf;
+    const bool inside = usable & (u >= -kInsideTolerance) & (v >= -kInsideTolerance) &
+                        (u <= max_u + kInsideTolerance) & (v <= max_v + kInsideTolerance);
+    misses += inside ? 0 : 1;
+    u = std::min(std::max(u, 0.0f), max_u);
+    v = std::min(std::max(v, 0.0f), max_v);
+    const int ix = std::min(static_cast<int>(u), hr_width - 2);
+    const int iy = std::min(static_cast<int>(v), hr_height - 2);
+    float fx = u - static_cast<float>(ix);
+    float fy = v - static_cast<float>(iy);
+    fx = fx < kSnap ? 0.0f : (fx > 1.0f - kSnap ? 1.0f : fx);
+    fy = fy < kSnap ? 0.0f : (fy > 1.0f - kSnap ? 1.0f : fy);
+    out_x[m] = ix;
+    out_y[m] = iy;
+    out_fx[m] = fx;
+    out_fy[m] = fy;
+  }
+  return misses;
+}
+
+// Bounding box of the taps, the right and bottom taps of the bilinear stencil
+// included.
+struct TapBox {
+  int min_x, max_x, min_y, max_y;
+  int Width() const { return max_x - min_x + 1; }
+  int Height() const { return max_y - min_y + 1; }
+};
+
+TapBox BoundTaps(const AssemblyContext& context, const PixelScratch& scratch) {
+  TapBox box{context.hr_width, -1, context.hr_height, -1};
+  for (int k = 0; k < context.samples_per_pixel; ++k) {
+    box.min_x = std::min(box.min_x, scratch.tap_x[k]);
+    box.max_x = std::max(box.max_x, scratch.tap_x[k]);
+    box.min_y = std::min(box.min_y, scratch.tap_y[k]);
+    box.max_y = std::max(box.max_y, scratch.tap_y[k]);
+  }
+  ++box.max_x;
+  ++box.max_y;
+  return box;
+}
+
+// Merges the taps in a local dense grid. Each sample adds its four bilinear
+// weights to ONE cell as a 4-vector (top-left, top-right, bottom-left,
+// bottom-right); the stencil is unfolded when the grid is emitted. Emitting
+// in raster order gives sorted column indices.
+void MergeTapsInGrid(const AssemblyContext& context, const TapBox& box, PixelScratch* scratch,
+                     std::vector<int>* columns, std::vector<float>* values) {
+  const int grid_width = box.Width();
+  const int grid_height = box.Height();
+  const float sample_weight = context.sample_weight;
+  std::fill(scratch->cells.begin(), scratch->cells.begin() + 4 * grid_width * grid_height, 0.0f);
+  float* __restrict c = scratch->cells.data();
+  for (int k = 0; k < context.samples_per_pixel; ++k) {
+    const float wy1 = scratch->frac_y[k] * sample_weight;
+    const float wy0 = sample_weight - wy1;
+    const float fx = scratch->frac_x[k];
+    float* cell = c + 4 * ((scratch->tap_y[k] - box.min_y) * grid_width + (scratch->tap_x[k] - box.min_x));
+    cell[0] += (1.0f - fx) * wy0;
+    cell[1] += fx * wy0;
+    cell[2] += (1.0f - fx) * wy1;
+    cell[3] += fx * wy1;
+  }
+  for (int gy = 0; gy < grid_height; ++gy) {
+    const float* here = c + 4 * gy * grid_width;
+    const float* above = here - 4 * grid_width;
+    const int base = (box.min_y + gy) * context.hr_width + box.min_x;
+    for (int gx = 0; gx < grid_width; ++gx) {
+      float value = here[4 * gx];
+      if (gx > 0) value += here[4 * gx - 3];
+      if (gy > 0) {
+        value += above[4 * gx + 2];
+        if (gx > 0) value += above[4 * gx - 1];
+      }
+      if (value != 0.0f) {
+        columns->push_back(base + gx);
+        values->push_back(value);
+      }
+    }
+  }
+}
+
+// Merges the taps of a footprint too large for a local grid (extreme blur)
+// through an image-sized scatter array and a sort of the touched columns.
+void MergeTapsScattered(const AssemblyContext& context, PixelScratch* scratch,
+                        std::vector<int>* columns, std::vector<float>* values) {
+  const int hr_width = context.hr_width;
+  const float sample_weight = context.sample_weight;
+  std::vector<float>& scatter = scratch->scatter;
+  std::vector<int>& touched = scratch->touched;
+  if (scatter.empty()) scatter.assign(static_cast<size_t>(hr_width) * context.hr_height, 0.0f);
+  auto add = [&](int index, float w) {
+    if (w == 0.0f) return;
+    if (scatter[index] == 0.0f) touched.push_back(index);
+    scatter[index] += w;
+  };
+  for (int k = 0; k < context.samples_per_pixel; ++k) {
+    const int index = scratch->tap_y[k] * hr_width + scratch->tap_x[k];
+    const float wy1 = scratch->frac_y[k] * sample_weight;
+    const float wy0 = sample_weight - wy1;
+    const float fx = scratch->frac_x[k];
+    add(index, (1.0f - fx) * wy0);
+    add(index + 1, fx * wy0);
+    add(index + hr_width, (1.0f - fx) * wy1);
+    add(index + hr_width + 1, fx * wy1);
+  }
+  std::sort(touched.begin(), touched.end());
+  for (int index : touched) {
+    columns->push_back(index);
+    values->push_back(scatter[index]);
+    scatter[index] = 0.0f;
+  }
+  touched.clear();
+}
+
+// The rows [first_row, last_row) of Psi (LR rows) into one thread's CSR
+// pieces: per LR pixel, the taps of its scale^2 HR pixels for every virtual
+// camera, merged into one sparse row; its coverage and non-zero count.
+void AssembleRows(const AssemblyContext& context, int first_row, int last_row,
+                  std::vector<float>* coverage, std::vector<int>* row_nnz,
+                  std::vector<int>* columns, std::vector<float>* values) {
+  const int scale = context.scale;
+  const int lr_width = context.lr_width;
+  columns->clear();
+  values->clear();
+  columns->reserve(static_cast<size_t>(last_row - first_row) * lr_width * 64);
+  values->reserve(columns->capacity());
+  PixelScratch scratch(context);
+  for (int lr_y = first_row; lr_y < last_row; ++lr_y) {
+    for (int lr_x = 0; lr_x < lr_width; ++lr_x) {
+      const int row = lr_y * lr_width + lr_x;
+      int misses = 0;
+      for (int sub_y = 0; sub_y < scale; ++sub_y) {
+        for (int sub_x = 0; sub_x < scale; ++sub_x) {
+          misses += WarpHrPixel(context, lr_x * scale + sub_x, lr_y * scale + sub_y,
+                                (sub_y * scale + sub_x) * context.samples, &scratch);
+        }
+      }
+      const TapBox box = BoundTaps(context, scratch);
+      (*coverage)[row] = 1.0f - static_cast<float>(misses) / context.samples_per_pixel;
+      const size_t row_start = columns->size();
+      if (box.Width() * box.Height() <= kMaxLocalGrid) {
+        MergeTapsInGrid(context, box, &scratch, columns, values);
+      } else {
+        MergeTapsScattered(context, &scratch, columns, values);
+      }
+      (*row_nnz)[row] = static_cast<int>(columns->size() - row_start);
+    }
+  }
+}
+
+// Concatenates the per-thread blocks of rows into one compressed row-major
+// matrix.
+void ConcatenateBlocks(const std::vector<std::vector<int>>& block_columns,
+                       const std::vector<std::vector<float>>& block_values,
+                       const std::vector<int>& row_nnz, int threads, int cols,
+                       SparseMatrixRM* matrix) {
+  const int rows = static_cast<int>(row_nnz.size());
+  size_t nnz = 0;
+  for (const auto& block : block_columns) nnz += block.size();
+  matrix->resize(rows, cols);
+  matrix->resizeNonZeros(static_cast<Eigen::Index>(nnz));
+  int* outer = matrix->outerIndexPtr();
+  outer[0] = 0;
+  for (int r = 0; r < rows; ++r) outer[r + 1] = outer[r] + row_nnz[r];
+  size_t offset = 0;
+  for (int t = 0; t < threads; ++t) {
+    std::copy(block_columns[t].begin(), block_columns[t].end(), matrix->innerIndexPtr() + offset);
+    std::copy(block_values[t].begin(), block_values[t].end(), matrix->valuePtr() + offset);
+    offset += block_columns[t].size();
+  }
+}
+
+}  // namespace
+
+CaptureOperatorBuilder::CaptureOperatorBuilder(const CaptureOperatorOptions& options)
+    : options_(options) {
+  options_.Check();
+}
+
+void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOperator* op) {
+  const PinholeCamera& camera = geometry.camera_hr;
+  const int scale = options_.scale;
+  const int samples = options_.samples;
+  const int threads = ResolveThreads(options_.num_threads);
+  CheckCaptureGeometry(geometry, scale);
 
   const SE3& T_world_t = geometry.T_world_cam;
   const SE3 T_source_world = geometry.T_world_source.value_or(T_world_t).Inverse();
@@ -259,231 +532,36 @@ void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOpera
     }
     for (int m = 0; m < samples; ++m) virtual_depth[m] = &virtual_depths_[m];
   }
-
   timings_.reprojection_ms = NowMs() - stage_start;
   stage_start = NowMs();
 
-  const int hr_width = camera.width;
-  const int hr_height = camera.height;
-  const int lr_width = hr_width / scale;
-  const int lr_height = hr_height / scale;
-  const int lr_pixels = lr_width * lr_height;
-  const int samples_per_pixel = samples * scale * scale;
-  const float sample_weight = 1.0f / static_cast<float>(samples_per_pixel);
-  const float max_u = static_cast<float>(hr_width - 1);
-  const float max_v = static_cast<float>(hr_height - 1);
-  std::vector<const float*> virtual_depth_data(samples);
-  for (int m = 0; m < samples; ++m) virtual_depth_data[m] = virtual_depth[m]->ptr<float>();
-  // The transfers as structure-of-arrays over m, so that the per-sample loop
-  // below vectorises; the row-constant parts are precomputed per HR row.
-  std::vector<float> h0(samples), h3(samples), h6(samples), t0(samples), t1(samples),
-      t2(samples);
-  std::vector<float> row_bases(static_cast<size_t>(hr_height) * 3 * samples);
-  for (int m = 0; m < samples; ++m) {
-    h0[m] = transfers[m].h[0];
-    h3[m] = transfers[m].h[3];
-    h6[m] = transfers[m].h[6];
-    t0[m] = transfers[m].t[0];
-    t1[m] = transfers[m].t[1];
-    t2[m] = transfers[m].t[2];
-    for (int y = 0; y < hr_height; ++y) {
-      float base[3];
-      transfers[m].RowBase(static_cast<float>(y), base);
-      for (int k = 0; k < 3; ++k) row_bases[(static_cast<size_t>(y) * 3 + k) * samples + m] = base[k];
-    }
-  }
-
-  op->lr_size_ = cv::Size(lr_width, lr_height);
-  op->hr_size_ = cv::Size(hr_width, hr_height);
+  const AssemblyContext context(camera, scale, samples, transfers, virtual_depth);
+  const int lr_pixels = context.lr_width * context.lr_height;
+  op->lr_size_ = cv::Size(context.lr_width, context.lr_height);
+  op->hr_size_ = cv::Size(context.hr_width, context.hr_height);
   op->num_threads_ = threads;
   op->coverage_.assign(lr_pixels, 1.0f);
-
   // Each thread assembles a contiguous block of LR rows into its own CSR
   // pieces; the blocks are concatenated in order afterwards.
-  std::vector<std::vector<int>>& block_columns = block_columns_;
-  std::vector<std::vector<float>>& block_values = block_values_;
-  block_columns.resize(std::max<size_t>(block_columns.size(), threads));
-  block_values.resize(std::max<size_t>(block_values.size(), threads));
-  std::vector<int>& row_nnz = row_nnz_;
-  row_nnz.assign(lr_pixels, 0);
-
+  block_columns_.resize(std::max<size_t>(block_columns_.size(), threads));
+  block_values_.resize(std::max<size_t>(block_values_.size(), threads));
+  row_nnz_.assign(lr_pixels, 0);
+  const int lr_height = context.lr_height;
 #pragma omp parallel num_threads(threads)
   {
     const int thread = omp_get_thread_num();
     const int first_row = static_cast<int>(static_cast<long long>(lr_height) * thread / threads);
     const int last_row =
         static_cast<int>(static_cast<long long>(lr_height) * (thread + 1) / threads);
-    std::vector<int>& columns = block_columns[thread];
-    std::vector<float>& values = block_values[thread];
-    columns.clear();
-    values.clear();
-    columns.reserve(static_cast<size_t>(last_row - first_row) * lr_width * 64);
-    values.reserve(columns.capacity());
-    // Per-sample scratch of one LR pixel (structure of arrays).
-    std::vector<float> depth(samples);
-    std::vector<int> tap_x(samples_per_pixel), tap_y(samples_per_pixel);
-    std::vector<float> frac_x(samples_per_pixel), frac_y(samples_per_pixel);
-    std::vector<float> cells(4 * kMaxLocalGrid);
-    std::vector<float> scatter;  // fallback for huge footprints
-    std::vector<int> touched;
-
-    for (int lr_y = first_row; lr_y < last_row; ++lr_y) {
-      for (int lr_x = 0; lr_x < lr_width; ++lr_x) {
-        const int row = lr_y * lr_width + lr_x;
-        int misses = 0;
-        int min_x = hr_width, max_x = -1, min_y = hr_height, max_y = -1;
-        for (int sub_y = 0; sub_y < scale; ++sub_y) {
-          const int y = lr_y * scale + sub_y;
-          const float* base0 = &row_bases[(static_cast<size_t>(y) * 3 + 0) * samples];
-          const float* base1 = base0 + samples;
-          const float* base2 = base1 + samples;
-          for (int sub_x = 0; sub_x < scale; ++sub_x) {
-            const int x = lr_x * scale + sub_x;
-            const size_t pixel = static_cast<size_t>(y) * hr_width + x;
-            for (int m = 0; m < samples; ++m) depth[m] = virtual_depth_data[m][pixel];
-            const int offset = (sub_y * scale + sub_x) * samples;
-            int* out_x = tap_x.data() + offset;
-            int* out_y = tap_y.data() + offset;
-            float* out_fx = frac_x.data() + offset;
-            float* out_fy = frac_y.data() + offset;
-            const float xf = static_cast<float>(x);
-            const float yf = static_cast<float>(y);
-            // W^{tau_m -> src}(x) for every virtual camera (eq:warpingFunction);
-            // unknown depth or a point behind the camera samples x itself, and
-            // samples outside the image are clamped (border replicated); both
-            // count as misses in the coverage.
-            const float* __restrict depth_m = depth.data();
-            const float* __restrict c_h0 = h0.data();
-            const float* __restrict c_h3 = h3.data();
-            const float* __restrict c_h6 = h6.data();
-            const float* __restrict c_t0 = t0.data();
-            const float* __restrict c_t1 = t1.data();
-            const float* __restrict c_t2 = t2.data();
-#pragma omp simd reduction(+ : misses)
-            for (int m = 0; m < samples; ++m) {
-              const float d = depth_m[m];
-              const float z = d * (c_h6[m] * xf + base2[m]) + c_t2[m];
-              const float inv_z = 1.0f / z;
-              float u = (d * (c_h0[m] * xf + base0[m]) + c_t0[m]) * inv_z;
-              float v = (d * (c_h3[m] * xf + base1[m]) + c_t1[m]) * inv_z;
-              // Bitwise & (no short-circuit branches) keeps the loop vectorisable.
-              const bool usable = (d > 0.0f) & (d < 1e30f) & (z > 1e-9f);
-              u = usable ? u : xf;
-              v = usable ? v : yf;
-              const bool inside = usable & (u >= -kInsideTolerance) & (v >= -kInsideTolerance) &
-                                  (u <= max_u + kInsideTolerance) & (v <= max_v + kInsideTolerance);
-              misses += inside ? 0 : 1;
-              u = std::min(std::max(u, 0.0f), max_u);
-              v = std::min(std::max(v, 0.0f), max_v);
-              const int ix = std::min(static_cast<int>(u), hr_width - 2);
-              const int iy = std::min(static_cast<int>(v), hr_height - 2);
-              float fx = u - static_cast<float>(ix);
-              float fy = v - static_cast<float>(iy);
-              fx = fx < kSnap ? 0.0f : (fx > 1.0f - kSnap ? 1.0f : fx);
-              fy = fy < kSnap ? 0.0f : (fy > 1.0f - kSnap ? 1.0f : fy);
-              out_x[m] = ix;
-              out_y[m] = iy;
-              out_fx[m] = fx;
-              out_fy[m] = fy;
-            }
-          }
-        }
-        for (int k = 0; k < samples_per_pixel; ++k) {
-          min_x = std::min(min_x, tap_x[k]);
-          max_x = std::max(max_x, tap_x[k]);
-          min_y = std::min(min_y, tap_y[k]);
-          max_y = std::max(max_y, tap_y[k]);
-        }
-        ++max_x;  // the right and bottom taps of the bilinear stencil
-        ++max_y;
-        op->coverage_[row] = 1.0f - static_cast<float>(misses) / samples_per_pixel;
-
-        const int grid_width = max_x - min_x + 1;
-        const int grid_height = max_y - min_y + 1;
-        const size_t row_start = columns.size();
-        if (grid_width * grid_height <= kMaxLocalGrid) {
-          // Merge taps in a local dense grid. Each sample adds its four
-          // bilinear weights to ONE cell as a 4-vector (top-left, top-right,
-          // bottom-left, bottom-right); the stencil is unfolded when the grid
-          // is emitted. Emitting in raster order gives sorted column indices.
-          std::fill(cells.begin(), cells.begin() + 4 * grid_width * grid_height, 0.0f);
-          float* __restrict c = cells.data();
-          for (int k = 0; k < samples_per_pixel; ++k) {
-            const float wy1 = frac_y[k] * sample_weight;
-            const float wy0 = sample_weight - wy1;
-            const float fx = frac_x[k];
-            float* cell = c + 4 * ((tap_y[k] - min_y) * grid_width + (tap_x[k] - min_x));
-            cell[0] += (1.0f - fx) * wy0;
-            cell[1] += fx * wy0;
-            cell[2] += (1.0f - fx) * wy1;
-            cell[3] += fx * wy1;
-          }
-          for (int gy = 0; gy < grid_height; ++gy) {
-            const float* here = c + 4 * gy * grid_width;
-            const float* above = here - 4 * grid_width;
-            const int base = (min_y + gy) * hr_width + min_x;
-            for (int gx = 0; gx < grid_width; ++gx) {
-              float value = here[4 * gx];
-              if (gx > 0) value += here[4 * gx - 3];
-              if (gy > 0) {
-                value += above[4 * gx + 2];
-                if (gx > 0) value += above[4 * gx - 1];
-              }
-              if (value != 0.0f) {
-                columns.push_back(base + gx);
-                values.push_back(value);
-              }
-            }
-          }
-        } else {
-          if (scatter.empty()) scatter.assign(static_cast<size_t>(hr_width) * hr_height, 0.0f);
-          auto add = [&](int index, float w) {
-            if (w == 0.0f) return;
-            if (scatter[index] == 0.0f) touched.push_back(index);
-            scatter[index] += w;
-          };
-          for (int k = 0; k < samples_per_pixel; ++k) {
-            const int index = tap_y[k] * hr_width + tap_x[k];
-            const float wy1 = frac_y[k] * sample_weight;
-            const float wy0 = sample_weight - wy1;
-            const float fx = frac_x[k];
-            add(index, (1.0f - fx) * wy0);
-            add(index + 1, fx * wy0);
-            add(index + hr_width, (1.0f - fx) * wy1);
-            add(index + hr_width + 1, fx * wy1);
-          }
-          std::sort(touched.begin(), touched.end());
-          for (int index : touched) {
-            columns.push_back(index);
-            values.push_back(scatter[index]);
-            scatter[index] = 0.0f;
-          }
-          touched.clear();
-        }
-        row_nnz[row] = static_cast<int>(columns.size() - row_start);
-      }
-    }
+    AssembleRows(context, first_row, last_row, &op->coverage_, &row_nnz_, &block_columns_[thread],
+                 &block_values_[thread]);
   }
-
-  // Concatenate the blocks into one compressed row-major matrix.
-  size_t nnz = 0;
-  for (const auto& block : block_columns) nnz += block.size();
-  SparseMatrixRM& forward = op->forward_;
-  forward.resize(lr_pixels, hr_width * hr_height);
-  forward.resizeNonZeros(static_cast<Eigen::Index>(nnz));
-  int* outer = forward.outerIndexPtr();
-  outer[0] = 0;
-  for (int r = 0; r < lr_pixels; ++r) outer[r + 1] = outer[r] + row_nnz[r];
-  size_t offset = 0;
-  for (int t = 0; t < threads; ++t) {
-    std::copy(block_columns[t].begin(), block_columns[t].end(), forward.innerIndexPtr() + offset);
-    std::copy(block_values[t].begin(), block_values[t].end(), forward.valuePtr() + offset);
-    offset += block_columns[t].size();
-  }
+  ConcatenateBlocks(block_columns_, block_values_, row_nnz_, threads,
+                    context.hr_width * context.hr_height, &op->forward_);
   timings_.assembly_ms = NowMs() - stage_start;
   stage_start = NowMs();
   if (options_.transposed_copy) {
-    TransposeSparse(forward, &op->adjoint_, threads);
+    TransposeSparse(op->forward_, &op->adjoint_, threads);
   } else {
     op->adjoint_ = SparseMatrixRM();
   }

@@ -2,7 +2,9 @@
 // visibility sets (eq:occUpdate).
 #include "deblur_sr_mvs/core/imaging/capture_operator.h"
 
+#include <functional>
 #include <random>
+#include <string>
 
 #include <opencv2/imgproc.hpp>
 
@@ -13,6 +15,16 @@
 
 namespace deblur_sr_mvs {
 namespace {
+
+// `call` throws InputError with exactly `message`.
+void ExpectInputError(const std::function<void()>& call, const std::string& message) {
+  try {
+    call();
+    ADD_FAILURE() << "expected InputError: " << message;
+  } catch (const InputError& error) {
+    EXPECT_EQ(std::string(error.what()), message);
+  }
+}
 
 SE3 Translation(double x, double y, double z) {
   return SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(x, y, z));
@@ -205,7 +217,11 @@ TEST(CaptureOperator, RejectsInconsistentInput) {
   geometry.depth_hr = cv::Mat(10, 10, CV_32FC1, cv::Scalar(1.0f));
   EXPECT_THROW(BuildCaptureOperator(geometry, options), InputError);
   options.samples = 0;
-  EXPECT_THROW(options.Check(), InputError);
+  ExpectInputError([&] { options.Check(); },
+                   "capture operator: samples (M) must be in [1, 10000], got 0");
+  options = CaptureOperatorOptions();
+  options.num_threads = -2;
+  ExpectInputError([&] { options.Check(); }, "capture operator: num_threads must be >= 0, got -2");
   const CaptureOperator op = BuildCaptureOperator(MovingGeometry(40, 30), CaptureOperatorOptions());
   cv::Mat wrong(7, 7, CV_32FC1, cv::Scalar(0)), out;
   EXPECT_THROW(op.Apply(wrong, &out), InputError);
@@ -246,7 +262,17 @@ TEST(EdgeWeight, FlatIsOneAndEdgesAreSmall) {
   EXPECT_LT(g.at<float>(5, 9), 0.05f);
   EdgeWeightOptions bad;
   bad.sigma = 0.0;
-  EXPECT_THROW(EdgeWeight(image, bad), InputError);
+  ExpectInputError([&] { EdgeWeight(image, bad); }, "edge weight: sigma must be > 0, got 0");
+  bad = EdgeWeightOptions();
+  bad.exponent = -1.0;
+  ExpectInputError([&] { bad.Check(); }, "edge weight: exponent must be > 0, got -1");
+  VisibilityOptions visibility;
+  visibility.depth_tolerance = 1.0;
+  ExpectInputError([&] { visibility.Check(); },
+                   "visibility: depth_tolerance must be in [0, 1), got 1");
+  visibility.depth_tolerance = -0.5;
+  ExpectInputError([&] { visibility.Check(); },
+                   "visibility: depth_tolerance must be >= 0, got -0.5");
 }
 
 }  // namespace
