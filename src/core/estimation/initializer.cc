@@ -63,14 +63,6 @@ std::string Format(const char* format, double a = 0, double b = 0, double c = 0,
   return buffer;
 }
 
-// Throws unless 0 < value < 1 (and finite), in the message style of
-// options_check.h, which has no open interval.
-void CheckInOpenUnitInterval(const std::string& name, double value) {
-  if (!(value > 0.0 && value < 1.0)) {
-    throw InputError(name + " must be in (0, 1), got " + options_check_detail::Text(value));
-  }
-}
-
 double Median(std::vector<double> values) {
   if (values.empty()) return 0.0;
   const size_t middle = values.size() / 2;
@@ -1439,7 +1431,7 @@ void InitializerOptions::Check() const {
   const std::string prefix = "initializer: ";
   CheckAtLeast(prefix + "num_threads", num_threads, 0);
   CheckAtLeast(prefix + "max_features", max_features, 8);
-  CheckInOpenUnitInterval(prefix + "feature_quality", feature_quality);
+  CheckInInterval(prefix + "feature_quality", feature_quality, 0.0, 1.0, Interval::kOpen);
   CheckAtLeast(prefix + "min_feature_distance_px", min_feature_distance_px, 1.0);
   CheckInRange(prefix + "feature_block_size", feature_block_size, 3, 31);
   CheckInRange(prefix + "klt_window_radius_px", klt_window_radius_px, 2, 32);
@@ -1447,7 +1439,7 @@ void InitializerOptions::Check() const {
   CheckAbove(prefix + "klt_max_residual", klt_max_residual, 0.0);
   CheckAbove(prefix + "max_forward_backward_px", max_forward_backward_px, 0.0);
   CheckAbove(prefix + "ransac_threshold_px", ransac_threshold_px, 0.0);
-  CheckInOpenUnitInterval(prefix + "ransac_confidence", ransac_confidence);
+  CheckInInterval(prefix + "ransac_confidence", ransac_confidence, 0.0, 1.0, Interval::kOpen);
   CheckAtLeast(prefix + "min_inliers", min_inliers, 8);
   CheckAtLeast(prefix + "min_parallax_px", min_parallax_px, 0.0);
   CheckAtLeast(prefix + "min_rotation_free_parallax_px", min_rotation_free_parallax_px, 0.0);

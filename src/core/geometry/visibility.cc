@@ -12,12 +12,7 @@
 namespace deblur_sr_mvs {
 
 void VisibilityOptions::Check() const {
-  CheckAtLeast("visibility: depth_tolerance", depth_tolerance, 0.0);
-  // [0, 1): options_check.h has no half-open interval.
-  if (!(depth_tolerance < 1.0)) {
-    throw InputError("visibility: depth_tolerance must be in [0, 1), got " +
-                     options_check_detail::Text(depth_tolerance));
-  }
+  CheckInInterval("visibility: depth_tolerance", depth_tolerance, 0.0, 1.0, Interval::kLeftClosed);
 }
 
 cv::Mat ComputeVisibility(const PinholeCamera& camera, const cv::Mat& depth_t,

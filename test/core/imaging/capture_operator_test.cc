@@ -272,7 +272,7 @@ TEST(EdgeWeight, FlatIsOneAndEdgesAreSmall) {
                    "visibility: depth_tolerance must be in [0, 1), got 1");
   visibility.depth_tolerance = -0.5;
   ExpectInputError([&] { visibility.Check(); },
-                   "visibility: depth_tolerance must be >= 0, got -0.5");
+                   "visibility: depth_tolerance must be in [0, 1), got -0.5");
 }
 
 }  // namespace

@@ -30,6 +30,24 @@ void CheckInRange(const std::string& name, T value, T min, T max) {
   }
 }
 
+// Which ends of an interval belong to it.
+enum class Interval { kClosed, kOpen, kLeftClosed /* [min, max) */, kRightClosed /* (min, max] */ };
+
+// Throws unless value lies in the interval between min and max of the given
+// kind (and is finite): "<name> must be in (0, 1), got 1.5".
+template <typename T>
+void CheckInInterval(const std::string& name, T value, T min, T max, Interval kind) {
+  const bool left_closed = kind == Interval::kClosed || kind == Interval::kLeftClosed;
+  const bool right_closed = kind == Interval::kClosed || kind == Interval::kRightClosed;
+  const bool above = left_closed ? value >= min : value > min;
+  const bool below = right_closed ? value <= max : value < max;
+  if (!(above && below) || !std::isfinite(static_cast<double>(value))) {
+    using options_check_detail::Text;
+    throw InputError(name + " must be in " + (left_closed ? "[" : "(") + Text(min) + ", " + Text(max) +
+                     (right_closed ? "]" : ")") + ", got " + Text(value));
+  }
+}
+
 // Throws unless value >= min (and value is finite).
 template <typename T>
 void CheckAtLeast(const std::string& name, T value, T min) {
