@@ -11,7 +11,8 @@ seconds="${1:-120}"
 "$DSM_REPO/scripts/install_deps.sh" >/dev/null
 build="$DSM_CACHE/build-fuzz"
 CC=clang CXX=clang++ cmake -S "$DSM_REPO" -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
-  -DDSM_FUZZ=ON -DDSM_SANITIZE=ON -DDSM_BUILD_CORE_TESTS=OFF -DDSM_NATIVE_ARCH=OFF >/dev/null
+  -DDSM_FUZZ=ON -DDSM_SANITIZE=ON -DDSM_BUILD_CORE_TESTS=OFF -DDSM_NATIVE_ARCH=OFF \
+  "${DSM_CMAKE_LAUNCHER[@]}" >/dev/null
 cmake --build "$build" -j "$DSM_JOBS" --target fuzz_sequence_readers fuzz_image_message synthesize_sequence >/dev/null
 
 work="$DSM_CACHE/fuzz"
