@@ -1,4 +1,5 @@
 #include "deblur_sr_mvs/core/evaluation/synthesizer.h"
+#include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/common/text.h"
 
 #include <algorithm>
@@ -681,40 +682,32 @@ MotionStats MeasureImageMotion(const PinholeCamera& camera, const cv::Mat& depth
 // ------------------------------------------------------------- synthesis
 
 void SynthesisOptions::Check() const {
-  auto fail = [](const std::string& message) { throw InputError(message); };
-  if (num_frames < 2 || num_frames > 100000) {
-    fail("--frames must be between 2 and 100000 (got " + std::to_string(num_frames) + ")");
-  }
-  if (scale < 1 || scale > 8) fail("--scale must be between 1 and 8 (got " + std::to_string(scale) + ")");
-  if (!(exposure_ratio > 0.0 && exposure_ratio <= 1.0)) {
-    fail("--exposure-ratio must be in (0, 1] (got " + std::to_string(exposure_ratio) + ")");
-  }
-  if (!(noise_sigma >= 0.0 && noise_sigma <= 255.0)) {
-    fail("--noise must be in [0, 255] (got " + std::to_string(noise_sigma) + ")");
-  }
-  if (!(blur_px > 0.0 && blur_px <= 500.0)) {
-    fail("--blur-px must be in (0, 500] (got " + std::to_string(blur_px) + ")");
-  }
+  CheckInRange("--frames", num_frames, 2, 100000);
+  CheckInRange("--scale", scale, 1, 8);
+  CheckAbove("--exposure-ratio", exposure_ratio, 0.0);
+  CheckInRange("--exposure-ratio", exposure_ratio, 0.0, 1.0);
+  CheckInRange("--noise", noise_sigma, 0.0, 255.0);
+  CheckAbove("--blur-px", blur_px, 0.0);
+  CheckInRange("--blur-px", blur_px, 0.0, 500.0);
   // The estimator averages M = 50 samples per exposure; the data must be finer.
-  if (subframes <= 50 || subframes > 100000) {
-    fail("--subframes must be between 51 and 100000 (got " + std::to_string(subframes) + ")");
-  }
-  if (!(fps > 0.0 && fps <= 10000.0)) fail("--fps must be in (0, 10000] (got " + std::to_string(fps) + ")");
-  if (hr_width < 0 || hr_height < 0 || (hr_width == 0) != (hr_height == 0)) {
-    fail("--hr-width and --hr-height must both be positive or both 0 (automatic)");
+  CheckInRange("--subframes", subframes, 51, 100000);
+  CheckAbove("--fps", fps, 0.0);
+  CheckInRange("--fps", fps, 0.0, 10000.0);
+  CheckAtLeast("--hr-width", hr_width, 0);
+  CheckAtLeast("--hr-height", hr_height, 0);
+  if ((hr_width == 0) != (hr_height == 0)) {
+    throw InputError("--hr-width and --hr-height must both be positive or both 0 (automatic)");
   }
   if (hr_width % scale != 0 || hr_height % scale != 0) {
-    fail("--hr-width and --hr-height (" + std::to_string(hr_width) + "x" +
-         std::to_string(hr_height) + ") must be divisible by --scale " + std::to_string(scale));
+    throw InputError("--hr-width and --hr-height (" + std::to_string(hr_width) + "x" +
+                     std::to_string(hr_height) + ") must be divisible by --scale " + std::to_string(scale));
   }
-  if (!(arc_fixation_factor >= 1.2 && arc_fixation_factor <= 100.0)) {
-    fail("--arc-fixation must be in [1.2, 100] (got " + std::to_string(arc_fixation_factor) + ")");
-  }
-  if (!(forward_travel_cap > 0.0 && forward_travel_cap <= 1.0)) {
-    fail("--forward-cap must be in (0, 1] (got " + std::to_string(forward_travel_cap) + ")");
-  }
-  if (!(max_hole_fraction > 0.0 && max_hole_fraction < 1.0)) {
-    fail("max_hole_fraction must be in (0, 1)");
+  CheckInRange("--arc-fixation", arc_fixation_factor, 1.2, 100.0);
+  CheckAbove("--forward-cap", forward_travel_cap, 0.0);
+  CheckInRange("--forward-cap", forward_travel_cap, 0.0, 1.0);
+  CheckAbove("max_hole_fraction", max_hole_fraction, 0.0);
+  if (!(max_hole_fraction < 1.0)) {  // options_check.h has no "< max" check yet
+    throw InputError("max_hole_fraction must be < 1, got " + options_check_detail::Text(max_hole_fraction));
   }
 }
 
