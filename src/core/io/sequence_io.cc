@@ -164,7 +164,7 @@ std::string NodeText(const YAML::Node& node) {
   return "";
 }
 
-// yaml-cpp's parser messages in the words this reader used before it.
+// yaml-cpp's parser messages, in this reader's words where it has them.
 std::string ParserProblem(const std::string& message) {
   if (message == YAML::ErrorMsg::END_OF_SEQ_FLOW) return "unterminated '[' (missing closing bracket)";
   if (message == YAML::ErrorMsg::END_OF_MAP_FLOW) return "unterminated '{' (missing closing bracket)";
