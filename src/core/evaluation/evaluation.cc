@@ -254,7 +254,8 @@ void EvaluateDepths(const SequenceResult& result, const SequenceGroundTruth& gt,
 
 // ATE RMSE after Sim(3) alignment and each frame's position error; ate_note
 // says why when there is none.
-void EvaluateTrajectory(const SequenceResult& result, const SequenceGroundTruth& gt, EvaluationReport* report) {
+void EvaluateTrajectory(const SequenceResult& result, const SequenceGroundTruth& gt,
+                        EvaluationReport* report) {
   const int count = report->num_frames;
   if (!result.HasPoses()) {
     report->ate_note = "the result has no poses";

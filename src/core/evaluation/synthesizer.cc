@@ -813,7 +813,8 @@ void CropHoleFractions(const std::vector<cv::Mat>& hole_integrals, int x, int y,
   *worst_band = 0.0;
   for (const cv::Mat& integral : hole_integrals) {
     const int all = CountInRect(integral, x, y, w, h);
-    const int inner = CountInRect(integral, x + kCropBand, y + kCropBand, w - 2 * kCropBand, h - 2 * kCropBand);
+    const int inner =
+        CountInRect(integral, x + kCropBand, y + kCropBand, w - 2 * kCropBand, h - 2 * kCropBand);
     const double band_area = static_cast<double>(w) * h - (w - 2.0 * kCropBand) * (h - 2.0 * kCropBand);
     *worst = std::max(*worst, static_cast<double>(all) / (static_cast<double>(w) * h));
     *worst_band = std::max(*worst_band, (all - inner) / band_area);

@@ -234,7 +234,9 @@ class CalibrationReader {
   std::string String(const std::string& key, const std::string& fallback) const {
     const YamlEntry* entry = Find(key);
     if (entry == nullptr) return fallback;
-    if (entry->value.IsMap() || entry->value.IsSequence()) FailAt(path_, entry->line, key + " must be a string");
+    if (entry->value.IsMap() || entry->value.IsSequence()) {
+      FailAt(path_, entry->line, key + " must be a string");
+    }
     return NodeText(entry->value);
   }
 
@@ -268,7 +270,9 @@ class CalibrationReader {
       if (!item.IsScalar() || !ParseDouble(text, &value)) {
         FailAt(path_, data.line, key + ": data value " + Quote(text) + " is not a number");
       }
-      if (!std::isfinite(value)) FailAt(path_, data.line, key + ": data value " + Quote(text) + " is not finite");
+      if (!std::isfinite(value)) {
+        FailAt(path_, data.line, key + ": data value " + Quote(text) + " is not finite");
+      }
       values.push_back(value);
     }
     return values;
