@@ -10,13 +10,18 @@ source "$(dirname "$0")/common.sh"
 seconds="${1:-120}"
 "$DSM_REPO/scripts/install_deps.sh" >/dev/null
 build="$DSM_CACHE/build-fuzz"
+# fuzzer-no-link: the libraries the fuzzers link get libFuzzer's coverage
+# instrumentation too, so that it is guided by the readers' code, not only
+# by the harness.
 CC=clang CXX=clang++ cmake -S "$DSM_REPO" -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
-  -DDSM_FUZZ=ON -DDSM_SANITIZE=ON -DDSM_BUILD_CORE_TESTS=OFF -DDSM_NATIVE_ARCH=OFF >/dev/null
-cmake --build "$build" -j "$DSM_JOBS" --target fuzz_sequence_readers fuzz_image_message synthesize_sequence >/dev/null
+  -DDSM_FUZZ=ON -DDSM_SANITIZE=ON -DDSM_BUILD_CORE_TESTS=OFF -DDSM_NATIVE_ARCH=OFF \
+  -DCMAKE_CXX_FLAGS=-fsanitize=fuzzer-no-link "${DSM_CMAKE_LAUNCHER[@]}" >/dev/null
+cmake --build "$build" -j "$DSM_JOBS" --target fuzz_sequence_readers fuzz_image_message >/dev/null
 
 work="$DSM_CACHE/fuzz"
 mkdir -p "$work"
 if [ ! -d "$work/seed_sequence" ]; then
+  cmake --build "$build" -j "$DSM_JOBS" --target synthesize_sequence >/dev/null
   ASAN_OPTIONS=detect_leaks=0 "$build/synthesize_sequence" --scene "$DSM_REPO/data/middlebury/Dolls" \
     --output "$work/seed_sequence" --frames 2 --subframes 60 --hr-width 64 --hr-height 48 >/dev/null
 fi

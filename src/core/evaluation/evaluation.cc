@@ -1,13 +1,14 @@
 #include "deblur_sr_mvs/core/evaluation/evaluation.h"
 
-#include <charconv>
 #include <cmath>
 #include <cstdio>
 #include <limits>
 
+#include <nlohmann/json.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/common/text.h"
 
@@ -135,39 +136,12 @@ void CheckInputs(const SequenceResult& result, const Sequence& sequence) {
 
 // ----------------------------------------------------------------- output
 
-// Shortest text that parses back to the same double; JSON has no NaN/inf.
-std::string JsonNumber(double value) {
-  if (!std::isfinite(value)) return "null";
-  char buffer[64];
-  const std::to_chars_result result = std::to_chars(buffer, buffer + sizeof(buffer), value);
-  return std::string(buffer, result.ptr);
-}
+using Json = nlohmann::ordered_json;  // keeps the keys in the order written
 
-std::string JsonNumber(const std::optional<double>& value) {
-  return value ? JsonNumber(*value) : "null";
-}
+// JSON has no NaN or infinity: those, and absent values, are null.
+Json JsonNumber(double value) { return std::isfinite(value) ? Json(value) : Json(nullptr); }
 
-std::string JsonString(const std::string& text) {
-  std::string out = "\"";
-  for (const char c : text) {
-    const unsigned char u = static_cast<unsigned char>(c);
-    if (c == '"' || c == '\\') {
-      out += '\\';
-      out += c;
-    } else if (c == '\n') {
-      out += "\\n";
-    } else if (c == '\t') {
-      out += "\\t";
-    } else if (u < 0x20) {
-      char buffer[8];
-      std::snprintf(buffer, sizeof(buffer), "\\u%04x", u);
-      out += buffer;
-    } else {
-      out += c;
-    }
-  }
-  return out + "\"";
-}
+Json JsonNumber(const std::optional<double>& value) { return value ? JsonNumber(*value) : Json(nullptr); }
 
 // Table cells: fixed decimals like the paper, "inf" for an exact match.
 std::string Cell(double value, int decimals) {
@@ -194,49 +168,67 @@ std::string MarkdownText(const std::string& text) {
 }  // namespace
 
 void EvaluationOptions::Check() const {
-  if (!(crop_fraction > 0.0 && crop_fraction <= 1.0)) {
-    throw InputError("crop fraction " + Printf("%g", crop_fraction) + " must be in (0, 1]");
-  }
+  // In (0, 1].
+  CheckAbove("crop_fraction", crop_fraction, 0.0);
+  CheckInRange("crop_fraction", crop_fraction, 0.0, 1.0);
 }
 
-EvaluationReport EvaluateResult(const SequenceResult& result, const Sequence& sequence,
-                                const EvaluationOptions& options) {
-  options.Check();
-  CheckInputs(result, sequence);
-  const SequenceGroundTruth& gt = *sequence.ground_truth;
-  const int count = static_cast<int>(sequence.frames.size());
+namespace {
 
+// The report's header: options, sizes, scale and colour space.
+EvaluationReport StartReport(const SequenceResult& result, const Sequence& sequence,
+                             const EvaluationOptions& options) {
+  const SequenceGroundTruth& gt = *sequence.ground_truth;
   EvaluationReport report;
   report.options = options;
-  report.num_frames = count;
+  report.num_frames = static_cast<int>(sequence.frames.size());
   report.hr_size = gt.latent.front().size();
   report.scale = report.hr_size.width / sequence.images.front().cols;
   // Colour only when every image involved is colour, so that the method and
   // bicubic are measured in the same space.
   report.colour = result.latent.front().channels() == 3 && gt.latent.front().channels() == 3 &&
                   sequence.images.front().channels() == 3;
-  const int channels = report.colour ? 3 : 1;
-  const cv::Rect crop = CentreCrop(report.hr_size, options.crop_fraction);
-  DepthMetricOptions depth_options;
-  depth_options.crop_fraction = options.crop_fraction;
-  depth_options.align_scale = options.align_depth_scale;
+  report.frames.resize(report.num_frames);
+  return report;
+}
 
-  report.frames.resize(count);
-  double sum_image = 0.0, sum_bicubic = 0.0, sum_depth_psnr = 0.0, sum_relative = 0.0;
-  double sum_coverage = 0.0;
+// Image PSNR of the result and of the bicubic up-sampled input, per frame and mean.
+void EvaluateImages(const SequenceResult& result, const Sequence& sequence, EvaluationReport* report) {
+  const SequenceGroundTruth& gt = *sequence.ground_truth;
+  const int count = report->num_frames;
+  const int channels = report->colour ? 3 : 1;
+  double sum_image = 0.0, sum_bicubic = 0.0;
   for (int i = 0; i < count; ++i) {
-    FrameEvaluation& frame = report.frames[i];
+    FrameEvaluation& frame = report->frames[i];
     frame.index = sequence.frames[i].index;
     frame.stamp = sequence.frames[i].stamp;
     const cv::Mat truth = WithChannels(gt.latent[i], channels);
     frame.image_psnr_db = Psnr(WithChannels(result.latent[i], channels), truth, 255.0);
     const cv::Mat bicubic =
-        ToImage8(UpsampleBicubic(ToFloat01(sequence.images[i]), report.scale));
+        ToImage8(UpsampleBicubic(ToFloat01(sequence.images[i]), report->scale));
     frame.bicubic_psnr_db = Psnr(WithChannels(bicubic, channels), truth, 255.0);
     sum_image += frame.image_psnr_db;
     sum_bicubic += frame.bicubic_psnr_db;
+  }
+  report->mean_image_psnr_db = sum_image / count;
+  report->mean_bicubic_psnr_db = sum_bicubic / count;
+}
 
-    if (!result.HasDepth()) continue;
+// Depth coverage, PSNR and relative error inside the centre crop, per frame
+// and mean over the frames with a valid estimate; depth_note says what is left out.
+void EvaluateDepths(const SequenceResult& result, const SequenceGroundTruth& gt, EvaluationReport* report) {
+  if (!result.HasDepth()) {
+    report->depth_note = "the result has no depth";
+    return;
+  }
+  const int count = report->num_frames;
+  const cv::Rect crop = CentreCrop(report->hr_size, report->options.crop_fraction);
+  DepthMetricOptions depth_options;
+  depth_options.crop_fraction = report->options.crop_fraction;
+  depth_options.align_scale = report->options.align_depth_scale;
+  double sum_depth_psnr = 0.0, sum_relative = 0.0, sum_coverage = 0.0;
+  for (int i = 0; i < count; ++i) {
+    FrameEvaluation& frame = report->frames[i];
     const int gt_valid = CountValidDepth(gt.depth[i], crop);
     const int joint_valid = CountJointValidDepth(result.depth[i], gt.depth[i], crop);
     frame.depth_coverage = gt_valid > 0 ? static_cast<double>(joint_valid) / gt_valid : 0.0;
@@ -245,53 +237,67 @@ EvaluationReport EvaluateResult(const SequenceResult& result, const Sequence& se
     frame.depth = EvaluateDepth(result.depth[i], gt.depth[i], depth_options);
     sum_depth_psnr += frame.depth->psnr_db;
     sum_relative += frame.depth->relative_error;
-    ++report.num_depth_frames;
+    ++report->num_depth_frames;
   }
-  report.mean_image_psnr_db = sum_image / count;
-  report.mean_bicubic_psnr_db = sum_bicubic / count;
-  if (!result.HasDepth()) {
-    report.depth_note = "the result has no depth";
-  } else {
-    report.mean_depth_coverage = sum_coverage / count;
-    if (report.num_depth_frames > 0) {
-      report.mean_depth_psnr_db = sum_depth_psnr / report.num_depth_frames;
-      report.mean_depth_relative_error = sum_relative / report.num_depth_frames;
-    }
-    if (report.num_depth_frames < count) {
-      report.depth_note = std::to_string(count - report.num_depth_frames) + " of " +
-                          std::to_string(count) +
-                          " frames have no valid estimated depth where the ground truth has one "
-                          "(left out of the means)";
-    }
+  report->mean_depth_coverage = sum_coverage / count;
+  if (report->num_depth_frames > 0) {
+    report->mean_depth_psnr_db = sum_depth_psnr / report->num_depth_frames;
+    report->mean_depth_relative_error = sum_relative / report->num_depth_frames;
   }
+  if (report->num_depth_frames < count) {
+    report->depth_note = std::to_string(count - report->num_depth_frames) + " of " +
+                         std::to_string(count) +
+                         " frames have no valid estimated depth where the ground truth has one "
+                         "(left out of the means)";
+  }
+}
 
+// ATE RMSE after Sim(3) alignment and each frame's position error; ate_note
+// says why when there is none.
+void EvaluateTrajectory(const SequenceResult& result, const SequenceGroundTruth& gt,
+                        EvaluationReport* report) {
+  const int count = report->num_frames;
   if (!result.HasPoses()) {
-    report.ate_note = "the result has no poses";
-  } else if (count < kMinAteFrames) {
-    report.ate_note = "ATE needs at least " + std::to_string(kMinAteFrames) + " frames, got " +
-                      std::to_string(count);
-  } else {
-    // Associated by frame index (stamps were checked above).
-    std::vector<Eigen::Vector3d> estimate(count), truth(count);
-    for (int i = 0; i < count; ++i) {
-      estimate[i] = result.poses[i].T_world_cam.translation();
-      truth[i] = gt.poses[i].T_world_cam.translation();
-    }
-    try {
-      Sim3 alignment;
-      report.ate_rmse = AbsoluteTrajectoryRmse(estimate, truth, &alignment);
-      report.trajectory_alignment = alignment;
-      for (int i = 0; i < count; ++i) {
-        const Eigen::Vector3d aligned =
-            alignment.scale * (alignment.rotation * estimate[i]) + alignment.translation;
-        report.frames[i].position_error = (aligned - truth[i]).norm();
-      }
-    } catch (const InputError& error) {
-      // A degenerate estimate (all positions equal, non-finite) has no ATE;
-      // it is a result to report, not bad input.
-      report.ate_note = std::string("no ATE: ") + error.what();
-    }
+    report->ate_note = "the result has no poses";
+    return;
   }
+  if (count < kMinAteFrames) {
+    report->ate_note = "ATE needs at least " + std::to_string(kMinAteFrames) + " frames, got " +
+                       std::to_string(count);
+    return;
+  }
+  // Associated by frame index (stamps were checked by CheckInputs).
+  std::vector<Eigen::Vector3d> estimate(count), truth(count);
+  for (int i = 0; i < count; ++i) {
+    estimate[i] = result.poses[i].T_world_cam.translation();
+    truth[i] = gt.poses[i].T_world_cam.translation();
+  }
+  try {
+    Sim3 alignment;
+    report->ate_rmse = AbsoluteTrajectoryRmse(estimate, truth, &alignment);
+    report->trajectory_alignment = alignment;
+    for (int i = 0; i < count; ++i) {
+      const Eigen::Vector3d aligned =
+          alignment.scale * (alignment.rotation * estimate[i]) + alignment.translation;
+      report->frames[i].position_error = (aligned - truth[i]).norm();
+    }
+  } catch (const InputError& error) {
+    // A degenerate estimate (all positions equal, non-finite) has no ATE;
+    // it is a result to report, not bad input.
+    report->ate_note = std::string("no ATE: ") + error.what();
+  }
+}
+
+}  // namespace
+
+EvaluationReport EvaluateResult(const SequenceResult& result, const Sequence& sequence,
+                                const EvaluationOptions& options) {
+  options.Check();
+  CheckInputs(result, sequence);
+  EvaluationReport report = StartReport(result, sequence, options);
+  EvaluateImages(result, sequence, &report);
+  EvaluateDepths(result, *sequence.ground_truth, &report);
+  EvaluateTrajectory(result, *sequence.ground_truth, &report);
   return report;
 }
 
@@ -337,60 +343,60 @@ std::string ToMarkdown(const EvaluationReport& report, const std::string& method
   return out;
 }
 
+namespace {
+
+Json AlignmentJson(const std::optional<Sim3>& alignment) {
+  if (!alignment) return nullptr;
+  Json rotation = Json::array();
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) rotation.push_back(JsonNumber(alignment->rotation(r, c)));
+  }
+  const Eigen::Vector3d& t = alignment->translation;
+  return Json{{"scale", JsonNumber(alignment->scale)},
+              {"rotation", rotation},
+              {"translation", {JsonNumber(t.x()), JsonNumber(t.y()), JsonNumber(t.z())}}};
+}
+
+Json FrameJson(const FrameEvaluation& frame) {
+  const std::optional<DepthErrors>& depth = frame.depth;
+  return Json{{"index", frame.index},
+              {"stamp", JsonNumber(frame.stamp)},
+              {"image_psnr_db", JsonNumber(frame.image_psnr_db)},
+              {"bicubic_psnr_db", JsonNumber(frame.bicubic_psnr_db)},
+              {"depth_psnr_db", depth ? JsonNumber(depth->psnr_db) : Json(nullptr)},
+              {"depth_relative_error", depth ? JsonNumber(depth->relative_error) : Json(nullptr)},
+              {"depth_scale", depth ? JsonNumber(depth->scale) : Json(nullptr)},
+              {"depth_pixels", depth ? depth->num_pixels : 0},
+              {"depth_coverage", JsonNumber(frame.depth_coverage)},
+              {"position_error", JsonNumber(frame.position_error)}};
+}
+
+}  // namespace
+
 std::string ToJson(const EvaluationReport& report, const std::string& method_name) {
-  std::string out = "{\n";
-  out += "  \"method\": " + JsonString(method_name) + ",\n";
-  out += "  \"num_frames\": " + std::to_string(report.num_frames) + ",\n";
-  out += "  \"scale\": " + std::to_string(report.scale) + ",\n";
-  out += "  \"hr_width\": " + std::to_string(report.hr_size.width) + ",\n";
-  out += "  \"hr_height\": " + std::to_string(report.hr_size.height) + ",\n";
-  out += std::string("  \"colour\": ") + (report.colour ? "true" : "false") + ",\n";
-  out += "  \"crop_fraction\": " + JsonNumber(report.options.crop_fraction) + ",\n";
-  out += std::string("  \"align_depth_scale\": ") +
-         (report.options.align_depth_scale ? "true" : "false") + ",\n";
-  out += "  \"mean\": {\n";
-  out += "    \"image_psnr_db\": " + JsonNumber(report.mean_image_psnr_db) + ",\n";
-  out += "    \"bicubic_psnr_db\": " + JsonNumber(report.mean_bicubic_psnr_db) + ",\n";
-  out += "    \"depth_psnr_db\": " + JsonNumber(report.mean_depth_psnr_db) + ",\n";
-  out += "    \"depth_relative_error\": " + JsonNumber(report.mean_depth_relative_error) + ",\n";
-  out += "    \"depth_coverage\": " + JsonNumber(report.mean_depth_coverage) + ",\n";
-  out += "    \"ate_rmse\": " + JsonNumber(report.ate_rmse) + "\n";
-  out += "  },\n";
-  out += "  \"num_depth_frames\": " + std::to_string(report.num_depth_frames) + ",\n";
-  out += "  \"depth_note\": " + JsonString(report.depth_note) + ",\n";
-  out += "  \"ate_note\": " + JsonString(report.ate_note) + ",\n";
-  out += "  \"trajectory_alignment\": ";
-  if (report.trajectory_alignment) {
-    const Sim3& sim3 = *report.trajectory_alignment;
-    out += "{\"scale\": " + JsonNumber(sim3.scale) + ", \"rotation\": [";
-    for (int r = 0; r < 3; ++r) {
-      for (int c = 0; c < 3; ++c) out += (r + c ? ", " : "") + JsonNumber(sim3.rotation(r, c));
-    }
-    out += "], \"translation\": [" + JsonNumber(sim3.translation.x()) + ", " +
-           JsonNumber(sim3.translation.y()) + ", " + JsonNumber(sim3.translation.z()) + "]}";
-  } else {
-    out += "null";
-  }
-  out += ",\n  \"frames\": [";
-  for (std::size_t i = 0; i < report.frames.size(); ++i) {
-    const FrameEvaluation& frame = report.frames[i];
-    out += i ? ",\n    " : "\n    ";
-    out += "{\"index\": " + std::to_string(frame.index) + ", \"stamp\": " + JsonNumber(frame.stamp) +
-           ", \"image_psnr_db\": " + JsonNumber(frame.image_psnr_db) +
-           ", \"bicubic_psnr_db\": " + JsonNumber(frame.bicubic_psnr_db);
-    out += ", \"depth_psnr_db\": " +
-           (frame.depth ? JsonNumber(frame.depth->psnr_db) : std::string("null"));
-    out += ", \"depth_relative_error\": " +
-           (frame.depth ? JsonNumber(frame.depth->relative_error) : std::string("null"));
-    out += ", \"depth_scale\": " +
-           (frame.depth ? JsonNumber(frame.depth->scale) : std::string("null"));
-    out += ", \"depth_pixels\": " + (frame.depth ? std::to_string(frame.depth->num_pixels) : "0");
-    out += ", \"depth_coverage\": " + JsonNumber(frame.depth_coverage);
-    out += ", \"position_error\": " + JsonNumber(frame.position_error) + "}";
-  }
-  out += report.frames.empty() ? "]\n" : "\n  ]\n";
-  out += "}\n";
-  return out;
+  Json json;
+  json["method"] = method_name;
+  json["num_frames"] = report.num_frames;
+  json["scale"] = report.scale;
+  json["hr_width"] = report.hr_size.width;
+  json["hr_height"] = report.hr_size.height;
+  json["colour"] = report.colour;
+  json["crop_fraction"] = JsonNumber(report.options.crop_fraction);
+  json["align_depth_scale"] = report.options.align_depth_scale;
+  json["mean"] = Json{{"image_psnr_db", JsonNumber(report.mean_image_psnr_db)},
+                      {"bicubic_psnr_db", JsonNumber(report.mean_bicubic_psnr_db)},
+                      {"depth_psnr_db", JsonNumber(report.mean_depth_psnr_db)},
+                      {"depth_relative_error", JsonNumber(report.mean_depth_relative_error)},
+                      {"depth_coverage", JsonNumber(report.mean_depth_coverage)},
+                      {"ate_rmse", JsonNumber(report.ate_rmse)}};
+  json["num_depth_frames"] = report.num_depth_frames;
+  json["depth_note"] = report.depth_note;
+  json["ate_note"] = report.ate_note;
+  json["trajectory_alignment"] = AlignmentJson(report.trajectory_alignment);
+  json["frames"] = Json::array();
+  for (const FrameEvaluation& frame : report.frames) json["frames"].push_back(FrameJson(frame));
+  // Bytes that are not UTF-8 (e.g. from a path) become U+FFFD instead of an exception.
+  return json.dump(2, ' ', false, Json::error_handler_t::replace) + "\n";
 }
 
 }  // namespace deblur_sr_mvs

@@ -5,8 +5,8 @@
 #include <limits>
 #include <string>
 
-
 #include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/geometry/sim3.h"
 #include "deblur_sr_mvs/core/common/text.h"
 
@@ -59,9 +59,8 @@ double Psnr(const cv::Mat& estimate, const cv::Mat& reference, double peak, cons
 }
 
 cv::Rect CentreCrop(const cv::Size& size, double fraction) {
-  if (!(fraction > 0.0 && fraction <= 1.0)) {
-    throw InputError("crop fraction " + std::to_string(fraction) + " must be in (0, 1]");
-  }
+  CheckAbove("crop fraction", fraction, 0.0);
+  CheckInRange("crop fraction", fraction, 0.0, 1.0);
   const int width = std::clamp(static_cast<int>(std::lround(fraction * size.width)), 0, size.width);
   const int height =
       std::clamp(static_cast<int>(std::lround(fraction * size.height)), 0, size.height);
@@ -69,10 +68,9 @@ cv::Rect CentreCrop(const cv::Size& size, double fraction) {
 }
 
 void DepthMetricOptions::Check() const {
-  if (!(crop_fraction > 0.0 && crop_fraction <= 1.0)) {
-    throw InputError("depth metrics: crop fraction " + std::to_string(crop_fraction) +
-                     " must be in (0, 1]");
-  }
+  // In (0, 1].
+  CheckAbove("crop_fraction", crop_fraction, 0.0);
+  CheckInRange("crop_fraction", crop_fraction, 0.0, 1.0);
 }
 
 DepthErrors EvaluateDepth(const cv::Mat& estimate, const cv::Mat& ground_truth,

@@ -1,4 +1,5 @@
 #include "deblur_sr_mvs/core/evaluation/synthesizer.h"
+#include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/common/text.h"
 
 #include <algorithm>
@@ -14,6 +15,7 @@
 #include <omp.h>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <yaml-cpp/yaml.h>
 
 namespace deblur_sr_mvs {
 namespace {
@@ -308,167 +310,166 @@ RenderResult SceneRenderer::Render(const PinholeCamera& camera, const SE3& T_wor
   return result;
 }
 
-void SceneRenderer::Render(const PinholeCamera& camera, const SE3& T_world_cam,
-                           const RenderOptions& options, RenderWorkspace* workspace,
-                           RenderResult* result) const {
-  const int width = camera.width;
-  const int height = camera.height;
-  const int num_pixels = width * height;
-  const SE3 T_cam_world = T_world_cam.Inverse();
-  const Eigen::Matrix3f R = T_cam_world.rotation().cast<float>();
-  const Eigen::Vector3f t = T_cam_world.translation().cast<float>();
-  const float min_weight = options.min_splat_weight;
-  const float tolerance = 1.0f + options.depth_tolerance;
-  const float coverage = options.coverage_weight;
-  constexpr float kInf = std::numeric_limits<float>::infinity();
+namespace {
 
-  // The view whose centre is nearer to the virtual camera sees the most
-  // similar surfaces: it is primary, the other fills what it leaves empty.
-  const Eigen::Vector3d centre = T_world_cam.translation();
-  int primary = (centre - view_centres_world_[1]).norm() < (centre - view_centres_world_[0]).norm();
-  int num_views = 2;
-  if (options.only_view == 0 || options.only_view == 1) {
-    primary = options.only_view;
-    num_views = 1;
+constexpr float kInf = std::numeric_limits<float>::infinity();
+
+// The image grid and the thresholds of RenderOptions, as every rendering
+// step uses them (in float).
+struct SplatGrid {
+  int width = 0;
+  int height = 0;
+  int num_pixels = 0;
+  float min_weight = 0.0f;      // min_splat_weight
+  float coverage = 0.0f;        // coverage_weight
+  float tolerance_high = 0.0f;  // 1 + depth_tolerance
+  float tolerance_low = 0.0f;   // 1 - depth_tolerance
+};
+
+SplatGrid MakeSplatGrid(const PinholeCamera& camera, const RenderOptions& options) {
+  SplatGrid grid;
+  grid.width = camera.width;
+  grid.height = camera.height;
+  grid.num_pixels = camera.width * camera.height;
+  grid.min_weight = options.min_splat_weight;
+  grid.coverage = options.coverage_weight;
+  grid.tolerance_high = 1.0f + options.depth_tolerance;
+  grid.tolerance_low = 1.0f - options.depth_tolerance;
+  return grid;
+}
+
+// The primary view renders every pixel: empty accumulators and z-buffer.
+void ClearPrimaryBuffers(const SplatGrid& grid, std::vector<float>* zbuffer, std::vector<float>* accum) {
+  accum->assign(static_cast<std::size_t>(grid.num_pixels) * 5, 0.0f);
+  zbuffer->assign(grid.num_pixels, kInf);
+}
+
+// The secondary only renders where the primary does not cover: a z-buffer of
+// -inf elsewhere rejects every splat, only the uncovered accumulators need
+// clearing (the composite reads no others), and `useful` flags the footprint
+// corners (x0, y0), offset by one, whose 2x2 footprint has an uncovered pixel,
+// so most points skip at one byte.
+void MaskSecondaryBuffers(const SplatGrid& grid, const std::vector<float>& primary_accum,
+                          std::vector<float>* zbuffer, std::vector<float>* accum,
+                          std::vector<uint8_t>* useful) {
+  const int width = grid.width;
+  const int num_pixels = grid.num_pixels;
+  accum->resize(static_cast<std::size_t>(num_pixels) * 5);
+  zbuffer->resize(num_pixels);
+  useful->assign(static_cast<std::size_t>(width + 1) * (grid.height + 1), 0);
+  const float* a = primary_accum.data();
+  for (int p = 0; p < num_pixels; ++p) {
+    const bool covered = a[5 * p + 3] >= grid.coverage;
+    (*zbuffer)[p] = covered ? -kInf : kInf;
+    if (covered) continue;
+    std::fill_n(&(*accum)[static_cast<std::size_t>(p) * 5], 5, 0.0f);
+    const int x = p % width, y = p / width;
+    uint8_t* corner = &(*useful)[static_cast<std::size_t>(y) * (width + 1) + x];
+    corner[0] = corner[1] = corner[width + 1] = corner[width + 2] = 1;
   }
-  const int order[2] = {primary, 1 - primary};
+}
 
-  for (int k = 0; k < num_views; ++k) {
-    const int view = order[k];
-    const Points& points = points_[view];
-    const int n = static_cast<int>(points.x.size());
-    const bool secondary = k == 1;
-    std::vector<float>& zbuffer = workspace->zbuffer[view];
-    std::vector<float>& accum = workspace->accum[view];
-    std::vector<uint8_t>& useful = workspace->useful;
-    if (k == 0) {
-      accum.assign(static_cast<std::size_t>(num_pixels) * 5, 0.0f);
-      zbuffer.assign(num_pixels, kInf);
-    } else {
-      // The secondary only renders where the primary does not cover: a
-      // z-buffer of -inf elsewhere rejects every splat, only the uncovered
-      // accumulators need clearing (the composite reads no others), and
-      // `useful` flags the footprint corners (x0, y0), offset by one, whose
-      // 2x2 footprint has an uncovered pixel, so most points skip at one byte.
-      accum.resize(static_cast<std::size_t>(num_pixels) * 5);
-      zbuffer.resize(num_pixels);
-      useful.assign(static_cast<std::size_t>(width + 1) * (height + 1), 0);
-      const float* a = workspace->accum[order[0]].data();
-      for (int p = 0; p < num_pixels; ++p) {
-        const bool covered = a[5 * p + 3] >= coverage;
-        zbuffer[p] = covered ? -kInf : kInf;
-        if (covered) continue;
-        std::fill_n(&accum[static_cast<std::size_t>(p) * 5], 5, 0.0f);
-        const int x = p % width, y = p / width;
-        uint8_t* corner = &useful[static_cast<std::size_t>(y) * (width + 1) + x];
-        corner[0] = corner[1] = corner[width + 1] = corner[width + 2] = 1;
-      }
+// Pass 1: nearest depth per pixel over the splats with a real share of it.
+// The splats touching pixels this view renders are kept for pass 2 with their
+// footprint: top-left pixel (x0, y0), bilinear fractions. `useful` (secondary
+// view only, else null) skips footprints without an uncovered pixel.
+void SplatDepths(const SplatGrid& grid, int n, const float* us, const float* vs, const float* zs,
+                 const uint8_t* useful, float* zb, std::vector<RenderWorkspace::Splat>* active) {
+  const int width = grid.width, height = grid.height;
+  const float min_weight = grid.min_weight;
+  active->clear();
+  for (int i = 0; i < n; ++i) {
+    const float u = us[i], v = vs[i], z = zs[i];
+    if (!(z >= kNearPlaneM && u > -1.0f && v > -1.0f && u < width && v < height)) continue;
+    const int x0 = static_cast<int>(u + 1.0f) - 1;  // floor for u > -1
+    const int y0 = static_cast<int>(v + 1.0f) - 1;
+    // u + 1 can round up to width + 1 in float for u just below width
+    // (found by AddressSanitizer): such a splat has no share inside.
+    if (x0 >= width || y0 >= height) continue;
+    if (useful != nullptr && !useful[static_cast<std::size_t>(y0 + 1) * (width + 1) + (x0 + 1)]) {
+      continue;
     }
-
-    // Projection, vectorisable (no branches, structure of arrays).
-    workspace->u.resize(n);
-    workspace->v.resize(n);
-    workspace->z.resize(n);
-    ProjectPoints(n, R, t, camera, points.x.data(), points.y.data(), points.z.data(),
-                  workspace->u.data(), workspace->v.data(), workspace->z.data());
-    const float* us = workspace->u.data();
-    const float* vs = workspace->v.data();
-    const float* zs = workspace->z.data();
-
-    // Pass 1: nearest depth per pixel over the splats with a real share of
-    // it. The splats touching pixels this view renders are kept for pass 2
-    // with their footprint: top-left pixel (x0, y0), bilinear fractions.
-    float* zb = zbuffer.data();
-    std::vector<RenderWorkspace::Splat>& active = workspace->active;
-    active.clear();
-    for (int i = 0; i < n; ++i) {
-      const float u = us[i], v = vs[i], z = zs[i];
-      if (!(z >= kNearPlaneM && u > -1.0f && v > -1.0f && u < width && v < height)) continue;
-      const int x0 = static_cast<int>(u + 1.0f) - 1;  // floor for u > -1
-      const int y0 = static_cast<int>(v + 1.0f) - 1;
-      // u + 1 can round up to width + 1 in float for u just below width
-      // (found by AddressSanitizer): such a splat has no share inside.
-      if (x0 >= width || y0 >= height) continue;
-      if (secondary && !useful[static_cast<std::size_t>(y0 + 1) * (width + 1) + (x0 + 1)]) {
-        continue;
-      }
-      const float ax = u - x0, ay = v - y0;
-      const float weights[4] = {(1.0f - ax) * (1.0f - ay), ax * (1.0f - ay), (1.0f - ax) * ay,
-                                ax * ay};
-      const bool inside = x0 >= 0 && y0 >= 0 && x0 + 1 < width && y0 + 1 < height;
-      if (inside) {
-        float* cell = zb + y0 * width + x0;
-        float* cells[4] = {cell, cell + 1, cell + width, cell + width + 1};
-        for (int c = 0; c < 4; ++c) {
-          *cells[c] = std::min(*cells[c], weights[c] >= min_weight ? z : kInf);
-        }
-      } else {
-        for (int c = 0; c < 4; ++c) {
-          const int x = x0 + (c & 1), y = y0 + (c >> 1);
-          if (x < 0 || y < 0 || x >= width || y >= height || weights[c] < min_weight) continue;
-          zb[y * width + x] = std::min(zb[y * width + x], z);
-        }
-      }
-      active.push_back({i, x0, y0, inside, ax, ay});
-    }
-
-    // Pass 2: blend colour and depth of the splats on the front surface,
-    // within the depth tolerance of the z-buffer on both sides (a nearer
-    // splat there had too little weight to count and would fatten edges).
-    float* acc = accum.data();
-    const float* pb = points.b.data();
-    const float* pg = points.g.data();
-    const float* pr = points.r.data();
-    const float tolerance_low = 1.0f - options.depth_tolerance;
-    for (const RenderWorkspace::Splat& splat : active) {
-      const int i = splat.point;
-      const float z = zs[i];
-      const float ax = splat.ax, ay = splat.ay;
-      const float weights[4] = {(1.0f - ax) * (1.0f - ay), ax * (1.0f - ay), (1.0f - ax) * ay,
-                                ax * ay};
-      const float colour[3] = {pb[i], pg[i], pr[i]};
+    const float ax = u - x0, ay = v - y0;
+    const float weights[4] = {(1.0f - ax) * (1.0f - ay), ax * (1.0f - ay), (1.0f - ax) * ay,
+                              ax * ay};
+    const bool inside = x0 >= 0 && y0 >= 0 && x0 + 1 < width && y0 + 1 < height;
+    if (inside) {
+      float* cell = zb + y0 * width + x0;
+      float* cells[4] = {cell, cell + 1, cell + width, cell + width + 1};
       for (int c = 0; c < 4; ++c) {
-        const int x = splat.x0 + (c & 1), y = splat.y0 + (c >> 1);
-        if (!splat.inside && (x < 0 || y < 0 || x >= width || y >= height)) continue;
-        const int index = y * width + x;
-        const float front = zb[index];
-        const bool on_front =
-            z <= front * tolerance && (z >= front * tolerance_low || front == kInf);
-        const float w = on_front ? weights[c] : 0.0f;
-        float* a = acc + static_cast<std::size_t>(index) * 5;
-        a[0] += w * colour[0];
-        a[1] += w * colour[1];
-        a[2] += w * colour[2];
-        a[3] += w;
-        a[4] += w * z;
+        *cells[c] = std::min(*cells[c], weights[c] >= min_weight ? z : kInf);
+      }
+    } else {
+      for (int c = 0; c < 4; ++c) {
+        const int x = x0 + (c & 1), y = y0 + (c >> 1);
+        if (x < 0 || y < 0 || x >= width || y >= height || weights[c] < min_weight) continue;
+        zb[y * width + x] = std::min(zb[y * width + x], z);
       }
     }
+    active->push_back({i, x0, y0, inside, ax, ay});
   }
+}
 
-  // Composite: the primary where it covers, else the secondary; a faint
-  // splat still beats a guess; the rest are holes.
+// Pass 2: blend colour and depth of the splats on the front surface, within
+// the depth tolerance of the z-buffer on both sides (a nearer splat there had
+// too little weight to count and would fatten edges). `bgr` are the points'
+// colour channels.
+void BlendFrontSplats(const SplatGrid& grid, const std::vector<RenderWorkspace::Splat>& active,
+                      const float* zs, const float* const bgr[3], const float* zb, float* acc) {
+  const int width = grid.width, height = grid.height;
+  const float* pb = bgr[0];
+  const float* pg = bgr[1];
+  const float* pr = bgr[2];
+  for (const RenderWorkspace::Splat& splat : active) {
+    const int i = splat.point;
+    const float z = zs[i];
+    const float ax = splat.ax, ay = splat.ay;
+    const float weights[4] = {(1.0f - ax) * (1.0f - ay), ax * (1.0f - ay), (1.0f - ax) * ay,
+                              ax * ay};
+    const float colour[3] = {pb[i], pg[i], pr[i]};
+    for (int c = 0; c < 4; ++c) {
+      const int x = splat.x0 + (c & 1), y = splat.y0 + (c >> 1);
+      if (!splat.inside && (x < 0 || y < 0 || x >= width || y >= height)) continue;
+      const int index = y * width + x;
+      const float front = zb[index];
+      const bool on_front =
+          z <= front * grid.tolerance_high && (z >= front * grid.tolerance_low || front == kInf);
+      const float w = on_front ? weights[c] : 0.0f;
+      float* a = acc + static_cast<std::size_t>(index) * 5;
+      a[0] += w * colour[0];
+      a[1] += w * colour[1];
+      a[2] += w * colour[2];
+      a[3] += w;
+      a[4] += w * z;
+    }
+  }
+}
+
+// Composite: the primary where it covers, else the secondary (null when only
+// one view rendered); a faint splat still beats a guess; the rest are holes,
+// listed in `holes`.
+void CompositeViews(const SplatGrid& grid, const float* acc_primary, const float* acc_secondary,
+                    std::vector<int>* holes, RenderResult* result) {
+  const int width = grid.width, height = grid.height;
   result->image.create(height, width, CV_32FC3);
   result->depth.create(height, width, CV_32FC1);
   result->hole_mask.create(height, width, CV_8UC1);
-  std::vector<int>& holes = workspace->holes;
-  holes.clear();
+  holes->clear();
   int num_secondary = 0;
-  const float* acc_primary = workspace->accum[order[0]].data();
-  const float* acc_secondary = num_views == 2 ? workspace->accum[order[1]].data() : nullptr;
   float* image = result->image.ptr<float>();
   float* depth = result->depth.ptr<float>();
   uint8_t* mask = result->hole_mask.ptr<uint8_t>();
-  for (int index = 0; index < num_pixels; ++index) {
+  for (int index = 0; index < grid.num_pixels; ++index) {
     const float* a = acc_primary + static_cast<std::size_t>(index) * 5;
     const float* b = acc_secondary ? acc_secondary + static_cast<std::size_t>(index) * 5 : nullptr;
     const float wa = a[3];
     const float wb = b ? b[3] : 0.0f;
     const float* chosen = nullptr;
-    if (wa >= coverage) {
+    if (wa >= grid.coverage) {
       chosen = a;
-    } else if (wb >= coverage) {
+    } else if (wb >= grid.coverage) {
       chosen = b;
-    } else if (std::max(wa, wb) >= min_weight) {
+    } else if (std::max(wa, wb) >= grid.min_weight) {
       chosen = wa >= wb ? a : b;
     }
     if (chosen) {
@@ -483,18 +484,23 @@ void SceneRenderer::Render(const PinholeCamera& camera, const SE3& T_world_cam,
       image[3 * index + 0] = image[3 * index + 1] = image[3 * index + 2] = 0.0f;
       depth[index] = 0.0f;
       mask[index] = 255;
-      holes.push_back(index);
+      holes->push_back(index);
     }
   }
-  result->num_holes = static_cast<int>(holes.size());
+  result->num_holes = static_cast<int>(holes->size());
   result->num_secondary = num_secondary;
-  if (!options.fill_holes || holes.empty() || result->num_holes == num_pixels) return;
+}
 
-  // Hole filling grows inwards one ring per pass from the 8-neighbours; the
-  // farthest neighbour (the background a disocclusion reveals) sets the depth
-  // and the neighbours near that depth the colour. Values are committed after
-  // each pass so that the growth is isotropic.
+// Hole filling grows inwards one ring per pass from the 8-neighbours; the
+// farthest neighbour (the background a disocclusion reveals) sets the depth
+// and the neighbours near that depth the colour. Values are committed after
+// each pass so that the growth is isotropic. Starts from workspace->holes.
+void FillHoles(const SplatGrid& grid, RenderWorkspace* workspace, RenderResult* result) {
   constexpr float kBackgroundTolerance = 0.03f;
+  const int width = grid.width, height = grid.height;
+  float* image = result->image.ptr<float>();
+  float* depth = result->depth.ptr<float>();
+  std::vector<int>& holes = workspace->holes;
   std::vector<int>& next_holes = workspace->next_holes;
   std::vector<int>& filled = workspace->filled;
   std::vector<float>& fill = workspace->fill_values;
@@ -541,6 +547,57 @@ void SceneRenderer::Render(const PinholeCamera& camera, const SE3& T_world_cam,
     }
     holes.swap(next_holes);
   }
+}
+
+}  // namespace
+
+void SceneRenderer::Render(const PinholeCamera& camera, const SE3& T_world_cam,
+                           const RenderOptions& options, RenderWorkspace* workspace,
+                           RenderResult* result) const {
+  const SplatGrid grid = MakeSplatGrid(camera, options);
+  const SE3 T_cam_world = T_world_cam.Inverse();
+  const Eigen::Matrix3f R = T_cam_world.rotation().cast<float>();
+  const Eigen::Vector3f t = T_cam_world.translation().cast<float>();
+
+  // The view whose centre is nearer to the virtual camera sees the most
+  // similar surfaces: it is primary, the other fills what it leaves empty.
+  const Eigen::Vector3d centre = T_world_cam.translation();
+  int primary = (centre - view_centres_world_[1]).norm() < (centre - view_centres_world_[0]).norm();
+  int num_views = 2;
+  if (options.only_view == 0 || options.only_view == 1) {
+    primary = options.only_view;
+    num_views = 1;
+  }
+  const int order[2] = {primary, 1 - primary};
+
+  for (int k = 0; k < num_views; ++k) {
+    const int view = order[k];
+    const Points& points = points_[view];
+    const int n = static_cast<int>(points.x.size());
+    const bool secondary = k == 1;
+    std::vector<float>& zbuffer = workspace->zbuffer[view];
+    std::vector<float>& accum = workspace->accum[view];
+    if (secondary) {
+      MaskSecondaryBuffers(grid, workspace->accum[order[0]], &zbuffer, &accum, &workspace->useful);
+    } else {
+      ClearPrimaryBuffers(grid, &zbuffer, &accum);
+    }
+    // Projection, vectorisable (no branches, structure of arrays).
+    workspace->u.resize(n);
+    workspace->v.resize(n);
+    workspace->z.resize(n);
+    ProjectPoints(n, R, t, camera, points.x.data(), points.y.data(), points.z.data(),
+                  workspace->u.data(), workspace->v.data(), workspace->z.data());
+    SplatDepths(grid, n, workspace->u.data(), workspace->v.data(), workspace->z.data(),
+                secondary ? workspace->useful.data() : nullptr, zbuffer.data(), &workspace->active);
+    const float* const bgr[3] = {points.b.data(), points.g.data(), points.r.data()};
+    BlendFrontSplats(grid, workspace->active, workspace->z.data(), bgr, zbuffer.data(), accum.data());
+  }
+
+  CompositeViews(grid, workspace->accum[order[0]].data(),
+                 num_views == 2 ? workspace->accum[order[1]].data() : nullptr, &workspace->holes, result);
+  if (!options.fill_holes || workspace->holes.empty() || result->num_holes == grid.num_pixels) return;
+  FillHoles(grid, workspace, result);
 }
 
 // ------------------------------------------------------------ camera paths
@@ -625,40 +682,32 @@ MotionStats MeasureImageMotion(const PinholeCamera& camera, const cv::Mat& depth
 // ------------------------------------------------------------- synthesis
 
 void SynthesisOptions::Check() const {
-  auto fail = [](const std::string& message) { throw InputError(message); };
-  if (num_frames < 2 || num_frames > 100000) {
-    fail("--frames must be between 2 and 100000 (got " + std::to_string(num_frames) + ")");
-  }
-  if (scale < 1 || scale > 8) fail("--scale must be between 1 and 8 (got " + std::to_string(scale) + ")");
-  if (!(exposure_ratio > 0.0 && exposure_ratio <= 1.0)) {
-    fail("--exposure-ratio must be in (0, 1] (got " + std::to_string(exposure_ratio) + ")");
-  }
-  if (!(noise_sigma >= 0.0 && noise_sigma <= 255.0)) {
-    fail("--noise must be in [0, 255] (got " + std::to_string(noise_sigma) + ")");
-  }
-  if (!(blur_px > 0.0 && blur_px <= 500.0)) {
-    fail("--blur-px must be in (0, 500] (got " + std::to_string(blur_px) + ")");
-  }
+  CheckInRange("--frames", num_frames, 2, 100000);
+  CheckInRange("--scale", scale, 1, 8);
+  CheckAbove("--exposure-ratio", exposure_ratio, 0.0);
+  CheckInRange("--exposure-ratio", exposure_ratio, 0.0, 1.0);
+  CheckInRange("--noise", noise_sigma, 0.0, 255.0);
+  CheckAbove("--blur-px", blur_px, 0.0);
+  CheckInRange("--blur-px", blur_px, 0.0, 500.0);
   // The estimator averages M = 50 samples per exposure; the data must be finer.
-  if (subframes <= 50 || subframes > 100000) {
-    fail("--subframes must be between 51 and 100000 (got " + std::to_string(subframes) + ")");
-  }
-  if (!(fps > 0.0 && fps <= 10000.0)) fail("--fps must be in (0, 10000] (got " + std::to_string(fps) + ")");
-  if (hr_width < 0 || hr_height < 0 || (hr_width == 0) != (hr_height == 0)) {
-    fail("--hr-width and --hr-height must both be positive or both 0 (automatic)");
+  CheckInRange("--subframes", subframes, 51, 100000);
+  CheckAbove("--fps", fps, 0.0);
+  CheckInRange("--fps", fps, 0.0, 10000.0);
+  CheckAtLeast("--hr-width", hr_width, 0);
+  CheckAtLeast("--hr-height", hr_height, 0);
+  if ((hr_width == 0) != (hr_height == 0)) {
+    throw InputError("--hr-width and --hr-height must both be positive or both 0 (automatic)");
   }
   if (hr_width % scale != 0 || hr_height % scale != 0) {
-    fail("--hr-width and --hr-height (" + std::to_string(hr_width) + "x" +
-         std::to_string(hr_height) + ") must be divisible by --scale " + std::to_string(scale));
+    throw InputError("--hr-width and --hr-height (" + std::to_string(hr_width) + "x" +
+                     std::to_string(hr_height) + ") must be divisible by --scale " + std::to_string(scale));
   }
-  if (!(arc_fixation_factor >= 1.2 && arc_fixation_factor <= 100.0)) {
-    fail("--arc-fixation must be in [1.2, 100] (got " + std::to_string(arc_fixation_factor) + ")");
-  }
-  if (!(forward_travel_cap > 0.0 && forward_travel_cap <= 1.0)) {
-    fail("--forward-cap must be in (0, 1] (got " + std::to_string(forward_travel_cap) + ")");
-  }
-  if (!(max_hole_fraction > 0.0 && max_hole_fraction < 1.0)) {
-    fail("max_hole_fraction must be in (0, 1)");
+  CheckInRange("--arc-fixation", arc_fixation_factor, 1.2, 100.0);
+  CheckAbove("--forward-cap", forward_travel_cap, 0.0);
+  CheckInRange("--forward-cap", forward_travel_cap, 0.0, 1.0);
+  CheckAbove("max_hole_fraction", max_hole_fraction, 0.0);
+  if (!(max_hole_fraction < 1.0)) {  // options_check.h has no "< max" check yet
+    throw InputError("max_hole_fraction must be < 1, got " + options_check_detail::Text(max_hole_fraction));
   }
 }
 
@@ -711,21 +760,19 @@ double CalibratePathSpeed(const StereoScene& scene, const SceneRenderer& rendere
   return achieved;
 }
 
-PinholeCamera ChooseHrCamera(const StereoScene& scene, const SceneRenderer& renderer,
-                             const CameraPath& path, const SynthesisOptions& options) {
-  const PinholeCamera probe = ProbeCamera(scene);
-  const int width = probe.width, height = probe.height;
-  if (options.hr_width > 0) {
-    if (options.hr_width > width || options.hr_height > height) {
-      throw InputError("--hr-width/--hr-height " + std::to_string(options.hr_width) + "x" +
-                       std::to_string(options.hr_height) + " exceed the scene size " +
-                       std::to_string(width) + "x" + std::to_string(height));
-    }
-    return CentredCrop(probe, options.hr_width, options.hr_height);
-  }
+namespace {
 
-  // Uncovered pixels of the full-size probe at poses spread over the whole
-  // path (exposure of the first frame to the close of the last).
+// Pixels of the w x h rectangle at (x, y) in the image of `integral`.
+int CountInRect(const cv::Mat& integral, int x, int y, int w, int h) {
+  return integral.at<int>(y + h, x + w) - integral.at<int>(y, x + w) - integral.at<int>(y + h, x) +
+         integral.at<int>(y, x);
+}
+
+// Integral images of the uncovered pixels of the full-size probe at poses
+// spread over the whole path (exposure of the first frame to the close of the
+// last).
+std::vector<cv::Mat> HoleIntegralsAlongPath(const SceneRenderer& renderer, const PinholeCamera& probe,
+                                            const CameraPath& path, const SynthesisOptions& options) {
   const int num_poses = std::max(5, 2 * options.num_frames + 1);
   const double t0 = PathStart(options), t1 = PathEnd(options);
   std::vector<cv::Mat> hole_integrals(num_poses);
@@ -740,45 +787,59 @@ PinholeCamera ChooseHrCamera(const StereoScene& scene, const SceneRenderer& rend
     cv::threshold(render.hole_mask, holes01, 0, 1, cv::THRESH_BINARY);
     cv::integral(holes01, hole_integrals[k], CV_32S);
   }
-  auto count = [](const cv::Mat& integral, int x, int y, int w, int h) {
-    return integral.at<int>(y + h, x + w) - integral.at<int>(y, x + w) -
-           integral.at<int>(y + h, x) + integral.at<int>(y, x);
-  };
+  return hole_integrals;
+}
 
-  // Holes inside the scene (unknown disparity in both views, disocclusions
-  // seen by neither) cannot be cropped away: measure their level in the
-  // central quarter and allow it on top of max_hole_fraction.
-  const int s = options.scale;
+// Holes inside the scene (unknown disparity in both views, disocclusions
+// seen by neither) cannot be cropped away: their level is the worst hole
+// fraction of the central quarter of the width x height image.
+double InteriorHoleFraction(const std::vector<cv::Mat>& hole_integrals, int width, int height) {
   double interior = 0.0;
   for (const cv::Mat& integral : hole_integrals) {
-    interior = std::max(interior, count(integral, width / 4, height / 4, width / 2, height / 2) /
+    interior = std::max(interior, CountInRect(integral, width / 4, height / 4, width / 2, height / 2) /
                                       (static_cast<double>(width / 2) * (height / 2)));
   }
-  const double max_holes = options.max_hole_fraction + interior;
+  return interior;
+}
 
-  // Largest centred crop (divisible by the scale, at least half the scene
-  // size) whose worst pose leaves few holes and whose edges run through
-  // covered pixels: the views' fields of view end at the crop's outside.
-  constexpr int kBand = 3;
+// Width of the band along a crop's edges that must run through covered pixels.
+constexpr int kCropBand = 3;
+
+// The worst hole fractions over the poses of the crop (x, y, w, h) and of
+// its edge band.
+void CropHoleFractions(const std::vector<cv::Mat>& hole_integrals, int x, int y, int w, int h,
+                       double* worst, double* worst_band) {
+  *worst = 0.0;
+  *worst_band = 0.0;
+  for (const cv::Mat& integral : hole_integrals) {
+    const int all = CountInRect(integral, x, y, w, h);
+    const int inner =
+        CountInRect(integral, x + kCropBand, y + kCropBand, w - 2 * kCropBand, h - 2 * kCropBand);
+    const double band_area = static_cast<double>(w) * h - (w - 2.0 * kCropBand) * (h - 2.0 * kCropBand);
+    *worst = std::max(*worst, static_cast<double>(all) / (static_cast<double>(w) * h));
+    *worst_band = std::max(*worst_band, (all - inner) / band_area);
+  }
+}
+
+// Largest centred crop of the width x height image (divisible by the scale,
+// at least half its size) whose worst pose leaves at most `max_holes` and
+// whose edges run through covered pixels: the views' fields of view end at
+// the crop's outside. When none does (the path leaves the views' coverage),
+// the crop with the fewest holes.
+cv::Size LargestCoveredCrop(const std::vector<cv::Mat>& hole_integrals, int width, int height, int s,
+                            double max_holes) {
   constexpr double kMaxBandHoleFraction = 0.05;
   int best_w = 0, best_h = 0;
   double best_area = -1.0;
   int fallback_w = 0, fallback_h = 0;
   double fallback_holes = 2.0;
-  const int min_w = std::max(2 * kBand + s, ((width / 2 + s - 1) / s) * s);
-  const int min_h = std::max(2 * kBand + s, ((height / 2 + s - 1) / s) * s);
+  const int min_w = std::max(2 * kCropBand + s, ((width / 2 + s - 1) / s) * s);
+  const int min_h = std::max(2 * kCropBand + s, ((height / 2 + s - 1) / s) * s);
   for (int w = (width / s) * s; w >= min_w; w -= s) {
     for (int h = (height / s) * s; h >= min_h; h -= s) {
       if (static_cast<double>(w) * h <= best_area) break;  // smaller h only shrinks the area
-      const int x = (width - w) / 2, y = (height - h) / 2;
       double worst = 0.0, worst_band = 0.0;
-      for (const cv::Mat& integral : hole_integrals) {
-        const int all = count(integral, x, y, w, h);
-        const int inner = count(integral, x + kBand, y + kBand, w - 2 * kBand, h - 2 * kBand);
-        const double band_area = static_cast<double>(w) * h - (w - 2.0 * kBand) * (h - 2.0 * kBand);
-        worst = std::max(worst, static_cast<double>(all) / (static_cast<double>(w) * h));
-        worst_band = std::max(worst_band, (all - inner) / band_area);
-      }
+      CropHoleFractions(hole_integrals, (width - w) / 2, (height - h) / 2, w, h, &worst, &worst_band);
       if (worst <= max_holes && worst_band <= kMaxBandHoleFraction) {
         best_area = static_cast<double>(w) * h;
         best_w = w;
@@ -790,12 +851,190 @@ PinholeCamera ChooseHrCamera(const StereoScene& scene, const SceneRenderer& rend
       }
     }
   }
-  if (best_w == 0) {  // the path leaves the views' coverage: least-holes crop
-    best_w = fallback_w;
-    best_h = fallback_h;
-  }
-  return CentredCrop(probe, best_w, best_h);
+  if (best_w == 0) return cv::Size(fallback_w, fallback_h);
+  return cv::Size(best_w, best_h);
 }
+
+}  // namespace
+
+PinholeCamera ChooseHrCamera(const StereoScene& scene, const SceneRenderer& renderer,
+                             const CameraPath& path, const SynthesisOptions& options) {
+  const PinholeCamera probe = ProbeCamera(scene);
+  const int width = probe.width, height = probe.height;
+  if (options.hr_width > 0) {
+    if (options.hr_width > width || options.hr_height > height) {
+      throw InputError("--hr-width/--hr-height " + std::to_string(options.hr_width) + "x" +
+                       std::to_string(options.hr_height) + " exceed the scene size " +
+                       std::to_string(width) + "x" + std::to_string(height));
+    }
+    return CentredCrop(probe, options.hr_width, options.hr_height);
+  }
+  const std::vector<cv::Mat> hole_integrals = HoleIntegralsAlongPath(renderer, probe, path, options);
+  // The interior holes are allowed on top of max_hole_fraction.
+  const double max_holes = options.max_hole_fraction + InteriorHoleFraction(hole_integrals, width, height);
+  const cv::Size crop = LargestCoveredCrop(hole_integrals, width, height, options.scale, max_holes);
+  return CentredCrop(probe, crop.width, crop.height);
+}
+
+namespace {
+
+// The blurred HR image of one exposure from many sub-frame renders.
+// Sub-frames are summed in a fixed number of chunks, each in a fixed order,
+// and the chunks in a fixed order: the result does not depend on threads.
+class ExposureAverager {
+ public:
+  ExposureAverager(const PinholeCamera& hr, int num_subframes)
+      : hr_(hr),
+        num_subframes_(num_subframes),
+        num_chunks_(std::min(num_subframes, 16)),
+        num_threads_(std::max(1, omp_get_max_threads())),
+        chunk_sums_(num_chunks_),
+        chunk_max_holes_(num_chunks_),
+        workspaces_(num_threads_),
+        renders_(num_threads_) {
+    for (cv::Mat& sum : chunk_sums_) sum.create(hr.height, hr.width, CV_32FC3);
+  }
+
+  // Buffers for renders outside Average, on the calling thread.
+  RenderWorkspace* workspace() { return &workspaces_[0]; }
+
+  // eq:blurOperator: mean over tau_m = t_o + (m / S)(t_c - t_o), m = 1..S,
+  // into `blurred` (CV_32FC3, HR size). Returns the most holes of a sub-frame.
+  int Average(const SceneRenderer& renderer, const CameraPath& path, double t_open, double exposure,
+              cv::Mat* blurred) {
+    const RenderOptions render_options;
+#pragma omp parallel for schedule(dynamic, 1) num_threads(num_threads_)
+    for (int c = 0; c < num_chunks_; ++c) {
+      const int thread = omp_get_thread_num();
+      RenderResult& render = renders_[thread];
+      chunk_sums_[c].setTo(cv::Scalar::all(0.0));
+      chunk_max_holes_[c] = 0;
+      const int m_begin = 1 + static_cast<int>(static_cast<long>(c) * num_subframes_ / num_chunks_);
+      const int m_end = static_cast<int>(static_cast<long>(c + 1) * num_subframes_ / num_chunks_);
+      for (int m = m_begin; m <= m_end; ++m) {
+        const double tau = t_open + (static_cast<double>(m) / num_subframes_) * exposure;
+        renderer.Render(hr_, path.PoseAt(tau), render_options, &workspaces_[thread], &render);
+        cv::add(chunk_sums_[c], render.image, chunk_sums_[c]);
+        chunk_max_holes_[c] = std::max(chunk_max_holes_[c], render.num_holes);
+      }
+    }
+    blurred->create(hr_.height, hr_.width, CV_32FC3);
+    blurred->setTo(cv::Scalar::all(0.0));
+    for (int c = 0; c < num_chunks_; ++c) cv::add(*blurred, chunk_sums_[c], *blurred);
+    *blurred *= 1.0 / num_subframes_;
+    return *std::max_element(chunk_max_holes_.begin(), chunk_max_holes_.end());
+  }
+
+ private:
+  PinholeCamera hr_;
+  int num_subframes_;
+  int num_chunks_;
+  int num_threads_;
+  std::vector<cv::Mat> chunk_sums_;
+  std::vector<int> chunk_max_holes_;
+  std::vector<RenderWorkspace> workspaces_;
+  std::vector<RenderResult> renders_;
+};
+
+// The 8-bit LR frame of a blurred HR image: box-downsampled by the scale
+// (INTER_AREA with an integer factor is the box average), then noise from `rng`.
+cv::Mat LowResImage(const cv::Mat& blurred, const SynthesisOptions& options, cv::RNG* rng) {
+  cv::Mat low_res;
+  if (options.scale == 1) {
+    blurred.copyTo(low_res);
+  } else {
+    cv::resize(blurred, low_res, cv::Size(blurred.cols / options.scale, blurred.rows / options.scale),
+               0.0, 0.0, cv::INTER_AREA);
+  }
+  if (options.noise_sigma > 0.0) {
+    cv::Mat noise(low_res.size(), low_res.type());
+    rng->fill(noise, cv::RNG::NORMAL, 0.0, options.noise_sigma);
+    low_res += noise;
+  }
+  cv::Mat image8;
+  low_res.convertTo(image8, CV_8UC3);  // rounds and saturates to 0..255
+  return image8;
+}
+
+// The path's speed and the cameras: speed first on the full-size camera, then
+// the crop that stays covered along that path, then the speed again on the
+// final crop.
+void PlanPathAndCameras(const StereoScene& scene, const SceneRenderer& renderer,
+                        const SynthesisOptions& options, SynthesisResult* result, std::ostream* log) {
+  const double t_mid = 0.5 * (PathStart(options) + PathEnd(options));
+  result->path = MakeCameraPath(options.path, scene, t_mid, options.arc_fixation_factor);
+  CalibratePathSpeed(scene, renderer, ProbeCamera(scene), options, &result->path, &result->speed_capped);
+  result->hr_camera = ChooseHrCamera(scene, renderer, result->path, options);
+  result->achieved_blur_px = CalibratePathSpeed(scene, renderer, result->hr_camera, options,
+                                                &result->path, &result->speed_capped);
+  result->lr_camera =
+      options.scale == 1 ? result->hr_camera : result->hr_camera.Downscaled(options.scale);
+  if (log && result->speed_capped) {
+    *log << "note: the " << CameraPathName(options.path) << " path is capped at "
+         << options.forward_travel_cap << " x the nearest depth; median blur "
+         << result->achieved_blur_px << " px instead of " << options.blur_px << " px\n";
+  }
+}
+
+// The sequence's calibrations (LR and gt HR), named after the scene folder:
+// "scenes/Dolls/" names the scene "Dolls".
+void NameCalibrations(const StereoScene& scene, SynthesisResult* result) {
+  fs::path folder = fs::path(scene.folder).lexically_normal();
+  if (folder.filename().empty()) folder = folder.parent_path();
+  const std::string scene_name = folder.filename().string();
+  Sequence& sequence = result->sequence;
+  sequence.calibration = CameraCalibration::FromCamera(result->lr_camera, "synthetic_" + scene_name);
+  sequence.ground_truth.emplace();
+  sequence.ground_truth->calibration =
+      CameraCalibration::FromCamera(result->hr_camera, "synthetic_" + scene_name + "_hr");
+}
+
+void LogFrame(int i, const SynthesisOptions& options, const FrameSynthesisStats& stats, std::ostream* log) {
+  if (!log) return;
+  std::ostringstream line;
+  line << "frame " << i + 1 << "/" << options.num_frames << ": blur median " << std::fixed
+       << std::setprecision(1) << stats.blur.median_px << " px (max " << stats.blur.max_px
+       << "), holes " << std::setprecision(2) << 100.0 * stats.hole_fraction_max << " %\n";
+  *log << line.str() << std::flush;
+}
+
+// Frame i: the ground truth at the shutter close time t_c, the blurred
+// exposure and its LR image, appended to the result.
+void SynthesizeFrame(int i, const SceneRenderer& renderer, const SynthesisOptions& options,
+                     ExposureAverager* averager, cv::RNG* rng, SynthesisResult* result) {
+  const PinholeCamera& hr = result->hr_camera;
+  const double exposure = FrameExposure(options);
+  const double t_close = FrameStamp(options, i);
+  const double t_open = t_close - exposure;
+  const CameraPath& path = result->path;
+  const SE3 T_world_close = path.PoseAt(t_close);
+  // Only the points this exposure can see: same images, faster renders.
+  const SceneRenderer frame_renderer = renderer.CulledFor(
+      hr, {path.PoseAt(t_open), path.PoseAt(0.5 * (t_open + t_close)), T_world_close});
+
+  RenderResult sharp;
+  frame_renderer.Render(hr, T_world_close, RenderOptions(), averager->workspace(), &sharp);
+  FrameSynthesisStats stats;
+  stats.hole_fraction_latent = sharp.HoleFraction();
+  stats.blur = MeasureImageMotion(hr, CoveredDepth(sharp), path.PoseAt(t_open), T_world_close);
+
+  cv::Mat blurred;
+  const int max_holes = averager->Average(frame_renderer, path, t_open, exposure, &blurred);
+  stats.hole_fraction_max = static_cast<double>(max_holes) / hr.NumPixels();
+  cv::Mat latent8;
+  sharp.image.convertTo(latent8, CV_8UC3);
+
+  Sequence& sequence = result->sequence;
+  SequenceGroundTruth& gt = *sequence.ground_truth;
+  sequence.frames.push_back({i, t_close, exposure});
+  sequence.images.push_back(LowResImage(blurred, options, rng));
+  gt.latent.push_back(latent8);
+  gt.depth.push_back(sharp.depth.clone());
+  gt.poses.push_back({t_close, T_world_close});
+  result->frame_stats.push_back(stats);
+}
+
+}  // namespace
 
 SynthesisResult SynthesizeSequence(const StereoScene& scene, const SynthesisOptions& options,
                                    std::ostream* log) {
@@ -803,120 +1042,13 @@ SynthesisResult SynthesizeSequence(const StereoScene& scene, const SynthesisOpti
   const auto start_time = std::chrono::steady_clock::now();
   SynthesisResult result;
   const SceneRenderer renderer(scene);
-  const double exposure = FrameExposure(options);
-  const double t_mid = 0.5 * (PathStart(options) + PathEnd(options));
-
-  // Speed first on the full-size camera, then the crop that stays covered
-  // along that path, then the speed again on the final crop.
-  result.path = MakeCameraPath(options.path, scene, t_mid, options.arc_fixation_factor);
-  CalibratePathSpeed(scene, renderer, ProbeCamera(scene), options, &result.path,
-                     &result.speed_capped);
-  result.hr_camera = ChooseHrCamera(scene, renderer, result.path, options);
-  result.achieved_blur_px = CalibratePathSpeed(scene, renderer, result.hr_camera, options,
-                                               &result.path, &result.speed_capped);
-  result.lr_camera =
-      options.scale == 1 ? result.hr_camera : result.hr_camera.Downscaled(options.scale);
-  if (log && result.speed_capped) {
-    *log << "note: the " << CameraPathName(options.path) << " path is capped at "
-         << options.forward_travel_cap << " x the nearest depth; median blur "
-         << result.achieved_blur_px << " px instead of " << options.blur_px << " px\n";
-  }
-
-  const PinholeCamera& hr = result.hr_camera;
-  // "scenes/Dolls/" names the scene "Dolls".
-  fs::path folder = fs::path(scene.folder).lexically_normal();
-  if (folder.filename().empty()) folder = folder.parent_path();
-  const std::string scene_name = folder.filename().string();
-  Sequence& sequence = result.sequence;
-  sequence.calibration = CameraCalibration::FromCamera(result.lr_camera, "synthetic_" + scene_name);
-  sequence.ground_truth.emplace();
-  SequenceGroundTruth& gt = *sequence.ground_truth;
-  gt.calibration = CameraCalibration::FromCamera(hr, "synthetic_" + scene_name + "_hr");
-
-  // Sub-frames are summed in a fixed number of chunks, each in a fixed order,
-  // and the chunks in a fixed order: the result does not depend on threads.
-  const int num_subframes = options.subframes;
-  const int num_chunks = std::min(num_subframes, 16);
-  std::vector<cv::Mat> chunk_sums(num_chunks);
-  for (cv::Mat& sum : chunk_sums) sum.create(hr.height, hr.width, CV_32FC3);
-  std::vector<int> chunk_max_holes(num_chunks);
-  const int num_threads = std::max(1, omp_get_max_threads());
-  std::vector<RenderWorkspace> workspaces(num_threads);
-  std::vector<RenderResult> renders(num_threads);
-  const RenderOptions render_options;
+  PlanPathAndCameras(scene, renderer, options, &result, log);
+  NameCalibrations(scene, &result);
+  ExposureAverager averager(result.hr_camera, options.subframes);
   cv::RNG rng(options.seed);
-  cv::Mat blurred(hr.height, hr.width, CV_32FC3), low_res, noise;
-
   for (int i = 0; i < options.num_frames; ++i) {
-    const double t_close = FrameStamp(options, i);
-    const double t_open = t_close - exposure;
-    const SE3 T_world_close = result.path.PoseAt(t_close);
-    // Only the points this exposure can see: same images, faster renders.
-    const SceneRenderer frame_renderer = renderer.CulledFor(
-        hr, {result.path.PoseAt(t_open), result.path.PoseAt(0.5 * (t_open + t_close)),
-             T_world_close});
-
-    // Ground truth at the shutter close time t_c.
-    RenderResult sharp;
-    frame_renderer.Render(hr, T_world_close, render_options, &workspaces[0], &sharp);
-    FrameSynthesisStats stats;
-    stats.hole_fraction_latent = sharp.HoleFraction();
-    stats.blur = MeasureImageMotion(hr, CoveredDepth(sharp), result.path.PoseAt(t_open),
-                                    T_world_close);
-
-    // eq:blurOperator: mean over tau_m = t_o + (m / S)(t_c - t_o), m = 1..S.
-#pragma omp parallel for schedule(dynamic, 1) num_threads(num_threads)
-    for (int c = 0; c < num_chunks; ++c) {
-      const int thread = omp_get_thread_num();
-      RenderResult& render = renders[thread];
-      chunk_sums[c].setTo(cv::Scalar::all(0.0));
-      chunk_max_holes[c] = 0;
-      const int m_begin = 1 + static_cast<int>(static_cast<long>(c) * num_subframes / num_chunks);
-      const int m_end = static_cast<int>(static_cast<long>(c + 1) * num_subframes / num_chunks);
-      for (int m = m_begin; m <= m_end; ++m) {
-        const double tau = t_open + (static_cast<double>(m) / num_subframes) * exposure;
-        frame_renderer.Render(hr, result.path.PoseAt(tau), render_options, &workspaces[thread],
-                              &render);
-        cv::add(chunk_sums[c], render.image, chunk_sums[c]);
-        chunk_max_holes[c] = std::max(chunk_max_holes[c], render.num_holes);
-      }
-    }
-    blurred.setTo(cv::Scalar::all(0.0));
-    for (int c = 0; c < num_chunks; ++c) cv::add(blurred, chunk_sums[c], blurred);
-    blurred *= 1.0 / num_subframes;
-    stats.hole_fraction_max =
-        static_cast<double>(*std::max_element(chunk_max_holes.begin(), chunk_max_holes.end())) /
-        hr.NumPixels();
-
-    // Box-downsampling: INTER_AREA with an integer factor is the box average.
-    if (options.scale == 1) {
-      blurred.copyTo(low_res);
-    } else {
-      cv::resize(blurred, low_res, cv::Size(hr.width / options.scale, hr.height / options.scale),
-                 0.0, 0.0, cv::INTER_AREA);
-    }
-    if (options.noise_sigma > 0.0) {
-      noise.create(low_res.size(), low_res.type());
-      rng.fill(noise, cv::RNG::NORMAL, 0.0, options.noise_sigma);
-      low_res += noise;
-    }
-    cv::Mat image8, latent8;
-    low_res.convertTo(image8, CV_8UC3);  // rounds and saturates to 0..255
-    sharp.image.convertTo(latent8, CV_8UC3);
-
-    sequence.frames.push_back({i, t_close, exposure});
-    sequence.images.push_back(image8);
-    gt.latent.push_back(latent8);
-    gt.depth.push_back(sharp.depth.clone());
-    gt.poses.push_back({t_close, T_world_close});
-    result.frame_stats.push_back(stats);
-    if (log) {
-      std::ostringstream line;
-      line << "frame " << i + 1 << "/" << options.num_frames << ": blur median " << std::fixed
-           << std::setprecision(1) << stats.blur.median_px << " px (max " << stats.blur.max_px
-           << "), holes " << std::setprecision(2) << 100.0 * stats.hole_fraction_max << " %\n";
-      *log << line.str() << std::flush;
-    }
+    SynthesizeFrame(i, renderer, options, &averager, &rng, &result);
+    LogFrame(i, options, result.frame_stats.back(), log);
   }
   result.seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start_time).count();
@@ -925,92 +1057,133 @@ SynthesisResult SynthesizeSequence(const StereoScene& scene, const SynthesisOpti
 
 namespace {
 
-void WriteCameraFields(std::ostream& out, const std::string& indent, const PinholeCamera& camera) {
-  out << indent << "width: " << camera.width << "\n"
-      << indent << "height: " << camera.height << "\n"
-      << indent << "fx: " << camera.fx << "\n"
-      << indent << "fy: " << camera.fy << "\n"
-      << indent << "cx: " << camera.cx << "\n"
-      << indent << "cy: " << camera.cy << "\n";
+void EmitCamera(YAML::Emitter* out, const char* key, const PinholeCamera& camera) {
+  *out << YAML::Key << key << YAML::Value << YAML::BeginMap;
+  *out << YAML::Key << "width" << YAML::Value << camera.width;
+  *out << YAML::Key << "height" << YAML::Value << camera.height;
+  *out << YAML::Key << "fx" << YAML::Value << camera.fx;
+  *out << YAML::Key << "fy" << YAML::Value << camera.fy;
+  *out << YAML::Key << "cx" << YAML::Value << camera.cx;
+  *out << YAML::Key << "cy" << YAML::Value << camera.cy;
+  *out << YAML::EndMap;
 }
 
+// A flow list [a, b, ...] of the values of an Eigen vector.
 template <typename Vector>
-std::string List(const Vector& v) {
-  std::ostringstream out;
-  out << std::setprecision(10) << "[";
-  for (int i = 0; i < v.size(); ++i) out << (i ? ", " : "") << v[i];
-  out << "]";
-  return out.str();
+void EmitList(YAML::Emitter* out, const Vector& v) {
+  *out << YAML::Flow << YAML::BeginSeq;
+  for (int i = 0; i < v.size(); ++i) *out << v[i];
+  *out << YAML::EndSeq;
+}
+
+void EmitSceneCalibration(YAML::Emitter* out, const StereoScene& scene) {
+  *out << YAML::Key << "scene_calibration" << YAML::Value << YAML::BeginMap;
+  *out << YAML::Key << "focal_px" << YAML::Value << scene.focal_px;
+  *out << YAML::Key << "baseline_m" << YAML::Value << scene.baseline_m;
+  *out << YAML::Key << "dmin" << YAML::Value << scene.dmin;
+  *out << YAML::Key << "view5_cx_offset_px" << YAML::Value
+       << scene.views[1].camera.cx - scene.views[0].camera.cx;
+  *out << YAML::Key << "depth_min_m" << YAML::Value << scene.min_depth;
+  *out << YAML::Key << "depth_median_m" << YAML::Value << scene.median_depth;
+  *out << YAML::Key << "depth_max_m" << YAML::Value << scene.max_depth;
+  *out << YAML::EndMap;
+}
+
+void EmitOptions(YAML::Emitter* out, const SynthesisOptions& options) {
+  *out << YAML::Key << "options" << YAML::Value << YAML::BeginMap;
+  *out << YAML::Key << "frames" << YAML::Value << options.num_frames;
+  *out << YAML::Key << "scale" << YAML::Value << options.scale;
+  *out << YAML::Key << "exposure_ratio" << YAML::Value << options.exposure_ratio;
+  *out << YAML::Key << "path" << YAML::Value << CameraPathName(options.path);
+  *out << YAML::Key << "noise" << YAML::Value << options.noise_sigma;
+  *out << YAML::Key << "seed" << YAML::Value << options.seed;
+  *out << YAML::Key << "blur_px" << YAML::Value << options.blur_px;
+  *out << YAML::Key << "subframes" << YAML::Value << options.subframes;
+  *out << YAML::Key << "fps" << YAML::Value << options.fps;
+  *out << YAML::Key << "hr_width" << YAML::Value << options.hr_width;
+  *out << YAML::Key << "hr_height" << YAML::Value << options.hr_height;
+  *out << YAML::Key << "arc_fixation_factor" << YAML::Value << options.arc_fixation_factor;
+  *out << YAML::Key << "forward_travel_cap" << YAML::Value << options.forward_travel_cap;
+  *out << YAML::Key << "max_hole_fraction" << YAML::Value << options.max_hole_fraction;
+  *out << YAML::EndMap;
+}
+
+void EmitPath(YAML::Emitter* out, const SynthesisOptions& options, const SynthesisResult& result) {
+  const CameraPath& p = result.path;
+  const Eigen::Quaterniond q = p.T_world_mid.quaternion();
+  *out << YAML::Key << "path" << YAML::Value
+       << YAML::Comment("T_world_cam(t) = Exp((t - t_mid) * twist_per_s) * T_world_mid, twist = (rho, phi)")
+       << YAML::BeginMap;
+  *out << YAML::Key << "type" << YAML::Value << CameraPathName(p.type);
+  *out << YAML::Key << "t_mid" << YAML::Value << p.t_mid;
+  *out << YAML::Key << "T_world_mid" << YAML::Value;
+  EmitList(out, p.T_world_mid.translation());
+  *out << YAML::Comment("tx ty tz");
+  *out << YAML::Key << "T_world_mid_quaternion" << YAML::Value;
+  EmitList(out, Eigen::Vector4d(q.x(), q.y(), q.z(), q.w()));
+  *out << YAML::Comment("qx qy qz qw");
+  *out << YAML::Key << "twist_per_s" << YAML::Value;
+  EmitList(out, p.Twist());
+  *out << YAML::Key << "centre_speed_mps" << YAML::Value << p.speed;
+  if (p.type == CameraPathType::kArc) {
+    *out << YAML::Key << "fixation_point" << YAML::Value;
+    EmitList(out, p.fixation_point);
+  }
+  *out << YAML::Key << "speed_capped" << YAML::Value << result.speed_capped;
+  *out << YAML::Key << "target_blur_px" << YAML::Value << options.blur_px;
+  *out << YAML::Key << "achieved_blur_px" << YAML::Value << result.achieved_blur_px
+       << YAML::Comment("median, middle frame");
+  *out << YAML::EndMap;
+}
+
+void EmitFrames(YAML::Emitter* out, const SynthesisResult& result) {
+  *out << YAML::Key << "frames" << YAML::Value
+       << YAML::Comment("blur = image motion over the exposure in HR px, over covered pixels")
+       << YAML::BeginSeq;
+  for (std::size_t i = 0; i < result.frame_stats.size(); ++i) {
+    const FrameSynthesisStats& s = result.frame_stats[i];
+    const FrameRecord& f = result.sequence.frames[i];
+    *out << YAML::Flow << YAML::BeginMap;
+    *out << YAML::Key << "index" << YAML::Value << f.index;
+    *out << YAML::Key << "stamp" << YAML::Value << f.stamp;
+    *out << YAML::Key << "exposure" << YAML::Value << f.exposure;
+    *out << YAML::Key << "blur_min_px" << YAML::Value << s.blur.min_px;
+    *out << YAML::Key << "blur_median_px" << YAML::Value << s.blur.median_px;
+    *out << YAML::Key << "blur_max_px" << YAML::Value << s.blur.max_px;
+    *out << YAML::Key << "hole_fraction_latent" << YAML::Value << s.hole_fraction_latent;
+    *out << YAML::Key << "hole_fraction_max_subframe" << YAML::Value << s.hole_fraction_max;
+    *out << YAML::EndMap;
+  }
+  *out << YAML::EndSeq;
 }
 
 }  // namespace
 
 void WriteSynthesisYaml(const std::string& path, const StereoScene& scene,
                         const SynthesisOptions& options, const SynthesisResult& result) {
+  YAML::Emitter out;
+  out.SetDoublePrecision(10);
+  out << YAML::Comment(
+      "synthesize_sequence: how this sequence was made (extra file, not read by the\n"
+      "estimator). World frame = the view1 camera of the scene (optical frame).");
+  out << YAML::BeginMap;
+  out << YAML::Key << "scene" << YAML::Value << scene.folder;
+  EmitSceneCalibration(&out, scene);
+  EmitOptions(&out, options);
+  EmitCamera(&out, "hr_camera", result.hr_camera);
+  EmitCamera(&out, "lr_camera", result.lr_camera);
+  EmitPath(&out, options, result);
+  EmitFrames(&out, result);
+  out << YAML::Key << "seconds" << YAML::Value << result.seconds;
+  out << YAML::EndMap;
+  if (!out.good()) throw InputError(path + ": cannot format the YAML (" + out.GetLastError() + ")");
+
   std::error_code error;
   fs::create_directories(fs::path(path).parent_path(), error);
-  std::ofstream out(path);
-  if (!out) throw InputError(path + ": cannot write the file");
-  out << std::setprecision(10);
-  out << "# synthesize_sequence: how this sequence was made (extra file, not read by the\n"
-         "# estimator). World frame = the view1 camera of the scene (optical frame).\n";
-  out << "scene: \"" << scene.folder << "\"\n";
-  out << "scene_calibration:\n"
-      << "  focal_px: " << scene.focal_px << "\n"
-      << "  baseline_m: " << scene.baseline_m << "\n"
-      << "  dmin: " << scene.dmin << "\n"
-      << "  view5_cx_offset_px: " << scene.views[1].camera.cx - scene.views[0].camera.cx << "\n"
-      << "  depth_min_m: " << scene.min_depth << "\n"
-      << "  depth_median_m: " << scene.median_depth << "\n"
-      << "  depth_max_m: " << scene.max_depth << "\n";
-  out << "options:\n"
-      << "  frames: " << options.num_frames << "\n"
-      << "  scale: " << options.scale << "\n"
-      << "  exposure_ratio: " << options.exposure_ratio << "\n"
-      << "  path: " << CameraPathName(options.path) << "\n"
-      << "  noise: " << options.noise_sigma << "\n"
-      << "  seed: " << options.seed << "\n"
-      << "  blur_px: " << options.blur_px << "\n"
-      << "  subframes: " << options.subframes << "\n"
-      << "  fps: " << options.fps << "\n"
-      << "  hr_width: " << options.hr_width << "\n"
-      << "  hr_height: " << options.hr_height << "\n"
-      << "  arc_fixation_factor: " << options.arc_fixation_factor << "\n"
-      << "  forward_travel_cap: " << options.forward_travel_cap << "\n"
-      << "  max_hole_fraction: " << options.max_hole_fraction << "\n";
-  out << "hr_camera:\n";
-  WriteCameraFields(out, "  ", result.hr_camera);
-  out << "lr_camera:\n";
-  WriteCameraFields(out, "  ", result.lr_camera);
-  const CameraPath& p = result.path;
-  const Eigen::Quaterniond q = p.T_world_mid.quaternion();
-  out << "path:\n"
-      << "  # T_world_cam(t) = Exp((t - t_mid) * twist_per_s) * T_world_mid, twist = (rho, phi)\n"
-      << "  type: " << CameraPathName(p.type) << "\n"
-      << "  t_mid: " << p.t_mid << "\n"
-      << "  T_world_mid: " << List(p.T_world_mid.translation()) << "  # tx ty tz\n"
-      << "  T_world_mid_quaternion: [" << q.x() << ", " << q.y() << ", " << q.z() << ", " << q.w()
-      << "]  # qx qy qz qw\n"
-      << "  twist_per_s: " << List(p.Twist()) << "\n"
-      << "  centre_speed_mps: " << p.speed << "\n";
-  if (p.type == CameraPathType::kArc) {
-    out << "  fixation_point: " << List(p.fixation_point) << "\n";
-  }
-  out << "  speed_capped: " << (result.speed_capped ? "true" : "false") << "\n"
-      << "  target_blur_px: " << options.blur_px << "\n"
-      << "  achieved_blur_px: " << result.achieved_blur_px << "  # median, middle frame\n";
-  out << "frames:  # blur = image motion over the exposure in HR px, over covered pixels\n";
-  for (std::size_t i = 0; i < result.frame_stats.size(); ++i) {
-    const FrameSynthesisStats& s = result.frame_stats[i];
-    const FrameRecord& f = result.sequence.frames[i];
-    out << "  - {index: " << f.index << ", stamp: " << f.stamp << ", exposure: " << f.exposure
-        << ", blur_min_px: " << s.blur.min_px << ", blur_median_px: " << s.blur.median_px
-        << ", blur_max_px: " << s.blur.max_px
-        << ", hole_fraction_latent: " << s.hole_fraction_latent
-        << ", hole_fraction_max_subframe: " << s.hole_fraction_max << "}\n";
-  }
-  out << "seconds: " << result.seconds << "\n";
-  if (!out) throw InputError(path + ": cannot write the file");
+  std::ofstream file(path);
+  if (!file) throw InputError(path + ": cannot write the file");
+  file << out.c_str() << "\n";
+  if (!file) throw InputError(path + ": cannot write the file");
 }
 
 }  // namespace deblur_sr_mvs

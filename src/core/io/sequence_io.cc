@@ -14,6 +14,7 @@
 #include <system_error>
 
 #include <opencv2/imgcodecs.hpp>
+#include <yaml-cpp/yaml.h>
 
 namespace deblur_sr_mvs {
 namespace {
@@ -44,18 +45,20 @@ std::string MessageNumber(double value) {
   return buffer;
 }
 
-// Quotes user text in messages: bounded length, non-printable bytes as '?',
-// so that binary garbage still gives a one-line message.
-std::string Quote(const std::string& text) {
-  constexpr std::size_t kMaxLength = 40;
-  std::string out = "'";
-  for (std::size_t i = 0; i < text.size() && i < kMaxLength; ++i) {
+// User text for messages: bounded length, non-printable bytes as '?', so
+// that binary garbage still gives a one-line message.
+std::string Printable(const std::string& text, std::size_t max_length) {
+  std::string out;
+  for (std::size_t i = 0; i < text.size() && i < max_length; ++i) {
     const unsigned char c = static_cast<unsigned char>(text[i]);
     out += (c >= 0x20 && c < 0x7f) ? static_cast<char>(c) : '?';
   }
-  if (text.size() > kMaxLength) out += "...";
-  return out + "'";
+  if (text.size() > max_length) out += "...";
+  return out;
 }
+
+// Quotes user text in messages (see Printable).
+std::string Quote(const std::string& text) { return "'" + Printable(text, 40) + "'"; }
 
 std::string Trim(const std::string& text) {
   const char* kSpace = " \t\r\n\f\v";
@@ -139,334 +142,176 @@ void WriteTextFile(const std::string& path, const std::string& content) {
 
 // ---------------------------------------------------- camera_calibration YAML
 //
-// A strict parser for the subset camera_calibration writes: top-level
-// `key: scalar`, `key: [flow list]` and `key:` followed by an indented block
-// (or `key: {flow map}`) of `rows`, `cols`, `data`. Flow lists and maps may
-// span several lines. Anything else is reported with its line number.
+// yaml-cpp parses the file; the reader below checks the layout
+// camera_calibration writes: top-level `key: value` entries, each matrix a map
+// of rows, cols and a data list. Messages give the line of the key at fault.
 
-struct YamlNode {
+// One entry of a YAML map: its value and the (1-based) line of its key.
+struct YamlEntry {
+  YAML::Node value;
   int line = 0;
-  bool is_map = false;
-  std::string scalar;                        // scalar, or the text of a flow list
-  std::map<std::string, YamlNode> children;  // when is_map
 };
+using YamlEntries = std::map<std::string, YamlEntry>;
 
-struct YamlLine {
-  int number = 0;
-  int indent = 0;
-  std::string text;  // without indentation, comment and trailing spaces
-};
+// yaml-cpp counts lines from 0, messages from 1.
+int LineOf(const YAML::Mark& mark) { return mark.line + 1; }
 
-class YamlParser {
- public:
-  YamlParser(const std::string& path, const std::string& content) : path_(path) {
-    const std::vector<std::string> raw_lines = SplitLines(content);
-    for (std::size_t i = 0; i < raw_lines.size(); ++i) {
-      const int number = static_cast<int>(i) + 1;
-      std::string text = StripComment(raw_lines[i]);
-      const std::size_t last = text.find_last_not_of(" \t");
-      if (last == std::string::npos) continue;  // blank or comment-only line
-      text.erase(last + 1);
-      const std::size_t first = text.find_first_not_of(' ');
-      if (text[first] == '\t') FailAt(path_, number, "tab in indentation (YAML allows spaces only)");
-      if (number == 1 && text == "%YAML:1.0") continue;  // OpenCV-style header
-      if (text == "---") continue;                       // document start
-      lines_.push_back({number, static_cast<int>(first), text.substr(first)});
+// A scalar's text for messages; "{map}" or "[list]" for the other kinds.
+std::string NodeText(const YAML::Node& node) {
+  if (node.IsScalar()) return node.Scalar();
+  if (node.IsMap()) return "{map}";
+  if (node.IsSequence()) return "[list]";
+  return "";
+}
+
+// yaml-cpp's parser messages, in this reader's words where it has them.
+std::string ParserProblem(const std::string& message) {
+  if (message == YAML::ErrorMsg::END_OF_SEQ_FLOW) return "unterminated '[' (missing closing bracket)";
+  if (message == YAML::ErrorMsg::END_OF_MAP_FLOW) return "unterminated '{' (missing closing bracket)";
+  if (message == YAML::ErrorMsg::FLOW_END) return "unbalanced brackets";
+  if (message == YAML::ErrorMsg::TAB_IN_INDENTATION) return "tab in indentation (YAML allows spaces only)";
+  if (message == YAML::ErrorMsg::MAP_VALUE) return "unexpected indentation or ':' (illegal map value)";
+  return "invalid YAML: " + Printable(message, 80);
+}
+
+[[noreturn]] void FailAtMark(const std::string& path, const YAML::Mark& mark, const std::string& message) {
+  if (mark.is_null()) Fail(path, message);
+  FailAt(path, LineOf(mark), message);
+}
+
+// The document of `content`; a syntax error becomes one InputError line.
+YAML::Node LoadYaml(const std::string& path, const std::string& content) {
+  try {
+    return YAML::Load(content);
+  } catch (const YAML::Exception& error) {
+    FailAtMark(path, error.mark, ParserProblem(error.msg));
+  }
+}
+
+// The entries of a map node, whose keys must be distinct scalars.
+YamlEntries MapEntries(const std::string& path, const YAML::Node& map) {
+  YamlEntries entries;
+  for (const auto& item : map) {
+    const YAML::Node& key = item.first;
+    const int line = LineOf(key.Mark());
+    if (!key.IsScalar()) FailAt(path, line, "expected 'key: value', got the key " + Quote(NodeText(key)));
+    if (!entries.emplace(key.Scalar(), YamlEntry{item.second, line}).second) {
+      FailAt(path, line, "duplicate key " + Quote(key.Scalar()));
     }
   }
-
-  bool empty() const { return lines_.empty(); }
-
-  YamlNode Parse() {
-    YamlNode root;
-    root.is_map = true;
-    std::size_t position = 0;
-    ParseBlock(&position, 0, &root);
-    if (position != lines_.size()) {
-      FailAt(path_, lines_[position].number, "unexpected indentation");
-    }
-    return root;
-  }
-
- private:
-  static std::string StripComment(const std::string& line) {
-    char quote = 0;
-    for (std::size_t i = 0; i < line.size(); ++i) {
-      const char c = line[i];
-      if (quote) {
-        if (c == quote) quote = 0;
-      } else if (c == '"' || c == '\'') {
-        quote = c;
-      } else if (c == '#' && (i == 0 || line[i - 1] == ' ' || line[i - 1] == '\t')) {
-        return line.substr(0, i);
-      }
-    }
-    return line;
-  }
-
-  // Parses `key: value` lines at exactly `indent` into `parent`.
-  void ParseBlock(std::size_t* position, int indent, YamlNode* parent) {
-    while (*position < lines_.size()) {
-      const YamlLine& line = lines_[*position];
-      if (line.indent < indent) return;
-      if (line.indent > indent) FailAt(path_, line.number, "unexpected indentation");
-      if (line.text.rfind("- ", 0) == 0 || line.text == "-") {
-        FailAt(path_, line.number, "block lists ('- item') are not supported, use [a, b, ...]");
-      }
-      std::string key;
-      std::string value;
-      SplitKeyValue(line.text, line.number, &key, &value);
-      ++*position;
-      YamlNode node;
-      node.line = line.number;
-      if (value.empty()) {
-        if (*position < lines_.size() && lines_[*position].indent > indent) {
-          node.is_map = true;
-          ParseBlock(position, lines_[*position].indent, &node);
-        }
-      } else if (value[0] == '[' || value[0] == '{') {
-        value = CollectFlow(value, line.number, position);
-        if (value[0] == '{') {
-          node.is_map = true;
-          ParseFlowMap(value, line.number, &node);
-        } else {
-          node.scalar = value;
-        }
-      } else {
-        node.scalar = Unquote(value, line.number);
-      }
-      AddChild(parent, key, std::move(node));
-    }
-  }
-
-  void AddChild(YamlNode* parent, const std::string& key, YamlNode node) {
-    const int line = node.line;
-    if (!parent->children.emplace(key, std::move(node)).second) {
-      FailAt(path_, line, "duplicate key '" + key + "'");
-    }
-  }
-
-  void SplitKeyValue(const std::string& text, int line, std::string* key, std::string* value) {
-    // The key ends at the first ':' followed by a space or the end of the line.
-    std::size_t colon = std::string::npos;
-    for (std::size_t i = 0; i < text.size(); ++i) {
-      if (text[i] == ':' && (i + 1 == text.size() || text[i + 1] == ' ')) {
-        colon = i;
-        break;
-      }
-      if (text[i] == '[' || text[i] == '{' || text[i] == ',') break;
-    }
-    if (colon == std::string::npos || colon == 0) {
-      FailAt(path_, line, "expected 'key: value', got " + Quote(text));
-    }
-    *key = Trim(text.substr(0, colon));
-    *value = Trim(text.substr(colon + 1));
-  }
-
-  // Joins continuation lines until the brackets opened in `value` are closed.
-  std::string CollectFlow(std::string value, int line, std::size_t* position) {
-    int depth = 0;
-    auto balance = [&depth, this, line](const std::string& text) {
-      for (char c : text) {
-        if (c == '[' || c == '{') ++depth;
-        if (c == ']' || c == '}') --depth;
-        if (depth < 0) FailAt(path_, line, "unbalanced brackets");
-      }
-    };
-    balance(value);
-    while (depth > 0) {
-      if (*position >= lines_.size()) {
-        FailAt(path_, line, "unterminated '" + value.substr(0, 1) + "' (missing closing bracket)");
-      }
-      const std::string& more = lines_[(*position)++].text;
-      balance(more);
-      value += " " + more;
-    }
-    const char close = value[0] == '[' ? ']' : '}';
-    if (value.back() != close) {
-      FailAt(path_, line, "unexpected text after the closing '" + std::string(1, close) + "'");
-    }
-    return value;
-  }
-
-  void ParseFlowMap(const std::string& text, int line, YamlNode* node) {
-    for (const std::string& entry : SplitFlowItems(text, line)) {
-      std::string key;
-      std::string value;
-      SplitKeyValue(entry, line, &key, &value);
-      YamlNode child;
-      child.line = line;
-      if (!value.empty() && value[0] == '{') FailAt(path_, line, "nested flow maps are not supported");
-      child.scalar = value.empty() || value[0] == '[' ? value : Unquote(value, line);
-      AddChild(node, key, std::move(child));
-    }
-  }
-
-  std::string Unquote(const std::string& value, int line) {
-    if (value.empty() || (value[0] != '"' && value[0] != '\'')) return value;
-    const char quote = value[0];
-    if (value.size() < 2 || value.back() != quote) {
-      FailAt(path_, line, "unterminated quoted string " + Quote(value));
-    }
-    std::string out;
-    for (std::size_t i = 1; i + 1 < value.size(); ++i) {
-      if (quote == '"' && value[i] == '\\' && i + 2 < value.size()) {
-        out += value[++i];
-      } else if (quote == '\'' && value[i] == '\'' && i + 2 < value.size() && value[i + 1] == '\'') {
-        out += value[++i];
-      } else {
-        out += value[i];
-      }
-    }
-    return out;
-  }
-
- public:
-  // Items of "[a, b, c]" or "{k: v, ...}" split at top-level commas.
-  std::vector<std::string> SplitFlowItems(const std::string& text, int line) const {
-    std::vector<std::string> items;
-    const std::string inner = Trim(text.substr(1, text.size() - 2));
-    if (inner.empty()) return items;
-    int depth = 0;
-    std::string current;
-    for (char c : inner) {
-      if (c == '[' || c == '{') ++depth;
-      if (c == ']' || c == '}') --depth;
-      if (c == ',' && depth == 0) {
-        items.push_back(Trim(current));
-        current.clear();
-      } else {
-        current += c;
-      }
-    }
-    items.push_back(Trim(current));
-    for (const std::string& item : items) {
-      if (item.empty()) FailAt(path_, line, "empty item in " + Quote(text));
-    }
-    return items;
-  }
-
- private:
-  std::string path_;
-  std::vector<YamlLine> lines_;
-};
+  return entries;
+}
 
 class CalibrationReader {
  public:
-  CalibrationReader(const std::string& path, YamlParser* parser, const YamlNode* root)
-      : path_(path), parser_(parser), root_(root) {}
-
-  const YamlNode* Find(const std::string& key) const {
-    const auto it = root_->children.find(key);
-    return it == root_->children.end() ? nullptr : &it->second;
+  CalibrationReader(const std::string& path, const YAML::Node& root) : path_(path) {
+    if (!root.IsMap()) {
+      FailAtMark(path_, root.Mark(), "expected 'key: value', got " + Quote(NodeText(root)));
+    }
+    entries_ = MapEntries(path_, root);
   }
 
-  const YamlNode& Require(const std::string& key) const {
-    const YamlNode* node = Find(key);
-    if (node == nullptr) Fail(path_, "missing key '" + key + "'");
-    return *node;
+  const YamlEntry* Find(const std::string& key) const {
+    const auto it = entries_.find(key);
+    return it == entries_.end() ? nullptr : &it->second;
   }
 
-  int PositiveInt(const YamlNode& node, const std::string& name) const {
+  const YamlEntry& Require(const std::string& key) const {
+    const YamlEntry* entry = Find(key);
+    if (entry == nullptr) Fail(path_, "missing key '" + key + "'");
+    return *entry;
+  }
+
+  int PositiveInt(const YamlEntry& entry, const std::string& name) const {
     long long value = 0;
-    if (node.is_map || !ParseInt(node.scalar, &value) || value <= 0 ||
+    if (!entry.value.IsScalar() || !ParseInt(entry.value.Scalar(), &value) || value <= 0 ||
         value > std::numeric_limits<int>::max()) {
-      FailAt(path_, node.line,
-             name + " must be a positive integer, got " + Quote(node.is_map ? "{map}" : node.scalar));
+      FailAt(path_, entry.line, name + " must be a positive integer, got " + Quote(NodeText(entry.value)));
     }
     return static_cast<int>(value);
   }
 
   std::string String(const std::string& key, const std::string& fallback) const {
-    const YamlNode* node = Find(key);
-    if (node == nullptr) return fallback;
-    if (node->is_map || (!node->scalar.empty() && node->scalar[0] == '[')) {
-      FailAt(path_, node->line, key + " must be a string");
+    const YamlEntry* entry = Find(key);
+    if (entry == nullptr) return fallback;
+    if (entry->value.IsMap() || entry->value.IsSequence()) {
+      FailAt(path_, entry->line, key + " must be a string");
     }
-    return node->scalar;
+    return NodeText(entry->value);
   }
 
   // A `{rows, cols, data}` matrix; expected_cols < 0 accepts any column count.
-  std::vector<double> Matrix(const YamlNode& node, const std::string& key, int expected_rows,
+  std::vector<double> Matrix(const YamlEntry& entry, const std::string& key, int expected_rows,
                              int expected_cols) const {
-    if (!node.is_map) FailAt(path_, node.line, key + " must be a map with rows, cols and data");
-    const int rows = Dimension(node, key, "rows");
-    const int cols = Dimension(node, key, "cols");
+    if (!entry.value.IsMap()) FailAt(path_, entry.line, key + " must be a map with rows, cols and data");
+    const YamlEntries children = MapEntries(path_, entry.value);
+    const int rows = Dimension(children, entry.line, key, "rows");
+    const int cols = Dimension(children, entry.line, key, "cols");
     if (rows != expected_rows) {
-      FailAt(path_, Child(node, key, "rows").line,
+      FailAt(path_, Child(children, entry.line, key, "rows").line,
              key + ": rows is " + std::to_string(rows) + ", expected " + std::to_string(expected_rows));
     }
     if (expected_cols >= 0 && cols != expected_cols) {
-      FailAt(path_, Child(node, key, "cols").line,
+      FailAt(path_, Child(children, entry.line, key, "cols").line,
              key + ": cols is " + std::to_string(cols) + ", expected " + std::to_string(expected_cols));
     }
-    const YamlNode& data = Child(node, key, "data");
-    if (data.is_map || data.scalar.empty() || data.scalar[0] != '[') {
-      FailAt(path_, data.line, key + ": data must be a list [a, b, ...]");
-    }
-    const std::vector<std::string> items = parser_->SplitFlowItems(data.scalar, data.line);
-    if (static_cast<long long>(items.size()) != static_cast<long long>(rows) * cols) {
+    const YamlEntry& data = Child(children, entry.line, key, "data");
+    if (!data.value.IsSequence()) FailAt(path_, data.line, key + ": data must be a list [a, b, ...]");
+    if (static_cast<long long>(data.value.size()) != static_cast<long long>(rows) * cols) {
       FailAt(path_, data.line,
-             key + ": data has " + std::to_string(items.size()) + " values, expected rows*cols = " +
+             key + ": data has " + std::to_string(data.value.size()) + " values, expected rows*cols = " +
                  std::to_string(static_cast<long long>(rows) * cols));
     }
-    std::vector<double> values(items.size());
-    for (std::size_t i = 0; i < items.size(); ++i) {
-      if (!ParseDouble(items[i], &values[i])) {
-        FailAt(path_, data.line, key + ": data value " + Quote(items[i]) + " is not a number");
+    std::vector<double> values;
+    values.reserve(data.value.size());
+    for (const YAML::Node& item : data.value) {
+      const std::string text = NodeText(item);
+      double value = 0.0;
+      if (!item.IsScalar() || !ParseDouble(text, &value)) {
+        FailAt(path_, data.line, key + ": data value " + Quote(text) + " is not a number");
       }
-      if (!std::isfinite(values[i])) {
-        FailAt(path_, data.line, key + ": data value " + Quote(items[i]) + " is not finite");
+      if (!std::isfinite(value)) {
+        FailAt(path_, data.line, key + ": data value " + Quote(text) + " is not finite");
       }
+      values.push_back(value);
     }
     return values;
   }
 
  private:
-  const YamlNode& Child(const YamlNode& node, const std::string& key, const std::string& name) const {
-    const auto it = node.children.find(name);
-    if (it == node.children.end()) FailAt(path_, node.line, key + ": missing key '" + name + "'");
+  // `line` is the matrix key's, for a missing entry.
+  const YamlEntry& Child(const YamlEntries& children, int line, const std::string& key,
+                         const std::string& name) const {
+    const auto it = children.find(name);
+    if (it == children.end()) FailAt(path_, line, key + ": missing key '" + name + "'");
     return it->second;
   }
 
-  int Dimension(const YamlNode& node, const std::string& key, const std::string& name) const {
-    const YamlNode& child = Child(node, key, name);
+  int Dimension(const YamlEntries& children, int line, const std::string& key,
+                const std::string& name) const {
+    const YamlEntry& child = Child(children, line, key, name);
     long long value = 0;
-    if (child.is_map || !ParseInt(child.scalar, &value) || value < 0 || value > 1000000) {
+    if (!child.value.IsScalar() || !ParseInt(child.value.Scalar(), &value) || value < 0 || value > 1000000) {
       FailAt(path_, child.line, key + ": " + name + " must be a non-negative integer, got " +
-                                    Quote(child.is_map ? "{map}" : child.scalar));
+                                    Quote(NodeText(child.value)));
     }
     return static_cast<int>(value);
   }
 
   std::string path_;
-  YamlParser* parser_;
-  const YamlNode* root_;
+  YamlEntries entries_;
 };
 
-std::string FormatMatrixEntry(const std::string& key, int rows, int cols,
-                              const std::vector<double>& data) {
-  std::string out = key + ":\n  rows: " + std::to_string(rows) + "\n  cols: " +
-                    std::to_string(cols) + "\n  data: [";
-  for (std::size_t i = 0; i < data.size(); ++i) {
-    if (i > 0) out += (cols > 0 && i % static_cast<std::size_t>(cols) == 0) ? ",\n         " : ", ";
-    out += FormatDouble(data[i]);
-  }
-  return out + "]\n";
-}
-
-// Plain scalar when it reads back unchanged, else a double-quoted string.
-std::string FormatYamlString(const std::string& text) {
-  const bool plain = !text.empty() && text == Trim(text) &&
-                     text.find_first_of(":#'\"[]{},&*!|>%@`\\") == std::string::npos &&
-                     text[0] != '-';
-  if (plain) return text;
-  std::string out = "\"";
-  for (char c : text) {
-    if (c == '"' || c == '\\') out += '\\';
-    out += c;
-  }
-  return out + "\"";
+// A `{rows, cols, data}` matrix entry as camera_calibration writes it; the
+// numbers in their shortest exact text, the data list in flow style.
+void EmitMatrix(YAML::Emitter* out, const std::string& key, int rows, int cols,
+                const std::vector<double>& data) {
+  *out << YAML::Key << key << YAML::Value << YAML::BeginMap;
+  *out << YAML::Key << "rows" << YAML::Value << rows;
+  *out << YAML::Key << "cols" << YAML::Value << cols;
+  *out << YAML::Key << "data" << YAML::Value << YAML::Flow << YAML::BeginSeq;
+  for (const double value : data) *out << FormatDouble(value);
+  *out << YAML::EndSeq << YAML::EndMap;
 }
 
 Eigen::Matrix<double, 3, 4> ProjectionOf(const PinholeCamera& camera) {
@@ -541,54 +386,67 @@ bool CameraCalibration::HasDistortion() const {
   return std::any_of(distortion.begin(), distortion.end(), [](double d) { return d != 0.0; });
 }
 
-CameraCalibration ReadCameraYaml(const std::string& path) {
-  const std::string content = ReadTextFile(path);
-  YamlParser parser(path, content);
-  if (parser.empty()) Fail(path, "file is empty (expected camera_calibration YAML)");
-  const YamlNode root = parser.Parse();
-  const CalibrationReader reader(path, &parser, &root);
+namespace {
 
-  CameraCalibration calibration;
-  PinholeCamera& camera = calibration.camera;
-  camera.width = reader.PositiveInt(reader.Require("image_width"), "image_width");
-  camera.height = reader.PositiveInt(reader.Require("image_height"), "image_height");
-  calibration.camera_name = reader.String("camera_name", calibration.camera_name);
-
-  const YamlNode& k_node = reader.Require("camera_matrix");
-  const std::vector<double> k = reader.Matrix(k_node, "camera_matrix", 3, 3);
+// The intrinsics of camera_matrix, which must be [fx 0 cx; 0 fy cy; 0 0 1].
+void ReadCameraMatrix(const std::string& path, const CalibrationReader& reader, PinholeCamera* camera) {
+  const YamlEntry& k_entry = reader.Require("camera_matrix");
+  const std::vector<double> k = reader.Matrix(k_entry, "camera_matrix", 3, 3);
   // A pinhole camera without skew; a tiny tolerance for hand-edited files.
   const double tolerance = 1e-9 * std::max({1.0, std::abs(k[0]), std::abs(k[4])});
   if (std::abs(k[1]) > tolerance || std::abs(k[3]) > tolerance || std::abs(k[6]) > tolerance ||
       std::abs(k[7]) > tolerance || std::abs(k[8] - 1.0) > tolerance) {
     std::string text;
     for (int i = 0; i < 9; ++i) text += (i ? (i % 3 ? " " : "; ") : "") + FormatDouble(k[i]);
-    FailAt(path, k_node.line,
+    FailAt(path, k_entry.line,
            "camera_matrix must be [fx 0 cx; 0 fy cy; 0 0 1], got [" + text + "]");
   }
-  camera.fx = k[0];
-  camera.cx = k[2];
-  camera.fy = k[4];
-  camera.cy = k[5];
-  if (camera.fx <= 0.0 || camera.fy <= 0.0) {
-    FailAt(path, k_node.line, "camera_matrix: focal length (fx, fy) = (" + FormatDouble(camera.fx) +
-                                  ", " + FormatDouble(camera.fy) + ") must be positive");
+  camera->fx = k[0];
+  camera->cx = k[2];
+  camera->fy = k[4];
+  camera->cy = k[5];
+  if (camera->fx <= 0.0 || camera->fy <= 0.0) {
+    FailAt(path, k_entry.line, "camera_matrix: focal length (fx, fy) = (" + FormatDouble(camera->fx) +
+                                   ", " + FormatDouble(camera->fy) + ") must be positive");
   }
+}
+
+CameraCalibration ReadCalibration(const std::string& path, const YAML::Node& root) {
+  const CalibrationReader reader(path, root);
+  CameraCalibration calibration;
+  PinholeCamera& camera = calibration.camera;
+  camera.width = reader.PositiveInt(reader.Require("image_width"), "image_width");
+  camera.height = reader.PositiveInt(reader.Require("image_height"), "image_height");
+  calibration.camera_name = reader.String("camera_name", calibration.camera_name);
+  ReadCameraMatrix(path, reader, &camera);
 
   calibration.distortion_model = reader.String("distortion_model", calibration.distortion_model);
-  if (const YamlNode* node = reader.Find("distortion_coefficients")) {
-    calibration.distortion = reader.Matrix(*node, "distortion_coefficients", 1, -1);
+  if (const YamlEntry* entry = reader.Find("distortion_coefficients")) {
+    calibration.distortion = reader.Matrix(*entry, "distortion_coefficients", 1, -1);
   }
-  if (const YamlNode* node = reader.Find("rectification_matrix")) {
-    const std::vector<double> r = reader.Matrix(*node, "rectification_matrix", 3, 3);
+  if (const YamlEntry* entry = reader.Find("rectification_matrix")) {
+    const std::vector<double> r = reader.Matrix(*entry, "rectification_matrix", 3, 3);
     calibration.rectification = Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(r.data());
   }
   // Missing P defaults to [K | 0], what the writer would have written.
   calibration.projection = ProjectionOf(camera);
-  if (const YamlNode* node = reader.Find("projection_matrix")) {
-    const std::vector<double> p = reader.Matrix(*node, "projection_matrix", 3, 4);
+  if (const YamlEntry* entry = reader.Find("projection_matrix")) {
+    const std::vector<double> p = reader.Matrix(*entry, "projection_matrix", 3, 4);
     calibration.projection = Eigen::Map<const Eigen::Matrix<double, 3, 4, Eigen::RowMajor>>(p.data());
   }
   return calibration;
+}
+
+}  // namespace
+
+CameraCalibration ReadCameraYaml(const std::string& path) {
+  const YAML::Node root = LoadYaml(path, ReadTextFile(path));
+  if (root.IsNull()) Fail(path, "file is empty (expected camera_calibration YAML)");
+  try {
+    return ReadCalibration(path, root);
+  } catch (const YAML::Exception& error) {  // not expected: the reader only walks the nodes
+    FailAtMark(path, error.mark, "invalid YAML: " + Printable(error.msg, 80));
+  }
 }
 
 void WriteCameraYaml(const std::string& path, const CameraCalibration& calibration) {
@@ -602,17 +460,20 @@ void WriteCameraYaml(const std::string& path, const CameraCalibration& calibrati
     for (int col = 0; col < 3; ++col) r[row * 3 + col] = calibration.rectification(row, col);
     for (int col = 0; col < 4; ++col) p[row * 4 + col] = projection(row, col);
   }
-  std::string out;
-  out += "image_width: " + std::to_string(camera.width) + "\n";
-  out += "image_height: " + std::to_string(camera.height) + "\n";
-  out += "camera_name: " + FormatYamlString(calibration.camera_name) + "\n";
-  out += FormatMatrixEntry("camera_matrix", 3, 3, k);
-  out += "distortion_model: " + FormatYamlString(calibration.distortion_model) + "\n";
-  out += FormatMatrixEntry("distortion_coefficients", 1, static_cast<int>(calibration.distortion.size()),
-                           calibration.distortion);
-  out += FormatMatrixEntry("rectification_matrix", 3, 3, r);
-  out += FormatMatrixEntry("projection_matrix", 3, 4, p);
-  WriteTextFile(path, out);
+  YAML::Emitter out;
+  out << YAML::BeginMap;
+  out << YAML::Key << "image_width" << YAML::Value << camera.width;
+  out << YAML::Key << "image_height" << YAML::Value << camera.height;
+  out << YAML::Key << "camera_name" << YAML::Value << calibration.camera_name;
+  EmitMatrix(&out, "camera_matrix", 3, 3, k);
+  out << YAML::Key << "distortion_model" << YAML::Value << calibration.distortion_model;
+  EmitMatrix(&out, "distortion_coefficients", 1, static_cast<int>(calibration.distortion.size()),
+             calibration.distortion);
+  EmitMatrix(&out, "rectification_matrix", 3, 3, r);
+  EmitMatrix(&out, "projection_matrix", 3, 4, p);
+  out << YAML::EndMap;
+  if (!out.good()) Fail(path, "cannot write the calibration as YAML: " + out.GetLastError());
+  WriteTextFile(path, std::string(out.c_str()) + "\n");
 }
 
 // ---------------------------------------------------------------- frames.csv

@@ -18,6 +18,7 @@
 #include <vector>
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -441,7 +442,7 @@ TEST_F(EvaluationTest, MismatchedResultsAreInputErrors) {
   EvaluationOptions options;
   options.crop_fraction = 1.5;
   ExpectInputError([&] { EvaluateResult(PerfectResult(sequence), sequence, options); },
-                   {"crop fraction"});
+                   {"crop_fraction must be in [0, 1], got 1.5"});
 }
 
 TEST_F(EvaluationTest, MarkdownAndJsonCarryTheNumbers) {
@@ -480,15 +481,46 @@ TEST_F(EvaluationTest, MarkdownAndJsonCarryTheNumbers) {
   EXPECT_EQ(json.find("nan"), std::string::npos) << json;
   EXPECT_EQ(std::count(json.begin(), json.end(), '{'), std::count(json.begin(), json.end(), '}'));
   EXPECT_EQ(std::count(json.begin(), json.end(), '['), std::count(json.begin(), json.end(), ']'));
-  // The shortest round-trip text of the mean ATE appears verbatim.
-  char buffer[64];
-  const auto written = std::to_chars(buffer, buffer + sizeof(buffer), *report.ate_rmse);
-  EXPECT_NE(json.find("\"ate_rmse\": " + std::string(buffer, written.ptr)), std::string::npos);
+  // The numbers read back exactly.
+  const nlohmann::json parsed = nlohmann::json::parse(json);
+  EXPECT_EQ(parsed["mean"]["ate_rmse"].get<double>(), *report.ate_rmse);
+  EXPECT_EQ(parsed["mean"]["image_psnr_db"].get<double>(), report.mean_image_psnr_db);
+  EXPECT_EQ(parsed["frames"][1]["depth_scale"].get<double>(), report.frames[1].depth->scale);
 
   // An exact match is "inf" in Markdown and null in JSON.
   const EvaluationReport perfect = EvaluateResult(PerfectResult(sequence), sequence);
   EXPECT_NE(ToMarkdown(perfect, "gt").find("| gt | inf |"), std::string::npos);
   EXPECT_NE(ToJson(perfect, "gt").find("\"image_psnr_db\": null"), std::string::npos);
+}
+
+TEST_F(EvaluationTest, JsonIsStrictWithNanAndAwkwardStrings) {
+  const Sequence sequence = MakeSequence(4);
+  EvaluationReport report = EvaluateResult(PerfectResult(sequence), sequence);
+  report.mean_bicubic_psnr_db = std::numeric_limits<double>::quiet_NaN();
+  report.frames[2].bicubic_psnr_db = -std::numeric_limits<double>::infinity();
+  report.depth_note = "line one\nline \"two\"\t\x01";
+  const std::string method = "my \"quoted\" \\ method\\";
+  const std::string json = ToJson(report, method);
+  nlohmann::json parsed;
+  ASSERT_NO_THROW(parsed = nlohmann::json::parse(json)) << json;  // strict: no NaN, no comments
+  EXPECT_EQ(parsed["method"], method);
+  EXPECT_EQ(parsed["depth_note"], report.depth_note);
+  EXPECT_TRUE(parsed["mean"]["bicubic_psnr_db"].is_null());
+  EXPECT_TRUE(parsed["mean"]["image_psnr_db"].is_null());  // +inf: exact match
+  EXPECT_TRUE(parsed["frames"][2]["bicubic_psnr_db"].is_null());
+  EXPECT_EQ(parsed["frames"].size(), 4u);
+  EXPECT_EQ(parsed["frames"][3]["index"], 3);
+  // Keys in the documented order.
+  std::vector<std::string> keys;
+  const nlohmann::ordered_json ordered = nlohmann::ordered_json::parse(json);
+  for (const auto& item : ordered.items()) keys.push_back(item.key());
+  const std::vector<std::string> expected = {
+      "method", "num_frames", "scale", "hr_width", "hr_height", "colour", "crop_fraction",
+      "align_depth_scale", "mean", "num_depth_frames", "depth_note", "ate_note",
+      "trajectory_alignment", "frames"};
+  EXPECT_EQ(keys, expected);
+  // Bytes that are not UTF-8 do not make the writer throw.
+  EXPECT_NO_THROW(nlohmann::json::parse(ToJson(report, "bad \xff byte")));
 }
 
 // ------------------------------------------------------------------- tools

@@ -15,6 +15,7 @@
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <yaml-cpp/yaml.h>
 
 namespace deblur_sr_mvs {
 namespace {
@@ -308,6 +309,25 @@ const TinySequence& Tiny() {
     return t;
   }();
   return tiny;
+}
+
+TEST(SynthesizerSequenceTest, SynthesisYamlReadsBackWithAwkwardScenePath) {
+  StereoScene scene = Dolls();
+  scene.folder = "scenes/with \"quote\" and \\ backslash: #1";
+  TempFolder folder("yaml");
+  const std::string path = folder / "gt/synthesis.yaml";
+  WriteSynthesisYaml(path, scene, Tiny().options, Tiny().result);
+  const YAML::Node root = YAML::LoadFile(path);
+  EXPECT_EQ(root["scene"].as<std::string>(), scene.folder);
+  EXPECT_EQ(root["options"]["frames"].as<int>(), 3);
+  EXPECT_EQ(root["options"]["path"].as<std::string>(), "lateral");
+  EXPECT_EQ(root["hr_camera"]["width"].as<int>(), Tiny().result.hr_camera.width);
+  EXPECT_EQ(root["path"]["speed_capped"].as<bool>(), Tiny().result.speed_capped);
+  EXPECT_EQ(root["path"]["T_world_mid"].size(), 3u);
+  ASSERT_EQ(root["frames"].size(), 3u);
+  EXPECT_EQ(root["frames"][2]["index"].as<int>(), 2);
+  // Ten significant digits, as before.
+  EXPECT_NEAR(root["frames"][1]["stamp"].as<double>(), 2.0 / 30.0, 1e-10);
 }
 
 TEST(SynthesizerSequenceTest, SizesCamerasStampsAndExposures) {

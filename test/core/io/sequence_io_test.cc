@@ -13,6 +13,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 #include <opencv2/imgcodecs.hpp>
+#include <yaml-cpp/yaml.h>
 
 namespace deblur_sr_mvs {
 namespace {
@@ -193,7 +194,7 @@ TEST_F(SequenceIoTest, CameraYamlErrorsNameFileAndLine) {
       read(WriteText("skew.yaml", size + "camera_matrix:\n  rows: 3\n  cols: 3\n  data: [500, 1, 320, 0, 500, 240, 0, 0, 1]\n")),
       {"skew.yaml:3:", "[fx 0 cx; 0 fy cy; 0 0 1]"});
   ExpectInputError(read(WriteText("unterminated.yaml", size + "camera_matrix:\n  rows: 3\n  cols: 3\n  data: [500, 0, 320,\n")),
-                   {"unterminated.yaml:6:", "closing bracket"});
+                   {"unterminated.yaml:7:", "closing bracket"});  // yaml-cpp: where the ']' is missing
   ExpectInputError(read(WriteText("dup.yaml", size + "image_width: 320\n" + good_k)),
                    {"dup.yaml:3:", "duplicate key 'image_width'"});
   ExpectInputError(read(WriteText("dist.yaml", size + good_k +
@@ -202,6 +203,74 @@ TEST_F(SequenceIoTest, CameraYamlErrorsNameFileAndLine) {
   ExpectInputError(read(WriteText("proj.yaml", size + good_k +
                                                    "projection_matrix:\n  rows: 3\n  cols: 3\n  data: [1, 0, 0, 0, 1, 0, 0, 0, 1]\n")),
                    {"proj.yaml:9:", "cols is 3, expected 4"});
+}
+
+TEST_F(SequenceIoTest, CameraYamlKeepsTheCameraCalibrationLayout) {
+  // The keys and rows/cols/data matrices that ROS's camera_calibration_parsers read.
+  const std::string path = Path("camera.yaml");
+  WriteCameraYaml(path, AwkwardCalibration());
+  const YAML::Node root = YAML::LoadFile(path);
+  ASSERT_TRUE(root.IsMap());
+  EXPECT_EQ(root["image_width"].as<int>(), 641);
+  EXPECT_EQ(root["image_height"].as<int>(), 479);
+  EXPECT_EQ(root["camera_name"].as<std::string>(), "cam: left #1");
+  EXPECT_EQ(root["distortion_model"].as<std::string>(), "rational_polynomial");
+  const std::pair<const char*, std::pair<int, int>> matrices[] = {
+      {"camera_matrix", {3, 3}}, {"distortion_coefficients", {1, 8}},
+      {"rectification_matrix", {3, 3}}, {"projection_matrix", {3, 4}}};
+  for (const auto& [key, size] : matrices) {
+    const YAML::Node matrix = root[key];
+    ASSERT_TRUE(matrix.IsMap()) << key;
+    EXPECT_EQ(matrix["rows"].as<int>(), size.first) << key;
+    EXPECT_EQ(matrix["cols"].as<int>(), size.second) << key;
+    ASSERT_TRUE(matrix["data"].IsSequence()) << key;
+    EXPECT_EQ(matrix["data"].size(), static_cast<std::size_t>(size.first * size.second)) << key;
+  }
+  EXPECT_EQ(root["camera_matrix"]["data"][0].as<double>(), 0.1 + 0.2 + 500.0);
+}
+
+TEST_F(SequenceIoTest, CameraYamlRoundTripsAwkwardNames) {
+  CameraCalibration written = AwkwardCalibration();
+  for (const std::string name : {"quote \" and backslash \\", "line\nbreak: #x", "- [a, b]", "",
+                                 " padded ", "true", "42", "caf\xc3\xa9"}) {
+    written.camera_name = name;
+    written.distortion_model = name;
+    WriteCameraYaml(Path("camera.yaml"), written);
+    const CameraCalibration read = ReadCameraYaml(Path("camera.yaml"));
+    EXPECT_EQ(read.camera_name, name);
+    EXPECT_EQ(read.distortion_model, name);
+  }
+}
+
+TEST_F(SequenceIoTest, CameraYamlAcceptsOtherValidYaml) {
+  const std::string k = "camera_matrix:\n  rows: 3\n  cols: 3\n  data:\n";
+  std::string block_list = k;
+  for (const char* value : {"500", "0", "320", "0", "500", "240", "0", "0", "1"}) {
+    block_list += std::string("    - ") + value + "\n";
+  }
+  // An OpenCV-style header, and a block list where camera_calibration writes [a, b, ...].
+  const CameraCalibration read =
+      ReadCameraYaml(WriteText("block.yaml", "%YAML:1.0\nimage_width: 640\nimage_height: 480\n" + block_list));
+  EXPECT_EQ(read.camera.fx, 500.0);
+  EXPECT_EQ(read.camera.cy, 240.0);
+}
+
+TEST_F(SequenceIoTest, CameraYamlSyntaxErrorsAreOneLine) {
+  const std::string size = "image_width: 640\nimage_height: 480\n";
+  auto read = [](const std::string& path) { return [path] { ReadCameraYaml(path); }; };
+  ExpectInputError(read(WriteText("tab.yaml", size + "camera_matrix:\n\trows: 3\n")), {"tab.yaml:4:"});
+  ExpectInputError(read(WriteText("flow.yaml", size + "camera_matrix: {rows: 3\n")),
+                   {"flow.yaml:", "missing closing bracket"});
+  ExpectInputError(read(WriteText("close.yaml", size + "camera_name: [a]]\n")), {"close.yaml:3:", "unbalanced"});
+  ExpectInputError(read(WriteText("escape.yaml", size + "camera_name: \"\\q\x01\"\n")),
+                   {"escape.yaml:3:", "invalid YAML"});
+  ExpectInputError(read(WriteText("key.yaml", size + "[a, b]: 1\n")), {"key.yaml:3:", "key '[list]'"});
+  ExpectInputError(read(WriteText("list.yaml", "- 1\n- 2\n")), {"list.yaml:1:", "key: value"});
+  ExpectInputError(read(WriteText("dupk.yaml", size + "camera_matrix: {rows: 3, rows: 3}\n")),
+                   {"dupk.yaml:3:", "duplicate key 'rows'"});
+  ExpectInputError(read(WriteText("name.yaml", size + "camera_name: {a: 1}\n")), {"name.yaml:3:", "string"});
+  ExpectInputError(read(WriteText("item.yaml", size + "camera_matrix: {rows: 3, cols: 3, data: [1, 0, 1, 0, 1, 1, 0, 0, [1]]}\n")),
+                   {"item.yaml:3:", "'[list]' is not a number"});
 }
 
 // ------------------------------------------------------------ frames.csv
