@@ -703,12 +703,8 @@ void SynthesisOptions::Check() const {
                      std::to_string(hr_height) + ") must be divisible by --scale " + std::to_string(scale));
   }
   CheckInRange("--arc-fixation", arc_fixation_factor, 1.2, 100.0);
-  CheckAbove("--forward-cap", forward_travel_cap, 0.0);
-  CheckInRange("--forward-cap", forward_travel_cap, 0.0, 1.0);
-  CheckAbove("max_hole_fraction", max_hole_fraction, 0.0);
-  if (!(max_hole_fraction < 1.0)) {  // options_check.h has no "< max" check yet
-    throw InputError("max_hole_fraction must be < 1, got " + options_check_detail::Text(max_hole_fraction));
-  }
+  CheckInInterval("--forward-cap", forward_travel_cap, 0.0, 1.0, Interval::kRightClosed);
+  CheckInInterval("max_hole_fraction", max_hole_fraction, 0.0, 1.0, Interval::kOpen);
 }
 
 double FrameStamp(const SynthesisOptions& options, int index) { return (index + 1) / options.fps; }
