@@ -1,5 +1,5 @@
 // bag_to_result: the estimator node's recorded outputs -> a result folder
-// (SPEC section 3), so that evaluate_sequence and make_comparison_figure judge
+// (docs/file_formats.md#result-folder), so that evaluate_sequence and make_comparison_figure judge
 // the node exactly as they judge the offline estimator.
 //
 //   bag_to_result --input BAG --sequence SEQ --output OUT [--namespace NS]

@@ -1,4 +1,4 @@
-// bag_to_sequence: a rosbag -> a sequence folder (SPEC sections 3 and 4); the
+// bag_to_sequence: a rosbag -> a sequence folder (docs/file_formats.md, docs/tools.md); the
 // inverse of sequence_to_bag.
 //
 //   bag_to_sequence --input BAG --output SEQ [--image-topic T] [--info-topic T]

@@ -1,4 +1,4 @@
-// sequence_to_bag: a sequence folder (SPEC section 3) -> a rosbag (SPEC section 4).
+// sequence_to_bag: a sequence folder (docs/file_formats.md) -> a rosbag (docs/file_formats.md#sequences-as-rosbags).
 //
 //   sequence_to_bag --input SEQ --output BAG [--frame-id ID] [--image-topic T]
 //                   [--info-topic T] [--exposure-topic T] [--gt-namespace NS]

@@ -1,4 +1,4 @@
-// estimate_sequence: sequence folder -> result folder (SPEC sections 3-4).
+// estimate_sequence: sequence folder -> result folder (docs/file_formats.md, docs/tools.md).
 // Runs the joint estimator (or the baseline) and writes the HR latent images,
 // HR depth maps, poses and report.json. A progress bar is drawn when stderr
 // is a terminal. Bad input: one line on stderr, exit code 2.

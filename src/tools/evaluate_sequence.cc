@@ -1,5 +1,5 @@
 // Evaluates a result folder against a sequence folder's ground truth and
-// prints the paper's tables in Markdown (SPEC section 4):
+// prints the paper's tables in Markdown (docs/tools.md#evaluate_sequence):
 // image PSNR beside bicubic (tab:quantBlur), depth PSNR / rel. and ATE RMSE
 // (tab:quant).
 // Usage: evaluate_sequence --result OUT --sequence SEQ [--crop F] [--json FILE]

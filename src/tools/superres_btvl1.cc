@@ -66,10 +66,10 @@ class InMemoryFrameSource : public cv::superres::FrameSource {
 
 // BTV-L1 returns only the interior of the HR image (it crops its BTV kernel
 // size on every side, where the regulariser is undefined) and models LR pixel
-// x as HR pixel s*x (nearest down-sampling), whereas SPEC section 3 puts it at
+// x as HR pixel s*x (nearest down-sampling), whereas docs/file_formats.md#scaling-rule puts it at
 // the centre of its s x s block, s*x + (s-1)/2. Its estimate therefore comes
 // out shifted by (s-1)/2 HR pixels (measured: +0.5 px on x2 shift sequences,
-// ~6 dB PSNR). This puts the interior back on the SPEC grid and fills the
+// ~6 dB PSNR). This puts the interior back on the package's pixel grid and fills the
 // cropped border from the bicubic up-sampling of the input frame.
 cv::Mat ToFullFrame(const cv::Mat& interior, const cv::Mat& input, int scale, int border,
                     bool centre_shift) {

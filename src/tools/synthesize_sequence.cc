@@ -1,5 +1,5 @@
 // synthesize_sequence: a blurred, low-resolution sequence with ground truth
-// from a Middlebury scene (SPEC section 4).
+// from a Middlebury scene (docs/tools.md#synthesize_sequence).
 //
 //   synthesize_sequence --scene DIR --output SEQ [--frames N] [--scale S]
 //                       [--exposure-ratio R] [--path lateral|arc|forward]
@@ -29,7 +29,7 @@ using deblur_sr_mvs::InputError;
 constexpr char kDescription[] =
     "Renders a camera path through a Middlebury scene (view1/view5, disp1/disp5,\n"
     "dmin.txt), averages sub-frames over each exposure, box-downsamples by the\n"
-    "scale and writes a sequence folder with gt/ (SPEC section 3).";
+    "scale and writes a sequence folder with gt/ (docs/file_formats.md).";
 
 // --seed: a non-negative integer of up to 64 bits.
 CLI::Validator SeedValidator() {

@@ -1,6 +1,6 @@
 // The common command line and main() of the command-line tools: flags through
 // CLI11, and every error turned into one line on stderr and exit code 2
-// (SPEC section 4: never a signal, an abort or a stack trace).
+// (docs/tools.md#exit-codes: never a signal, an abort or a stack trace).
 #pragma once
 
 #include <cerrno>

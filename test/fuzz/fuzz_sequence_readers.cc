@@ -1,4 +1,4 @@
-// libFuzzer target: the sequence-folder readers (SPEC section 3) on arbitrary
+// libFuzzer target: the sequence-folder readers (docs/file_formats.md#sequence-folder) on arbitrary
 // bytes. The first byte picks the reader, the rest is the file. A reader may
 // only return a value or throw InputError (one line); anything else -- a
 // crash, a sanitizer report, another exception type -- is a finding.

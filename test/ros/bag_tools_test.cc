@@ -1,4 +1,4 @@
-// Integration test of sequence_to_bag and bag_to_sequence (SPEC section 4):
+// Integration test of sequence_to_bag and bag_to_sequence (docs/tools.md):
 // a synthesized sequence (synthesize_sequence) and hand-made ones go to a bag
 // and back, exactly (images bitwise, stamps and exposures to 1 ns, camera and
 // gt as written); malformed bags and bad input exit with code 2 and one line

@@ -46,7 +46,7 @@ enum class DistortionPolicy {
 PinholeCamera CameraFromInfo(const sensor_msgs::CameraInfo& info, int image_width, int image_height,
                              DistortionPolicy policy);
 
-// camera_info of the `scale` x up-sampled output of `camera` (SPEC section 3's
+// camera_info of the `scale` x up-sampled output of `camera` (docs/file_formats.md#scaling-rule;
 // rule: f' = s f, c' = s c + (s - 1) / 2): width, height, K and P rewritten
 // from `camera` (the intrinsics the node used), D zero, R identity, no ROI.
 sensor_msgs::CameraInfo ScaledCameraInfo(const PinholeCamera& camera_lr, int scale,

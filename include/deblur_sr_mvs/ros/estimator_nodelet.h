@@ -1,5 +1,5 @@
 // deblur_sr_mvs/EstimatorNodelet: the streaming joint estimator on a camera
-// (SPEC section 5). The subscriber callbacks only check and buffer frames;
+// (docs/ros_interface.md). The subscriber callbacks only check and buffer frames;
 // complete windows go to a bounded queue that one worker thread empties by
 // running the estimator (core/stream.h) and publishing its outputs.
 #pragma once

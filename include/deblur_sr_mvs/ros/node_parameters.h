@@ -1,4 +1,4 @@
-// The estimator node's private parameters (SPEC section 5, README table) and
+// The estimator node's private parameters (docs/ros_interface.md#parameters) and
 // their translation into the core's Options structs: the one place where
 // ~parameters become options, and the one source of their defaults
 // (NodeParameters' initialisers; config/default.yaml, cfg/Estimator.cfg and

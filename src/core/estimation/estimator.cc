@@ -783,7 +783,7 @@ std::shared_ptr<const OperatorCache::Entry> WindowSolver::Operator(int t, int so
 // The result in the output gauge: world = first camera, first two cameras 1
 // unit apart; latent images clamped to [0, 1].
 EstimatorResult WindowSolver::GaugedResult() {
-  // Monocular scale: first two cameras 1 unit apart (SPEC section 2).
+  // Monocular scale: first two cameras 1 unit apart (docs/file_formats.md#monocular-scale).
   const double baseline =
       (frames_[1].T_world_cam.translation() - frames_[0].T_world_cam.translation()).norm();
   const double rescale = baseline > 1e-12 ? 1.0 / baseline : 1.0;

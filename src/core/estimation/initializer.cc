@@ -13,7 +13,7 @@
 //     parallax.
 //  3. poses: triangulation, PnP (RANSAC) per later frame, then a bundle
 //     adjustment of all poses and points (Ceres) with camera 0 fixed and
-//     |c1 - c0| = 1 held by a sphere manifold (the monocular scale, SPEC 2).
+//     |c1 - c0| = 1 held by a sphere manifold (the monocular scale, docs/file_formats.md#monocular-scale).
 //     Tracks on blurred frames follow blur centroids, so these are
 //     mid-exposure poses; they are moved to the shutter close t_c along
 //     eq:interpolatingP.
@@ -895,7 +895,7 @@ double InlierRms(const PinholeCamera& camera, const std::vector<Track>& tracks,
 
 // All poses and points by reprojection error (Cauchy loss) plus the
 // frame-to-frame RotationPrior, camera 0 fixed and |t_1| = |c_1 - c_0| = 1 on
-// a sphere: the gauge of SPEC section 2. Two rounds, dropping observations
+// a sphere: the gauge of docs/file_formats.md#monocular-scale. Two rounds, dropping observations
 // beyond the outlier threshold in between. Returns the RMS reprojection error
 // (px) of the observations within the threshold.
 double BundleAdjust(const PinholeCamera& camera, const InitializerOptions& options, int threads,
@@ -1408,7 +1408,7 @@ void InverseDepthToDepth(const std::vector<float>& u, int width, int height, dou
 }
 
 // u of the previous (half-size) pass up-sampled to width x height: bilinear
-// with the pixel-centre rule of SPEC 3 (cv::resize follows it), the odd last
+// with the pixel-centre rule of docs/file_formats.md#scaling-rule (cv::resize follows it), the odd last
 // column / row replicated; *depth follows.
 void UpsampleInverseDepth(int width, int height, double rho_min, double rho_max,
                           std::vector<float>* u, cv::Mat* depth) {
@@ -1557,7 +1557,7 @@ SparseStructure SparseStage(const PinholeCamera& camera_lr, const InitializerOpt
 // The tracks follow the blurred patterns, i.e. the blur centroids: the
 // sparse poses are those of mid-exposure, t_c - exposure / 2 (exact for
 // motion that is linear in the image over an exposure). The output poses
-// are at the shutter close t_c (SPEC 3, the stamps): each is moved along
+// are at the shutter close t_c (docs/file_formats.md#exposure): each is moved along
 // the geodesic through the neighbouring mid-exposure poses
 // (eq:interpolatingP, extrapolated by half an exposure; frame 0 uses frames
 // 0-1). World = camera 0 at t_c, |c1 - c0| = 1 (exact, re-applied here); the

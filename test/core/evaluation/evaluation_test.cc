@@ -567,7 +567,7 @@ TEST_F(EvaluationTest, EvaluateToolRejectsAMissingFolderInOneLine) {
   EXPECT_EQ(CountLines(missing.err), 1) << missing.err;
   EXPECT_NE(missing.err.find(Path("nope")), std::string::npos) << missing.err;
 
-  const CommandResult bad_flag = RunTool("evaluate_sequence", "--crop 2 --result x --sequence y", dir_);
+  const CommandResult bad_flag = RunTool("evaluate_sequence", "--crop 2 --result " + Path("seq") + " --sequence " + Path("seq"), dir_);
   EXPECT_EQ(bad_flag.exit_code, 2);
   EXPECT_EQ(CountLines(bad_flag.err), 1) << bad_flag.err;
   EXPECT_NE(bad_flag.err.find("--crop"), std::string::npos) << bad_flag.err;

@@ -348,7 +348,7 @@ TEST(SynthesizerSequenceTest, SizesCamerasStampsAndExposures) {
   EXPECT_GE(hr.width, 463 / 2);
   EXPECT_EQ(hr.width % 2, 0);
   EXPECT_EQ(hr.height % 2, 0);
-  // LR by SPEC section 3: fx' = fx / s, cx' = (cx - (s - 1) / 2) / s.
+  // LR by docs/file_formats.md#scaling-rule: fx' = fx / s, cx' = (cx - (s - 1) / 2) / s.
   EXPECT_EQ(lr.width, hr.width / 2);
   EXPECT_EQ(lr.height, hr.height / 2);
   EXPECT_NEAR(lr.fx, hr.fx / 2.0, 1e-9);

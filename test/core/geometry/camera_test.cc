@@ -1,4 +1,4 @@
-// The K scaling rule of SPEC section 3 against real box-downsampling.
+// The K scaling rule of docs/file_formats.md#scaling-rule against real box-downsampling.
 #include "deblur_sr_mvs/core/geometry/camera.h"
 
 #include <opencv2/imgproc.hpp>

@@ -1,4 +1,4 @@
-// Streaming joint estimation (SPEC section 5), ROS-free so that it is unit
+// Streaming joint estimation (docs/ros_interface.md), ROS-free so that it is unit
 // tested without a master: frames arrive one at a time, are cut into windows
 // of `window_size` frames that overlap by `window_overlap`, and each window is
 // estimated (Algorithm 1) starting from the previous window's poses, so that

@@ -1,5 +1,5 @@
 // Synthetic blurred, low-resolution sequences with ground truth, rendered from
-// a two-view Middlebury scene (paper Sec. "Synthetic datasets"; SPEC section 4,
+// a two-view Middlebury scene (paper Sec. "Synthetic datasets"; docs/tools.md,
 // `synthesize_sequence`).
 //
 // World frame = the view1 camera's optical frame (x right, y down, z forward).

@@ -1,5 +1,5 @@
 // Pinhole camera model (no distortion: rectified input is expected) and the
-// resolution-scaling rule of SPEC section 3.
+// resolution-scaling rule of docs/file_formats.md#scaling-rule.
 #pragma once
 
 #include <Eigen/Core>
@@ -39,7 +39,7 @@ struct PinholeCamera {
 
   // The camera seen at `scale` times the resolution, for box up/down-sampling
   // by an integer factor. HR coordinate X maps to LR (X - (s-1)/2)/s, hence
-  // fx' = s fx, cx' = s cx + (s-1)/2 (likewise y) (SPEC section 3).
+  // fx' = s fx, cx' = s cx + (s-1)/2 (likewise y) (docs/file_formats.md#scaling-rule).
   PinholeCamera Upscaled(int scale) const;
   // The inverse of Upscaled(scale); width and height must be divisible by scale.
   PinholeCamera Downscaled(int scale) const;

@@ -13,7 +13,7 @@ cv::Mat ToFloat01(const cv::Mat& image);
 cv::Mat ToImage8(const cv::Mat& image01);
 
 // Bicubic up-sampling by an integer factor with the pixel-centre convention
-// of SPEC section 3 (cv::resize maps HR X to LR (X - (s-1)/2)/s as well).
+// of docs/file_formats.md#scaling-rule (cv::resize maps HR X to LR (X - (s-1)/2)/s as well).
 cv::Mat UpsampleBicubic(const cv::Mat& image, int scale);
 // Box down-sampling by an integer factor (size must be divisible).
 cv::Mat DownsampleBox(const cv::Mat& image, int scale);

@@ -1,4 +1,4 @@
-// The result folder of SPEC section 3, written by the offline estimator and by
+// The result folder of docs/file_formats.md#result-folder, written by the offline estimator and by
 // the peer methods (bicubic, BTV-L1), read by evaluate_sequence:
 //
 //   <out>/camera.yaml            intrinsics of the latent images (HR)

@@ -1,4 +1,4 @@
-// Sequence and result folders exactly as SPEC section 3 fixes them.
+// Sequence and result folders exactly as docs/file_formats.md fixes them.
 // Every reader validates its input and throws InputError with one line that
 // names the file (and line, where there is one) and the problem.
 #pragma once
