@@ -5,20 +5,20 @@
 
 #include <geometry_msgs/PoseStamped.h>
 #include <geometry_msgs/TransformStamped.h>
-#include <pluginlib/class_list_macros.hpp>
 #include <sensor_msgs/PointCloud2.h>
+#include <pluginlib/class_list_macros.hpp>
 
-#include "deblur_sr_mvs/core/estimation/initializer.h"
 #include "deblur_sr_mvs/core/common/text.h"
+#include "deblur_sr_mvs/core/estimation/initializer.h"
 
 namespace deblur_sr_mvs {
 
 namespace {
 
-constexpr double kMaxFutureSeconds = 10.0;   // stamps further ahead of the clock are rejected
+constexpr double kMaxFutureSeconds = 10.0;        // stamps further ahead of the clock are rejected
 constexpr double kMinImageDeviation = 1.0 / 512;  // below: a constant image (no texture at all)
-constexpr size_t kMaxUnmatchedImages = 5;   // images waiting for their camera_info
-constexpr size_t kMaxRecentInfos = 10;      // camera_infos waiting for their image
+constexpr size_t kMaxUnmatchedImages = 5;         // images waiting for their camera_info
+constexpr size_t kMaxRecentInfos = 10;            // camera_infos waiting for their image
 const std::string kNoCameraInfo = "no camera_info with the image's stamp on ";
 constexpr char kScaleNote[] =
     "monocular: poses and depths are in units of the distance between the first two cameras "
@@ -53,7 +53,9 @@ bool ClampExposures(StreamWindow* frames) {
   return clamped;
 }
 
-ros::Time TimeFromNs(int64_t stamp_ns) { return ros::Time().fromNSec(static_cast<uint64_t>(stamp_ns)); }
+ros::Time TimeFromNs(int64_t stamp_ns) {
+  return ros::Time().fromNSec(static_cast<uint64_t>(stamp_ns));
+}
 
 }  // namespace
 
@@ -97,9 +99,8 @@ void EstimatorNodelet::onInit() {
   transport_ = std::make_shared<image_transport::ImageTransport>(node);
   image_topic_ = node.resolveName("image");
   info_topic_ = image_transport::getCameraInfoTopic(image_topic_);
-  image_transport::SubscriberStatusCallback image_connect = [this](const image_transport::SingleSubscriberPublisher&) {
-    ConnectCallback();
-  };
+  image_transport::SubscriberStatusCallback image_connect =
+      [this](const image_transport::SingleSubscriberPublisher&) { ConnectCallback(); };
   ros::SubscriberStatusCallback ros_connect = [this](const ros::SingleSubscriberPublisher&) {
     ConnectCallback();
   };
@@ -108,10 +109,10 @@ void EstimatorNodelet::onInit() {
   // A window publishes its frames in a burst: the queues hold a whole window
   // (at most 64 frames) so that a subscriber keeping up on average loses none.
   constexpr int kQueue = 64;
-  restored_publisher_ =
-      transport_->advertiseCamera("restored/image", kQueue, image_connect, image_connect, ros_connect, ros_connect);
-  depth_publisher_ =
-      transport_->advertiseCamera("depth/image", kQueue, image_connect, image_connect, ros_connect, ros_connect);
+  restored_publisher_ = transport_->advertiseCamera("restored/image", kQueue, image_connect, image_connect,
+                                                    ros_connect, ros_connect);
+  depth_publisher_ = transport_->advertiseCamera("depth/image", kQueue, image_connect, image_connect,
+                                                 ros_connect, ros_connect);
   pose_publisher_ = node.advertise<geometry_msgs::PoseStamped>("pose", kQueue, ros_connect, ros_connect);
   path_publisher_ = node.advertise<nav_msgs::Path>("path", 1, ros_connect, ros_connect);
   points_publisher_ = node.advertise<sensor_msgs::PointCloud2>("points", 2, ros_connect, ros_connect);
@@ -143,11 +144,10 @@ void EstimatorNodelet::onInit() {
 void EstimatorNodelet::ConnectCallback() {
   std::lock_guard<std::mutex> lock(connect_mutex_);
   if (!configured_ || shutting_down_) return;
-  const bool wanted =
-      !lazy_subscription_ || restored_publisher_.getNumSubscribers() > 0 ||
-      depth_publisher_.getNumSubscribers() > 0 || pose_publisher_.getNumSubscribers() > 0 ||
-      path_publisher_.getNumSubscribers() > 0 || points_publisher_.getNumSubscribers() > 0 ||
-      status_publisher_.getNumSubscribers() > 0;
+  const bool wanted = !lazy_subscription_ || restored_publisher_.getNumSubscribers() > 0 ||
+                      depth_publisher_.getNumSubscribers() > 0 || pose_publisher_.getNumSubscribers() > 0 ||
+                      path_publisher_.getNumSubscribers() > 0 || points_publisher_.getNumSubscribers() > 0 ||
+                      status_publisher_.getNumSubscribers() > 0;
   if (wanted && !subscribed_) {
     ros::NodeHandle& node = getNodeHandle();
     image_transport::TransportHints hints("raw", ros::TransportHints(), getPrivateNodeHandle());
@@ -218,7 +218,8 @@ void EstimatorNodelet::RejectFrame(const std::string& category, const std::strin
 }
 
 void EstimatorNodelet::RejectUnmatchedImage() {
-  RejectFrame("no camera_info", kNoCameraInfo + info_topic_ + ": frame not used (the node never guesses intrinsics)");
+  RejectFrame("no camera_info",
+              kNoCameraInfo + info_topic_ + ": frame not used (the node never guesses intrinsics)");
 }
 
 void EstimatorNodelet::RestartStream(const std::string& why) {
@@ -275,7 +276,8 @@ bool EstimatorNodelet::CheckStamp(const ros::Time& stamp) {
     return false;
   }
   if (have_stream_ && stamp == last_stamp_) {
-    RejectFrame("duplicate stamp", "duplicate image stamp " + std::to_string(stamp.toSec()) + ": frame not used");
+    RejectFrame("duplicate stamp",
+                "duplicate image stamp " + std::to_string(stamp.toSec()) + ": frame not used");
     return false;
   }
   return true;
@@ -288,13 +290,13 @@ void EstimatorNodelet::RestartOnDiscontinuity(const ros::Time& stamp, const Pinh
     RestartStream("image stamp went back by " + std::to_string((last_stamp_ - stamp).toSec()) +
                   " s (bag loop or clock reset?)");
   } else if ((stamp - last_stamp_).toSec() > params_.max_frame_gap) {
-    RestartStream("gap of " + std::to_string((stamp - last_stamp_).toSec()) + " s between frames (> max_frame_gap " +
-                  std::to_string(params_.max_frame_gap) + " s)");
+    RestartStream("gap of " + std::to_string((stamp - last_stamp_).toSec()) +
+                  " s between frames (> max_frame_gap " + std::to_string(params_.max_frame_gap) + " s)");
   }
-  if (have_stream_ && (camera.width != stream_camera_.width || camera.height != stream_camera_.height ||
-                       camera.fx != stream_camera_.fx || camera.fy != stream_camera_.fy ||
-                       camera.cx != stream_camera_.cx || camera.cy != stream_camera_.cy ||
-                       IsColour(family) != IsColour(stream_family_))) {
+  if (have_stream_ &&
+      (camera.width != stream_camera_.width || camera.height != stream_camera_.height ||
+       camera.fx != stream_camera_.fx || camera.fy != stream_camera_.fy || camera.cx != stream_camera_.cx ||
+       camera.cy != stream_camera_.cy || IsColour(family) != IsColour(stream_family_))) {
     RestartStream("image size, intrinsics or colour changed");
   }
 }
@@ -437,7 +439,8 @@ void EstimatorNodelet::PublishFrame(const PendingWindow& window, const Estimator
   std_msgs::Header header;
   header.stamp = TimeFromNs(stamp_ns);
   header.frame_id = window.camera_frame;
-  const sensor_msgs::CameraInfo info = ros_glue::ScaledCameraInfo(window.camera, params.estimator.scale, header);
+  const sensor_msgs::CameraInfo info =
+      ros_glue::ScaledCameraInfo(window.camera, params.estimator.scale, header);
   restored_publisher_.publish(ros_glue::Float01ToImage(result.latent[i], window.family, header), info);
   depth_publisher_.publish(ros_glue::DepthToImage(result.depth[i], header), info);
 
@@ -470,7 +473,8 @@ void EstimatorNodelet::PublishPath(const ros_glue::NodeParameters& params, const
   path_publisher_.publish(path_);
 }
 
-void EstimatorNodelet::DescribeEstimate(const WindowEstimate& estimate, bool clamped, EstimatorStatus* status) {
+void EstimatorNodelet::DescribeEstimate(const WindowEstimate& estimate, bool clamped,
+                                        EstimatorStatus* status) {
   const EstimatorResult& result = estimate.result;
   status->success = true;
   status->continued = estimate.continued;

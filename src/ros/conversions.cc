@@ -4,10 +4,10 @@
 #include <cstring>
 #include <limits>
 
-#include <opencv2/imgproc.hpp>
 #include <sensor_msgs/image_encodings.h>
 #include <sensor_msgs/point_cloud2_iterator.h>
 #include <tf2_eigen/tf2_eigen.h>
+#include <opencv2/imgproc.hpp>
 
 namespace deblur_sr_mvs {
 namespace ros_glue {
@@ -24,10 +24,14 @@ ImageFamily FamilyOf(const std::string& encoding) {
 
 std::string EncodingOf(ImageFamily family) {
   switch (family) {
-    case ImageFamily::kMono8: return enc::MONO8;
-    case ImageFamily::kMono16: return enc::MONO16;
-    case ImageFamily::kRgb8: return enc::RGB8;
-    case ImageFamily::kBgr8: return enc::BGR8;
+    case ImageFamily::kMono8:
+      return enc::MONO8;
+    case ImageFamily::kMono16:
+      return enc::MONO16;
+    case ImageFamily::kRgb8:
+      return enc::RGB8;
+    case ImageFamily::kBgr8:
+      return enc::BGR8;
   }
   return enc::MONO8;
 }
@@ -36,9 +40,12 @@ namespace {
 
 int BytesPerPixel(ImageFamily family) {
   switch (family) {
-    case ImageFamily::kMono8: return 1;
-    case ImageFamily::kMono16: return 2;
-    default: return 3;
+    case ImageFamily::kMono8:
+      return 1;
+    case ImageFamily::kMono16:
+      return 2;
+    default:
+      return 3;
   }
 }
 
@@ -147,8 +154,9 @@ PinholeCamera CameraFromInfo(const sensor_msgs::CameraInfo& info, int image_widt
   double fx = info.K[0], fy = info.K[4], cx = info.K[2], cy = info.K[5];
   if (distorted) {
     if (policy == DistortionPolicy::kReject) {
-      throw InputError("camera_info has non-zero distortion: the node needs rectified images "
-                       "(feed image_rect, and set ~assume_rectified if its camera_info keeps D)");
+      throw InputError(
+          "camera_info has non-zero distortion: the node needs rectified images "
+          "(feed image_rect, and set ~assume_rectified if its camera_info keeps D)");
     }
     fx = info.P[0];
     fy = info.P[5];
@@ -237,7 +245,9 @@ sensor_msgs::PointCloud2 DepthToPoints(const cv::Mat& depth, const cv::Mat& imag
       } else {
         b = g = r = image01.at<float>(y, x);
       }
-      auto to8 = [](float v) { return static_cast<uint8_t>(std::lround(std::min(1.0f, std::max(0.0f, v)) * 255.0f)); };
+      auto to8 = [](float v) {
+        return static_cast<uint8_t>(std::lround(std::min(1.0f, std::max(0.0f, v)) * 255.0f));
+      };
       *out_r = to8(r);
       *out_g = to8(g);
       *out_b = to8(b);

@@ -14,9 +14,12 @@ StampPosition ParseStampPosition(const std::string& text) {
 
 const char* ToString(StampPosition position) {
   switch (position) {
-    case StampPosition::kStart: return "start";
-    case StampPosition::kMiddle: return "middle";
-    case StampPosition::kEnd: return "end";
+    case StampPosition::kStart:
+      return "start";
+    case StampPosition::kMiddle:
+      return "middle";
+    case StampPosition::kEnd:
+      return "end";
   }
   return "end";
 }
@@ -45,9 +48,12 @@ void NodeParameters::Check() const {
 
 double NodeParameters::CloseOffset() const {
   switch (stamp_position) {
-    case StampPosition::kStart: return exposure_time;
-    case StampPosition::kMiddle: return 0.5 * exposure_time;
-    case StampPosition::kEnd: return 0.0;
+    case StampPosition::kStart:
+      return exposure_time;
+    case StampPosition::kMiddle:
+      return 0.5 * exposure_time;
+    case StampPosition::kEnd:
+      return 0.0;
   }
   return 0.0;
 }

@@ -43,7 +43,9 @@ constexpr char kDescription[] =
     "NS/depth/image, NS/pose, NS/status; NS default /deblur_sr_mvs) into a result folder for\n"
     "the frames of SEQ/frames.csv.";
 
-int64_t StampNs(double seconds) { return static_cast<int64_t>(std::llround(seconds * 1e9)); }
+int64_t StampNs(double seconds) {
+  return static_cast<int64_t>(std::llround(seconds * 1e9));
+}
 
 // The node's outputs in the bag, by header stamp (ns).
 struct NodeOutputs {
@@ -108,11 +110,12 @@ void AddFrame(const NodeOutputs& outputs, int64_t key, const dsm::FrameRecord& f
   const geometry_msgs::Pose& pose = outputs.poses.at(key)->pose;
   const Eigen::Quaterniond q(pose.orientation.w, pose.orientation.x, pose.orientation.y, pose.orientation.z);
   result->poses.push_back(dsm::StampedPose{
-      frame.stamp, dsm::SE3(q.normalized(), Eigen::Vector3d(pose.position.x, pose.position.y, pose.position.z))});
+      frame.stamp,
+      dsm::SE3(q.normalized(), Eigen::Vector3d(pose.position.x, pose.position.y, pose.position.z))});
   if (result->latent.size() == 1) {
     const sensor_msgs::CameraInfo& info = *outputs.infos.at(key);
-    const dsm::PinholeCamera camera =
-        dsm::ros_glue::CameraFromInfo(info, info.width, info.height, dsm::ros_glue::DistortionPolicy::kReject);
+    const dsm::PinholeCamera camera = dsm::ros_glue::CameraFromInfo(info, info.width, info.height,
+                                                                    dsm::ros_glue::DistortionPolicy::kReject);
     result->calibration = dsm::CameraCalibration::FromCamera(camera, "deblur_sr_mvs_restored");
   }
 }
@@ -156,4 +159,6 @@ int Run(int argc, char** argv) {
 
 }  // namespace
 
-int main(int argc, char** argv) { return dsm::BagToolMain("bag_to_result", Run, argc, argv); }
+int main(int argc, char** argv) {
+  return dsm::BagToolMain("bag_to_result", Run, argc, argv);
+}

@@ -45,7 +45,6 @@
 #include <string>
 #include <vector>
 
-#include <boost/endian/conversion.hpp>
 #include <console_bridge/console.h>
 #include <cv_bridge/cv_bridge.h>
 #include <geometry_msgs/PoseStamped.h>
@@ -57,11 +56,12 @@
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/TimeReference.h>
 #include <sensor_msgs/image_encodings.h>
+#include <boost/endian/conversion.hpp>
 
 #include "bag_tool_main.h"
 #include "deblur_sr_mvs/core/common/errors.h"
-#include "deblur_sr_mvs/core/io/sequence_io.h"
 #include "deblur_sr_mvs/core/common/text.h"
+#include "deblur_sr_mvs/core/io/sequence_io.h"
 
 namespace {
 
@@ -99,7 +99,9 @@ std::string Seconds(double value) {
   return buffer;
 }
 
-std::string StampText(const ros::Time& stamp) { return Seconds(stamp.toSec()); }
+std::string StampText(const ros::Time& stamp) {
+  return Seconds(stamp.toSec());
+}
 
 // Parses the command line; false after --help.
 bool ParseOptions(int argc, char** argv, Options* options) {
@@ -128,8 +130,8 @@ bool ParseOptions(int argc, char** argv, Options* options) {
   if (!cli.Parse(argc, argv)) return false;
   options->ground_truth = !no_ground_truth;
   if (exposure_flag->count() > 0) options->exposure = exposure;
-  for (const std::string* topic : {&options->image_topic, &options->info_topic, &options->exposure_topic,
-                                   &options->gt_namespace}) {
+  for (const std::string* topic :
+       {&options->image_topic, &options->info_topic, &options->exposure_topic, &options->gt_namespace}) {
     if (topic->empty()) throw InputError("topic names must not be empty");
   }
   while (options->gt_namespace.size() > 1 && options->gt_namespace.back() == '/') {
@@ -173,8 +175,7 @@ std::string TopicList(const std::map<std::string, std::set<std::string>>& types)
 }
 
 template <class Message>
-void CheckTopicType(const std::string& bag_path,
-                    const std::map<std::string, std::set<std::string>>& types,
+void CheckTopicType(const std::string& bag_path, const std::map<std::string, std::set<std::string>>& types,
                     const std::string& topic) {
   const auto it = types.find(topic);
   if (it == types.end()) return;
@@ -197,9 +198,8 @@ boost::shared_ptr<const Message> Instantiate(const rosbag::MessageInstance& mess
                      StampText(message.getTime()) + " cannot be read: " + error.what());
   }
   if (!instance) {
-    throw InputError(bag_path + ": " + message.getTopic() + ": message of type " +
-                     message.getDataType() + ", expected " +
-                     ros::message_traits::DataType<Message>::value());
+    throw InputError(bag_path + ": " + message.getTopic() + ": message of type " + message.getDataType() +
+                     ", expected " + ros::message_traits::DataType<Message>::value());
   }
   return instance;
 }
@@ -306,8 +306,8 @@ BagContents ReadBag(const Options& options) {
   } catch (const rosbag::BagUnindexedException&) {
     throw InputError(path + ": the bag has no index (an interrupted recording?); try `rosbag reindex`");
   } catch (const std::exception& bag_error) {  // rosbag::BagException and kin
-    throw InputError(path + ": cannot read the bag (truncated or not a bag file?): " +
-                     OneLine(bag_error.what()));
+    throw InputError(path +
+                     ": cannot read the bag (truncated or not a bag file?): " + OneLine(bag_error.what()));
   }
   if (contents.images.empty()) {
     throw InputError(path + ": no messages on the image topic " + options.image_topic);
@@ -392,8 +392,8 @@ std::string MatrixText(const double* values, int rows, int cols) {
 CameraCalibration ToCalibration(const sensor_msgs::CameraInfo& info, const std::string& camera_name,
                                 const std::string& where) {
   if (info.width == 0 || info.height == 0) {
-    throw InputError(where + ": width and height must be set, got " + std::to_string(info.width) +
-                     "x" + std::to_string(info.height));
+    throw InputError(where + ": width and height must be set, got " + std::to_string(info.width) + "x" +
+                     std::to_string(info.height));
   }
   if (info.width > static_cast<std::uint32_t>(std::numeric_limits<int>::max()) ||
       info.height > static_cast<std::uint32_t>(std::numeric_limits<int>::max())) {
@@ -413,9 +413,9 @@ CameraCalibration ToCalibration(const sensor_msgs::CameraInfo& info, const std::
                      ", binning_y " + std::to_string(info.binning_y) + ")");
   }
   const sensor_msgs::RegionOfInterest& roi = info.roi;
-  const bool full_roi = roi.x_offset == 0 && roi.y_offset == 0 &&
-                        ((roi.width == 0 && roi.height == 0) ||
-                         (roi.width == info.width && roi.height == info.height));
+  const bool full_roi =
+      roi.x_offset == 0 && roi.y_offset == 0 &&
+      ((roi.width == 0 && roi.height == 0) || (roi.width == info.width && roi.height == info.height));
   if (!full_roi) throw InputError(where + ": a region of interest (roi) is not supported");
   for (double value : info.D) {
     if (!std::isfinite(value)) throw InputError(where + ": D has a value that is not finite");
@@ -423,8 +423,7 @@ CameraCalibration ToCalibration(const sensor_msgs::CameraInfo& info, const std::
 
   CameraCalibration calibration;
   calibration.camera = deblur_sr_mvs::PinholeCamera(static_cast<int>(info.width),
-                                                    static_cast<int>(info.height), k[0], k[4],
-                                                    k[2], k[5]);
+                                                    static_cast<int>(info.height), k[0], k[4], k[2], k[5]);
   const std::string problem = calibration.camera.Problem();
   if (!problem.empty()) throw InputError(where + ": " + problem);
   calibration.camera_name = camera_name.empty() ? std::string("camera") : camera_name;
@@ -528,8 +527,7 @@ Sequence ToSequence(const Options& options, const BagContents& bag) {
       if (image.size() != first.size() || image.channels() != first.channels()) {
         throw InputError(where + ": image is " + SizeText(image.cols, image.rows) + " with " +
                          std::to_string(image.channels()) + " channel(s) but the first is " +
-                         SizeText(first.cols, first.rows) + " with " +
-                         std::to_string(first.channels()));
+                         SizeText(first.cols, first.rows) + " with " + std::to_string(first.channels()));
       }
     }
 
@@ -616,8 +614,8 @@ deblur_sr_mvs::SequenceGroundTruth ToGroundTruth(const Options& options, const B
     const auto& p = pose.pose.position;
     const auto& o = pose.pose.orientation;
     const Eigen::Quaterniond q(o.w, o.x, o.y, o.z);
-    const bool finite = std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z) &&
-                        q.coeffs().allFinite();
+    const bool finite =
+        std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z) && q.coeffs().allFinite();
     if (!finite || q.norm() < 1e-6) {
       throw InputError(pose_where + ": position and orientation must be finite, with a nonzero quaternion");
     }
@@ -643,8 +641,9 @@ void PrepareOutputFolder(const std::string& folder) {
   if (!fs::is_directory(status)) throw InputError(folder + ": exists and is not a folder");
   if (fs::is_empty(root, error)) return;
   if (!fs::exists(root / "frames.csv", error)) {
-    throw InputError(folder + ": folder is not empty and is not a sequence folder (no frames.csv); "
-                              "refusing to write into it");
+    throw InputError(folder +
+                     ": folder is not empty and is not a sequence folder (no frames.csv); "
+                     "refusing to write into it");
   }
   for (const char* name : {"camera.yaml", "frames.csv", "images", "gt"}) {
     fs::remove_all(root / name, error);
@@ -664,9 +663,8 @@ int Run(int argc, char** argv) {
   deblur_sr_mvs::WriteSequence(options.output, sequence);
 
   const cv::Mat& first = sequence.images.front();
-  std::cout << "wrote " << options.output << ": " << sequence.frames.size() << " frames "
-            << first.cols << "x" << first.rows << (first.channels() == 1 ? " gray" : " colour")
-            << ", exposure from "
+  std::cout << "wrote " << options.output << ": " << sequence.frames.size() << " frames " << first.cols << "x"
+            << first.rows << (first.channels() == 1 ? " gray" : " colour") << ", exposure from "
             << (options.exposure ? "--exposure" : options.exposure_topic)
             << (sequence.ground_truth ? ", with gt/" : "") << "\n";
   return 0;
@@ -674,4 +672,6 @@ int Run(int argc, char** argv) {
 
 }  // namespace
 
-int main(int argc, char** argv) { return deblur_sr_mvs::BagToolMain("bag_to_sequence", Run, argc, argv); }
+int main(int argc, char** argv) {
+  return deblur_sr_mvs::BagToolMain("bag_to_sequence", Run, argc, argv);
+}

@@ -1,4 +1,5 @@
-// sequence_to_bag: a sequence folder (docs/file_formats.md) -> a rosbag (docs/file_formats.md#sequences-as-rosbags).
+// sequence_to_bag: a sequence folder (docs/file_formats.md) -> a rosbag
+// (docs/file_formats.md#sequences-as-rosbags).
 //
 //   sequence_to_bag --input SEQ --output BAG [--frame-id ID] [--image-topic T]
 //                   [--info-topic T] [--exposure-topic T] [--gt-namespace NS]
@@ -36,11 +37,9 @@
 #include <limits>
 #include <string>
 
-#include <boost/make_shared.hpp>
 #include <console_bridge/console.h>
 #include <cv_bridge/cv_bridge.h>
 #include <geometry_msgs/PoseStamped.h>
-#include <opencv2/imgproc.hpp>
 #include <ros/message_traits.h>
 #include <ros/time.h>
 #include <rosbag/bag.h>
@@ -49,6 +48,8 @@
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/TimeReference.h>
 #include <sensor_msgs/image_encodings.h>
+#include <boost/make_shared.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "bag_tool_main.h"
 #include "deblur_sr_mvs/core/common/errors.h"
@@ -113,8 +114,8 @@ bool ParseOptions(int argc, char** argv, Options* options) {
   options->compression = compression == "bz2"   ? rosbag::compression::BZ2
                          : compression == "lz4" ? rosbag::compression::LZ4
                                                 : rosbag::compression::Uncompressed;
-  for (const std::string* topic : {&options->image_topic, &options->info_topic, &options->exposure_topic,
-                                   &options->gt_namespace}) {
+  for (const std::string* topic :
+       {&options->image_topic, &options->info_topic, &options->exposure_topic, &options->gt_namespace}) {
     if (topic->empty()) throw InputError("topic names must not be empty");
   }
   while (options->gt_namespace.size() > 1 && options->gt_namespace.back() == '/') {
@@ -135,8 +136,7 @@ ros::Time ToRosTime(double seconds, const std::string& what) {
   return ros::Time().fromSec(seconds);
 }
 
-sensor_msgs::CameraInfo ToCameraInfo(const CameraCalibration& calibration,
-                                     const std_msgs::Header& header) {
+sensor_msgs::CameraInfo ToCameraInfo(const CameraCalibration& calibration, const std_msgs::Header& header) {
   const deblur_sr_mvs::PinholeCamera& camera = calibration.camera;
   sensor_msgs::CameraInfo info;
   info.header = header;
@@ -204,15 +204,15 @@ void CheckOutputPath(const std::string& path) {
 }
 
 // Writes every frame's messages (see the top of the file).
-void WriteMessages(const Options& options, const Sequence& sequence,
-                   const std::vector<ros::Time>& stamps, const std::vector<ros::Time>& shutter_open,
-                   const std::vector<ros::Time>& pose_stamps, rosbag::Bag* bag_pointer) {
+void WriteMessages(const Options& options, const Sequence& sequence, const std::vector<ros::Time>& stamps,
+                   const std::vector<ros::Time>& shutter_open, const std::vector<ros::Time>& pose_stamps,
+                   rosbag::Bag* bag_pointer) {
   rosbag::Bag& bag = *bag_pointer;
   bag.setCompression(options.compression);
   const std::size_t count = sequence.frames.size();
   const bool with_gt = !pose_stamps.empty();
-  const auto info_header = ConnectionHeader<sensor_msgs::CameraInfo>(
-      {{"camera_name", sequence.calibration.camera_name}});
+  const auto info_header =
+      ConnectionHeader<sensor_msgs::CameraInfo>({{"camera_name", sequence.calibration.camera_name}});
   const auto exposure_header = ConnectionHeader<sensor_msgs::TimeReference>(
       {{"exposure_convention",
         "header.stamp = shutter close time t_c (the image stamp); time_ref = shutter open time "
@@ -283,8 +283,8 @@ void WriteBag(const Options& options, const Sequence& sequence) {
       throw InputError(where + ": exposure " + StampText(frame.exposure) + " s rounds to 0 ns");
     }
     if (exposure > stamps[i] - ros::Time(0)) {
-      throw InputError(where + ": shutter open time (stamp - exposure) = " +
-                       StampText(frame.stamp - frame.exposure) +
+      throw InputError(where +
+                       ": shutter open time (stamp - exposure) = " + StampText(frame.stamp - frame.exposure) +
                        " s is negative: ROS time cannot represent it (shift the stamps)");
     }
     shutter_open[i] = stamps[i] - exposure;
@@ -317,10 +317,9 @@ void WriteBag(const Options& options, const Sequence& sequence) {
   }
 
   const cv::Mat& first = sequence.images.front();
-  std::cout << "wrote " << options.output << ": " << count << " frames " << first.cols << "x"
-            << first.rows << " " << (first.channels() == 1 ? "mono8" : "rgb8") << " on "
-            << options.image_topic << " + " << options.info_topic << ", exposures on "
-            << options.exposure_topic;
+  std::cout << "wrote " << options.output << ": " << count << " frames " << first.cols << "x" << first.rows
+            << " " << (first.channels() == 1 ? "mono8" : "rgb8") << " on " << options.image_topic << " + "
+            << options.info_topic << ", exposures on " << options.exposure_topic;
   if (with_gt) {
     std::cout << ", ground truth on " << GtNamespace(options) << "/{image,depth,camera_info,pose}";
   } else if (sequence.ground_truth) {
@@ -340,4 +339,6 @@ int Run(int argc, char** argv) {
 
 }  // namespace
 
-int main(int argc, char** argv) { return deblur_sr_mvs::BagToolMain("sequence_to_bag", Run, argc, argv); }
+int main(int argc, char** argv) {
+  return deblur_sr_mvs::BagToolMain("sequence_to_bag", Run, argc, argv);
+}

@@ -19,8 +19,7 @@ namespace dsm = deblur_sr_mvs;
 namespace {
 
 double Seconds() {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch())
-      .count();
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
 
 template <typename Function>
@@ -51,8 +50,7 @@ dsm::CaptureGeometry BenchmarkGeometry() {
   }
   // 0.07 m per frame and exposure 0.8 frame: ~15 px at 2 m, ~23 px at 1.3 m.
   geometry.T_world_neighbour = dsm::SE3();
-  geometry.T_world_cam = dsm::SE3::Exp(
-      (dsm::Vector6d() << 0.07, 0.01, 0.0, 0.0, 0.004, 0.001).finished());
+  geometry.T_world_cam = dsm::SE3::Exp((dsm::Vector6d() << 0.07, 0.01, 0.0, 0.0, 0.004, 0.001).finished());
   geometry.neighbour_stamp = 0.0;
   geometry.stamp = 1.0 / 30.0;
   geometry.exposure = 0.8 / 30.0;
@@ -79,15 +77,14 @@ void BenchmarkThreads(const dsm::CaptureGeometry& geometry, int threads, int sam
   op.ApplyAdjoint(gray_lr, &back);
   const int apply_repeats = repeats * 5;
   const double apply_gray = MedianMs(apply_repeats, [&] { op.Apply(gray_hr, &gray_lr); });
-  const double adjoint_gray =
-      MedianMs(apply_repeats, [&] { op.ApplyAdjoint(gray_lr, &back); });
+  const double adjoint_gray = MedianMs(apply_repeats, [&] { op.ApplyAdjoint(gray_lr, &back); });
   const double apply_color = MedianMs(apply_repeats, [&] { op.Apply(color_hr, &color_lr); });
-  const double adjoint_color =
-      MedianMs(apply_repeats, [&] { op.ApplyAdjoint(color_lr, &back); });
+  const double adjoint_color = MedianMs(apply_repeats, [&] { op.ApplyAdjoint(color_lr, &back); });
   const dsm::CaptureOperatorBuilder::Timings& stages = builder.last_timings();
-  std::printf("threads %d: build stages (last run): reprojection %.1f ms, assembly %.1f ms, "
-              "adjoint copy %.1f ms\n",
-              threads, stages.reprojection_ms, stages.assembly_ms, stages.adjoint_ms);
+  std::printf(
+      "threads %d: build stages (last run): reprojection %.1f ms, assembly %.1f ms, "
+      "adjoint copy %.1f ms\n",
+      threads, stages.reprojection_ms, stages.assembly_ms, stages.adjoint_ms);
   const double nnz = static_cast<double>(op.matrix().nonZeros());
   std::printf(
       "threads %d: build %.1f ms | apply %.2f ms (gray) %.2f ms (rgb) | adjoint %.2f ms "
@@ -107,8 +104,8 @@ int Run(int argc, char** argv) {
   cli.add_option("--samples", samples, "M, sub-exposure samples (default 50)")->check(dsm::FlagInt(1, 10000));
   if (!cli.Parse(argc, argv)) return 0;
   const dsm::CaptureGeometry geometry = BenchmarkGeometry();
-  std::printf("capture operator benchmark: 640x480 -> 320x240, M = %d, scale 2, median of %d\n",
-              samples, repeats);
+  std::printf("capture operator benchmark: 640x480 -> 320x240, M = %d, scale 2, median of %d\n", samples,
+              repeats);
   std::printf("machine threads available: %d\n", omp_get_max_threads());
   for (int threads : {1, 2}) BenchmarkThreads(geometry, threads, samples, repeats);
   return 0;

@@ -14,13 +14,13 @@
 #include <string>
 #include <vector>
 
-#include "estimate_report.h"
-#include "tool_main.h"
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/estimation/estimator.h"
 #include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/io/result_io.h"
 #include "deblur_sr_mvs/core/io/sequence_io.h"
+#include "estimate_report.h"
+#include "tool_main.h"
 
 namespace dsm = deblur_sr_mvs;
 
@@ -152,12 +152,11 @@ int Run(int argc, char** argv) {
   std::string camera_name;
   const dsm::EstimatorInput input = ReadInput(flags.input, &camera_name);
   const dsm::EstimatorResult result = Estimate(options, input, flags.input, flags.quiet);
-  const double wall =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
   dsm::SequenceResult out;
-  out.calibration = dsm::CameraCalibration::FromCamera(result.camera_hr.Upscaled(flags.output_scale),
-                                                       camera_name);
+  out.calibration =
+      dsm::CameraCalibration::FromCamera(result.camera_hr.Upscaled(flags.output_scale), camera_name);
   FillOutputs(result, input.frames, flags.output_scale, &out);
   out.report_json =
       dsm::JsonText(dsm::EstimateReportJson(options, flags.input, result, wall, PeakMemoryMiB()));

@@ -11,11 +11,11 @@
 #include <string>
 #include <system_error>
 
-#include "tool_main.h"
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/evaluation/evaluation.h"
 #include "deblur_sr_mvs/core/io/result_io.h"
 #include "deblur_sr_mvs/core/io/sequence_io.h"
+#include "tool_main.h"
 
 namespace dsm = deblur_sr_mvs;
 namespace fs = std::filesystem;
@@ -80,7 +80,6 @@ int Run(int argc, char** argv) {
   if (!json_path.empty()) WriteTextFile(json_path, dsm::ToJson(report, method));
   return 0;
 }
-
 
 }  // namespace
 

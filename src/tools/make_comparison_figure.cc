@@ -8,20 +8,20 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <vector>
 #include <cstdlib>
 #include <iostream>
 #include <string>
+#include <vector>
 
 #include <Eigen/Core>
 #include <opencv2/imgproc.hpp>
 
-#include "tool_main.h"
 #include "deblur_sr_mvs/core/common/errors.h"
-#include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/evaluation/metrics.h"
+#include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/io/result_io.h"
 #include "deblur_sr_mvs/core/io/sequence_io.h"
+#include "tool_main.h"
 
 namespace dsm = deblur_sr_mvs;
 
@@ -141,7 +141,8 @@ void PasteTrajectoryPanel(const std::vector<dsm::StampedPose>& estimated_poses,
   };
   for (size_t t = 0; t < estimate.size(); ++t) {
     if (t > 0) {
-      cv::line(plot, to_pixel(truth_positions[t - 1]), to_pixel(truth_positions[t]), cv::Scalar(0, 160, 0), 2, cv::LINE_AA);
+      cv::line(plot, to_pixel(truth_positions[t - 1]), to_pixel(truth_positions[t]), cv::Scalar(0, 160, 0), 2,
+               cv::LINE_AA);
       cv::line(plot, to_pixel(estimate[t - 1]), to_pixel(estimate[t]), cv::Scalar(0, 0, 220), 1, cv::LINE_AA);
     }
     cv::circle(plot, to_pixel(truth_positions[t]), 4, cv::Scalar(0, 160, 0), 2, cv::LINE_AA);
@@ -180,7 +181,8 @@ void WriteResultFigure(const dsm::Sequence& sequence, const std::string& sequenc
   }
   if (result.HasPoses() && num_frames >= 3) {
     PasteTrajectoryPanel(result.poses, sequence.ground_truth->poses,
-                         cv::Size(2 * truth.cols + kGap, truth.rows), cv::Point(0, truth.rows + kGap), &canvas);
+                         cv::Size(2 * truth.cols + kGap, truth.rows), cv::Point(0, truth.rows + kGap),
+                         &canvas);
   }
   dsm::WriteImage(output, canvas);
   std::printf("%s: frame %d, PSNR vs ground truth: bicubic %.2f dB, restored %.2f dB\n", output.c_str(),

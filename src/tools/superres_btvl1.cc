@@ -18,12 +18,12 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/superres.hpp>
 
-#include "report_json.h"
-#include "tool_main.h"
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/io/result_io.h"
 #include "deblur_sr_mvs/core/io/sequence_io.h"
+#include "report_json.h"
+#include "tool_main.h"
 
 namespace dsm = deblur_sr_mvs;
 
@@ -71,22 +71,20 @@ class InMemoryFrameSource : public cv::superres::FrameSource {
 // out shifted by (s-1)/2 HR pixels (measured: +0.5 px on x2 shift sequences,
 // ~6 dB PSNR). This puts the interior back on the package's pixel grid and fills the
 // cropped border from the bicubic up-sampling of the input frame.
-cv::Mat ToFullFrame(const cv::Mat& interior, const cv::Mat& input, int scale, int border,
-                    bool centre_shift) {
+cv::Mat ToFullFrame(const cv::Mat& interior, const cv::Mat& input, int scale, int border, bool centre_shift) {
   cv::Mat full = dsm::ToImage8(dsm::UpsampleBicubic(dsm::ToFloat01(input), scale));
   if (interior.type() != full.type() || interior.cols != full.cols - 2 * border ||
       interior.rows != full.rows - 2 * border) {
     throw std::runtime_error("BTV-L1 returned a " + std::to_string(interior.cols) + "x" +
-                             std::to_string(interior.rows) + " image for a " +
-                             std::to_string(full.cols) + "x" + std::to_string(full.rows) +
-                             " frame with a " + std::to_string(border) + " px border");
+                             std::to_string(interior.rows) + " image for a " + std::to_string(full.cols) +
+                             "x" + std::to_string(full.rows) + " frame with a " + std::to_string(border) +
+                             " px border");
   }
   cv::Mat placed = interior;
   if (centre_shift) {
     const double shift = (scale - 1) / 2.0;  // dst(X) = interior(X - shift)
     const cv::Matx23d translation(1.0, 0.0, shift, 0.0, 1.0, shift);
-    cv::warpAffine(interior, placed, translation, interior.size(), cv::INTER_CUBIC,
-                   cv::BORDER_REPLICATE);
+    cv::warpAffine(interior, placed, translation, interior.size(), cv::INTER_CUBIC, cv::BORDER_REPLICATE);
   }
   placed.copyTo(full(cv::Rect(border, border, interior.cols, interior.rows)));
   return full;
@@ -128,14 +126,13 @@ double SuperResolve(cv::superres::SuperResolution* btv, const dsm::Sequence& seq
     const int k = static_cast<int>(result->latent.size());
     if (k >= num_frames) throw std::runtime_error("BTV-L1 returned more frames than it was given");
     result->latent.push_back(ToFullFrame(interior, sequence.images[k], scale, border, centre_shift));
-    const double elapsed =
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     std::printf("frame %d/%d  %.1f s\n", k + 1, num_frames, elapsed);
     std::fflush(stdout);
   }
   if (static_cast<int>(result->latent.size()) != num_frames) {
-    throw std::runtime_error("BTV-L1 returned " + std::to_string(result->latent.size()) +
-                             " frames for " + std::to_string(num_frames) + " inputs");
+    throw std::runtime_error("BTV-L1 returned " + std::to_string(result->latent.size()) + " frames for " +
+                             std::to_string(num_frames) + " inputs");
   }
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
@@ -189,10 +186,9 @@ int Run(int argc, char** argv) {
   btv->setTemporalAreaRadius(std::min(requested_radius, num_frames - 1));
   const int border = btv->getKernelSize();
   if (hr_camera.width <= 2 * border + 2 || hr_camera.height <= 2 * border + 2) {
-    throw dsm::InputError(flags.input_dir + "/camera.yaml: the HR frame " +
-                          std::to_string(hr_camera.width) + "x" + std::to_string(hr_camera.height) +
-                          " is too small for BTV-L1 (it crops " + std::to_string(border) +
-                          " px on every side)");
+    throw dsm::InputError(flags.input_dir + "/camera.yaml: the HR frame " + std::to_string(hr_camera.width) +
+                          "x" + std::to_string(hr_camera.height) + " is too small for BTV-L1 (it crops " +
+                          std::to_string(border) + " px on every side)");
   }
   btv->setInput(cv::makePtr<InMemoryFrameSource>(sequence.images));
 
@@ -202,9 +198,8 @@ int Run(int argc, char** argv) {
   const double wall_time = SuperResolve(btv.get(), sequence, scale, !flags.no_centre_shift, &result);
   result.report_json = dsm::JsonText(Report(*btv, flags, requested_radius, num_frames, wall_time));
   dsm::WriteResult(flags.output_dir, result);
-  std::printf("%s: %d frames x%d (%dx%d) in %.1f s (%.2f s/frame)\n", flags.output_dir.c_str(),
-              num_frames, scale, hr_camera.width, hr_camera.height, wall_time,
-              wall_time / num_frames);
+  std::printf("%s: %d frames x%d (%dx%d) in %.1f s (%.2f s/frame)\n", flags.output_dir.c_str(), num_frames,
+              scale, hr_camera.width, hr_camera.height, wall_time, wall_time / num_frames);
   return 0;
 }
 

@@ -18,8 +18,8 @@
 #include <iterator>
 #include <string>
 
-#include "tool_main.h"
 #include "deblur_sr_mvs/core/evaluation/synthesizer.h"
+#include "tool_main.h"
 
 namespace {
 
@@ -131,21 +131,19 @@ void PrintSummary(const std::string& output_folder, const deblur_sr_mvs::StereoS
     holes_max = std::max(holes_max, stats.hole_fraction_max);
     holes_mean += stats.hole_fraction_latent / result.frame_stats.size();
   }
-  std::cout << std::fixed << std::setprecision(2) << "wrote " << output_folder << ": "
-            << options.num_frames << " frames, " << CameraPathName(options.path) << " path, LR "
-            << result.lr_camera.width << "x" << result.lr_camera.height << ", HR "
-            << result.hr_camera.width << "x" << result.hr_camera.height << " (scale "
-            << options.scale << ")\n"
-            << "  depth " << scene.min_depth << "-" << scene.max_depth << " m (median "
-            << scene.median_depth << "), camera speed " << result.path.speed << " m/s"
-            << (result.speed_capped ? " (capped)" : "") << "\n"
-            << "  blur per exposure (median HR px): target " << options.blur_px
-            << ", middle frame " << result.achieved_blur_px << ", frames " << blur_min << "-"
-            << blur_max << "\n"
-            << "  holes before filling: latent mean " << 100.0 * holes_mean
-            << " %, worst sub-frame " << 100.0 * holes_max << " %\n"
-            << "  " << options.subframes << " sub-frames per exposure, "
-            << std::setprecision(1) << result.seconds << " s\n";
+  std::cout << std::fixed << std::setprecision(2) << "wrote " << output_folder << ": " << options.num_frames
+            << " frames, " << CameraPathName(options.path) << " path, LR " << result.lr_camera.width << "x"
+            << result.lr_camera.height << ", HR " << result.hr_camera.width << "x" << result.hr_camera.height
+            << " (scale " << options.scale << ")\n"
+            << "  depth " << scene.min_depth << "-" << scene.max_depth << " m (median " << scene.median_depth
+            << "), camera speed " << result.path.speed << " m/s" << (result.speed_capped ? " (capped)" : "")
+            << "\n"
+            << "  blur per exposure (median HR px): target " << options.blur_px << ", middle frame "
+            << result.achieved_blur_px << ", frames " << blur_min << "-" << blur_max << "\n"
+            << "  holes before filling: latent mean " << 100.0 * holes_mean << " %, worst sub-frame "
+            << 100.0 * holes_max << " %\n"
+            << "  " << options.subframes << " sub-frames per exposure, " << std::setprecision(1)
+            << result.seconds << " s\n";
   if (holes_max > 0.02) {
     std::cout << "warning: up to " << std::setprecision(1) << 100.0 * holes_max
               << " % of the pixels of a sub-frame were seen by neither view and were filled "
@@ -169,8 +167,7 @@ int Run(int argc, char** argv) {
     std::filesystem::create_directories(output_folder, error);
     if (error) throw InputError(output_folder + ": cannot create the folder: " + error.message());
   }
-  const deblur_sr_mvs::SynthesisResult result =
-      deblur_sr_mvs::SynthesizeSequence(scene, options, &std::cout);
+  const deblur_sr_mvs::SynthesisResult result = deblur_sr_mvs::SynthesizeSequence(scene, options, &std::cout);
   RemoveStaleFrames(output_folder);
   deblur_sr_mvs::WriteSequence(output_folder, result.sequence);
   deblur_sr_mvs::WriteSynthesisYaml(output_folder + "/gt/synthesis.yaml", scene, options, result);

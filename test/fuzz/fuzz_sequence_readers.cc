@@ -33,11 +33,21 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   }
   try {
     switch (reader) {
-      case 0: deblur_sr_mvs::ReadCameraYaml(path); break;
-      case 1: deblur_sr_mvs::ReadFramesCsv(path); break;
-      case 2: deblur_sr_mvs::ReadTumTrajectory(path); break;
-      case 3: deblur_sr_mvs::ReadDepthTiff(path); break;
-      case 4: deblur_sr_mvs::ReadImage8(path); break;
+      case 0:
+        deblur_sr_mvs::ReadCameraYaml(path);
+        break;
+      case 1:
+        deblur_sr_mvs::ReadFramesCsv(path);
+        break;
+      case 2:
+        deblur_sr_mvs::ReadTumTrajectory(path);
+        break;
+      case 3:
+        deblur_sr_mvs::ReadDepthTiff(path);
+        break;
+      case 4:
+        deblur_sr_mvs::ReadImage8(path);
+        break;
     }
   } catch (const deblur_sr_mvs::InputError& error) {
     const std::string message = error.what();

@@ -20,14 +20,14 @@
 #include <string>
 #include <vector>
 
-#include <boost/make_shared.hpp>
+#include <geometry_msgs/PoseStamped.h>
 #include <gtest/gtest.h>
 #include <rosbag/bag.h>
 #include <rosbag/view.h>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/TimeReference.h>
-#include <geometry_msgs/PoseStamped.h>
+#include <boost/make_shared.hpp>
 
 #include <nlohmann/json.hpp>
 
@@ -50,7 +50,9 @@ std::string ReadText(const fs::path& path) {
   return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
 }
 
-std::string Quote(const std::string& text) { return "'" + text + "'"; }
+std::string Quote(const std::string& text) {
+  return "'" + text + "'";
+}
 
 // Runs `tool arguments...` with stdout and stderr captured in files.
 ToolResult RunTool(const std::string& tool, const std::vector<std::string>& arguments,
@@ -75,8 +77,7 @@ void ExpectOneLineError(const ToolResult& result, const std::string& needle) {
   ASSERT_FALSE(result.err.empty());
   EXPECT_EQ(result.err.back(), '\n') << result.err;
   EXPECT_EQ(std::count(result.err.begin(), result.err.end(), '\n'), 1) << result.err;
-  EXPECT_NE(result.err.find(needle), std::string::npos)
-      << "expected '" << needle << "' in: " << result.err;
+  EXPECT_NE(result.err.find(needle), std::string::npos) << "expected '" << needle << "' in: " << result.err;
 }
 
 bool BitwiseEqual(const cv::Mat& a, const cv::Mat& b) {
@@ -132,8 +133,8 @@ void ExpectSameSequence(const Sequence& expected, const Sequence& actual, double
 
 // A sensor_msgs/Image filled by hand (not through cv_bridge), as another
 // driver would write it.
-sensor_msgs::Image MakeImage(const ros::Time& stamp, int width, int height,
-                             const std::string& encoding, int bytes_per_pixel, std::uint8_t seed) {
+sensor_msgs::Image MakeImage(const ros::Time& stamp, int width, int height, const std::string& encoding,
+                             int bytes_per_pixel, std::uint8_t seed) {
   sensor_msgs::Image image;
   image.header.stamp = stamp;
   image.header.frame_id = "cam";
@@ -170,12 +171,12 @@ class BagToolsTest : public ::testing::Test {
     // A small colour sequence with gt/ and rotating poses (arc path). The
     // exposure fills the frame interval (ratio 1): the tightest case for
     // stamps rounded to the ROS nanosecond.
-    const ToolResult synth = RunTool(
-        DSM_SYNTHESIZE_SEQUENCE,
-        {"--scene", std::string(DSM_SOURCE_DIR) + "/data/middlebury/Dolls", "--output",
-         (root_ / "synth").string(), "--frames", "4", "--subframes", "51", "--hr-width", "96",
-         "--hr-height", "64", "--path", "arc", "--exposure-ratio", "1"},
-        root_);
+    const ToolResult synth =
+        RunTool(DSM_SYNTHESIZE_SEQUENCE,
+                {"--scene", std::string(DSM_SOURCE_DIR) + "/data/middlebury/Dolls", "--output",
+                 (root_ / "synth").string(), "--frames", "4", "--subframes", "51", "--hr-width", "96",
+                 "--hr-height", "64", "--path", "arc", "--exposure-ratio", "1"},
+                root_);
     ASSERT_EQ(synth.exit_code, 0) << synth.err;
   }
   static void TearDownTestSuite() {
@@ -266,8 +267,8 @@ TEST_F(BagToolsTest, BagHoldsTheDocumentedTopicsAndEncodings) {
     if (topic == "/gt/pose") poses.push_back(m.instantiate<geometry_msgs::PoseStamped>());
   }
   const std::size_t count = original.frames.size();
-  for (std::size_t n : {images.size(), infos.size(), exposures.size(), gt_images.size(),
-                        gt_depths.size(), gt_infos.size(), poses.size()}) {
+  for (std::size_t n : {images.size(), infos.size(), exposures.size(), gt_images.size(), gt_depths.size(),
+                        gt_infos.size(), poses.size()}) {
     ASSERT_EQ(n, count);
   }
   EXPECT_EQ(camera_name, original.calibration.camera_name);
@@ -281,8 +282,8 @@ TEST_F(BagToolsTest, BagHoldsTheDocumentedTopicsAndEncodings) {
     EXPECT_EQ(infos[i]->header.stamp, stamp);
     EXPECT_EQ(infos[i]->header.frame_id, "cam_optical");
     EXPECT_EQ(exposures[i]->header.stamp, stamp);
-    EXPECT_NEAR((exposures[i]->header.stamp - exposures[i]->time_ref).toSec(),
-                original.frames[i].exposure, 1e-9);
+    EXPECT_NEAR((exposures[i]->header.stamp - exposures[i]->time_ref).toSec(), original.frames[i].exposure,
+                1e-9);
     // RGB byte order in the message, BGR in OpenCV.
     const cv::Vec3b bgr = original.images[i].at<cv::Vec3b>(0, 1);
     EXPECT_EQ(image.data[3], bgr[2]);
@@ -303,7 +304,8 @@ TEST_F(BagToolsTest, BagHoldsTheDocumentedTopicsAndEncodings) {
     // Ground truth.
     EXPECT_EQ(gt_depths[i]->encoding, "32FC1");
     EXPECT_EQ(gt_images[i]->encoding, "rgb8");
-    EXPECT_EQ(gt_images[i]->width, static_cast<std::uint32_t>(original.ground_truth->calibration.camera.width));
+    EXPECT_EQ(gt_images[i]->width,
+              static_cast<std::uint32_t>(original.ground_truth->calibration.camera.width));
     EXPECT_EQ(gt_infos[i]->header.stamp, stamp);
     EXPECT_EQ(poses[i]->header.frame_id, "world");
     EXPECT_EQ(poses[i]->pose.position.x, original.ground_truth->poses[i].T_world_cam.translation().x());
@@ -346,8 +348,10 @@ TEST_F(BagToolsTest, GraySequenceWithEpochStampsRoundTrips) {
   // exposure 0.0099999998 (the whole interval) becomes 10 ms in the bag, 1 ns
   // more than the rounded interval, and is clamped to it.
   Sequence tight = sequence;
-  tight.frames = {{0, 1.0000000006, 0.0099999998}, {1, 1.0100000004, 0.0099999998},
-                  {2, 1.0200000004, 0.005}, {3, 1.0300000004, 0.005}};
+  tight.frames = {{0, 1.0000000006, 0.0099999998},
+                  {1, 1.0100000004, 0.0099999998},
+                  {2, 1.0200000004, 0.005},
+                  {3, 1.0300000004, 0.005}};
   WriteSequence((dir_ / "tight").string(), tight);
   ASSERT_EQ(ToBag(dir_ / "tight", dir_ / "tight.bag").exit_code, 0);
   const ToolResult tight_back = ToSequence(dir_ / "tight.bag", dir_ / "tight_back");
@@ -377,8 +381,7 @@ TEST_F(BagToolsTest, BagWithoutExposureNeedsTheExposureFlag) {
   EXPECT_EQ(sequence.calibration.camera_name, "camera");  // no connection header field
 
   // An exposure longer than the frame interval is refused, naming the flag.
-  ExpectOneLineError(ToSequence(dir_ / "plain.bag", dir_ / "long", {"--exposure", "0.2"}),
-                     "--exposure");
+  ExpectOneLineError(ToSequence(dir_ / "plain.bag", dir_ / "long", {"--exposure", "0.2"}), "--exposure");
   ExpectOneLineError(ToSequence(dir_ / "plain.bag", dir_ / "bad", {"--exposure", "-1"}), "--exposure");
 }
 
@@ -390,9 +393,9 @@ TEST_F(BagToolsTest, AcceptsBgr8AndRejectsMono16) {
       bag->write("/cam/info", stamp, MakeInfo(stamp, 7, 5));
     }
   });
-  const ToolResult bgr = ToSequence(dir_ / "bgr.bag", dir_ / "bgr",
-                                    {"--image-topic", "/cam/image", "--info-topic", "/cam/info",
-                                     "--exposure", "0.1"});
+  const ToolResult bgr =
+      ToSequence(dir_ / "bgr.bag", dir_ / "bgr",
+                 {"--image-topic", "/cam/image", "--info-topic", "/cam/info", "--exposure", "0.1"});
   ASSERT_EQ(bgr.exit_code, 0) << bgr.err;
   const Sequence sequence = ReadSequence((dir_ / "bgr").string(), false);
   const sensor_msgs::Image expected = MakeImage(ros::Time(5, 500000000), 7, 5, "bgr8", 3, 1);
@@ -432,8 +435,7 @@ TEST_F(BagToolsTest, MalformedBagsExitWithOneLine) {
     bag->write("/camera/image_raw", stamp, MakeImage(stamp, 4, 3, "mono8", 1, 0));
     bag->write("/camera/camera_info", stamp, MakeInfo(ros::Time(1, 5), 4, 3));
   });
-  ExpectOneLineError(ToSequence(dir_ / "mismatch.bag", dir_ / "out", {"--exposure", "0.01"}),
-                     "same stamp");
+  ExpectOneLineError(ToSequence(dir_ / "mismatch.bag", dir_ / "out", {"--exposure", "0.01"}), "same stamp");
 
   // A camera_info of another size.
   WriteBag(dir_ / "size.bag", [](rosbag::Bag* bag) {

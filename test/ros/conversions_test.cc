@@ -196,8 +196,10 @@ TEST(PoseConversion, RoundTripsToDoublePrecision) {
     EXPECT_EQ(transform.rotation, pose.orientation);
     // Message -> SE3 -> message: the same quaternion (up to sign).
     const geometry_msgs::Pose again = PoseToMsg(back);
-    const Eigen::Vector4d first(pose.orientation.w, pose.orientation.x, pose.orientation.y, pose.orientation.z);
-    Eigen::Vector4d second(again.orientation.w, again.orientation.x, again.orientation.y, again.orientation.z);
+    const Eigen::Vector4d first(pose.orientation.w, pose.orientation.x, pose.orientation.y,
+                                pose.orientation.z);
+    Eigen::Vector4d second(again.orientation.w, again.orientation.x, again.orientation.y,
+                           again.orientation.z);
     if (first.dot(second) < 0.0) second = -second;
     EXPECT_LT((first - second).cwiseAbs().maxCoeff(), 1e-15) << angle;
   }

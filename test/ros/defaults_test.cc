@@ -13,10 +13,10 @@
 #include <string>
 #include <vector>
 
-#include <boost/any.hpp>
 #include <dynamic_reconfigure/Config.h>
 #include <gtest/gtest.h>
 #include <yaml-cpp/yaml.h>
+#include <boost/any.hpp>
 
 #include "deblur_sr_mvs/ros/node_parameters.h"
 
@@ -36,8 +36,12 @@ Value Number(double number) {
   text << number;
   return Value{text.str(), true, number};
 }
-Value Text(const std::string& text) { return Value{text, false, 0.0}; }
-Value Flag(bool flag) { return Text(flag ? "true" : "false"); }
+Value Text(const std::string& text) {
+  return Value{text, false, 0.0};
+}
+Value Flag(bool flag) {
+  return Text(flag ? "true" : "false");
+}
 
 // ForEachParameter's visitor that records every value, spelt as in the YAML.
 class DefaultsWriter {
@@ -77,7 +81,8 @@ std::string Trim(const std::string& text) {
 // Documentation spelling -> value: `code` and "quotes" are dropped.
 std::string Unquote(std::string text) {
   text = Trim(text);
-  if (text.size() >= 2 && text.front() == '`' && text.back() == '`') text = Trim(text.substr(1, text.size() - 2));
+  if (text.size() >= 2 && text.front() == '`' && text.back() == '`')
+    text = Trim(text.substr(1, text.size() - 2));
   if (text.size() >= 2 && text.front() == '"' && text.back() == '"') text = text.substr(1, text.size() - 2);
   return text;
 }
@@ -215,7 +220,8 @@ TEST(NodeDefaults, ReconfigureMapsEveryParameterToItsNamesake) {
       parameter.value = changed;
       message.doubles.push_back(parameter);
     } else {
-      problems += "  " + description->name + ": a " + description->type + " (the test knows int and double)\n";
+      problems +=
+          "  " + description->name + ": a " + description->type + " (the test knows int and double)\n";
       continue;
     }
     ASSERT_TRUE(description->fromMessage(message, config)) << description->name;
@@ -261,10 +267,11 @@ bool ReadParameterTable(const std::string& path, std::map<std::string, std::stri
       while (std::getline(row, cell, '|')) cells.push_back(Trim(cell));
     }
     if (!in_table) {
-      in_table = cells.size() >= 2 && cells[0] == "Parameter" && cells[1].find("Default") != std::string::npos;
+      in_table =
+          cells.size() >= 2 && cells[0] == "Parameter" && cells[1].find("Default") != std::string::npos;
       continue;
     }
-    if (cells.size() < 2) break;  // the end of the table
+    if (cells.size() < 2) break;                                           // the end of the table
     if (cells[0].find_first_not_of("-: ") == std::string::npos) continue;  // |---|---|
     std::vector<std::string> names;
     for (std::sregex_iterator it(cells[0].begin(), cells[0].end(), code_name), end; it != end; ++it) {
@@ -305,7 +312,8 @@ TEST(NodeDefaults, ReadmeTableHasEveryParameterWithTheNodesDefault) {
       break;
     }
   }
-  ASSERT_FALSE(source.empty()) << "no table with a header row '| Parameter | Default | ...' in README.md or docs/";
+  ASSERT_FALSE(source.empty())
+      << "no table with a header row '| Parameter | Default | ...' in README.md or docs/";
   for (const auto& [name, written] : documented) {
     const auto expected = NodeDefaults().find(name);
     if (expected == NodeDefaults().end()) {

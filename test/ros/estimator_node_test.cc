@@ -12,30 +12,30 @@
 #include <set>
 #include <thread>
 
+#include <diagnostic_msgs/DiagnosticArray.h>
+#include <dynamic_reconfigure/client.h>
+#include <geometry_msgs/PoseStamped.h>
 #include <gtest/gtest.h>
-#include <opencv2/imgproc.hpp>
 #include <nav_msgs/Path.h>
 #include <nodelet/loader.h>
-#include <geometry_msgs/PoseStamped.h>
 #include <ros/ros.h>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/PointCloud2.h>
-#include <diagnostic_msgs/DiagnosticArray.h>
-#include <dynamic_reconfigure/client.h>
 #include <tf2_ros/transform_listener.h>
+#include <opencv2/imgproc.hpp>
 
 #include "deblur_sr_mvs/EstimatorConfig.h"
 #include "deblur_sr_mvs/EstimatorStatus.h"
-#include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/evaluation/metrics.h"
+#include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/io/sequence_io.h"
 #include "deblur_sr_mvs/ros/conversions.h"
 
 namespace deblur_sr_mvs {
 namespace {
 
-constexpr int kFrames = 6;  // windows of 4 overlapping by 2: frames 0-3 and 2-5
+constexpr int kFrames = 6;       // windows of 4 overlapping by 2: frames 0-3 and 2-5
 constexpr int kExtraFrames = 2;  // frames 6-7: a third window after a reconfigure
 
 const Sequence& TestSequence() {
@@ -55,7 +55,9 @@ const Sequence& TestSequence() {
 }
 
 // Stamps of the published frames: far from 0 so that a bag-like clock works.
-ros::Time FrameStamp(int t) { return ros::Time(100.0) + ros::Duration(TestSequence().frames[t].stamp); }
+ros::Time FrameStamp(int t) {
+  return ros::Time(100.0) + ros::Duration(TestSequence().frames[t].stamp);
+}
 
 sensor_msgs::ImagePtr Rgb8Message(const cv::Mat& bgr, const ros::Time& stamp) {
   std_msgs::Header header;
@@ -111,19 +113,22 @@ class EstimatorNodeTest : public testing::Test {
         list->push_back(message);
       };
     };
-    subscribers_.push_back(node_.subscribe<sensor_msgs::Image>("restored/image", 20,
-                                                                keep(&out_.restored, &out_.mutex)));
-    subscribers_.push_back(node_.subscribe<sensor_msgs::CameraInfo>(
-        "restored/camera_info", 20, keep(&out_.restored_info, &out_.mutex)));
-    subscribers_.push_back(node_.subscribe<sensor_msgs::Image>("depth/image", 20, keep(&out_.depth, &out_.mutex)));
+    subscribers_.push_back(
+        node_.subscribe<sensor_msgs::Image>("restored/image", 20, keep(&out_.restored, &out_.mutex)));
+    subscribers_.push_back(node_.subscribe<sensor_msgs::CameraInfo>("restored/camera_info", 20,
+                                                                    keep(&out_.restored_info, &out_.mutex)));
+    subscribers_.push_back(
+        node_.subscribe<sensor_msgs::Image>("depth/image", 20, keep(&out_.depth, &out_.mutex)));
     subscribers_.push_back(node_.subscribe<sensor_msgs::CameraInfo>("depth/camera_info", 20,
-                                                                     keep(&out_.depth_info, &out_.mutex)));
-    subscribers_.push_back(node_.subscribe<geometry_msgs::PoseStamped>("pose", 20, keep(&out_.poses, &out_.mutex)));
+                                                                    keep(&out_.depth_info, &out_.mutex)));
+    subscribers_.push_back(
+        node_.subscribe<geometry_msgs::PoseStamped>("pose", 20, keep(&out_.poses, &out_.mutex)));
     subscribers_.push_back(node_.subscribe<EstimatorStatus>("status", 20, keep(&out_.statuses, &out_.mutex)));
-    subscribers_.push_back(node_.subscribe<nav_msgs::Path>("path", 5, [this](const nav_msgs::PathConstPtr& path) {
-      std::lock_guard<std::mutex> lock(out_.mutex);
-      out_.path = path;
-    }));
+    subscribers_.push_back(
+        node_.subscribe<nav_msgs::Path>("path", 5, [this](const nav_msgs::PathConstPtr& path) {
+          std::lock_guard<std::mutex> lock(out_.mutex);
+          out_.path = path;
+        }));
     subscribers_.push_back(node_.subscribe<sensor_msgs::PointCloud2>(
         "points", 5, [this](const sensor_msgs::PointCloud2ConstPtr&) {
           std::lock_guard<std::mutex> lock(out_.mutex);
@@ -139,8 +144,9 @@ class EstimatorNodeTest : public testing::Test {
     image_publisher_ = ros::NodeHandle().advertise<sensor_msgs::Image>("/camera/image", 10);
     info_publisher_ = ros::NodeHandle().advertise<sensor_msgs::CameraInfo>("/camera/camera_info", 10);
     // The node subscribes lazily: once our subscriptions reach it.
-    ASSERT_TRUE(WaitFor([&] { return image_publisher_.getNumSubscribers() > 0 &&
-                                     info_publisher_.getNumSubscribers() > 0; }, 30.0))
+    ASSERT_TRUE(WaitFor(
+        [&] { return image_publisher_.getNumSubscribers() > 0 && info_publisher_.getNumSubscribers() > 0; },
+        30.0))
         << "the node never subscribed to /camera/image and /camera/camera_info";
   }
 
@@ -180,11 +186,14 @@ TEST_F(EstimatorNodeTest, PublishesEveryFrameConsistentlyAndBeatsBicubic) {
     image_publisher_.publish(Rgb8Message(sequence.images[t], FrameStamp(t)));
     ros::WallDuration(0.1).sleep();
   }
-  ASSERT_TRUE(WaitFor([&] {
-    std::lock_guard<std::mutex> lock(out_.mutex);
-    return out_.poses.size() >= kFrames && out_.restored.size() >= kFrames && out_.depth.size() >= kFrames &&
-           out_.statuses.size() >= 2;
-  }, 120.0)) << "outputs for all " << kFrames << " frames did not arrive: " << Summary();
+  ASSERT_TRUE(WaitFor(
+      [&] {
+        std::lock_guard<std::mutex> lock(out_.mutex);
+        return out_.poses.size() >= kFrames && out_.restored.size() >= kFrames &&
+               out_.depth.size() >= kFrames && out_.statuses.size() >= 2;
+      },
+      120.0))
+      << "outputs for all " << kFrames << " frames did not arrive: " << Summary();
   ros::WallDuration(0.5).sleep();  // anything extra would arrive now
 
   std::lock_guard<std::mutex> lock(out_.mutex);
@@ -281,16 +290,20 @@ TEST_F(EstimatorNodeTest, ReconfigureAppliesFromTheNextWindowAndDiagnosticsRepor
     image_publisher_.publish(Rgb8Message(sequence.images[t], FrameStamp(t)));
     ros::WallDuration(0.1).sleep();
   }
-  ASSERT_TRUE(WaitFor([&] {
-    std::lock_guard<std::mutex> lock(out_.mutex);
-    return !out_.statuses.empty() && out_.statuses.back()->window_index == 3 &&
-           out_.poses.size() >= static_cast<size_t>(kExtraFrames);
-  }, 120.0));
+  ASSERT_TRUE(WaitFor(
+      [&] {
+        std::lock_guard<std::mutex> lock(out_.mutex);
+        return !out_.statuses.empty() && out_.statuses.back()->window_index == 3 &&
+               out_.poses.size() >= static_cast<size_t>(kExtraFrames);
+      },
+      120.0));
   // /diagnostics (1 Hz) carries the node's window statistics.
-  ASSERT_TRUE(WaitFor([&] {
-    std::lock_guard<std::mutex> lock(out_.mutex);
-    return !out_.diagnostics.values.empty();
-  }, 10.0));
+  ASSERT_TRUE(WaitFor(
+      [&] {
+        std::lock_guard<std::mutex> lock(out_.mutex);
+        return !out_.diagnostics.values.empty();
+      },
+      10.0));
   std::lock_guard<std::mutex> lock(out_.mutex);
   const EstimatorStatus& third = *out_.statuses.back();
   EXPECT_TRUE(third.success) << third.message;
@@ -300,7 +313,8 @@ TEST_F(EstimatorNodeTest, ReconfigureAppliesFromTheNextWindowAndDiagnosticsRepor
 
   EXPECT_EQ(out_.diagnostics.hardware_id, "deblur_sr_mvs estimator on /camera/image");
   bool has_latency = false;
-  for (const auto& value : out_.diagnostics.values) has_latency = has_latency || value.key == "last latency (s)";
+  for (const auto& value : out_.diagnostics.values)
+    has_latency = has_latency || value.key == "last latency (s)";
   EXPECT_TRUE(has_latency);
 }
 
@@ -364,15 +378,16 @@ TEST(EstimatorNodeletHostileInput, RejectsCountsRestartsAndSkips) {
   std::vector<EstimatorStatusConstPtr> statuses;
   std::vector<sensor_msgs::ImageConstPtr> restored;
   diagnostic_msgs::DiagnosticStatus diagnostics;
-  ros::Subscriber status_sub = node.subscribe<EstimatorStatus>(ns + "/status", 20, [&](const EstimatorStatusConstPtr& m) {
-    std::lock_guard<std::mutex> lock(mutex);
-    statuses.push_back(m);
-  });
-  ros::Subscriber restored_sub = node.subscribe<sensor_msgs::Image>(
-      ns + "/restored/image", 20, [&](const sensor_msgs::ImageConstPtr& m) {
+  ros::Subscriber status_sub =
+      node.subscribe<EstimatorStatus>(ns + "/status", 20, [&](const EstimatorStatusConstPtr& m) {
         std::lock_guard<std::mutex> lock(mutex);
-        restored.push_back(m);
+        statuses.push_back(m);
       });
+  ros::Subscriber restored_sub = node.subscribe<sensor_msgs::Image>(ns + "/restored/image", 20,
+                                                                    [&](const sensor_msgs::ImageConstPtr& m) {
+                                                                      std::lock_guard<std::mutex> lock(mutex);
+                                                                      restored.push_back(m);
+                                                                    });
   ros::Subscriber diagnostics_sub = node.subscribe<diagnostic_msgs::DiagnosticArray>(
       "/diagnostics", 20, [&](const diagnostic_msgs::DiagnosticArrayConstPtr& array) {
         std::lock_guard<std::mutex> lock(mutex);
@@ -397,40 +412,43 @@ TEST(EstimatorNodeletHostileInput, RejectsCountsRestartsAndSkips) {
   const cv::Mat black(sequence.images[0].size(), sequence.images[0].type(), cv::Scalar::all(0));
   const cv::Mat white(sequence.images[0].size(), sequence.images[0].type(), cv::Scalar::all(255));
 
-  send(frame(0, base + 0.02));                                        // ok
-  send(frame(0, base + 0.02));                                        // rejected: duplicate stamp
-  send(Rgb8Message(black, ros::Time(base + 0.021)));                  // rejected: constant (black)
-  send(Rgb8Message(white, ros::Time(base + 0.022)));                  // rejected: constant (saturated)
-  send(frame(1, 0.0));                                                // rejected: zero stamp
-  send(frame(1, ros::Time::now().toSec() + 1000.0));                  // rejected: far in the future
+  send(frame(0, base + 0.02));                        // ok
+  send(frame(0, base + 0.02));                        // rejected: duplicate stamp
+  send(Rgb8Message(black, ros::Time(base + 0.021)));  // rejected: constant (black)
+  send(Rgb8Message(white, ros::Time(base + 0.022)));  // rejected: constant (saturated)
+  send(frame(1, 0.0));                                // rejected: zero stamp
+  send(frame(1, ros::Time::now().toSec() + 1000.0));  // rejected: far in the future
   sensor_msgs::CameraInfoPtr distorted = InfoMessage(ros::Time(base + 0.025));
   distorted->D = {-0.3, 0.1, 0.0, 0.0, 0.0};
-  send(frame(1, base + 0.025), distorted);                            // rejected: distortion
+  send(frame(1, base + 0.025), distorted);  // rejected: distortion
   sensor_msgs::ImagePtr bgra = frame(1, base + 0.03);
   bgra->encoding = "bgra8";
-  send(bgra);                                                         // rejected: encoding
+  send(bgra);  // rejected: encoding
   // Frames 20 ms apart: shorter than the 26.7 ms exposure, which is clamped.
-  send(frame(1, base + 0.04));                                        // ok
-  send(frame(2, base + 0.06));                                        // ok: window 1 (frames 0-2)
-  send(frame(3, base - 10.0));                                        // ok, stamp went back: restart 1
-  send(frame(4, base + 100.0));                                       // ok, 110 s gap: restart 2
-  send(frame(4, base + 100.0 + dt));                                  // the same image again:
-  send(frame(4, base + 100.0 + 2 * dt));                              //   window 2 has no parallax
+  send(frame(1, base + 0.04));            // ok
+  send(frame(2, base + 0.06));            // ok: window 1 (frames 0-2)
+  send(frame(3, base - 10.0));            // ok, stamp went back: restart 1
+  send(frame(4, base + 100.0));           // ok, 110 s gap: restart 2
+  send(frame(4, base + 100.0 + dt));      // the same image again:
+  send(frame(4, base + 100.0 + 2 * dt));  //   window 2 has no parallax
   cv::Mat small;
   cv::resize(sequence.images[5], small, cv::Size(), 0.5, 0.5, cv::INTER_AREA);
   sensor_msgs::ImagePtr small_image = Rgb8Message(small, ros::Time(base + 100.0 + 3 * dt));
   sensor_msgs::CameraInfoPtr small_info = InfoMessage(small_image->header.stamp);
   small_info->width = small.cols;
   small_info->height = small.rows;
-  send(small_image, small_info);                                      // ok, size changed: restart 3
-  for (int i = 0; i < 20; ++i) {                                      // camera_info without images
+  send(small_image, small_info);  // ok, size changed: restart 3
+  for (int i = 0; i < 20; ++i) {  // camera_info without images
     infos.publish(InfoMessage(ros::Time(base + 200.0 + i)));
   }
 
-  ASSERT_TRUE(WaitFor([&] {
-    std::lock_guard<std::mutex> lock(mutex);
-    return statuses.size() >= 2;
-  }, 120.0)) << "two windows were expected";
+  ASSERT_TRUE(WaitFor(
+      [&] {
+        std::lock_guard<std::mutex> lock(mutex);
+        return statuses.size() >= 2;
+      },
+      120.0))
+      << "two windows were expected";
   ros::WallDuration(2.5).sleep();  // diagnostics publish at 1 Hz
   std::lock_guard<std::mutex> lock(mutex);
   ASSERT_EQ(statuses.size(), 2u);
@@ -463,14 +481,17 @@ TEST(EstimatorNodeletHostileInput, BadParameterKeepsTheNodeIdleAndSaysWhy) {
   std::mutex mutex;
   EstimatorStatusConstPtr status;
   ros::NodeHandle node;
-  ros::Subscriber sub = node.subscribe<EstimatorStatus>("/badparam/status", 1, [&](const EstimatorStatusConstPtr& m) {
-    std::lock_guard<std::mutex> lock(mutex);
-    status = m;
-  });
-  ASSERT_TRUE(WaitFor([&] {
-    std::lock_guard<std::mutex> lock(mutex);
-    return status != nullptr;
-  }, 20.0));
+  ros::Subscriber sub =
+      node.subscribe<EstimatorStatus>("/badparam/status", 1, [&](const EstimatorStatusConstPtr& m) {
+        std::lock_guard<std::mutex> lock(mutex);
+        status = m;
+      });
+  ASSERT_TRUE(WaitFor(
+      [&] {
+        std::lock_guard<std::mutex> lock(mutex);
+        return status != nullptr;
+      },
+      20.0));
   EXPECT_FALSE(status->success);
   EXPECT_NE(status->message.find("exposure_time"), std::string::npos) << status->message;
   EXPECT_EQ(status->message.find('\n'), std::string::npos);

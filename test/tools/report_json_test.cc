@@ -70,9 +70,9 @@ TEST(ReportJson, UndoneIterationWithNanEnergiesIsStrictJson) {
   const nlohmann::ordered_json ordered = nlohmann::ordered_json::parse(text);
   std::vector<std::string> keys;
   for (auto it = ordered.begin(); it != ordered.end(); ++it) keys.push_back(it.key());
-  const std::vector<std::string> expected = {"input",           "parameters",  "energies",
-                                             "stage_seconds",   "wall_seconds", "peak_memory_mib",
-                                             "initializer",     "solver_notes", "monocular_scale"};
+  const std::vector<std::string> expected = {"input",         "parameters",   "energies",
+                                             "stage_seconds", "wall_seconds", "peak_memory_mib",
+                                             "initializer",   "solver_notes", "monocular_scale"};
   EXPECT_EQ(keys, expected);
   EXPECT_EQ(report["parameters"]["mode"], "joint");
   EXPECT_EQ(report["parameters"]["update_poses"], true);
@@ -84,13 +84,13 @@ TEST(EstimateSequenceTool, ReportIsStrictJsonForAPathWithQuoteAndBackslash) {
   const fs::path root = fs::path(testing::TempDir()) / ("dsm_report_json_" + std::to_string(::getpid()));
   const std::string input = (root / "seq \"quoted\" back\\slash").string();
   const std::string output = (root / "result").string();
-  const test::ToolRun synth = RunTool(
-      "synthesize_sequence", {"--scene", std::string(DSM_SOURCE_DIR) + "/data/middlebury/Dolls", "--output",
-                              input, "--frames", "3", "--subframes", "51", "--hr-width", "160",
-                              "--hr-height", "120"});
+  const test::ToolRun synth =
+      RunTool("synthesize_sequence",
+              {"--scene", std::string(DSM_SOURCE_DIR) + "/data/middlebury/Dolls", "--output", input,
+               "--frames", "3", "--subframes", "51", "--hr-width", "160", "--hr-height", "120"});
   ASSERT_EQ(synth.exit_code, 0) << synth.err;
-  const test::ToolRun run = RunTool("estimate_sequence", {"--input", input, "--output", output, "--iterations",
-                                                          "1", "--samples", "8", "--quiet"});
+  const test::ToolRun run = RunTool("estimate_sequence", {"--input", input, "--output", output,
+                                                          "--iterations", "1", "--samples", "8", "--quiet"});
   ASSERT_EQ(run.exit_code, 0) << run.err;
   const std::string text = FileText(output + "/report.json");
   nlohmann::json report;

@@ -63,7 +63,8 @@ TEST(ToolFlags, ParseWholeFiniteValuesInRange) {
     EXPECT_NE(ParseMessage({"--x", bad}).find("--x: expects a number"), std::string::npos) << bad;
   }
   EXPECT_EQ(ParseMessage({"--scale", "1"}), "--scale: expects an integer in [2, 8], got '1' (see --help)");
-  EXPECT_EQ(ParseMessage({"--exposure", "-1"}), "--exposure: expects a number >= 1e-06, got '-1' (see --help)");
+  EXPECT_EQ(ParseMessage({"--exposure", "-1"}),
+            "--exposure: expects a number >= 1e-06, got '-1' (see --help)");
   EXPECT_NE(ParseMessage({"--frobnicate"}).find("--frobnicate"), std::string::npos);
   EXPECT_NE(ParseMessage({"--frobnicate", "--scale", "1"}).find("--frobnicate"), std::string::npos);
   EXPECT_NE(ParseMessage({"--n"}).find("--n"), std::string::npos);  // no value
@@ -87,14 +88,16 @@ TEST(ToolFlags, BadFlagsGiveOneLineAndExitCode2) {
   const std::string scene = std::string(DSM_SOURCE_DIR) + "/data/middlebury/Dolls";
   const std::string out = testing::TempDir() + "/dsm_tool_flags_out";
   // Bad numbers, out of range, unknown flags, missing values and flags.
-  ExpectOneLineError("synthesize_sequence", {"--scene", scene, "--output", out, "--frames", "ten"}, "--frames");
+  ExpectOneLineError("synthesize_sequence", {"--scene", scene, "--output", out, "--frames", "ten"},
+                     "--frames");
   ExpectOneLineError("synthesize_sequence", {"--scene", scene, "--output", out, "--noise", "nan"}, "--noise");
   ExpectOneLineError("synthesize_sequence", {"--scene", scene, "--output", out, "--seed", "-1"}, "--seed");
   ExpectOneLineError("synthesize_sequence", {"--scene", scene, "--output", out, "--path", "loop"}, "--path");
   ExpectOneLineError("synthesize_sequence", {"--scene", scene, "--output", out, "--bogus", "1"}, "--bogus");
   ExpectOneLineError("synthesize_sequence", {"--output", out}, "--scene");
   ExpectOneLineError("synthesize_sequence", {"--frobnicate", "x"}, "--frobnicate");  // before --scene
-  ExpectOneLineError("evaluate_sequence", {"--result", scene, "--sequence", scene, "--crop", "1.5"}, "--crop");
+  ExpectOneLineError("evaluate_sequence", {"--result", scene, "--sequence", scene, "--crop", "1.5"},
+                     "--crop");
   ExpectOneLineError("evaluate_sequence", {"--result", scene, "--sequence"}, "--sequence");
   ExpectOneLineError("make_comparison_figure", {"--sequence", scene, "--output", out, "--frame", "-1"},
                      "--frame");
@@ -107,7 +110,8 @@ TEST(ToolFlags, BadFlagsGiveOneLineAndExitCode2) {
 TEST(EstimateSequenceTool, BadInputGivesOneLineAndExitCode2) {
   const std::string out = testing::TempDir() + "/out";
   const std::string folder = std::string(DSM_SOURCE_DIR) + "/data";  // exists, no sequence
-  ExpectOneLineError("estimate_sequence", {"--input", "/nonexistent/seq", "--output", out}, "/nonexistent/seq");
+  ExpectOneLineError("estimate_sequence", {"--input", "/nonexistent/seq", "--output", out},
+                     "/nonexistent/seq");
   ExpectOneLineError("estimate_sequence", {"--input", folder, "--output", out}, folder);
   ExpectOneLineError("estimate_sequence", {"--input", folder, "--output", out, "--mode", "fancy"}, "--mode");
   ExpectOneLineError("estimate_sequence", {"--input", folder, "--output", out, "--samples", "0"}, "samples");

@@ -7,13 +7,13 @@
 
 #include <geometry_msgs/PoseStamped.h>
 #include <geometry_msgs/Transform.h>
-#include <opencv2/core.hpp>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/PointCloud2.h>
+#include <opencv2/core.hpp>
 
-#include "deblur_sr_mvs/core/geometry/camera.h"
 #include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/geometry/camera.h"
 #include "deblur_sr_mvs/core/geometry/se3.h"
 
 namespace deblur_sr_mvs {
@@ -30,8 +30,7 @@ std::string EncodingOf(ImageFamily family);
 cv::Mat ImageToFloat01(const sensor_msgs::Image& image, ImageFamily* family);
 // Float [0, 1] image (as above) -> message of `family` (values clamped,
 // rounded; NaN becomes 0).
-sensor_msgs::Image Float01ToImage(const cv::Mat& image01, ImageFamily family,
-                                  const std_msgs::Header& header);
+sensor_msgs::Image Float01ToImage(const cv::Mat& image01, ImageFamily family, const std_msgs::Header& header);
 
 // What to do with a camera_info whose distortion coefficients are not zero.
 enum class DistortionPolicy {

@@ -12,7 +12,6 @@
 #include <string>
 #include <thread>
 
-#include <boost/thread/recursive_mutex.hpp>
 #include <diagnostic_updater/diagnostic_updater.h>
 #include <dynamic_reconfigure/server.h>
 #include <image_transport/camera_common.h>
@@ -23,6 +22,7 @@
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
 #include <tf2_ros/transform_broadcaster.h>
+#include <boost/thread/recursive_mutex.hpp>
 
 #include "deblur_sr_mvs/EstimatorConfig.h"
 #include "deblur_sr_mvs/EstimatorStatus.h"
@@ -41,11 +41,11 @@ class EstimatorNodelet : public nodelet::Nodelet {
   // A complete window and what the worker needs to publish it.
   struct PendingWindow {
     StreamWindow frames;
-    PinholeCamera camera;                 // LR intrinsics from camera_info
+    PinholeCamera camera;  // LR intrinsics from camera_info
     ros_glue::ImageFamily family = ros_glue::ImageFamily::kMono8;
-    std::string camera_frame;             // child frame of the outputs
-    uint64_t epoch = 0;                   // stream restarts so far
-    ros::WallTime completed;              // arrival of the window's last frame
+    std::string camera_frame;  // child frame of the outputs
+    uint64_t epoch = 0;        // stream restarts so far
+    ros::WallTime completed;   // arrival of the window's last frame
   };
 
   void onInit() override;
@@ -58,7 +58,8 @@ class EstimatorNodelet : public nodelet::Nodelet {
   bool CheckStamp(const ros::Time& stamp);  // false: rejected (zero, future, duplicate)
   // Restarts the trajectory when time went back, a gap exceeds max_frame_gap,
   // or the camera (size, intrinsics, colour) changed.
-  void RestartOnDiscontinuity(const ros::Time& stamp, const PinholeCamera& camera, ros_glue::ImageFamily family);
+  void RestartOnDiscontinuity(const ros::Time& stamp, const PinholeCamera& camera,
+                              ros_glue::ImageFamily family);
   void StartStream(const ros::Time& stamp, const PinholeCamera& camera, const std::string& input_frame);
   void QueueWindow(StreamWindow frames);  // a complete window for the worker
   void RejectFrame(const std::string& category, const std::string& why);

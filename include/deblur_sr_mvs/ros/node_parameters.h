@@ -20,7 +20,7 @@ namespace ros_glue {
 // Where the header stamp of a frame lies within its exposure.
 enum class StampPosition { kStart, kMiddle, kEnd };
 StampPosition ParseStampPosition(const std::string& text);  // InputError otherwise
-const char* ToString(StampPosition position);                // "start" | "middle" | "end"
+const char* ToString(StampPosition position);               // "start" | "middle" | "end"
 
 // The core's estimator defaults with the node's time cap of one window
 // (~max_window_seconds): a live node must not stall on one window.
@@ -28,27 +28,27 @@ EstimatorOptions NodeEstimatorOptions();
 
 struct NodeParameters {
   // --- Shutter: exposure time and what the header stamp marks.
-  double exposure_time = 0.0;      // s, > 0 (required: the blur model needs it)
+  double exposure_time = 0.0;  // s, > 0 (required: the blur model needs it)
   StampPosition stamp_position = StampPosition::kEnd;
   // A longer gap between two frames (dropped frames, a paused camera) breaks
   // the constant-velocity exposure model: the trajectory restarts (s).
   double max_frame_gap = 1.0;
   // --- Windows and the worker.
-  StreamOptions stream;            // window_size, window_overlap, max_pending_windows
+  StreamOptions stream;  // window_size, window_overlap, max_pending_windows
   // --- The estimator (mode, scale, samples, iterations, lambdas, threads,
   //     max_window_seconds -> estimator.max_seconds).
   EstimatorOptions estimator = NodeEstimatorOptions();
   // --- Outputs.
   std::string world_frame = "world";
-  std::string camera_frame;        // empty: "<input frame_id>_estimated"
+  std::string camera_frame;  // empty: "<input frame_id>_estimated"
   bool publish_tf = true;
-  int points_stride = 4;           // every n-th pixel in x and y goes into ~points
-  int max_path_length = 10000;     // poses kept in ~path (oldest dropped beyond)
+  int points_stride = 4;        // every n-th pixel in x and y goes into ~points
+  int max_path_length = 10000;  // poses kept in ~path (oldest dropped beyond)
   // A window whose largest camera step exceeds this many times its median
   // step is taken as a failed estimate (a pose jump): skipped, trajectory restarts.
   double max_step_ratio = 8.0;
   // --- Input.
-  bool lazy_subscription = true;   // subscribe to the camera only while outputs are subscribed
+  bool lazy_subscription = true;  // subscribe to the camera only while outputs are subscribed
   DistortionPolicy distortion = DistortionPolicy::kReject;  // ~assume_rectified
 
   void Check() const;  // throws InputError naming the bad parameter

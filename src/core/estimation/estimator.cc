@@ -175,8 +175,9 @@ class OperatorCache {
 
   // Callers hold the returned pointer while they use the operator: eviction
   // only drops the cache's reference.
-  std::shared_ptr<const Entry> Get(const std::vector<FrameStructure>& frames, const std::vector<long>& depth_version,
-                   const std::vector<long>& pose_version, int t, int source, Timer* timer) {
+  std::shared_ptr<const Entry> Get(const std::vector<FrameStructure>& frames,
+                                   const std::vector<long>& depth_version,
+                                   const std::vector<long>& pose_version, int t, int source, Timer* timer) {
     const int neighbour = t > 0 ? t - 1 : t + 1;
     const std::vector<long> versions = {depth_version[t], pose_version[t], pose_version[neighbour],
                                         pose_version[source]};
@@ -349,9 +350,9 @@ class WindowSolver {
   Timer timer_;
   EstimatorResult result_;
 
-  std::vector<cv::Mat> observations_;  // B_t (LR, continuous)
-  std::vector<cv::Mat> bicubic_;       // B_t up-sampled (HR)
-  std::vector<cv::Mat> latents_;       // I_t (HR)
+  std::vector<cv::Mat> observations_;   // B_t (LR, continuous)
+  std::vector<cv::Mat> bicubic_;        // B_t up-sampled (HR)
+  std::vector<cv::Mat> latents_;        // I_t (HR)
   std::vector<FrameStructure> frames_;  // D_t, P_t, stamps, exposures
   std::vector<cv::Mat> inverse_depth_;  // rho_t = 1 / D_t (HR, holes filled)
   std::vector<cv::Mat> edge_weight_;    // g_t of eq:regularizingTerm
@@ -412,7 +413,8 @@ WindowSolver::WindowSolver(const EstimatorOptions& options, int threads, const E
     frames_[t].stamp = input.frames[t].stamp;
     frames_[t].exposure = input.frames[t].exposure;
     frames_[t].T_world_cam = T_world_cam[t];
-    if (depth_hr[t].type() != CV_32FC1 || depth_hr[t].size() != cv::Size(camera_hr_.width, camera_hr_.height)) {
+    if (depth_hr[t].type() != CV_32FC1 ||
+        depth_hr[t].size() != cv::Size(camera_hr_.width, camera_hr_.height)) {
       throw InputError("estimator: depth maps must be CV_32FC1 of the HR size");
     }
     inverse_depth_[t] = InverseDepthFromDepth(depth_hr[t]);
@@ -425,7 +427,8 @@ WindowSolver::WindowSolver(const EstimatorOptions& options, int threads, const E
   // which keeps the peak memory bounded.
   cache_ = std::make_unique<OperatorCache>(EstimatorOperatorOptions(options_), threads_, camera_hr_,
                                            options_.visibility, size_t(3) << 29);
-  for (int t = 0; t < num_frames_; ++t) neighbours_[t] = Neighbours(t, num_frames_, options_.neighbour_radius);
+  for (int t = 0; t < num_frames_; ++t)
+    neighbours_[t] = Neighbours(t, num_frames_, options_.neighbour_radius);
 }
 
 // The main loop of Algorithm 1 (alg:optimization) after the initialisation
@@ -581,7 +584,8 @@ void WindowSolver::UpdateAllPoses(int iteration, bool isolated, const std::vecto
   const double before = isolated ? TotalEnergy(iteration, "structure").total : 0.0;
   std::vector<PairMatching> pairs;
   HeldOperators held;
-  for (int t = 0; t < num_frames_; ++t) AppendPairs(t, Neighbours(t, num_frames_, pose_radius), &pairs, &held);
+  for (int t = 0; t < num_frames_; ++t)
+    AppendPairs(t, Neighbours(t, num_frames_, pose_radius), &pairs, &held);
   std::vector<SE3> updated = poses;
   const double pose_begin = NowMs();
   UpdatePoses(camera_hr_, inverse_depth_, latents_, pairs, structure_options, &updated,
@@ -837,9 +841,12 @@ const char* ToString(EstimatorMode mode) {
 
 const char* ToString(StructureMatching matching) {
   switch (matching) {
-    case StructureMatching::kBlurred: return "blurred";
-    case StructureMatching::kRestored: return "restored";
-    case StructureMatching::kRestoredAndInput: return "both";
+    case StructureMatching::kBlurred:
+      return "blurred";
+    case StructureMatching::kRestored:
+      return "restored";
+    case StructureMatching::kRestoredAndInput:
+      return "both";
   }
   return "?";
 }
@@ -874,7 +881,9 @@ void EstimatorOptions::Check() const {
   initializer.Check();
 }
 
-Estimator::Estimator(const EstimatorOptions& options) : options_(options) { options_.Check(); }
+Estimator::Estimator(const EstimatorOptions& options) : options_(options) {
+  options_.Check();
+}
 
 std::vector<cv::Mat> UpsampleInitialDepth(const std::vector<cv::Mat>& depth_lr, int scale) {
   std::vector<cv::Mat> depth_hr;
@@ -902,8 +911,7 @@ EstimatorResult Estimator::Run(const EstimatorInput& input, const ProgressCallba
   return result;
 }
 
-EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input,
-                                            const std::vector<cv::Mat>& depth_hr,
+EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input, const std::vector<cv::Mat>& depth_hr,
                                             const std::vector<SE3>& T_world_cam,
                                             const ProgressCallback& progress) {
   CheckWindowCounts(input, depth_hr, T_world_cam);

@@ -4,8 +4,8 @@
 
 namespace deblur_sr_mvs {
 
-CaptureGeometry MakeCaptureGeometry(const std::vector<FrameStructure>& frames,
-                                    const PinholeCamera& camera_hr, int t, int source) {
+CaptureGeometry MakeCaptureGeometry(const std::vector<FrameStructure>& frames, const PinholeCamera& camera_hr,
+                                    int t, int source) {
   const int n = static_cast<int>(frames.size());
   if (n < 2 || t < 0 || t >= n || source < 0 || source >= n) {
     throw InputError("MakeCaptureGeometry: needs >= 2 frames and valid indices");

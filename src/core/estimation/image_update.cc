@@ -12,7 +12,9 @@
 namespace deblur_sr_mvs {
 namespace {
 
-size_t NumValues(const cv::Mat& m) { return m.total() * m.channels(); }
+size_t NumValues(const cv::Mat& m) {
+  return m.total() * m.channels();
+}
 
 double Dot(const cv::Mat& a, const cv::Mat& b, int threads) {
   const float* pa = a.ptr<float>();
@@ -70,8 +72,7 @@ void ImageUpdateOptions::Check() const {
   CheckAbove("image update: tv_epsilon", tv_epsilon, 0.0);
 }
 
-void AddWeightedLaplacian(const cv::Mat& x, const cv::Mat& v, double scale, cv::Mat* out,
-                          int threads) {
+void AddWeightedLaplacian(const cv::Mat& x, const cv::Mat& v, double scale, cv::Mat* out, int threads) {
   const int channels = x.channels();
   const int width = x.cols, height = x.rows;
   const int stride = width * channels;
@@ -144,9 +145,13 @@ namespace {
 // and the right-hand side sum_k A_k^T W_k b_k.
 class ReweightedImageSystem {
  public:
-  ReweightedImageSystem(const std::vector<LinearL1Term>& terms, const ImageUpdateOptions& options, int threads,
-                        int hr_rows)
-      : terms_(terms), options_(options), threads_(threads), hr_rows_(hr_rows), states_(terms.size()),
+  ReweightedImageSystem(const std::vector<LinearL1Term>& terms, const ImageUpdateOptions& options,
+                        int threads, int hr_rows)
+      : terms_(terms),
+        options_(options),
+        threads_(threads),
+        hr_rows_(hr_rows),
+        states_(terms.size()),
         adjoints_(terms.size()) {
     // Psi^T as row-major copies made here, once per update: a gather is much
     // faster than scattering through Psi, and the copies live only as long as
@@ -251,9 +256,8 @@ void CheckTermsMatchImage(const std::vector<LinearL1Term>& terms, const cv::Mat&
     throw InputError("image update: the image must be a continuous float image");
   }
   for (const LinearL1Term& term : terms) {
-    if (term.op == nullptr || term.observation == nullptr ||
-        term.op->hr_size() != image.size() || term.observation->size() != term.op->lr_size() ||
-        term.observation->type() != image.type() ||
+    if (term.op == nullptr || term.observation == nullptr || term.op->hr_size() != image.size() ||
+        term.observation->size() != term.op->lr_size() || term.observation->type() != image.type() ||
         (!term.mask.empty() && term.mask.size() != term.op->lr_size())) {
       throw InputError("image update: a data term does not match the image (sizes or channels)");
     }

@@ -37,27 +37,26 @@
 #include <memory>
 #include <sstream>
 
-#include <Eigen/Dense>
 #include <ceres/ceres.h>
 #include <ceres/rotation.h>
+#include <Eigen/Dense>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
 
-#include "deblur_sr_mvs/core/imaging/capture_operator.h"
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/common/runtime.h"
-#include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/geometry/visibility.h"
 #include "deblur_sr_mvs/core/geometry/warp.h"
+#include "deblur_sr_mvs/core/imaging/capture_operator.h"
+#include "deblur_sr_mvs/core/imaging/image_ops.h"
 
 namespace deblur_sr_mvs {
 namespace {
 
-
-std::string Format(const char* format, double a = 0, double b = 0, double c = 0, double d = 0,
-                   double e = 0, double f = 0) {
+std::string Format(const char* format, double a = 0, double b = 0, double c = 0, double d = 0, double e = 0,
+                   double f = 0) {
   char buffer[512];
   std::snprintf(buffer, sizeof(buffer), format, a, b, c, d, e, f);
   return buffer;
@@ -72,8 +71,7 @@ double Median(std::vector<double> values) {
 
 double Percentile(std::vector<double> values, double fraction) {
   if (values.empty()) return 0.0;
-  const size_t index = std::min(values.size() - 1,
-                                static_cast<size_t>(fraction * (values.size() - 1) + 0.5));
+  const size_t index = std::min(values.size() - 1, static_cast<size_t>(fraction * (values.size() - 1) + 0.5));
   std::nth_element(values.begin(), values.begin() + index, values.end());
   return values[index];
 }
@@ -87,11 +85,11 @@ double Percentile(std::vector<double> values, double fraction) {
 // scaled by 2^-10.
 struct LucasKanadeSettings {
   cv::Size window;
-  int max_level = 0;                  // 0-based: klt_levels - 1
+  int max_level = 0;  // 0-based: klt_levels - 1
   cv::TermCriteria criteria;
-  double min_eigen = 0.0;             // OpenCV's minEigThreshold
-  float max_error = 0.0f;             // mean |difference| (8-bit units) of a kept match
-  float margin = 0.0f;                // a tracked point keeps this far (px) from the border
+  double min_eigen = 0.0;  // OpenCV's minEigThreshold
+  float max_error = 0.0f;  // mean |difference| (8-bit units) of a kept match
+  float margin = 0.0f;     // a tracked point keeps this far (px) from the border
 };
 
 LucasKanadeSettings MakeLucasKanadeSettings(const InitializerOptions& options) {
@@ -138,9 +136,8 @@ bool GoodMatch(uchar status, float error, const cv::Point2f& point, const cv::Si
 // from each track's last velocity, a backward pass from the forward result,
 // and a forward-backward check. Tracks that survive get their point in t and
 // stay active.
-void FollowTracks(const std::vector<cv::Mat>& previous_pyramid,
-                  const std::vector<cv::Mat>& pyramid, const cv::Size& size,
-                  const LucasKanadeSettings& settings, double max_forward_backward_px,
+void FollowTracks(const std::vector<cv::Mat>& previous_pyramid, const std::vector<cv::Mat>& pyramid,
+                  const cv::Size& size, const LucasKanadeSettings& settings, double max_forward_backward_px,
                   std::vector<int>* active, std::vector<Track>* tracks) {
   if (active->empty()) return;
   const size_t count = active->size();
@@ -154,12 +151,12 @@ void FollowTracks(const std::vector<cv::Mat>& previous_pyramid,
   }
   std::vector<uchar> forward_status, backward_status;
   std::vector<float> forward_error, backward_error;
-  cv::calcOpticalFlowPyrLK(previous_pyramid, pyramid, from, forward, forward_status,
-                           forward_error, settings.window, settings.max_level, settings.criteria,
+  cv::calcOpticalFlowPyrLK(previous_pyramid, pyramid, from, forward, forward_status, forward_error,
+                           settings.window, settings.max_level, settings.criteria,
                            cv::OPTFLOW_USE_INITIAL_FLOW, settings.min_eigen);
   std::vector<cv::Point2f> backward = from;
-  cv::calcOpticalFlowPyrLK(pyramid, previous_pyramid, forward, backward, backward_status,
-                           backward_error, settings.window, settings.max_level, settings.criteria,
+  cv::calcOpticalFlowPyrLK(pyramid, previous_pyramid, forward, backward, backward_status, backward_error,
+                           settings.window, settings.max_level, settings.criteria,
                            cv::OPTFLOW_USE_INITIAL_FLOW, settings.min_eigen);
   const double max_squared = max_forward_backward_px * max_forward_backward_px;
   std::vector<int> still_active;
@@ -178,8 +175,8 @@ void FollowTracks(const std::vector<cv::Mat>& previous_pyramid,
 
 // Starts new tracks in frame t at Shi-Tomasi corners away from the active
 // ones, up to options.max_features active tracks.
-void DetectNewTracks(const cv::Mat& gray8, int t, const InitializerOptions& options,
-                     std::vector<int>* active, TrackingResult* result) {
+void DetectNewTracks(const cv::Mat& gray8, int t, const InitializerOptions& options, std::vector<int>* active,
+                     TrackingResult* result) {
   const float min_distance = static_cast<float>(options.min_feature_distance_px);
   cv::Mat mask(gray8.size(), CV_8UC1, cv::Scalar(255));
   for (int index : *active) {
@@ -225,8 +222,8 @@ TrackingResult TrackFeatures(const std::vector<cv::Mat>& gray, const Initializer
   std::vector<int> active;  // tracks that reached the current frame
   for (int t = 0; t < num_frames; ++t) {
     if (t > 0) {
-      FollowTracks(pyramids[t - 1], pyramids[t], gray[t].size(), settings,
-                   options.max_forward_backward_px, &active, &result.tracks);
+      FollowTracks(pyramids[t - 1], pyramids[t], gray[t].size(), settings, options.max_forward_backward_px,
+                   &active, &result.tracks);
     }
     result.alive[t] = static_cast<int>(active.size());
     if (t + 1 < num_frames) DetectNewTracks(gray8[t], t, options, &active, &result);
@@ -290,8 +287,7 @@ void ToOpenCv(const SE3& T_cam_world, cv::Mat* rvec, cv::Mat* tvec) {
 // Levenberg-Marquardt (dense Schur) on `threads` threads, silent, with the
 // bundle-adjustment iteration cap: the solver of the two-view refinement and
 // the bundle adjustment.
-ceres::Solver::Summary SolveQuietly(const InitializerOptions& options, int threads,
-                                    ceres::Problem* problem) {
+ceres::Solver::Summary SolveQuietly(const InitializerOptions& options, int threads, ceres::Problem* problem) {
   ceres::Solver::Options solver_options;
   solver_options.linear_solver_type = ceres::DENSE_SCHUR;
   solver_options.max_num_iterations = options.ba_max_iterations;
@@ -306,8 +302,7 @@ struct ReprojectionResidual {
   ReprojectionResidual(const cv::Point2f& observed, const PinholeCamera& camera)
       : u(observed.x), v(observed.y), fx(camera.fx), fy(camera.fy), cx(camera.cx), cy(camera.cy) {}
   template <typename T>
-  bool operator()(const T* rotation, const T* translation, const T* point_world,
-                  T* residual) const {
+  bool operator()(const T* rotation, const T* translation, const T* point_world, T* residual) const {
     T p[3];
     ceres::AngleAxisRotatePoint(rotation, point_world, p);
     for (int k = 0; k < 3; ++k) p[k] += translation[k];
@@ -369,13 +364,12 @@ struct SparseStructure {
   std::vector<std::string> log;
 };
 
-void TriangulateNewPoints(const PinholeCamera& camera, const InitializerOptions& options,
-                          int frame, const std::vector<char>& has_pose,
-                          std::vector<Track>* tracks, SparseStructure* structure) {
+void TriangulateNewPoints(const PinholeCamera& camera, const InitializerOptions& options, int frame,
+                          const std::vector<char>& has_pose, std::vector<Track>* tracks,
+                          SparseStructure* structure) {
   for (Track& track : *tracks) {
     if (track.point_id >= 0 || !track.Sees(frame) || track.first_frame >= frame) continue;
-    const SE3 T_b_a =
-        structure->T_cam_world[frame] * structure->T_cam_world[track.first_frame].Inverse();
+    const SE3 T_b_a = structure->T_cam_world[frame] * structure->T_cam_world[track.first_frame].Inverse();
     if (TranslationalParallax(camera, T_b_a, track.At(track.first_frame), track.At(frame)) <
         options.min_triangulation_parallax_px) {
       continue;
@@ -396,8 +390,7 @@ void TriangulateNewPoints(const PinholeCamera& camera, const InitializerOptions&
 }
 
 cv::Mat CameraMatrix(const PinholeCamera& camera) {
-  return (cv::Mat_<double>(3, 3) << camera.fx, 0.0, camera.cx, 0.0, camera.fy, camera.cy, 0.0,
-          0.0, 1.0);
+  return (cv::Mat_<double>(3, 3) << camera.fx, 0.0, camera.cx, 0.0, camera.fy, camera.cy, 0.0, 0.0, 1.0);
 }
 
 // Rotation-only fit of matched pixels (Kabsch on bearings, refit on the
@@ -424,10 +417,9 @@ double RotationFreeParallax(const PinholeCamera& camera, const std::vector<cv::P
     const Eigen::Matrix3d R = svd.matrixU() * D * svd.matrixV().transpose();  // b1 ~ R b0
     for (int k = 0; k < n; ++k) {
       const Eigen::Vector3d rotated = R * camera.Ray(points0[k].x, points0[k].y);
-      residuals[k] = rotated.z() > 1e-9 ? (camera.Project(rotated) -
-                                           Eigen::Vector2d(points1[k].x, points1[k].y))
-                                              .norm()
-                                        : 1e9;
+      residuals[k] = rotated.z() > 1e-9
+                         ? (camera.Project(rotated) - Eigen::Vector2d(points1[k].x, points1[k].y)).norm()
+                         : 1e9;
     }
     const double median = Median(residuals);
     for (int k = 0; k < n; ++k) use[k] = residuals[k] <= median;
@@ -439,13 +431,16 @@ double RotationFreeParallax(const PinholeCamera& camera, const std::vector<cv::P
 // pixel x0 of camera 0: p1 ~ R ray0 + rho t (no division by rho, so points
 // at infinity are fine).
 struct TwoViewResidual {
-  TwoViewResidual(const Eigen::Vector3d& ray0_in, const cv::Point2f& observed,
-                  const PinholeCamera& camera)
-      : ray0(ray0_in), u(observed.x), v(observed.y), fx(camera.fx), fy(camera.fy),
-        cx(camera.cx), cy(camera.cy) {}
+  TwoViewResidual(const Eigen::Vector3d& ray0_in, const cv::Point2f& observed, const PinholeCamera& camera)
+      : ray0(ray0_in),
+        u(observed.x),
+        v(observed.y),
+        fx(camera.fx),
+        fy(camera.fy),
+        cx(camera.cx),
+        cy(camera.cy) {}
   template <typename T>
-  bool operator()(const T* rotation, const T* translation, const T* inverse_depth,
-                  T* residual) const {
+  bool operator()(const T* rotation, const T* translation, const T* inverse_depth, T* residual) const {
     const T ray[3] = {T(ray0.x()), T(ray0.y()), T(ray0.z())};
     T p[3];
     ceres::AngleAxisRotatePoint(rotation, ray, p);
@@ -517,10 +512,10 @@ struct TwoViewSolution {
 // depth per match, Cauchy reprojection loss (tracks on occlusion edges are
 // gross outliers that a Huber loss lets pull the pose into the pan +
 // forward-motion basin) plus the rotation prior.
-TwoViewSolution RefineTwoView(const PinholeCamera& camera, const InitializerOptions& options,
-                              int threads, const std::vector<Eigen::Vector3d>& rays0,
-                              const std::vector<cv::Point2f>& points1,
-                              const Eigen::Matrix3d& R_start, const Eigen::Vector3d& t_start) {
+TwoViewSolution RefineTwoView(const PinholeCamera& camera, const InitializerOptions& options, int threads,
+                              const std::vector<Eigen::Vector3d>& rays0,
+                              const std::vector<cv::Point2f>& points1, const Eigen::Matrix3d& R_start,
+                              const Eigen::Vector3d& t_start) {
   TwoViewSolution solution;
   const Eigen::AngleAxisd angle_axis(R_start);
   solution.rotation = angle_axis.angle() * angle_axis.axis();
@@ -530,8 +525,7 @@ TwoViewSolution RefineTwoView(const PinholeCamera& camera, const InitializerOpti
   std::vector<double> positive;
   for (int k = 0; k < n; ++k) {
     const Eigen::Vector3d ray1 = camera.Ray(points1[k].x, points1[k].y);
-    solution.inverse_depth[k] =
-        TriangulateInverseDepth(R_start, solution.translation, rays0[k], ray1);
+    solution.inverse_depth[k] = TriangulateInverseDepth(R_start, solution.translation, rays0[k], ray1);
     if (solution.inverse_depth[k] > 0.0) positive.push_back(solution.inverse_depth[k]);
   }
   // Points that start behind camera 0 start at the median instead.
@@ -566,10 +560,8 @@ TwoViewSolution RefineTwoView(const PinholeCamera& camera, const InitializerOpti
 // matches fix it (t = n_i x n_j); RANSAC over such pairs, inliers within
 // `threshold_px` of their epipolar line, then least squares over the
 // inliers. The sign puts most points in front.
-Eigen::Vector3d PureTranslationEpipole(const PinholeCamera& camera,
-                                       const std::vector<cv::Point2f>& points0,
-                                       const std::vector<cv::Point2f>& points1,
-                                       double threshold_px) {
+Eigen::Vector3d PureTranslationEpipole(const PinholeCamera& camera, const std::vector<cv::Point2f>& points0,
+                                       const std::vector<cv::Point2f>& points1, double threshold_px) {
   const int n = static_cast<int>(points0.size());
   std::vector<Eigen::Vector3d> rays0(n), rays1(n), normals(n);
   for (int k = 0; k < n; ++k) {
@@ -652,9 +644,8 @@ EssentialStart EssentialMatrixStart(const PinholeCamera& camera, const Initializ
                                     const TwoViewMatches& matches) {
   const cv::Mat K = CameraMatrix(camera);
   cv::Mat inlier_mask;
-  cv::Mat E = cv::findEssentialMat(matches.points0, matches.points1, K, cv::RANSAC,
-                                   options.ransac_confidence, options.ransac_threshold_px,
-                                   inlier_mask);
+  cv::Mat E = cv::findEssentialMat(matches.points0, matches.points1, K, cv::RANSAC, options.ransac_confidence,
+                                   options.ransac_threshold_px, inlier_mask);
   if (E.rows > 3 && E.cols == 3) E = E.rowRange(0, 3).clone();  // ambiguous minimal sets
   if (E.rows != 3 || E.cols != 3) {
     throw InitializationError("initialisation: frames 0-1 give no essential matrix (" +
@@ -663,9 +654,8 @@ EssentialStart EssentialMatrixStart(const PinholeCamera& camera, const Initializ
   EssentialStart start;
   start.ransac_inliers = cv::countNonZero(inlier_mask);
   if (start.ransac_inliers < options.min_inliers) {
-    throw InitializationError("initialisation: frames 0-1: only " +
-                              std::to_string(start.ransac_inliers) + " of " +
-                              std::to_string(matches.Count()) +
+    throw InitializationError("initialisation: frames 0-1: only " + std::to_string(start.ransac_inliers) +
+                              " of " + std::to_string(matches.Count()) +
                               " matches consistent with one relative pose (need " +
                               std::to_string(options.min_inliers) + ")");
   }
@@ -689,15 +679,14 @@ double CheckTwoViewParallax(const PinholeCamera& camera, const InitializerOption
                             const TwoViewMatches& matches, const SE3& T_cam1_cam0) {
   std::vector<double> parallaxes;
   for (int k = 0; k < matches.Count(); ++k) {
-    parallaxes.push_back(
-        TranslationalParallax(camera, T_cam1_cam0, matches.points0[k], matches.points1[k]));
+    parallaxes.push_back(TranslationalParallax(camera, T_cam1_cam0, matches.points0[k], matches.points1[k]));
   }
   const double parallax = Median(parallaxes);
   if (parallax < options.min_parallax_px) {
-    throw InitializationError(Format(
-        "initialisation: frames 0-1 have too little parallax (median %.2f px not explained by "
-        "rotation, need %.2f px); the camera must translate between them",
-        parallax, options.min_parallax_px));
+    throw InitializationError(
+        Format("initialisation: frames 0-1 have too little parallax (median %.2f px not explained by "
+               "rotation, need %.2f px); the camera must translate between them",
+               parallax, options.min_parallax_px));
   }
   return parallax;
 }
@@ -734,8 +723,8 @@ int AddTwoViewPoints(const PinholeCamera& camera, const InitializerOptions& opti
 // constraint (x0 x x1) . t = 0. Both are refined (RefineTwoView) and the lower
 // final cost wins. Throws InitializationError with the reason when the pair
 // does not allow it.
-void TwoViewInitialisation(const PinholeCamera& camera, const InitializerOptions& options,
-                           int threads, std::vector<Track>* tracks, SparseStructure* structure) {
+void TwoViewInitialisation(const PinholeCamera& camera, const InitializerOptions& options, int threads,
+                           std::vector<Track>* tracks, SparseStructure* structure) {
   const TwoViewMatches matches = CollectTwoViewMatches(*tracks);
   const std::vector<cv::Point2f>& points0 = matches.points0;
   const std::vector<cv::Point2f>& points1 = matches.points1;
@@ -751,10 +740,10 @@ void TwoViewInitialisation(const PinholeCamera& camera, const InitializerOptions
   // nothing carries depth or scale.
   const double rotation_free_parallax = RotationFreeParallax(camera, points0, points1);
   if (rotation_free_parallax < options.min_rotation_free_parallax_px) {
-    throw InitializationError(Format(
-        "initialisation: frames 0-1 have no parallax: a rotation explains their motion to %.3f px "
-        "(need %.2f px); the camera must translate, not only rotate",
-        rotation_free_parallax, options.min_rotation_free_parallax_px));
+    throw InitializationError(
+        Format("initialisation: frames 0-1 have no parallax: a rotation explains their motion to %.3f px "
+               "(need %.2f px); the camera must translate, not only rotate",
+               rotation_free_parallax, options.min_rotation_free_parallax_px));
   }
   const EssentialStart essential = EssentialMatrixStart(camera, options, matches);
 
@@ -766,8 +755,8 @@ void TwoViewInitialisation(const PinholeCamera& camera, const InitializerOptions
       PureTranslationEpipole(camera, points0, points1, options.ransac_threshold_px);
   const TwoViewSolution from_essential =
       RefineTwoView(camera, options, threads, rays0, points1, essential.R, essential.t);
-  const TwoViewSolution from_translation = RefineTwoView(
-      camera, options, threads, rays0, points1, Eigen::Matrix3d::Identity(), t_translation);
+  const TwoViewSolution from_translation =
+      RefineTwoView(camera, options, threads, rays0, points1, Eigen::Matrix3d::Identity(), t_translation);
   const bool essential_wins = from_essential.cost <= from_translation.cost;
   const TwoViewSolution& best = essential_wins ? from_essential : from_translation;
 
@@ -775,23 +764,22 @@ void TwoViewInitialisation(const PinholeCamera& camera, const InitializerOptions
   structure->T_cam_world[0] = SE3();
   structure->T_cam_world[1] = SE3(RotationFromAngleAxis(best.rotation), best.translation.normalized());
   const double parallax = CheckTwoViewParallax(camera, options, matches, structure->T_cam_world[1]);
-  const int triangulated =
-      AddTwoViewPoints(camera, options, matches, rays0, best, tracks, structure);
+  const int triangulated = AddTwoViewPoints(camera, options, matches, rays0, best, tracks, structure);
   if (triangulated < options.min_inliers) {
     throw InitializationError("initialisation: only " + std::to_string(triangulated) +
                               " points of frames 0-1 triangulate in front of both cameras "
                               "(degenerate geometry)");
   }
-  structure->log.push_back(Format(
-      "two-view 0-1: %.0f matches, %.0f RANSAC inliers, %.0f pass cheirality, parallax %.2f px "
-      "(%.2f px not explained by any rotation), %.0f points",
-      count, essential.ransac_inliers, essential.pose_inliers, parallax, rotation_free_parallax,
-      triangulated));
-  structure->log.push_back(Format(
-      "two-view 0-1: refined cost from E %.4g (rotation %.3f deg), from pure translation %.4g "
-      "(rotation %.3f deg)",
-      from_essential.cost, from_essential.rotation.norm() * 180.0 / M_PI, from_translation.cost,
-      from_translation.rotation.norm() * 180.0 / M_PI));
+  structure->log.push_back(
+      Format("two-view 0-1: %.0f matches, %.0f RANSAC inliers, %.0f pass cheirality, parallax %.2f px "
+             "(%.2f px not explained by any rotation), %.0f points",
+             count, essential.ransac_inliers, essential.pose_inliers, parallax, rotation_free_parallax,
+             triangulated));
+  structure->log.push_back(
+      Format("two-view 0-1: refined cost from E %.4g (rotation %.3f deg), from pure translation %.4g "
+             "(rotation %.3f deg)",
+             from_essential.cost, from_essential.rotation.norm() * 180.0 / M_PI, from_translation.cost,
+             from_translation.rotation.norm() * 180.0 / M_PI));
 }
 
 // Camera pose of `frame` from its 2D-3D correspondences (PnP, RANSAC), started
@@ -805,8 +793,7 @@ void LocaliseFrame(const PinholeCamera& camera, const InitializerOptions& option
       continue;
     }
     const Eigen::Vector3d& p = structure->points_world[track.point_id];
-    object.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()),
-                        static_cast<float>(p.z()));
+    object.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
     image.push_back(track.At(frame));
   }
   if (static_cast<int>(object.size()) < options.min_pnp_inliers) {
@@ -820,15 +807,14 @@ void LocaliseFrame(const PinholeCamera& camera, const InitializerOptions& option
   cv::Mat rvec, tvec;
   ToOpenCv(predicted, &rvec, &tvec);
   std::vector<int> inliers;
-  const bool ok = cv::solvePnPRansac(object, image, CameraMatrix(camera), cv::noArray(), rvec,
-                                     tvec, /*useExtrinsicGuess=*/true, 200,
-                                     static_cast<float>(options.pnp_threshold_px),
-                                     options.ransac_confidence, inliers, cv::SOLVEPNP_ITERATIVE);
+  const bool ok =
+      cv::solvePnPRansac(object, image, CameraMatrix(camera), cv::noArray(), rvec, tvec,
+                         /*useExtrinsicGuess=*/true, 200, static_cast<float>(options.pnp_threshold_px),
+                         options.ransac_confidence, inliers, cv::SOLVEPNP_ITERATIVE);
   if (!ok || static_cast<int>(inliers.size()) < options.min_pnp_inliers) {
     throw InitializationError("initialisation: frame " + std::to_string(frame) + ": PnP found " +
-                              std::to_string(inliers.size()) + " of " +
-                              std::to_string(object.size()) + " inliers (need " +
-                              std::to_string(options.min_pnp_inliers) + ")");
+                              std::to_string(inliers.size()) + " of " + std::to_string(object.size()) +
+                              " inliers (need " + std::to_string(options.min_pnp_inliers) + ")");
   }
   std::vector<cv::Point3f> object_inliers;
   std::vector<cv::Point2f> image_inliers;
@@ -836,35 +822,33 @@ void LocaliseFrame(const PinholeCamera& camera, const InitializerOptions& option
     object_inliers.push_back(object[index]);
     image_inliers.push_back(image[index]);
   }
-  cv::solvePnPRefineLM(object_inliers, image_inliers, CameraMatrix(camera), cv::noArray(), rvec,
-                       tvec);
+  cv::solvePnPRefineLM(object_inliers, image_inliers, CameraMatrix(camera), cv::noArray(), rvec, tvec);
   structure->T_cam_world[frame] = FromOpenCv(rvec, tvec);
-  structure->log.push_back(Format("pnp frame %.0f: %.0f of %.0f inliers", frame, inliers.size(),
-                                  object.size()));
+  structure->log.push_back(
+      Format("pnp frame %.0f: %.0f of %.0f inliers", frame, inliers.size(), object.size()));
 }
 
 // Adds the reprojection residuals of every observation of an inlier point to
 // `problem`; from round 1 on, observations beyond `outlier_px` stay out.
 // Returns how many were added.
 int AddReprojectionResiduals(const PinholeCamera& camera, const InitializerOptions& options,
-                             const std::vector<Track>& tracks, const SparseStructure& structure,
-                             int round, std::vector<PoseParameters>* poses,
-                             std::vector<std::array<double, 3>>* points, ceres::Problem* problem) {
+                             const std::vector<Track>& tracks, const SparseStructure& structure, int round,
+                             std::vector<PoseParameters>* poses, std::vector<std::array<double, 3>>* points,
+                             ceres::Problem* problem) {
   const double outlier_px = options.pnp_threshold_px;
   int observations = 0;
   for (const Track& track : tracks) {
     if (track.point_id < 0 || !structure.point_inlier[track.point_id]) continue;
     double* point = (*points)[track.point_id].data();
     for (int f = track.first_frame; f <= track.LastFrame(); ++f) {
-      if (round > 0 && ReprojectionError(camera, FromParameters((*poses)[f]),
-                                         Eigen::Vector3d(point), track.At(f)) > outlier_px) {
+      if (round > 0 && ReprojectionError(camera, FromParameters((*poses)[f]), Eigen::Vector3d(point),
+                                         track.At(f)) > outlier_px) {
         continue;
       }
-      problem->AddResidualBlock(
-          new ceres::AutoDiffCostFunction<ReprojectionResidual, 2, 3, 3, 3>(
-              new ReprojectionResidual(track.At(f), camera)),
-          new ceres::CauchyLoss(options.ba_loss_px), (*poses)[f].rotation,
-          (*poses)[f].translation, point);
+      problem->AddResidualBlock(new ceres::AutoDiffCostFunction<ReprojectionResidual, 2, 3, 3, 3>(
+                                    new ReprojectionResidual(track.At(f), camera)),
+                                new ceres::CauchyLoss(options.ba_loss_px), (*poses)[f].rotation,
+                                (*poses)[f].translation, point);
       ++observations;
     }
   }
@@ -882,8 +866,7 @@ double InlierRms(const PinholeCamera& camera, const std::vector<Track>& tracks,
     if (track.point_id < 0 || !structure.point_inlier[track.point_id]) continue;
     for (int f = track.first_frame; f <= track.LastFrame(); ++f) {
       const double error = ReprojectionError(camera, FromParameters(poses[f]),
-                                             Eigen::Vector3d(points[track.point_id].data()),
-                                             track.At(f));
+                                             Eigen::Vector3d(points[track.point_id].data()), track.At(f));
       if (error <= outlier_px) {
         squares += error * error;
         ++inliers;
@@ -899,8 +882,7 @@ double InlierRms(const PinholeCamera& camera, const std::vector<Track>& tracks,
 // beyond the outlier threshold in between. Returns the RMS reprojection error
 // (px) of the observations within the threshold.
 double BundleAdjust(const PinholeCamera& camera, const InitializerOptions& options, int threads,
-                    const std::vector<Track>& tracks, SparseStructure* structure,
-                    int* num_observations) {
+                    const std::vector<Track>& tracks, SparseStructure* structure, int* num_observations) {
   const int num_frames = static_cast<int>(structure->T_cam_world.size());
   std::vector<PoseParameters> poses(num_frames);
   for (int t = 0; t < num_frames; ++t) poses[t] = ToParameters(structure->T_cam_world[t]);
@@ -912,8 +894,8 @@ double BundleAdjust(const PinholeCamera& camera, const InitializerOptions& optio
   double rms = 0.0;
   for (int round = 0; round < 2; ++round) {
     ceres::Problem problem;
-    const int observations = AddReprojectionResiduals(camera, options, tracks, *structure, round,
-                                                      &poses, &points, &problem);
+    const int observations =
+        AddReprojectionResiduals(camera, options, tracks, *structure, round, &poses, &points, &problem);
     if (problem.NumResidualBlocks() == 0) break;
     for (int t = 1; t < num_frames; ++t) {
       problem.AddResidualBlock(new ceres::AutoDiffCostFunction<RotationPrior, 3, 3, 3>(
@@ -964,7 +946,7 @@ struct NeighbourImages {
 
 // Per-thread buffers of the sweep and the TV-L1 solver, reused across frames.
 struct DepthWorkspace {
-  std::vector<float> cost;        // pixel-major: cost[pixel * planes + plane]
+  std::vector<float> cost;         // pixel-major: cost[pixel * planes + plane]
   std::vector<float> plane_depth;  // depth of one hypothesis per pixel
   std::vector<float> difference;   // per neighbour, one plane
   std::vector<float> row;          // warped coordinates of one row
@@ -976,8 +958,7 @@ struct DepthWorkspace {
 };
 
 // Sum over a (2r+1)^2 window, separable, zero outside the image.
-void BoxSum(const float* in, int width, int height, int radius, std::vector<float>* row_buffer,
-            float* out) {
+void BoxSum(const float* in, int width, int height, int radius, std::vector<float>* row_buffer, float* out) {
   row_buffer->resize(static_cast<size_t>(width) * height);
   float* rows = row_buffer->data();
   for (int y = 0; y < height; ++y) {
@@ -1018,9 +999,7 @@ struct PlaneSet {
   const std::vector<float>* base = nullptr;
   double rho_min = 0.0;
   double rho_max = 1.0;
-  float U(int pixel, int plane) const {
-    return (*base)[pixel] + (static_cast<float>(plane) - centre) * step;
-  }
+  float U(int pixel, int plane) const { return (*base)[pixel] + (static_cast<float>(plane) - centre) * step; }
   double Rho(float u) const { return rho_min + u * (rho_max - rho_min); }
 };
 
@@ -1065,8 +1044,8 @@ void PlaneDifferences(const NeighbourImages& neighbour, const float* depth, int 
       const float vs = (d * (to_source.h[3] * xf + base_src[1]) + to_source.t[1]) * inv_zs;
       const float ur = (d * (to_reference.h[0] * xf + base_ref[0]) + to_reference.t[0]) * inv_zr;
       const float vr = (d * (to_reference.h[3] * xf + base_ref[1]) + to_reference.t[1]) * inv_zr;
-      const bool ok = (d > 0.0f) & (zs > 1e-9f) & (zr > 1e-9f) & (us >= 0.0f) & (vs >= 0.0f) &
-                      (us <= max_x) & (vs <= max_y);
+      const bool ok = (d > 0.0f) & (zs > 1e-9f) & (zr > 1e-9f) & (us >= 0.0f) & (vs >= 0.0f) & (us <= max_x) &
+                      (vs <= max_y);
       valid_row[x] = ok ? 1.0f : 0.0f;
       su[x] = ok ? us : 0.0f;
       sv[x] = ok ? vs : 0.0f;
@@ -1101,8 +1080,7 @@ void PlaneDifferences(const NeighbourImages& neighbour, const float* depth, int 
 // noise), truncated at `truncation` (occlusions), then averaged over the
 // neighbours that see the pixel. No neighbour: `truncation`.
 void ComputeCostVolume(const std::vector<NeighbourImages>& neighbours, const PlaneSet& planes,
-                       const InitializerOptions& options, int width, int height,
-                       DepthWorkspace* ws) {
+                       const InitializerOptions& options, int width, int height, DepthWorkspace* ws) {
   const int pixels = width * height;
   const int num_neighbours = static_cast<int>(neighbours.size());
   const int radius = options.patch_radius_px;
@@ -1143,8 +1121,7 @@ void ComputeCostVolume(const std::vector<NeighbourImages>& neighbours, const Pla
     }
     for (int pixel = 0; pixel < pixels; ++pixel) {
       if (ws->weight[pixel] > 0.0f) {
-        ws->cost[static_cast<size_t>(pixel) * planes.planes + plane] =
-            ws->sum[pixel] / ws->weight[pixel];
+        ws->cost[static_cast<size_t>(pixel) * planes.planes + plane] = ws->sum[pixel] / ws->weight[pixel];
       }
     }
   }
@@ -1185,7 +1162,7 @@ void InitialiseTvL1(const PlaneSet& planes, int pixels, const std::vector<float>
 
 // Primal-dual step sizes of the ROF coupling, sigma * tau * ||grad||^2 <= 1
 // (||grad||^2 <= 8).
-constexpr float kDualStep = 0.5f;    // sigma
+constexpr float kDualStep = 0.5f;     // sigma
 constexpr float kPrimalStep = 0.25f;  // tau
 
 // One primal-dual step of the ROF coupling (Chambolle-Pock): dual ascent on
@@ -1218,11 +1195,9 @@ void RofStep(int width, int height, float theta, DepthWorkspace* ws) {
       const int pixel = y * width + x;
       float divergence = 0.0f;
       divergence += (x + 1 < width ? ws->px[pixel] : 0.0f) - (x > 0 ? ws->px[pixel - 1] : 0.0f);
-      divergence +=
-          (y + 1 < height ? ws->py[pixel] : 0.0f) - (y > 0 ? ws->py[pixel - width] : 0.0f);
+      divergence += (y + 1 < height ? ws->py[pixel] : 0.0f) - (y > 0 ? ws->py[pixel - width] : 0.0f);
       const float previous = ws->u[pixel];
-      const float updated =
-          (previous + tau * (divergence + ws->a[pixel] / theta)) / (1.0f + tau / theta);
+      const float updated = (previous + tau * (divergence + ws->a[pixel] / theta)) / (1.0f + tau / theta);
       ws->u[pixel] = updated;
       ws->u_bar[pixel] = 2.0f * updated - previous;
     }
@@ -1234,8 +1209,7 @@ void RofStep(int width, int height, float theta, DepthWorkspace* ws) {
 // cost range can win, which bounds the search window. On the `last`
 // alternation a is refined below the plane spacing: the vertex of the
 // parabola through the neighbouring total energies.
-void UpdateAuxiliary(const PlaneSet& planes, int pixels, float theta, bool last,
-                     DepthWorkspace* ws) {
+void UpdateAuxiliary(const PlaneSet& planes, int pixels, float theta, bool last, DepthWorkspace* ws) {
   const int L = planes.planes;
   const float* cost = ws->cost.data();
   const float inv_step = 1.0f / planes.step;
@@ -1281,9 +1255,9 @@ void UpdateAuxiliary(const PlaneSet& planes, int pixels, float theta, bool last,
 // steps), a a point-wise search; theta decreases geometrically. The last a is
 // refined below the plane spacing by a parabola through the neighbouring
 // costs. Returns u in ws->u.
-void SolveTvL1(const PlaneSet& planes, const cv::Mat& edge_weight,
-               const InitializerOptions& options, int width, int height, double theta_start,
-               double theta_end, const std::vector<float>* u_init, DepthWorkspace* ws) {
+void SolveTvL1(const PlaneSet& planes, const cv::Mat& edge_weight, const InitializerOptions& options,
+               int width, int height, double theta_start, double theta_end, const std::vector<float>* u_init,
+               DepthWorkspace* ws) {
   const int pixels = width * height;
   InitialiseTvL1(planes, pixels, u_init, ws);
   const float tv_weight = static_cast<float>(options.depth_tv_weight);
@@ -1296,8 +1270,7 @@ void SolveTvL1(const PlaneSet& planes, const cv::Mat& edge_weight,
   const int iterations = std::max(2, options.tv_iterations);
   for (int iteration = 0; iteration < iterations; ++iteration) {
     const double progress = static_cast<double>(iteration) / (iterations - 1);
-    const float theta =
-        static_cast<float>(theta_start * std::pow(theta_end / theta_start, progress));
+    const float theta = static_cast<float>(theta_start * std::pow(theta_end / theta_start, progress));
     RofStep(width, height, theta, ws);
     UpdateAuxiliary(planes, pixels, theta, iteration + 1 == iterations, ws);
   }
@@ -1335,8 +1308,7 @@ void BuildBlurredPairs(const std::vector<cv::Mat>& images, const PinholeCamera& 
     geometry.camera_hr = camera;
     geometry.depth_hr = depth[frame];
     geometry.T_world_cam = T_world_cam[frame];
-    geometry.T_world_neighbour =
-        T_world_cam[frame] * T_world_cam[kernel_frame].Inverse() * T_world_cam[n];
+    geometry.T_world_neighbour = T_world_cam[frame] * T_world_cam[kernel_frame].Inverse() * T_world_cam[n];
     geometry.stamp = frames[frame].stamp;
     geometry.neighbour_stamp = frames[frame].stamp + (frames[n].stamp - frames[kernel_frame].stamp);
     geometry.exposure = frames[kernel_frame].exposure;
@@ -1377,10 +1349,10 @@ void BuildBlurredPairs(const std::vector<cv::Mat>& images, const PinholeCamera& 
       const SE3 A_s = T_world_cam[s].Inverse() * T_world_mid[s];
       const SE3 T_world_ref = options.blur_aware ? T_world_cam[t] * A_s * A_t : T_world_mid[t];
       const SE3 T_world_src = options.blur_aware ? T_world_cam[s] * A_t * A_s : T_world_mid[s];
-      neighbour.to_reference = std::make_unique<PixelTransferF>(
-          PixelTransfer(camera, T_world_ref.Inverse() * T_world_cam[t]));
-      neighbour.to_source = std::make_unique<PixelTransferF>(
-          PixelTransfer(camera, T_world_src.Inverse() * T_world_cam[t]));
+      neighbour.to_reference =
+          std::make_unique<PixelTransferF>(PixelTransfer(camera, T_world_ref.Inverse() * T_world_cam[t]));
+      neighbour.to_source =
+          std::make_unique<PixelTransferF>(PixelTransfer(camera, T_world_src.Inverse() * T_world_cam[t]));
       (*pairs)[t].push_back(std::move(neighbour));
     }
   }
@@ -1395,8 +1367,8 @@ int PyramidLevels(int width, int height, int wanted) {
 }
 
 // Depth (1 / rho) of a normalised inverse-depth map; NaN where rho <= 0.
-void InverseDepthToDepth(const std::vector<float>& u, int width, int height, double rho_min,
-                         double rho_max, cv::Mat* depth) {
+void InverseDepthToDepth(const std::vector<float>& u, int width, int height, double rho_min, double rho_max,
+                         cv::Mat* depth) {
   depth->create(height, width, CV_32FC1);
   for (int y = 0; y < height; ++y) {
     float* row = depth->ptr<float>(y);
@@ -1410,16 +1382,15 @@ void InverseDepthToDepth(const std::vector<float>& u, int width, int height, dou
 // u of the previous (half-size) pass up-sampled to width x height: bilinear
 // with the pixel-centre rule of docs/file_formats.md#scaling-rule (cv::resize follows it), the odd last
 // column / row replicated; *depth follows.
-void UpsampleInverseDepth(int width, int height, double rho_min, double rho_max,
-                          std::vector<float>* u, cv::Mat* depth) {
+void UpsampleInverseDepth(int width, int height, double rho_min, double rho_max, std::vector<float>* u,
+                          cv::Mat* depth) {
   const int coarse_width = depth->cols;
   const int coarse_height = depth->rows;
   const cv::Mat coarse(coarse_height, coarse_width, CV_32FC1, u->data());
   cv::Mat fine;
   cv::resize(coarse, fine, cv::Size(2 * coarse_width, 2 * coarse_height), 0, 0, cv::INTER_LINEAR);
   if (fine.cols != width || fine.rows != height) {
-    cv::copyMakeBorder(fine.clone(), fine, 0, height - fine.rows, 0, width - fine.cols,
-                       cv::BORDER_REPLICATE);
+    cv::copyMakeBorder(fine.clone(), fine, 0, height - fine.rows, 0, width - fine.cols, cv::BORDER_REPLICATE);
   }
   u->assign(fine.begin<float>(), fine.end<float>());
   InverseDepthToDepth(*u, width, height, rho_min, rho_max, depth);
@@ -1475,8 +1446,7 @@ namespace {
 // Throws InputError unless the options, the camera, the images and the frame
 // records fit together.
 void CheckInitializerInputs(const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
-                            const std::vector<FrameRecord>& frames,
-                            const InitializerOptions& options) {
+                            const std::vector<FrameRecord>& frames, const InitializerOptions& options) {
   options.Check();
   {
     const std::string problem = camera_lr.Problem();
@@ -1492,9 +1462,9 @@ void CheckInitializerInputs(const std::vector<cv::Mat>& images_lr, const Pinhole
   }
   for (int t = 0; t < num_frames; ++t) {
     const cv::Mat& image = images_lr[t];
-    if (image.empty() || image.depth() != CV_32F ||
-        (image.channels() != 1 && image.channels() != 3) || image.cols != camera_lr.width ||
-        image.rows != camera_lr.height || image.channels() != images_lr[0].channels()) {
+    if (image.empty() || image.depth() != CV_32F || (image.channels() != 1 && image.channels() != 3) ||
+        image.cols != camera_lr.width || image.rows != camera_lr.height ||
+        image.channels() != images_lr[0].channels()) {
       throw InputError("initializer: image " + std::to_string(t) + " must be float " +
                        std::to_string(camera_lr.width) + "x" + std::to_string(camera_lr.height) +
                        " with 1 or 3 channels, like image 0");
@@ -1510,29 +1480,28 @@ void CheckInitializerInputs(const std::vector<cv::Mat>& images_lr, const Pinhole
 }
 
 // Stage 1: the tracks; throws when frame 0 has too few corners.
-TrackingResult TrackStage(const std::vector<cv::Mat>& gray, const InitializerOptions& options,
-                          int threads, std::ostringstream* summary) {
+TrackingResult TrackStage(const std::vector<cv::Mat>& gray, const InitializerOptions& options, int threads,
+                          std::ostringstream* summary) {
   const int num_frames = static_cast<int>(gray.size());
   const double stage_ms = NowMs();
   TrackingResult tracking = TrackFeatures(gray, options, threads);
   if (tracking.detected[0] < options.min_inliers) {
     throw InitializationError("initialisation: only " + std::to_string(tracking.detected[0]) +
-                              " features found in frame 0 (need " +
-                              std::to_string(options.min_inliers) +
+                              " features found in frame 0 (need " + std::to_string(options.min_inliers) +
                               "); is the image blank or untextured?");
   }
-  *summary << Format("tracking: %.0f tracks, %.0f in frame 0, %.0f followed into frame 1, %.0f into "
-                     "the last frame; %.1f ms\n",
-                     tracking.tracks.size(), tracking.detected[0], tracking.alive[1],
-                     tracking.alive[num_frames - 1], NowMs() - stage_ms);
+  *summary << Format(
+      "tracking: %.0f tracks, %.0f in frame 0, %.0f followed into frame 1, %.0f into "
+      "the last frame; %.1f ms\n",
+      tracking.tracks.size(), tracking.detected[0], tracking.alive[1], tracking.alive[num_frames - 1],
+      NowMs() - stage_ms);
   return tracking;
 }
 
 // Stages 2-3: frames 0-1, then every later frame by PnP, then all together.
 // The poses are those of mid-exposure (T_cam_world), camera 0 the world.
-SparseStructure SparseStage(const PinholeCamera& camera_lr, const InitializerOptions& options,
-                            int threads, int num_frames, std::vector<Track>* tracks,
-                            std::ostringstream* summary) {
+SparseStructure SparseStage(const PinholeCamera& camera_lr, const InitializerOptions& options, int threads,
+                            int num_frames, std::vector<Track>* tracks, std::ostringstream* summary) {
   double stage_ms = NowMs();
   SparseStructure structure;
   structure.T_cam_world.assign(num_frames, SE3());
@@ -1580,8 +1549,9 @@ void MoveToShutterClose(const std::vector<FrameRecord>& frames, SparseStructure*
   const SE3 T_new_old = (*T_world_cam)[0].Inverse();
   const double baseline = ((*T_world_cam)[1].translation() - (*T_world_cam)[0].translation()).norm();
   if (!(baseline > 1e-9)) {
-    throw InitializationError("initialisation: frames 0-1 collapsed onto one centre "
-                              "(degenerate geometry)");
+    throw InitializationError(
+        "initialisation: frames 0-1 collapsed onto one centre "
+        "(degenerate geometry)");
   }
   auto normalise = [&](const SE3& T_old_cam) {
     const SE3 T = T_new_old * T_old_cam;
@@ -1592,12 +1562,11 @@ void MoveToShutterClose(const std::vector<FrameRecord>& frames, SparseStructure*
     (*T_world_mid)[t] = normalise((*T_world_mid)[t]);
   }
   for (auto& point : structure->points_world) point = (T_new_old * point) / baseline;
-  *summary << Format("poses moved from mid-exposure to shutter close: %.3f (frame 0), %.3f (last) "
-                     "baselines\n",
-                     ((*T_world_mid)[0].translation() - (*T_world_cam)[0].translation()).norm(),
-                     ((*T_world_mid)[num_frames - 1].translation() -
-                      (*T_world_cam)[num_frames - 1].translation())
-                         .norm());
+  *summary << Format(
+      "poses moved from mid-exposure to shutter close: %.3f (frame 0), %.3f (last) "
+      "baselines\n",
+      ((*T_world_mid)[0].translation() - (*T_world_cam)[0].translation()).norm(),
+      ((*T_world_mid)[num_frames - 1].translation() - (*T_world_cam)[num_frames - 1].translation()).norm());
 }
 
 // Inverse-depth range of each frame's sweep and its median depth (the start
@@ -1607,8 +1576,7 @@ struct DepthRanges {
 };
 
 DepthRanges ComputeDepthRanges(const std::vector<Track>& tracks, const SparseStructure& structure,
-                               const std::vector<SE3>& T_world_cam,
-                               const InitializerOptions& options) {
+                               const std::vector<SE3>& T_world_cam, const InitializerOptions& options) {
   const int num_frames = static_cast<int>(T_world_cam.size());
   DepthRanges ranges;
   ranges.rho_min.resize(num_frames);
@@ -1627,8 +1595,9 @@ DepthRanges ComputeDepthRanges(const std::vector<Track>& tracks, const SparseStr
     }
   }
   if (all_depths.size() < 8) {
-    throw InitializationError("initialisation: too few triangulated points in front of the "
-                              "cameras (degenerate geometry)");
+    throw InitializationError(
+        "initialisation: too few triangulated points in front of the "
+        "cameras (degenerate geometry)");
   }
   for (int t = 0; t < num_frames; ++t) {
     const std::vector<double>& depths = frame_depths[t].size() >= 8 ? frame_depths[t] : all_depths;
@@ -1637,8 +1606,8 @@ DepthRanges ComputeDepthRanges(const std::vector<Track>& tracks, const SparseStr
     ranges.median_depth[t] = Median(depths);
     const double rho_near = 1.0 / near, rho_far = 1.0 / far;
     // At least +-10 % of the median: a near-planar scene still gets a range.
-    const double margin = std::max(options.depth_range_margin * (rho_near - rho_far),
-                                   0.1 / ranges.median_depth[t]);
+    const double margin =
+        std::max(options.depth_range_margin * (rho_near - rho_far), 0.1 / ranges.median_depth[t]);
     ranges.rho_max[t] = rho_near + margin;
     ranges.rho_min[t] = std::max(rho_far - margin, 0.5 * rho_far);
   }
@@ -1656,15 +1625,15 @@ struct DepthLevel {
   std::vector<cv::Mat> images, edge_weight;
 };
 
-DepthLevel MakeDepthLevel(const std::vector<cv::Mat>& images, const PinholeCamera& camera_lr,
-                          int factor, const InitializerOptions& options) {
+DepthLevel MakeDepthLevel(const std::vector<cv::Mat>& images, const PinholeCamera& camera_lr, int factor,
+                          const InitializerOptions& options) {
   const int num_frames = static_cast<int>(images.size());
   DepthLevel level;
   level.factor = factor;
   level.width = camera_lr.width / factor;
   level.height = camera_lr.height / factor;
-  level.camera = PinholeCamera(level.width * factor, level.height * factor, camera_lr.fx,
-                               camera_lr.fy, camera_lr.cx, camera_lr.cy)
+  level.camera = PinholeCamera(level.width * factor, level.height * factor, camera_lr.fx, camera_lr.fy,
+                               camera_lr.cx, camera_lr.cy)
                      .Downscaled(factor);
   level.images.resize(num_frames);
   level.edge_weight.resize(num_frames);
@@ -1687,9 +1656,8 @@ struct DepthTimings {
 // are read as the previous estimate and replaced.
 void DepthPass(const DepthLevel& level, int pass, double span,
                const std::vector<std::vector<NeighbourImages>>& pairs, const DepthRanges& ranges,
-               const InitializerOptions& options, int threads,
-               std::vector<DepthWorkspace>* workspaces, std::vector<std::vector<float>>* u,
-               std::vector<cv::Mat>* depth, DepthTimings* timings) {
+               const InitializerOptions& options, int threads, std::vector<DepthWorkspace>* workspaces,
+               std::vector<std::vector<float>>* u, std::vector<cv::Mat>* depth, DepthTimings* timings) {
   const int num_frames = static_cast<int>(depth->size());
   const std::vector<float> zero_base(static_cast<size_t>(level.width) * level.height, 0.0f);
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
@@ -1733,11 +1701,9 @@ void DepthPass(const DepthLevel& level, int pass, double span,
 // the depths so far (Psi depends on D_t) and sweeps a narrow band around the
 // up-sampled estimate. Returns the LR depth maps of the input size.
 std::vector<cv::Mat> DepthStage(const std::vector<cv::Mat>& images, const PinholeCamera& camera_lr,
-                                const std::vector<FrameRecord>& frames,
-                                const std::vector<SE3>& T_world_cam,
+                                const std::vector<FrameRecord>& frames, const std::vector<SE3>& T_world_cam,
                                 const std::vector<SE3>& T_world_mid, const DepthRanges& ranges,
-                                const InitializerOptions& options, int threads,
-                                std::ostringstream* summary) {
+                                const InitializerOptions& options, int threads, std::ostringstream* summary) {
   const int num_frames = static_cast<int>(images.size());
   const int width = camera_lr.width;
   const int height = camera_lr.height;
@@ -1749,8 +1715,7 @@ std::vector<cv::Mat> DepthStage(const std::vector<cv::Mat>& images, const Pinhol
   std::vector<DepthWorkspace> workspaces(threads);
   double span = 1.0;  // u-range covered by a pass's hypotheses
   for (int pass = 0; pass < num_levels; ++pass) {
-    const DepthLevel level =
-        MakeDepthLevel(images, camera_lr, 1 << (num_levels - 1 - pass), options);
+    const DepthLevel level = MakeDepthLevel(images, camera_lr, 1 << (num_levels - 1 - pass), options);
     for (int t = 0; t < num_frames; ++t) {
       if (pass == 0) {
         u[t].clear();
@@ -1762,32 +1727,32 @@ std::vector<cv::Mat> DepthStage(const std::vector<cv::Mat>& images, const Pinhol
       }
     }
     double stage_ms = NowMs();
-    BuildBlurredPairs(level.images, level.camera, frames, T_world_cam, T_world_mid, depth, options,
-                      threads, &pairs);
+    BuildBlurredPairs(level.images, level.camera, frames, T_world_cam, T_world_mid, depth, options, threads,
+                      &pairs);
     timings.blur_ms += NowMs() - stage_ms;
     stage_ms = NowMs();
     if (pass > 0) {
-      span = 2.0 * options.refine_band * span /
-             ((pass == 1 ? options.num_planes : options.refine_planes) - 1);
+      span =
+          2.0 * options.refine_band * span / ((pass == 1 ? options.num_planes : options.refine_planes) - 1);
     }
     DepthPass(level, pass, span, pairs, ranges, options, threads, &workspaces, &u, &depth, &timings);
     timings.sweep_ms += NowMs() - stage_ms;
-    *summary << Format("depth pass %.0f: %.0fx%.0f px, %.0f hypotheses over %.4f of the "
-                       "inverse-depth range\n",
-                       pass, level.width, level.height,
-                       pass == 0 ? options.num_planes : options.refine_planes, span);
+    *summary << Format(
+        "depth pass %.0f: %.0fx%.0f px, %.0f hypotheses over %.4f of the "
+        "inverse-depth range\n",
+        pass, level.width, level.height, pass == 0 ? options.num_planes : options.refine_planes, span);
   }
   // The finest pass may have dropped an odd last column / row: replicate.
   for (int t = 0; t < num_frames; ++t) {
     if (depth[t].cols != width || depth[t].rows != height) {
-      cv::copyMakeBorder(depth[t].clone(), depth[t], 0, height - depth[t].rows, 0,
-                         width - depth[t].cols, cv::BORDER_REPLICATE);
+      cv::copyMakeBorder(depth[t].clone(), depth[t], 0, height - depth[t].rows, 0, width - depth[t].cols,
+                         cv::BORDER_REPLICATE);
     }
   }
-  *summary << Format("depth: blur-aware pairs %.1f ms, sweep + TV-L1 %.1f ms (thread time: cost "
-                     "volumes %.1f ms, TV-L1 %.1f ms)\n",
-                     timings.blur_ms, timings.sweep_ms, timings.cost_thread_ms,
-                     timings.tv_thread_ms);
+  *summary << Format(
+      "depth: blur-aware pairs %.1f ms, sweep + TV-L1 %.1f ms (thread time: cost "
+      "volumes %.1f ms, TV-L1 %.1f ms)\n",
+      timings.blur_ms, timings.sweep_ms, timings.cost_thread_ms, timings.tv_thread_ms);
   return depth;
 }
 
@@ -1817,10 +1782,9 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
       SparseStage(camera_lr, options, threads, num_frames, &tracking.tracks, &summary);
   std::vector<SE3> T_world_mid;
   MoveToShutterClose(frames, &structure, &result.T_world_cam, &T_world_mid, &summary);
-  const DepthRanges ranges =
-      ComputeDepthRanges(tracking.tracks, structure, result.T_world_cam, options);
-  result.depth_lr = DepthStage(images, camera_lr, frames, result.T_world_cam, T_world_mid, ranges,
-                               options, threads, &summary);
+  const DepthRanges ranges = ComputeDepthRanges(tracking.tracks, structure, result.T_world_cam, options);
+  result.depth_lr = DepthStage(images, camera_lr, frames, result.T_world_cam, T_world_mid, ranges, options,
+                               threads, &summary);
   summary << Format("total: %.1f ms", NowMs() - start_ms);
   result.summary = summary.str();
   return result;
@@ -1828,8 +1792,7 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
 
 }  // namespace
 
-InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr,
-                                     const PinholeCamera& camera_lr,
+InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
                                      const std::vector<FrameRecord>& frames,
                                      const InitializerOptions& options) {
   try {

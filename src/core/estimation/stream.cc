@@ -19,14 +19,18 @@ void StreamOptions::Check() const {
 
 // ------------------------------------------------------------- FrameWindower
 
-FrameWindower::FrameWindower(const StreamOptions& options) { SetOptions(options); }
+FrameWindower::FrameWindower(const StreamOptions& options) {
+  SetOptions(options);
+}
 
 void FrameWindower::SetOptions(const StreamOptions& options) {
   options.Check();
   options_ = options;
 }
 
-void FrameWindower::Reset() { buffer_.clear(); }
+void FrameWindower::Reset() {
+  buffer_.clear();
+}
 
 std::vector<StreamWindow> FrameWindower::Add(StreamFrame frame) {
   buffer_.push_back(std::move(frame));
@@ -74,8 +78,7 @@ Sim3 AlignPoseSequence(const std::vector<SE3>& source, const std::vector<SE3>& t
 
 SE3 TransformPose(const Sim3& similarity, const SE3& T_world_cam) {
   return SE3(similarity.rotation * T_world_cam.rotation(),
-             similarity.scale * (similarity.rotation * T_world_cam.translation()) +
-                 similarity.translation);
+             similarity.scale * (similarity.rotation * T_world_cam.translation()) + similarity.translation);
 }
 
 std::string ProblemWithEstimate(const EstimatorResult& result, double max_step_ratio) {

@@ -197,8 +197,7 @@ class PairWarp {
 }  // namespace
 
 cv::Mat BlurDerivativeWrtInverseDepth(const CaptureGeometry& geometry, int samples,
-                                      const cv::Mat& inverse_depth, const cv::Mat& latent,
-                                      int max_samples) {
+                                      const cv::Mat& inverse_depth, const cv::Mat& latent, int max_samples) {
   const PinholeCamera& camera = geometry.camera_hr;
   const int channels = latent.channels();
   cv::Mat derivative = cv::Mat::zeros(latent.size(), latent.type());
@@ -255,8 +254,8 @@ void StructureUpdateOptions::Check() const {
 }
 
 WarpLinearization LinearizeWarp(const PinholeCamera& camera_hr, const cv::Mat& inverse_depth_t,
-                                const SE3& T_world_t, const SE3& T_world_s,
-                                const cv::Mat& latent_s, std::vector<cv::Mat>* pose_jacobians) {
+                                const SE3& T_world_t, const SE3& T_world_s, const cv::Mat& latent_s,
+                                std::vector<cv::Mat>* pose_jacobians) {
   const int channels = latent_s.channels();
   const int width = camera_hr.width, height = camera_hr.height;
   WarpLinearization lin;
@@ -316,12 +315,22 @@ class DepthNormalEquations {
                        const std::vector<cv::Mat>& latents, const std::vector<PairMatching>& pairs,
                        const SelfConsistencyLinearization* self, const cv::Mat& edge_weight,
                        double parallax_scale, const StructureUpdateOptions& options)
-      : camera_hr_(camera_hr), T_world_cam_(T_world_cam), latents_(latents), pairs_(pairs), self_(self),
-        edge_weight_(edge_weight), parallax_scale_(parallax_scale), options_(options),
-        width_(camera_hr.width), height_(camera_hr.height),
-        c2_(parallax_scale * parallax_scale), states_(pairs.size()),
-        tv_weight_(height_, width_, CV_32FC1), nd_self_(height_, width_, CV_32FC1),
-        moved_(cv::Mat::zeros(height_, width_, CV_32FC1)), hr_diagonal_(height_, width_, CV_32FC1) {}
+      : camera_hr_(camera_hr),
+        T_world_cam_(T_world_cam),
+        latents_(latents),
+        pairs_(pairs),
+        self_(self),
+        edge_weight_(edge_weight),
+        parallax_scale_(parallax_scale),
+        options_(options),
+        width_(camera_hr.width),
+        height_(camera_hr.height),
+        c2_(parallax_scale * parallax_scale),
+        states_(pairs.size()),
+        tv_weight_(height_, width_, CV_32FC1),
+        nd_self_(height_, width_, CV_32FC1),
+        moved_(cv::Mat::zeros(height_, width_, CV_32FC1)),
+        hr_diagonal_(height_, width_, CV_32FC1) {}
 
   // Linearises every term at `inverse_depth` and reweights (IRLS).
   void Linearize(const cv::Mat& inverse_depth) {
@@ -414,8 +423,8 @@ class DepthNormalEquations {
       state.residual = *pair.observation - predicted_;
       L1Weights(state.residual, ObservationMask(pair, state.lin.valid), options_.residual_epsilon,
                 &state.weight);
-      diagonal_sum += Dot1(state.lin.d_inverse_depth, state.lin.d_inverse_depth) *
-                      cv::mean(state.weight)[0] / std::max(1, state.weight.channels());
+      diagonal_sum += Dot1(state.lin.d_inverse_depth, state.lin.d_inverse_depth) * cv::mean(state.weight)[0] /
+                      std::max(1, state.weight.channels());
     }
     return diagonal_sum;
   }
@@ -490,9 +499,8 @@ void SolveDepthStep(DepthNormalEquations* system, const cv::Mat& rhs, int iterat
 
 void UpdateDepth(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world_cam,
                  const std::vector<cv::Mat>& latents, const std::vector<PairMatching>& pairs,
-                 const SelfConsistencyLinearization* self, const cv::Mat& edge_weight,
-                 double parallax_scale, const StructureUpdateOptions& options,
-                 cv::Mat* inverse_depth) {
+                 const SelfConsistencyLinearization* self, const cv::Mat& edge_weight, double parallax_scale,
+                 const StructureUpdateOptions& options, cv::Mat* inverse_depth) {
   options.Check();
   if (pairs.empty() && self == nullptr) return;
   DepthNormalEquations system(camera_hr, T_world_cam, latents, pairs, self, edge_weight, parallax_scale,
@@ -570,7 +578,8 @@ PairNormalEquations BlurredPairNormalEquations(const PinholeCamera& camera_hr, c
                                                const cv::Mat& source, const PairMatching& pair,
                                                double epsilon) {
   std::vector<cv::Mat> jacobians, projected(6);
-  const WarpLinearization lin = LinearizeWarp(camera_hr, inverse_depth_t, T_world_t, T_world_s, source, &jacobians);
+  const WarpLinearization lin =
+      LinearizeWarp(camera_hr, inverse_depth_t, T_world_t, T_world_s, source, &jacobians);
   cv::Mat predicted, weight;
   Predict(pair, lin.warped, &predicted);
   const cv::Mat residual = *pair.observation - predicted;
@@ -593,12 +602,10 @@ PairNormalEquations BlurredPairNormalEquations(const PinholeCamera& camera_hr, c
 
 }  // namespace
 
-std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr,
-                                  const std::vector<cv::Mat>& inverse_depths,
-                                  const std::vector<cv::Mat>& latents,
-                                  const std::vector<PairMatching>& pairs,
-                                  const StructureUpdateOptions& options,
-                                  std::vector<SE3>* T_world_cam, int num_fixed) {
+std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr, const std::vector<cv::Mat>& inverse_depths,
+                                  const std::vector<cv::Mat>& latents, const std::vector<PairMatching>& pairs,
+                                  const StructureUpdateOptions& options, std::vector<SE3>* T_world_cam,
+                                  int num_fixed) {
   options.Check();
   const int num_frames = static_cast<int>(T_world_cam->size());
   std::vector<Vector6d> total(num_frames, Vector6d::Zero());
@@ -616,7 +623,8 @@ std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr,
   }
   std::vector<cv::Mat> source_gx(sources.size()), source_gy(sources.size());
 #pragma omp parallel for schedule(dynamic, 1)
-  for (int i = 0; i < static_cast<int>(sources.size()); ++i) Gradients(*sources[i], &source_gx[i], &source_gy[i]);
+  for (int i = 0; i < static_cast<int>(sources.size()); ++i)
+    Gradients(*sources[i], &source_gx[i], &source_gy[i]);
   std::vector<PairNormalEquations> equations(num_pairs);
   for (int iteration = 0; iteration < options.pose_iterations; ++iteration) {
     // Per pair (in parallel): r(eps) = r0 - A (eps_t - eps_s), A^T W A and A^T W r0.

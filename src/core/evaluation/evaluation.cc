@@ -9,8 +9,8 @@
 
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/common/options_check.h"
-#include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/common/text.h"
+#include "deblur_sr_mvs/core/imaging/image_ops.h"
 
 namespace deblur_sr_mvs {
 namespace {
@@ -74,18 +74,17 @@ void CheckInputs(const SequenceResult& result, const Sequence& sequence) {
     throw InputError("the result has " + std::to_string(result.frames.size()) +
                      " frames but the sequence has " + std::to_string(count));
   }
-  if (result.latent.size() != count || sequence.images.size() != count ||
-      gt.latent.size() != count || gt.depth.size() != count || gt.poses.size() != count) {
-    throw InputError("inconsistent frame counts: result latent " +
-                     std::to_string(result.latent.size()) + ", sequence images " +
-                     std::to_string(sequence.images.size()) + ", gt latent/depth/poses " +
-                     std::to_string(gt.latent.size()) + "/" + std::to_string(gt.depth.size()) +
-                     "/" + std::to_string(gt.poses.size()) + " for " + std::to_string(count) +
-                     " frames");
+  if (result.latent.size() != count || sequence.images.size() != count || gt.latent.size() != count ||
+      gt.depth.size() != count || gt.poses.size() != count) {
+    throw InputError("inconsistent frame counts: result latent " + std::to_string(result.latent.size()) +
+                     ", sequence images " + std::to_string(sequence.images.size()) +
+                     ", gt latent/depth/poses " + std::to_string(gt.latent.size()) + "/" +
+                     std::to_string(gt.depth.size()) + "/" + std::to_string(gt.poses.size()) + " for " +
+                     std::to_string(count) + " frames");
   }
   if (result.HasDepth() && result.depth.size() != count) {
-    throw InputError("the result has " + std::to_string(result.depth.size()) +
-                     " depth maps for " + std::to_string(count) + " frames");
+    throw InputError("the result has " + std::to_string(result.depth.size()) + " depth maps for " +
+                     std::to_string(count) + " frames");
   }
   if (result.HasPoses() && result.poses.size() != count) {
     throw InputError("the result has " + std::to_string(result.poses.size()) + " poses for " +
@@ -114,20 +113,18 @@ void CheckInputs(const SequenceResult& result, const Sequence& sequence) {
     CheckEightBit(gt.latent[i], "the ground-truth latent image" + frame);
     CheckEightBit(sequence.images[i], "the input image" + frame);
     if (result.latent[i].size() != hr_size) {
-      throw InputError("the result latent image" + frame + " is " +
-                       SizeText(result.latent[i].size()) + " but the ground truth is " +
-                       SizeText(hr_size) + " (the result must be at the ground-truth HR size)");
+      throw InputError("the result latent image" + frame + " is " + SizeText(result.latent[i].size()) +
+                       " but the ground truth is " + SizeText(hr_size) +
+                       " (the result must be at the ground-truth HR size)");
     }
     if (gt.latent[i].size() != hr_size || sequence.images[i].size() != lr_size) {
       throw InputError("image sizes change within the sequence at frame " +
                        std::to_string(sequence.frames[i].index));
     }
     if (gt.depth[i].type() != CV_32FC1 || gt.depth[i].size() != hr_size) {
-      throw InputError("the ground-truth depth" + frame + " must be 32FC1 of size " +
-                       SizeText(hr_size));
+      throw InputError("the ground-truth depth" + frame + " must be 32FC1 of size " + SizeText(hr_size));
     }
-    if (result.HasDepth() && (result.depth[i].type() != CV_32FC1 ||
-                              result.depth[i].size() != hr_size)) {
+    if (result.HasDepth() && (result.depth[i].type() != CV_32FC1 || result.depth[i].size() != hr_size)) {
       throw InputError("the result depth" + frame + " must be 32FC1 of the ground-truth size " +
                        SizeText(hr_size));
     }
@@ -139,9 +136,13 @@ void CheckInputs(const SequenceResult& result, const Sequence& sequence) {
 using Json = nlohmann::ordered_json;  // keeps the keys in the order written
 
 // JSON has no NaN or infinity: those, and absent values, are null.
-Json JsonNumber(double value) { return std::isfinite(value) ? Json(value) : Json(nullptr); }
+Json JsonNumber(double value) {
+  return std::isfinite(value) ? Json(value) : Json(nullptr);
+}
 
-Json JsonNumber(const std::optional<double>& value) { return value ? JsonNumber(*value) : Json(nullptr); }
+Json JsonNumber(const std::optional<double>& value) {
+  return value ? JsonNumber(*value) : Json(nullptr);
+}
 
 // Table cells: fixed decimals like the paper, "inf" for an exact match.
 std::string Cell(double value, int decimals) {
@@ -204,8 +205,7 @@ void EvaluateImages(const SequenceResult& result, const Sequence& sequence, Eval
     frame.stamp = sequence.frames[i].stamp;
     const cv::Mat truth = WithChannels(gt.latent[i], channels);
     frame.image_psnr_db = Psnr(WithChannels(result.latent[i], channels), truth, 255.0);
-    const cv::Mat bicubic =
-        ToImage8(UpsampleBicubic(ToFloat01(sequence.images[i]), report->scale));
+    const cv::Mat bicubic = ToImage8(UpsampleBicubic(ToFloat01(sequence.images[i]), report->scale));
     frame.bicubic_psnr_db = Psnr(WithChannels(bicubic, channels), truth, 255.0);
     sum_image += frame.image_psnr_db;
     sum_bicubic += frame.bicubic_psnr_db;
@@ -245,8 +245,7 @@ void EvaluateDepths(const SequenceResult& result, const SequenceGroundTruth& gt,
     report->mean_depth_relative_error = sum_relative / report->num_depth_frames;
   }
   if (report->num_depth_frames < count) {
-    report->depth_note = std::to_string(count - report->num_depth_frames) + " of " +
-                         std::to_string(count) +
+    report->depth_note = std::to_string(count - report->num_depth_frames) + " of " + std::to_string(count) +
                          " frames have no valid estimated depth where the ground truth has one "
                          "(left out of the means)";
   }
@@ -262,8 +261,8 @@ void EvaluateTrajectory(const SequenceResult& result, const SequenceGroundTruth&
     return;
   }
   if (count < kMinAteFrames) {
-    report->ate_note = "ATE needs at least " + std::to_string(kMinAteFrames) + " frames, got " +
-                       std::to_string(count);
+    report->ate_note =
+        "ATE needs at least " + std::to_string(kMinAteFrames) + " frames, got " + std::to_string(count);
     return;
   }
   // Associated by frame index (stamps were checked by CheckInputs).
@@ -330,8 +329,9 @@ std::string ToMarkdown(const EvaluationReport& report, const std::string& method
   if (!report.ate_note.empty()) out += "Pose: " + report.ate_note + ".\n";
 
   out += "\n#### Per frame\n\n";
-  out += "| Frame | Stamp (s) | Image PSNR (dB) | Bicubic PSNR (dB) | Depth PSNR (dB) | rel. | "
-         "Position error |\n";
+  out +=
+      "| Frame | Stamp (s) | Image PSNR (dB) | Bicubic PSNR (dB) | Depth PSNR (dB) | rel. | "
+      "Position error |\n";
   out += "|---:|---:|---:|---:|---:|---:|---:|\n";
   for (const FrameEvaluation& frame : report.frames) {
     out += "| " + std::to_string(frame.index) + " | " + Printf("%.6f", frame.stamp) + " | " +

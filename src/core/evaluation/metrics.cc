@@ -7,8 +7,8 @@
 
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/common/options_check.h"
-#include "deblur_sr_mvs/core/geometry/sim3.h"
 #include "deblur_sr_mvs/core/common/text.h"
+#include "deblur_sr_mvs/core/geometry/sim3.h"
 
 namespace deblur_sr_mvs {
 namespace {
@@ -26,9 +26,8 @@ double Psnr(const cv::Mat& estimate, const cv::Mat& reference, double peak, cons
   if (estimate.empty() || reference.empty()) throw InputError("PSNR: empty image");
   if (estimate.size() != reference.size() || estimate.type() != reference.type()) {
     throw InputError("PSNR: estimate (" + SizeText(estimate.size()) + ", type " +
-                     std::to_string(estimate.type()) + ") and reference (" +
-                     SizeText(reference.size()) + ", type " + std::to_string(reference.type()) +
-                     ") differ in size or type");
+                     std::to_string(estimate.type()) + ") and reference (" + SizeText(reference.size()) +
+                     ", type " + std::to_string(reference.type()) + ") differ in size or type");
   }
   if (!(peak > 0.0) || !std::isfinite(peak)) throw InputError("PSNR: peak must be positive");
   const bool masked = !mask.empty();
@@ -62,8 +61,7 @@ cv::Rect CentreCrop(const cv::Size& size, double fraction) {
   CheckAbove("crop fraction", fraction, 0.0);
   CheckInRange("crop fraction", fraction, 0.0, 1.0);
   const int width = std::clamp(static_cast<int>(std::lround(fraction * size.width)), 0, size.width);
-  const int height =
-      std::clamp(static_cast<int>(std::lround(fraction * size.height)), 0, size.height);
+  const int height = std::clamp(static_cast<int>(std::lround(fraction * size.height)), 0, size.height);
   return cv::Rect((size.width - width) / 2, (size.height - height) / 2, width, height);
 }
 
@@ -81,8 +79,8 @@ DepthErrors EvaluateDepth(const cv::Mat& estimate, const cv::Mat& ground_truth,
     throw InputError("depth metrics: depth maps must be single-channel");
   }
   if (estimate.size() != ground_truth.size()) {
-    throw InputError("depth metrics: estimate is " + SizeText(estimate.size()) +
-                     " but ground truth is " + SizeText(ground_truth.size()));
+    throw InputError("depth metrics: estimate is " + SizeText(estimate.size()) + " but ground truth is " +
+                     SizeText(ground_truth.size()));
   }
   const cv::Rect crop = CentreCrop(estimate.size(), options.crop_fraction);
   const cv::Mat est = ToDouble(estimate(crop));
@@ -105,9 +103,10 @@ DepthErrors EvaluateDepth(const cv::Mat& estimate, const cv::Mat& ground_truth,
   }
   const std::size_t n = est_values.size();
   if (n == 0) {
-    throw InputError("depth metrics: no pixel has a finite, positive depth in both the estimate "
-                     "and the ground truth (inside the " +
-                     SizeText(crop.size()) + " centre crop)");
+    throw InputError(
+        "depth metrics: no pixel has a finite, positive depth in both the estimate "
+        "and the ground truth (inside the " +
+        SizeText(crop.size()) + " centre crop)");
   }
 
   DepthErrors errors;
@@ -135,8 +134,8 @@ DepthErrors EvaluateDepth(const cv::Mat& estimate, const cv::Mat& ground_truth,
   }
   errors.relative_error = relative_sum / static_cast<double>(n);
   const double mse = squared_sum / static_cast<double>(n);
-  errors.psnr_db = mse == 0.0 ? std::numeric_limits<double>::infinity()
-                              : 10.0 * std::log10(peak * peak / mse);
+  errors.psnr_db =
+      mse == 0.0 ? std::numeric_limits<double>::infinity() : 10.0 * std::log10(peak * peak / mse);
   return errors;
 }
 

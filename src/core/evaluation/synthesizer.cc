@@ -13,9 +13,9 @@
 #include <sstream>
 
 #include <omp.h>
+#include <yaml-cpp/yaml.h>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
-#include <yaml-cpp/yaml.h>
 
 namespace deblur_sr_mvs {
 namespace {
@@ -79,14 +79,13 @@ double Median(std::vector<float>* values) {
 PinholeCamera ProbeCamera(const StereoScene& scene) {
   const PinholeCamera& view1 = scene.views[0].camera;
   const PinholeCamera& view5 = scene.views[1].camera;
-  return PinholeCamera(view1.width, view1.height, scene.focal_px, scene.focal_px,
-                       0.5 * (view1.cx + view5.cx), 0.5 * (view1.cy + view5.cy));
+  return PinholeCamera(view1.width, view1.height, scene.focal_px, scene.focal_px, 0.5 * (view1.cx + view5.cx),
+                       0.5 * (view1.cy + view5.cy));
 }
 
 // The centred width x height crop of the probe camera's image.
 PinholeCamera CentredCrop(const PinholeCamera& probe, int width, int height) {
-  return PinholeCamera(width, height, probe.fx, probe.fy,
-                       probe.cx - 0.5 * (probe.width - width),
+  return PinholeCamera(width, height, probe.fx, probe.fy, probe.cx - 0.5 * (probe.width - width),
                        probe.cy - 0.5 * (probe.height - height));
 }
 
@@ -107,12 +106,11 @@ cv::Mat CoveredDepth(const RenderResult& result) {
 
 // Pinhole projection of n points (structure of arrays); a free function with
 // restrict pointers so that the compiler vectorises it.
-void ProjectPoints(int n, const Eigen::Matrix3f& R, const Eigen::Vector3f& t,
-                   const PinholeCamera& camera, const float* __restrict__ px,
-                   const float* __restrict__ py, const float* __restrict__ pz,
+void ProjectPoints(int n, const Eigen::Matrix3f& R, const Eigen::Vector3f& t, const PinholeCamera& camera,
+                   const float* __restrict__ px, const float* __restrict__ py, const float* __restrict__ pz,
                    float* __restrict__ us, float* __restrict__ vs, float* __restrict__ zs) {
-  const float r00 = R(0, 0), r01 = R(0, 1), r02 = R(0, 2), r10 = R(1, 0), r11 = R(1, 1),
-              r12 = R(1, 2), r20 = R(2, 0), r21 = R(2, 1), r22 = R(2, 2);
+  const float r00 = R(0, 0), r01 = R(0, 1), r02 = R(0, 2), r10 = R(1, 0), r11 = R(1, 1), r12 = R(1, 2),
+              r20 = R(2, 0), r21 = R(2, 1), r22 = R(2, 2);
   const float tx = t.x(), ty = t.y(), tz = t.z();
   const float fx = camera.fx, fy = camera.fy, cx = camera.cx, cy = camera.cy;
   for (int i = 0; i < n; ++i) {
@@ -150,8 +148,7 @@ StereoScene LoadMiddleburyScene(const std::string& folder) {
     const fs::path disparity_file = root / kDisparityNames[v];
     const cv::Mat disparity = ReadSceneImage(disparity_file, cv::IMREAD_UNCHANGED);
     if (disparity.type() != CV_8UC1) {
-      throw InputError(disparity_file.string() +
-                       ": expected an 8-bit single-channel disparity image");
+      throw InputError(disparity_file.string() + ": expected an 8-bit single-channel disparity image");
     }
     if (v == 0) size = view.image.size();
     if (view.image.size() != size) {
@@ -184,13 +181,11 @@ StereoScene LoadMiddleburyScene(const std::string& folder) {
   // the right and its principal point is shifted by the crop offset dmin/3.
   const double cx1 = (size.width - 1) / 2.0;
   const double cy = (size.height - 1) / 2.0;
-  scene.views[0].camera =
-      PinholeCamera(size.width, size.height, scene.focal_px, scene.focal_px, cx1, cy);
+  scene.views[0].camera = PinholeCamera(size.width, size.height, scene.focal_px, scene.focal_px, cx1, cy);
   scene.views[1].camera = PinholeCamera(size.width, size.height, scene.focal_px, scene.focal_px,
                                         cx1 + scene.dmin / kMiddleburyDownsampling, cy);
   scene.views[0].T_world_cam = SE3();
-  scene.views[1].T_world_cam =
-      SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(scene.baseline_m, 0.0, 0.0));
+  scene.views[1].T_world_cam = SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(scene.baseline_m, 0.0, 0.0));
 
   scene.min_depth = *std::min_element(depths.begin(), depths.end());
   scene.max_depth = *std::max_element(depths.begin(), depths.end());
@@ -390,8 +385,7 @@ void SplatDepths(const SplatGrid& grid, int n, const float* us, const float* vs,
       continue;
     }
     const float ax = u - x0, ay = v - y0;
-    const float weights[4] = {(1.0f - ax) * (1.0f - ay), ax * (1.0f - ay), (1.0f - ax) * ay,
-                              ax * ay};
+    const float weights[4] = {(1.0f - ax) * (1.0f - ay), ax * (1.0f - ay), (1.0f - ax) * ay, ax * ay};
     const bool inside = x0 >= 0 && y0 >= 0 && x0 + 1 < width && y0 + 1 < height;
     if (inside) {
       float* cell = zb + y0 * width + x0;
@@ -424,8 +418,7 @@ void BlendFrontSplats(const SplatGrid& grid, const std::vector<RenderWorkspace::
     const int i = splat.point;
     const float z = zs[i];
     const float ax = splat.ax, ay = splat.ay;
-    const float weights[4] = {(1.0f - ax) * (1.0f - ay), ax * (1.0f - ay), (1.0f - ax) * ay,
-                              ax * ay};
+    const float weights[4] = {(1.0f - ax) * (1.0f - ay), ax * (1.0f - ay), (1.0f - ax) * ay, ax * ay};
     const float colour[3] = {pb[i], pg[i], pr[i]};
     for (int c = 0; c < 4; ++c) {
       const int x = splat.x0 + (c & 1), y = splat.y0 + (c >> 1);
@@ -551,9 +544,8 @@ void FillHoles(const SplatGrid& grid, RenderWorkspace* workspace, RenderResult* 
 
 }  // namespace
 
-void SceneRenderer::Render(const PinholeCamera& camera, const SE3& T_world_cam,
-                           const RenderOptions& options, RenderWorkspace* workspace,
-                           RenderResult* result) const {
+void SceneRenderer::Render(const PinholeCamera& camera, const SE3& T_world_cam, const RenderOptions& options,
+                           RenderWorkspace* workspace, RenderResult* result) const {
   const SplatGrid grid = MakeSplatGrid(camera, options);
   const SE3 T_cam_world = T_world_cam.Inverse();
   const Eigen::Matrix3f R = T_cam_world.rotation().cast<float>();
@@ -586,8 +578,8 @@ void SceneRenderer::Render(const PinholeCamera& camera, const SE3& T_world_cam,
     workspace->u.resize(n);
     workspace->v.resize(n);
     workspace->z.resize(n);
-    ProjectPoints(n, R, t, camera, points.x.data(), points.y.data(), points.z.data(),
-                  workspace->u.data(), workspace->v.data(), workspace->z.data());
+    ProjectPoints(n, R, t, camera, points.x.data(), points.y.data(), points.z.data(), workspace->u.data(),
+                  workspace->v.data(), workspace->z.data());
     SplatDepths(grid, n, workspace->u.data(), workspace->v.data(), workspace->z.data(),
                 secondary ? workspace->useful.data() : nullptr, zbuffer.data(), &workspace->active);
     const float* const bgr[3] = {points.b.data(), points.g.data(), points.r.data()};
@@ -604,9 +596,12 @@ void SceneRenderer::Render(const PinholeCamera& camera, const SE3& T_world_cam,
 
 std::string CameraPathName(CameraPathType type) {
   switch (type) {
-    case CameraPathType::kLateral: return "lateral";
-    case CameraPathType::kArc: return "arc";
-    case CameraPathType::kForward: return "forward";
+    case CameraPathType::kLateral:
+      return "lateral";
+    case CameraPathType::kArc:
+      return "arc";
+    case CameraPathType::kForward:
+      return "forward";
   }
   return "unknown";
 }
@@ -707,13 +702,17 @@ void SynthesisOptions::Check() const {
   CheckInInterval("max_hole_fraction", max_hole_fraction, 0.0, 1.0, Interval::kOpen);
 }
 
-double FrameStamp(const SynthesisOptions& options, int index) { return (index + 1) / options.fps; }
+double FrameStamp(const SynthesisOptions& options, int index) {
+  return (index + 1) / options.fps;
+}
 
-double FrameExposure(const SynthesisOptions& options) { return options.exposure_ratio / options.fps; }
+double FrameExposure(const SynthesisOptions& options) {
+  return options.exposure_ratio / options.fps;
+}
 
 double CalibratePathSpeed(const StereoScene& scene, const SceneRenderer& renderer,
-                          const PinholeCamera& camera, const SynthesisOptions& options,
-                          CameraPath* path, bool* capped) {
+                          const PinholeCamera& camera, const SynthesisOptions& options, CameraPath* path,
+                          bool* capped) {
   const int middle = (options.num_frames - 1) / 2;
   const double t_close = FrameStamp(options, middle);
   const double t_open = t_close - FrameExposure(options);
@@ -724,8 +723,7 @@ double CalibratePathSpeed(const StereoScene& scene, const SceneRenderer& rendere
   auto measure = [&](double speed) {
     path->speed = speed;
     renderer.Render(camera, path->PoseAt(t_close), render_options, &workspace, &render);
-    return MeasureImageMotion(camera, CoveredDepth(render), path->PoseAt(t_open),
-                              path->PoseAt(t_close))
+    return MeasureImageMotion(camera, CoveredDepth(render), path->PoseAt(t_open), path->PoseAt(t_close))
         .median_px;
   };
 
@@ -738,9 +736,9 @@ double CalibratePathSpeed(const StereoScene& scene, const SceneRenderer& rendere
   *capped = false;
   // Lateral estimate (exact for a fronto-parallel plane at the median depth),
   // then fixed-point steps: image motion is nearly proportional to speed.
-  double speed = path->speed > 0.0 ? path->speed
-                                   : options.blur_px * scene.median_depth /
-                                         (scene.focal_px * FrameExposure(options));
+  double speed = path->speed > 0.0
+                     ? path->speed
+                     : options.blur_px * scene.median_depth / (scene.focal_px * FrameExposure(options));
   double achieved = 0.0;
   for (int iteration = 0; iteration < 10; ++iteration) {
     if (speed >= max_speed) {
@@ -803,8 +801,8 @@ constexpr int kCropBand = 3;
 
 // The worst hole fractions over the poses of the crop (x, y, w, h) and of
 // its edge band.
-void CropHoleFractions(const std::vector<cv::Mat>& hole_integrals, int x, int y, int w, int h,
-                       double* worst, double* worst_band) {
+void CropHoleFractions(const std::vector<cv::Mat>& hole_integrals, int x, int y, int w, int h, double* worst,
+                       double* worst_band) {
   *worst = 0.0;
   *worst_band = 0.0;
   for (const cv::Mat& integral : hole_integrals) {
@@ -853,15 +851,15 @@ cv::Size LargestCoveredCrop(const std::vector<cv::Mat>& hole_integrals, int widt
 
 }  // namespace
 
-PinholeCamera ChooseHrCamera(const StereoScene& scene, const SceneRenderer& renderer,
-                             const CameraPath& path, const SynthesisOptions& options) {
+PinholeCamera ChooseHrCamera(const StereoScene& scene, const SceneRenderer& renderer, const CameraPath& path,
+                             const SynthesisOptions& options) {
   const PinholeCamera probe = ProbeCamera(scene);
   const int width = probe.width, height = probe.height;
   if (options.hr_width > 0) {
     if (options.hr_width > width || options.hr_height > height) {
       throw InputError("--hr-width/--hr-height " + std::to_string(options.hr_width) + "x" +
-                       std::to_string(options.hr_height) + " exceed the scene size " +
-                       std::to_string(width) + "x" + std::to_string(height));
+                       std::to_string(options.hr_height) + " exceed the scene size " + std::to_string(width) +
+                       "x" + std::to_string(height));
     }
     return CentredCrop(probe, options.hr_width, options.hr_height);
   }
@@ -939,8 +937,8 @@ cv::Mat LowResImage(const cv::Mat& blurred, const SynthesisOptions& options, cv:
   if (options.scale == 1) {
     blurred.copyTo(low_res);
   } else {
-    cv::resize(blurred, low_res, cv::Size(blurred.cols / options.scale, blurred.rows / options.scale),
-               0.0, 0.0, cv::INTER_AREA);
+    cv::resize(blurred, low_res, cv::Size(blurred.cols / options.scale, blurred.rows / options.scale), 0.0,
+               0.0, cv::INTER_AREA);
   }
   if (options.noise_sigma > 0.0) {
     cv::Mat noise(low_res.size(), low_res.type());
@@ -961,14 +959,13 @@ void PlanPathAndCameras(const StereoScene& scene, const SceneRenderer& renderer,
   result->path = MakeCameraPath(options.path, scene, t_mid, options.arc_fixation_factor);
   CalibratePathSpeed(scene, renderer, ProbeCamera(scene), options, &result->path, &result->speed_capped);
   result->hr_camera = ChooseHrCamera(scene, renderer, result->path, options);
-  result->achieved_blur_px = CalibratePathSpeed(scene, renderer, result->hr_camera, options,
-                                                &result->path, &result->speed_capped);
-  result->lr_camera =
-      options.scale == 1 ? result->hr_camera : result->hr_camera.Downscaled(options.scale);
+  result->achieved_blur_px =
+      CalibratePathSpeed(scene, renderer, result->hr_camera, options, &result->path, &result->speed_capped);
+  result->lr_camera = options.scale == 1 ? result->hr_camera : result->hr_camera.Downscaled(options.scale);
   if (log && result->speed_capped) {
     *log << "note: the " << CameraPathName(options.path) << " path is capped at "
-         << options.forward_travel_cap << " x the nearest depth; median blur "
-         << result->achieved_blur_px << " px instead of " << options.blur_px << " px\n";
+         << options.forward_travel_cap << " x the nearest depth; median blur " << result->achieved_blur_px
+         << " px instead of " << options.blur_px << " px\n";
   }
 }
 
@@ -989,8 +986,8 @@ void LogFrame(int i, const SynthesisOptions& options, const FrameSynthesisStats&
   if (!log) return;
   std::ostringstream line;
   line << "frame " << i + 1 << "/" << options.num_frames << ": blur median " << std::fixed
-       << std::setprecision(1) << stats.blur.median_px << " px (max " << stats.blur.max_px
-       << "), holes " << std::setprecision(2) << 100.0 * stats.hole_fraction_max << " %\n";
+       << std::setprecision(1) << stats.blur.median_px << " px (max " << stats.blur.max_px << "), holes "
+       << std::setprecision(2) << 100.0 * stats.hole_fraction_max << " %\n";
   *log << line.str() << std::flush;
 }
 
@@ -1005,8 +1002,8 @@ void SynthesizeFrame(int i, const SceneRenderer& renderer, const SynthesisOption
   const CameraPath& path = result->path;
   const SE3 T_world_close = path.PoseAt(t_close);
   // Only the points this exposure can see: same images, faster renders.
-  const SceneRenderer frame_renderer = renderer.CulledFor(
-      hr, {path.PoseAt(t_open), path.PoseAt(0.5 * (t_open + t_close)), T_world_close});
+  const SceneRenderer frame_renderer =
+      renderer.CulledFor(hr, {path.PoseAt(t_open), path.PoseAt(0.5 * (t_open + t_close)), T_world_close});
 
   RenderResult sharp;
   frame_renderer.Render(hr, T_world_close, RenderOptions(), averager->workspace(), &sharp);
@@ -1046,8 +1043,7 @@ SynthesisResult SynthesizeSequence(const StereoScene& scene, const SynthesisOpti
     SynthesizeFrame(i, renderer, options, &averager, &rng, &result);
     LogFrame(i, options, result.frame_stats.back(), log);
   }
-  result.seconds =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - start_time).count();
+  result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_time).count();
   return result;
 }
 
@@ -1155,8 +1151,8 @@ void EmitFrames(YAML::Emitter* out, const SynthesisResult& result) {
 
 }  // namespace
 
-void WriteSynthesisYaml(const std::string& path, const StereoScene& scene,
-                        const SynthesisOptions& options, const SynthesisResult& result) {
+void WriteSynthesisYaml(const std::string& path, const StereoScene& scene, const SynthesisOptions& options,
+                        const SynthesisResult& result) {
   YAML::Emitter out;
   out.SetDoublePrecision(10);
   out << YAML::Comment(

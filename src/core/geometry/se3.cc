@@ -48,8 +48,7 @@ Eigen::Matrix3d SE3JacobianQ(const Eigen::Vector3d& rho, const Eigen::Vector3d& 
     c3 = (2.0 * theta - 3.0 * s + theta * c) / (2.0 * t5);
   }
   const Eigen::Matrix3d a = phi_x * rho_x + rho_x * phi_x + phi_x * rho_x * phi_x;
-  const Eigen::Matrix3d b = phi_x * phi_x * rho_x + rho_x * phi_x * phi_x -
-                            3.0 * phi_x * rho_x * phi_x;
+  const Eigen::Matrix3d b = phi_x * phi_x * rho_x + rho_x * phi_x * phi_x - 3.0 * phi_x * rho_x * phi_x;
   const Eigen::Matrix3d d = phi_x * rho_x * phi_x * phi_x + phi_x * phi_x * rho_x * phi_x;
   return 0.5 * rho_x + c1 * a + c2 * b + c3 * d;
 }

@@ -26,8 +26,8 @@ void CheckCorrespondingPoints(const std::vector<Eigen::Vector3d>& source,
   }
 }
 
-Sim3 UmeyamaAlignment(const std::vector<Eigen::Vector3d>& source,
-                      const std::vector<Eigen::Vector3d>& target, bool with_scale) {
+Sim3 UmeyamaAlignment(const std::vector<Eigen::Vector3d>& source, const std::vector<Eigen::Vector3d>& target,
+                      bool with_scale) {
   CheckCorrespondingPoints(source, target, "Umeyama alignment");
   const double n = static_cast<double>(source.size());
   Eigen::Vector3d mean_source = Eigen::Vector3d::Zero();

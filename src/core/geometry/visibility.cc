@@ -15,11 +15,10 @@ void VisibilityOptions::Check() const {
   CheckInInterval("visibility: depth_tolerance", depth_tolerance, 0.0, 1.0, Interval::kLeftClosed);
 }
 
-cv::Mat ComputeVisibility(const PinholeCamera& camera, const cv::Mat& depth_t,
-                          const SE3& T_s_t, const VisibilityOptions& options) {
+cv::Mat ComputeVisibility(const PinholeCamera& camera, const cv::Mat& depth_t, const SE3& T_s_t,
+                          const VisibilityOptions& options) {
   options.Check();
-  if (depth_t.type() != CV_32FC1 || depth_t.cols != camera.width ||
-      depth_t.rows != camera.height) {
+  if (depth_t.type() != CV_32FC1 || depth_t.cols != camera.width || depth_t.rows != camera.height) {
     throw InputError("visibility: depth must be CV_32FC1 of the camera size");
   }
   const int width = camera.width;
@@ -62,8 +61,7 @@ cv::Mat ComputeVisibility(const PinholeCamera& camera, const cv::Mat& depth_t,
 }
 
 cv::Mat DownscaleMaskAll(const cv::Mat& mask_hr, int scale) {
-  if (mask_hr.type() != CV_8UC1 || scale < 1 || mask_hr.cols % scale != 0 ||
-      mask_hr.rows % scale != 0) {
+  if (mask_hr.type() != CV_8UC1 || scale < 1 || mask_hr.cols % scale != 0 || mask_hr.rows % scale != 0) {
     throw InputError("DownscaleMaskAll: mask must be CV_8UC1 with a size divisible by scale");
   }
   cv::Mat mask_lr(mask_hr.rows / scale, mask_hr.cols / scale, CV_8UC1);

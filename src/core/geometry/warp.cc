@@ -21,8 +21,8 @@ PixelTransferF::PixelTransferF(const PixelTransfer& transfer) {
   }
 }
 
-void ReprojectDepth(const PinholeCamera& camera, const cv::Mat& depth_source,
-                    const SE3& T_target_source, bool fill_from_source, cv::Mat* depth_target) {
+void ReprojectDepth(const PinholeCamera& camera, const cv::Mat& depth_source, const SE3& T_target_source,
+                    bool fill_from_source, cv::Mat* depth_target) {
   if (depth_source.type() != CV_32FC1 || depth_source.cols != camera.width ||
       depth_source.rows != camera.height) {
     throw InputError("ReprojectDepth: depth map must be CV_32FC1 of the camera size");

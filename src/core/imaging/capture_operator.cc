@@ -23,11 +23,11 @@ constexpr float kInsideTolerance = 1e-4f;
 // (extreme blur) a scatter array plus a sort is cheaper.
 constexpr int kMaxLocalGrid = 4096;
 
-
 // y = A x for a row-major sparse A and interleaved C-channel images. Not
 // auto-vectorised: gathers of scattered columns are slower than scalar loads.
 template <int kChannels>
-__attribute__((optimize("no-tree-vectorize"))) void MultiplyFixed(const SparseMatrixRM& a, const float* x, float* y, int threads) {
+__attribute__((optimize("no-tree-vectorize"))) void MultiplyFixed(const SparseMatrixRM& a, const float* x,
+                                                                  float* y, int threads) {
   const int* outer = a.outerIndexPtr();
   const int* inner = a.innerIndexPtr();
   const float* values = a.valuePtr();
@@ -96,25 +96,32 @@ void TransposeSparse(const SparseMatrixRM& a, SparseMatrixRM* at, int threads) {
 
 namespace {
 
-void MultiplyAnyChannels(const SparseMatrixRM& a, const float* x, float* y, int channels,
-                         int threads) {
+void MultiplyAnyChannels(const SparseMatrixRM& a, const float* x, float* y, int channels, int threads) {
   switch (channels) {
-    case 1: MultiplyFixed<1>(a, x, y, threads); return;
-    case 2: MultiplyFixed<2>(a, x, y, threads); return;
-    case 3: MultiplyFixed<3>(a, x, y, threads); return;
-    case 4: MultiplyFixed<4>(a, x, y, threads); return;
-    default: break;
+    case 1:
+      MultiplyFixed<1>(a, x, y, threads);
+      return;
+    case 2:
+      MultiplyFixed<2>(a, x, y, threads);
+      return;
+    case 3:
+      MultiplyFixed<3>(a, x, y, threads);
+      return;
+    case 4:
+      MultiplyFixed<4>(a, x, y, threads);
+      return;
+    default:
+      break;
   }
   throw InputError("capture operator: images must have 1 to 4 channels");
 }
 
-void Multiply(const SparseMatrixRM& a, const cv::Size& in_size, const cv::Size& out_size,
-              const cv::Mat& in, cv::Mat* out, int threads, const char* what) {
+void Multiply(const SparseMatrixRM& a, const cv::Size& in_size, const cv::Size& out_size, const cv::Mat& in,
+              cv::Mat* out, int threads, const char* what) {
   if (in.depth() != CV_32F || in.size() != in_size) {
     std::ostringstream message;
-    message << "capture operator " << what << ": expected a float image of " << in_size.width
-            << "x" << in_size.height << ", got " << in.cols << "x" << in.rows
-            << " (depth " << in.depth() << ")";
+    message << "capture operator " << what << ": expected a float image of " << in_size.width << "x"
+            << in_size.height << ", got " << in.cols << "x" << in.rows << " (depth " << in.depth() << ")";
     throw InputError(message.str());
   }
   const int channels = in.channels();
@@ -205,8 +212,7 @@ void CheckCaptureGeometry(const CaptureGeometry& geometry, int scale) {
     const std::string problem = camera.Problem();
     if (!problem.empty()) throw InputError("capture operator: " + problem);
   }
-  if (camera.width < 2 || camera.height < 2 || camera.width % scale != 0 ||
-      camera.height % scale != 0) {
+  if (camera.width < 2 || camera.height < 2 || camera.width % scale != 0 || camera.height % scale != 0) {
     throw InputError("capture operator: HR size " + std::to_string(camera.width) + "x" +
                      std::to_string(camera.height) + " must be at least 2x2 and divisible by scale " +
                      std::to_string(scale));
@@ -238,15 +244,24 @@ struct AssemblyContext {
   std::vector<float> row_bases;  // [(y * 3 + k) * samples + m]
 
   AssemblyContext(const PinholeCamera& camera, int scale_in, int samples_in,
-                  const std::vector<PixelTransferF>& transfers,
-                  const std::vector<const cv::Mat*>& depth)
-      : hr_width(camera.width), hr_height(camera.height), lr_width(camera.width / scale_in),
-        lr_height(camera.height / scale_in), scale(scale_in), samples(samples_in),
+                  const std::vector<PixelTransferF>& transfers, const std::vector<const cv::Mat*>& depth)
+      : hr_width(camera.width),
+        hr_height(camera.height),
+        lr_width(camera.width / scale_in),
+        lr_height(camera.height / scale_in),
+        scale(scale_in),
+        samples(samples_in),
         samples_per_pixel(samples_in * scale_in * scale_in),
         sample_weight(1.0f / static_cast<float>(samples_in * scale_in * scale_in)),
-        max_u(static_cast<float>(camera.width - 1)), max_v(static_cast<float>(camera.height - 1)),
-        virtual_depth(samples_in), h0(samples_in), h3(samples_in), h6(samples_in),
-        t0(samples_in), t1(samples_in), t2(samples_in),
+        max_u(static_cast<float>(camera.width - 1)),
+        max_v(static_cast<float>(camera.height - 1)),
+        virtual_depth(samples_in),
+        h0(samples_in),
+        h3(samples_in),
+        h6(samples_in),
+        t0(samples_in),
+        t1(samples_in),
+        t2(samples_in),
         row_bases(static_cast<size_t>(camera.height) * 3 * samples_in) {
     for (int m = 0; m < samples; ++m) virtual_depth[m] = depth[m]->ptr<float>();
     for (int m = 0; m < samples; ++m) {
@@ -276,15 +291,17 @@ struct PixelScratch {
   std::vector<int> touched;
 
   explicit PixelScratch(const AssemblyContext& context)
-      : depth(context.samples), tap_x(context.samples_per_pixel),
-        tap_y(context.samples_per_pixel), frac_x(context.samples_per_pixel),
-        frac_y(context.samples_per_pixel), cells(4 * kMaxLocalGrid) {}
+      : depth(context.samples),
+        tap_x(context.samples_per_pixel),
+        tap_y(context.samples_per_pixel),
+        frac_x(context.samples_per_pixel),
+        frac_y(context.samples_per_pixel),
+        cells(4 * kMaxLocalGrid) {}
 };
 
 // The taps of HR pixel (x, y) for every virtual camera, written at `offset`
 // of the scratch; returns how many samples missed the source image.
-inline int WarpHrPixel(const AssemblyContext& context, int x, int y, int offset,
-                       PixelScratch* scratch) {
+inline int WarpHrPixel(const AssemblyContext& context, int x, int y, int offset, PixelScratch* scratch) {
   const int samples = context.samples;
   const float* base0 = &context.row_bases[(static_cast<size_t>(y) * 3 + 0) * samples];
   const float* base1 = base0 + samples;
@@ -406,8 +423,8 @@ void MergeTapsInGrid(const AssemblyContext& context, const TapBox& box, PixelScr
 
 // Merges the taps of a footprint too large for a local grid (extreme blur)
 // through an image-sized scatter array and a sort of the touched columns.
-void MergeTapsScattered(const AssemblyContext& context, PixelScratch* scratch,
-                        std::vector<int>* columns, std::vector<float>* values) {
+void MergeTapsScattered(const AssemblyContext& context, PixelScratch* scratch, std::vector<int>* columns,
+                        std::vector<float>* values) {
   const int hr_width = context.hr_width;
   const float sample_weight = context.sample_weight;
   std::vector<float>& scatter = scratch->scatter;
@@ -440,9 +457,8 @@ void MergeTapsScattered(const AssemblyContext& context, PixelScratch* scratch,
 // The rows [first_row, last_row) of Psi (LR rows) into one thread's CSR
 // pieces: per LR pixel, the taps of its scale^2 HR pixels for every virtual
 // camera, merged into one sparse row; its coverage and non-zero count.
-void AssembleRows(const AssemblyContext& context, int first_row, int last_row,
-                  std::vector<float>* coverage, std::vector<int>* row_nnz,
-                  std::vector<int>* columns, std::vector<float>* values) {
+void AssembleRows(const AssemblyContext& context, int first_row, int last_row, std::vector<float>* coverage,
+                  std::vector<int>* row_nnz, std::vector<int>* columns, std::vector<float>* values) {
   const int scale = context.scale;
   const int lr_width = context.lr_width;
   columns->clear();
@@ -476,9 +492,8 @@ void AssembleRows(const AssemblyContext& context, int first_row, int last_row,
 // Concatenates the per-thread blocks of rows into one compressed row-major
 // matrix.
 void ConcatenateBlocks(const std::vector<std::vector<int>>& block_columns,
-                       const std::vector<std::vector<float>>& block_values,
-                       const std::vector<int>& row_nnz, int threads, int cols,
-                       SparseMatrixRM* matrix) {
+                       const std::vector<std::vector<float>>& block_values, const std::vector<int>& row_nnz,
+                       int threads, int cols, SparseMatrixRM* matrix) {
   const int rows = static_cast<int>(row_nnz.size());
   size_t nnz = 0;
   for (const auto& block : block_columns) nnz += block.size();
@@ -497,8 +512,7 @@ void ConcatenateBlocks(const std::vector<std::vector<int>>& block_columns,
 
 }  // namespace
 
-CaptureOperatorBuilder::CaptureOperatorBuilder(const CaptureOperatorOptions& options)
-    : options_(options) {
+CaptureOperatorBuilder::CaptureOperatorBuilder(const CaptureOperatorOptions& options) : options_(options) {
   options_.Check();
 }
 
@@ -527,8 +541,7 @@ void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOpera
     virtual_depths_.resize(samples);
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
     for (int m = 0; m < samples; ++m) {
-      ReprojectDepth(camera, geometry.depth_hr, T_tau_t[m], /*fill_from_source=*/true,
-                     &virtual_depths_[m]);
+      ReprojectDepth(camera, geometry.depth_hr, T_tau_t[m], /*fill_from_source=*/true, &virtual_depths_[m]);
     }
     for (int m = 0; m < samples; ++m) virtual_depth[m] = &virtual_depths_[m];
   }
@@ -551,13 +564,12 @@ void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOpera
   {
     const int thread = omp_get_thread_num();
     const int first_row = static_cast<int>(static_cast<long long>(lr_height) * thread / threads);
-    const int last_row =
-        static_cast<int>(static_cast<long long>(lr_height) * (thread + 1) / threads);
+    const int last_row = static_cast<int>(static_cast<long long>(lr_height) * (thread + 1) / threads);
     AssembleRows(context, first_row, last_row, &op->coverage_, &row_nnz_, &block_columns_[thread],
                  &block_values_[thread]);
   }
-  ConcatenateBlocks(block_columns_, block_values_, row_nnz_, threads,
-                    context.hr_width * context.hr_height, &op->forward_);
+  ConcatenateBlocks(block_columns_, block_values_, row_nnz_, threads, context.hr_width * context.hr_height,
+                    &op->forward_);
   timings_.assembly_ms = NowMs() - stage_start;
   stage_start = NowMs();
   if (options_.transposed_copy) {
@@ -568,8 +580,7 @@ void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOpera
   timings_.adjoint_ms = NowMs() - stage_start;
 }
 
-CaptureOperator BuildCaptureOperator(const CaptureGeometry& geometry,
-                                     const CaptureOperatorOptions& options) {
+CaptureOperator BuildCaptureOperator(const CaptureGeometry& geometry, const CaptureOperatorOptions& options) {
   CaptureOperatorBuilder builder(options);
   CaptureOperator op;
   builder.Build(geometry, &op);

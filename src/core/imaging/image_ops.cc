@@ -13,10 +13,17 @@ namespace deblur_sr_mvs {
 cv::Mat ToFloat01(const cv::Mat& image) {
   cv::Mat result;
   switch (image.depth()) {
-    case CV_8U: image.convertTo(result, CV_32F, 1.0 / 255.0); break;
-    case CV_16U: image.convertTo(result, CV_32F, 1.0 / 65535.0); break;
-    case CV_32F: result = image.clone(); break;
-    default: throw InputError("ToFloat01: unsupported image depth");
+    case CV_8U:
+      image.convertTo(result, CV_32F, 1.0 / 255.0);
+      break;
+    case CV_16U:
+      image.convertTo(result, CV_32F, 1.0 / 65535.0);
+      break;
+    case CV_32F:
+      result = image.clone();
+      break;
+    default:
+      throw InputError("ToFloat01: unsupported image depth");
   }
   return result;
 }
@@ -31,8 +38,7 @@ cv::Mat ToImage8(const cv::Mat& image01) {
 
 cv::Mat UpsampleBicubic(const cv::Mat& image, int scale) {
   cv::Mat result;
-  cv::resize(image, result, cv::Size(image.cols * scale, image.rows * scale), 0, 0,
-             cv::INTER_CUBIC);
+  cv::resize(image, result, cv::Size(image.cols * scale, image.rows * scale), 0, 0, cv::INTER_CUBIC);
   return result;
 }
 
@@ -41,8 +47,7 @@ cv::Mat DownsampleBox(const cv::Mat& image, int scale) {
     throw InputError("DownsampleBox: size must be divisible by the scale");
   }
   cv::Mat result;
-  cv::resize(image, result, cv::Size(image.cols / scale, image.rows / scale), 0, 0,
-             cv::INTER_AREA);
+  cv::resize(image, result, cv::Size(image.cols / scale, image.rows / scale), 0, 0, cv::INTER_AREA);
   return result;
 }
 
@@ -85,8 +90,7 @@ cv::Mat ColorizeDepth(const cv::Mat& depth, double min_depth, double max_depth) 
   return colored;
 }
 
-void PastePanel(const cv::Mat& panel, const std::string& caption, cv::Point origin,
-                cv::Mat* canvas) {
+void PastePanel(const cv::Mat& panel, const std::string& caption, cv::Point origin, cv::Mat* canvas) {
   cv::Mat bgr;
   if (panel.channels() == 1) {
     cv::cvtColor(panel, bgr, cv::COLOR_GRAY2BGR);
@@ -98,8 +102,8 @@ void PastePanel(const cv::Mat& panel, const std::string& caption, cv::Point orig
   const int band = 22;
   cv::Mat top = (*canvas)(cv::Rect(origin.x, origin.y, bgr.cols, std::min(band, bgr.rows)));
   top *= 0.35;
-  cv::putText(*canvas, caption, cv::Point(origin.x + 6, origin.y + 16), cv::FONT_HERSHEY_SIMPLEX,
-              0.5, cv::Scalar(255, 255, 255), 1, cv::LINE_AA);
+  cv::putText(*canvas, caption, cv::Point(origin.x + 6, origin.y + 16), cv::FONT_HERSHEY_SIMPLEX, 0.5,
+              cv::Scalar(255, 255, 255), 1, cv::LINE_AA);
 }
 
 }  // namespace deblur_sr_mvs

@@ -9,8 +9,8 @@
 #include <sstream>
 #include <system_error>
 
-#include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/common/text.h"
+#include "deblur_sr_mvs/core/imaging/image_ops.h"
 
 namespace deblur_sr_mvs {
 namespace {
@@ -48,12 +48,12 @@ void CheckLatent(const std::string& where, const cv::Mat& latent, const PinholeC
     Fail(where, "latent image must be 8-bit gray or colour (convert with ToImage8)");
   }
   if (latent.cols != camera.width || latent.rows != camera.height) {
-    Fail(where, "latent image is " + SizeText(latent.cols, latent.rows) + " but " + camera_path +
-                    " says " + SizeText(camera.width, camera.height));
+    Fail(where, "latent image is " + SizeText(latent.cols, latent.rows) + " but " + camera_path + " says " +
+                    SizeText(camera.width, camera.height));
   }
   if (first_channels > 0 && latent.channels() != first_channels) {
-    Fail(where, "latent image has " + std::to_string(latent.channels()) +
-                    " channel(s) but frame 0 has " + std::to_string(first_channels));
+    Fail(where, "latent image has " + std::to_string(latent.channels()) + " channel(s) but frame 0 has " +
+                    std::to_string(first_channels));
   }
 }
 
@@ -74,9 +74,9 @@ void CheckPoses(const std::string& where, const std::vector<StampedPose>& poses,
   }
   for (std::size_t i = 0; i < poses.size(); ++i) {
     if (!(std::abs(poses[i].stamp - frames[i].stamp) <= kStampTolerance)) {
-      Fail(where, "pose " + std::to_string(i) + " has stamp " + StampText(poses[i].stamp) +
-                      " but frame " + std::to_string(frames[i].index) + " has stamp " +
-                      StampText(frames[i].stamp) + " (tolerance 1e-6 s)");
+      Fail(where, "pose " + std::to_string(i) + " has stamp " + StampText(poses[i].stamp) + " but frame " +
+                      std::to_string(frames[i].index) + " has stamp " + StampText(frames[i].stamp) +
+                      " (tolerance 1e-6 s)");
     }
   }
 }
@@ -148,8 +148,9 @@ void RemoveStaleEntries(const fs::path& root, const SequenceResult& result) {
     for (const fs::directory_entry& entry : fs::directory_iterator(folder, error)) {
       const std::string stem = entry.path().stem().string();
       const std::string extension = entry.path().extension().string();
-      const bool numbered = stem.size() == 6 && std::all_of(stem.begin(), stem.end(),
-                                [](unsigned char c) { return std::isdigit(c) != 0; });
+      const bool numbered = stem.size() == 6 && std::all_of(stem.begin(), stem.end(), [](unsigned char c) {
+                              return std::isdigit(c) != 0;
+                            });
       if (numbered && (extension == ".tiff" || extension == ".png")) stale.push_back(entry.path());
     }
     for (const fs::path& path : stale) fs::remove(path, error);

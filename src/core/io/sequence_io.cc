@@ -13,8 +13,8 @@
 #include <sstream>
 #include <system_error>
 
-#include <opencv2/imgcodecs.hpp>
 #include <yaml-cpp/yaml.h>
+#include <opencv2/imgcodecs.hpp>
 
 namespace deblur_sr_mvs {
 namespace {
@@ -58,7 +58,9 @@ std::string Printable(const std::string& text, std::size_t max_length) {
 }
 
 // Quotes user text in messages (see Printable).
-std::string Quote(const std::string& text) { return "'" + Printable(text, 40) + "'"; }
+std::string Quote(const std::string& text) {
+  return "'" + Printable(text, 40) + "'";
+}
 
 std::string Trim(const std::string& text) {
   const char* kSpace = " \t\r\n\f\v";
@@ -154,7 +156,9 @@ struct YamlEntry {
 using YamlEntries = std::map<std::string, YamlEntry>;
 
 // yaml-cpp counts lines from 0, messages from 1.
-int LineOf(const YAML::Mark& mark) { return mark.line + 1; }
+int LineOf(const YAML::Mark& mark) {
+  return mark.line + 1;
+}
 
 // A scalar's text for messages; "{map}" or "[list]" for the other kinds.
 std::string NodeText(const YAML::Node& node) {
@@ -259,8 +263,8 @@ class CalibrationReader {
     if (!data.value.IsSequence()) FailAt(path_, data.line, key + ": data must be a list [a, b, ...]");
     if (static_cast<long long>(data.value.size()) != static_cast<long long>(rows) * cols) {
       FailAt(path_, data.line,
-             key + ": data has " + std::to_string(data.value.size()) + " values, expected rows*cols = " +
-                 std::to_string(static_cast<long long>(rows) * cols));
+             key + ": data has " + std::to_string(data.value.size()) +
+                 " values, expected rows*cols = " + std::to_string(static_cast<long long>(rows) * cols));
     }
     std::vector<double> values;
     values.reserve(data.value.size());
@@ -292,8 +296,8 @@ class CalibrationReader {
     const YamlEntry& child = Child(children, line, key, name);
     long long value = 0;
     if (!child.value.IsScalar() || !ParseInt(child.value.Scalar(), &value) || value < 0 || value > 1000000) {
-      FailAt(path_, child.line, key + ": " + name + " must be a non-negative integer, got " +
-                                    Quote(NodeText(child.value)));
+      FailAt(path_, child.line,
+             key + ": " + name + " must be a non-negative integer, got " + Quote(NodeText(child.value)));
     }
     return static_cast<int>(value);
   }
@@ -340,8 +344,7 @@ cv::Mat ReadImageFile(const std::string& path) {
   return image;
 }
 
-void WriteImageFile(const std::string& path, const cv::Mat& image,
-                    const std::vector<int>& params = {}) {
+void WriteImageFile(const std::string& path, const cv::Mat& image, const std::vector<int>& params = {}) {
   CreateParentFolder(path);
   bool ok = false;
   try {
@@ -373,8 +376,7 @@ bool HasExtension(const std::string& path, std::initializer_list<const char*> ex
 
 // ------------------------------------------------------------- calibration
 
-CameraCalibration CameraCalibration::FromCamera(const PinholeCamera& camera,
-                                                const std::string& name) {
+CameraCalibration CameraCalibration::FromCamera(const PinholeCamera& camera, const std::string& name) {
   CameraCalibration calibration;
   calibration.camera = camera;
   calibration.camera_name = name;
@@ -398,16 +400,16 @@ void ReadCameraMatrix(const std::string& path, const CalibrationReader& reader, 
       std::abs(k[7]) > tolerance || std::abs(k[8] - 1.0) > tolerance) {
     std::string text;
     for (int i = 0; i < 9; ++i) text += (i ? (i % 3 ? " " : "; ") : "") + FormatDouble(k[i]);
-    FailAt(path, k_entry.line,
-           "camera_matrix must be [fx 0 cx; 0 fy cy; 0 0 1], got [" + text + "]");
+    FailAt(path, k_entry.line, "camera_matrix must be [fx 0 cx; 0 fy cy; 0 0 1], got [" + text + "]");
   }
   camera->fx = k[0];
   camera->cx = k[2];
   camera->fy = k[4];
   camera->cy = k[5];
   if (camera->fx <= 0.0 || camera->fy <= 0.0) {
-    FailAt(path, k_entry.line, "camera_matrix: focal length (fx, fy) = (" + FormatDouble(camera->fx) +
-                                   ", " + FormatDouble(camera->fy) + ") must be positive");
+    FailAt(path, k_entry.line,
+           "camera_matrix: focal length (fx, fy) = (" + FormatDouble(camera->fx) + ", " +
+               FormatDouble(camera->fy) + ") must be positive");
   }
 }
 
@@ -506,19 +508,23 @@ std::vector<FrameRecord> ReadFramesCsv(const std::string& path) {
     while (std::getline(stream, field, ',')) fields.push_back(Trim(field));
     if (line.back() == ',') fields.push_back("");
     if (fields.size() != 3) {
-      FailAt(path, number, "expected 3 fields 'index,stamp,exposure', got " +
-                               std::to_string(fields.size()) + " in " + Quote(line));
+      FailAt(path, number,
+             "expected 3 fields 'index,stamp,exposure', got " + std::to_string(fields.size()) + " in " +
+                 Quote(line));
     }
     FrameRecord frame;
     long long index = 0;
-    if (!ParseInt(fields[0], &index)) FailAt(path, number, "index " + Quote(fields[0]) + " is not an integer");
+    if (!ParseInt(fields[0], &index))
+      FailAt(path, number, "index " + Quote(fields[0]) + " is not an integer");
     const long long expected = static_cast<long long>(frames.size());
     if (index != expected) {
-      FailAt(path, number, "index " + fields[0] + " should be " + std::to_string(expected) +
-                               " (indices are contiguous from 0)");
+      FailAt(path, number,
+             "index " + fields[0] + " should be " + std::to_string(expected) +
+                 " (indices are contiguous from 0)");
     }
     frame.index = static_cast<int>(index);
-    if (!ParseDouble(fields[1], &frame.stamp)) FailAt(path, number, "stamp " + Quote(fields[1]) + " is not a number");
+    if (!ParseDouble(fields[1], &frame.stamp))
+      FailAt(path, number, "stamp " + Quote(fields[1]) + " is not a number");
     if (!std::isfinite(frame.stamp)) FailAt(path, number, "stamp " + fields[1] + " is not finite");
     if (!ParseDouble(fields[2], &frame.exposure)) {
       FailAt(path, number, "exposure " + Quote(fields[2]) + " is not a number");
@@ -577,18 +583,20 @@ std::vector<StampedPose> ReadTumTrajectory(const std::string& path) {
     std::string field;
     while (stream >> field) fields.push_back(field);
     if (fields.size() != 8) {
-      FailAt(path, number, "expected 8 values 'stamp tx ty tz qx qy qz qw', got " +
-                               std::to_string(fields.size()));
+      FailAt(path, number,
+             "expected 8 values 'stamp tx ty tz qx qy qz qw', got " + std::to_string(fields.size()));
     }
     double v[8];
     for (int j = 0; j < 8; ++j) {
-      if (!ParseDouble(fields[j], &v[j])) FailAt(path, number, "value " + Quote(fields[j]) + " is not a number");
+      if (!ParseDouble(fields[j], &v[j]))
+        FailAt(path, number, "value " + Quote(fields[j]) + " is not a number");
       if (!std::isfinite(v[j])) FailAt(path, number, "value " + fields[j] + " is not finite");
     }
     const Eigen::Quaterniond q(v[7], v[4], v[5], v[6]);  // (w, x, y, z)
     if (q.norm() < 1e-6) {
-      FailAt(path, number, "quaternion (qx qy qz qw) = (" + fields[4] + " " + fields[5] + " " +
-                               fields[6] + " " + fields[7] + ") has (near) zero norm");
+      FailAt(path, number,
+             "quaternion (qx qy qz qw) = (" + fields[4] + " " + fields[5] + " " + fields[6] + " " +
+                 fields[7] + ") has (near) zero norm");
     }
     StampedPose pose;
     pose.stamp = v[0];
@@ -635,8 +643,8 @@ cv::Mat ReadImage8(const std::string& path) {
   const cv::Mat image = ReadImageFile(path);
   if (image.depth() != CV_8U) Fail(path, "image must be 8-bit, got " + TypeText(image));
   if (image.channels() != 1 && image.channels() != 3) {
-    Fail(path, "image must be gray or colour (1 or 3 channels), got " +
-                   std::to_string(image.channels()) + " channels");
+    Fail(path, "image must be gray or colour (1 or 3 channels), got " + std::to_string(image.channels()) +
+                   " channels");
   }
   return image;
 }
@@ -694,8 +702,8 @@ Sequence ReadSequence(const std::string& folder, bool read_ground_truth) {
   const PinholeCamera& gt_camera = gt.calibration.camera;
   auto check_size = [&](const std::string& path, const cv::Mat& image) {
     if (image.cols != gt_camera.width || image.rows != gt_camera.height) {
-      Fail(path, "image is " + SizeText(image.cols, image.rows) + " but " + gt_camera_path +
-                     " says " + SizeText(gt_camera.width, gt_camera.height));
+      Fail(path, "image is " + SizeText(image.cols, image.rows) + " but " + gt_camera_path + " says " +
+                     SizeText(gt_camera.width, gt_camera.height));
     }
   };
   gt.latent.reserve(sequence.frames.size());
@@ -745,9 +753,8 @@ void WriteSequence(const std::string& folder, const Sequence& sequence) {
     const SequenceGroundTruth& gt = *sequence.ground_truth;
     if (gt.latent.size() != count || gt.depth.size() != count || gt.poses.size() != count) {
       Fail(folder, "ground truth needs one latent image, depth map and pose per frame, got " +
-                       std::to_string(gt.latent.size()) + ", " + std::to_string(gt.depth.size()) +
-                       ", " + std::to_string(gt.poses.size()) + " for " + std::to_string(count) +
-                       " frames");
+                       std::to_string(gt.latent.size()) + ", " + std::to_string(gt.depth.size()) + ", " +
+                       std::to_string(gt.poses.size()) + " for " + std::to_string(count) + " frames");
     }
   }
   std::error_code error;

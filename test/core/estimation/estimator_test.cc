@@ -17,8 +17,8 @@
 
 #include <gtest/gtest.h>
 
-#include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/evaluation/metrics.h"
+#include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/io/sequence_io.h"
 
 namespace deblur_sr_mvs {
@@ -28,8 +28,8 @@ namespace {
 const Sequence& SmallSequence() {
   static const Sequence sequence = [] {
     const std::string folder = testing::TempDir() + "/dsm_estimator_seq_" + std::to_string(::getpid());
-    const std::string command = std::string(DSM_TOOL_DIR) + "/synthesize_sequence --scene " +
-                                DSM_SOURCE_DIR + "/data/middlebury/Dolls --output " + folder +
+    const std::string command = std::string(DSM_TOOL_DIR) + "/synthesize_sequence --scene " + DSM_SOURCE_DIR +
+                                "/data/middlebury/Dolls --output " + folder +
                                 " --frames 5 --subframes 100 > /dev/null";
     EXPECT_EQ(std::system(command.c_str()), 0);
     Sequence read = ReadSequence(folder, true);
@@ -65,7 +65,8 @@ double MeanDepthRel(const std::vector<cv::Mat>& estimate, const std::vector<cv::
   DepthMetricOptions options;
   options.crop_fraction = 0.7;
   double sum = 0.0;
-  for (size_t t = 0; t < estimate.size(); ++t) sum += EvaluateDepth(estimate[t], truth[t], options).relative_error;
+  for (size_t t = 0; t < estimate.size(); ++t)
+    sum += EvaluateDepth(estimate[t], truth[t], options).relative_error;
   return sum / estimate.size();
 }
 
@@ -78,8 +79,7 @@ TEST(Estimator, ImageUpdateWithTrueStructureBeatsBicubic) {
   options.update_structure = false;
   options.max_iterations = 1;
   Estimator estimator(options);
-  const EstimatorResult result =
-      estimator.RunFromStructure(input, sequence.ground_truth->depth, poses);
+  const EstimatorResult result = estimator.RunFromStructure(input, sequence.ground_truth->depth, poses);
   std::vector<cv::Mat> bicubic;
   for (const cv::Mat& image : input.images) bicubic.push_back(UpsampleBicubic(image, 2));
   const double psnr_bicubic = MeanPsnr(bicubic, sequence.ground_truth->latent);
@@ -100,7 +100,6 @@ TEST(Estimator, ImageUpdateWithTrueStructureBeatsBicubic) {
 
 namespace deblur_sr_mvs {
 namespace {
-
 
 // From a degraded structure (depth smoothed and scaled wrongly in places,
 // poses perturbed), the joint iterations must lower the energy at every
@@ -187,9 +186,10 @@ TEST(Estimator, JointBeatsBicubicAndBaselineFromScratch) {
   const double path = (truth.back() - truth.front()).norm();
   const double ate_joint = AbsoluteTrajectoryRmse(joint_positions, truth);
   const double ate_baseline = AbsoluteTrajectoryRmse(baseline_positions, truth);
-  std::printf("from scratch: PSNR bicubic %.2f joint %.2f dB; depth rel joint %.4f baseline %.4f; "
-              "ATE joint %.5f baseline %.5f (path %.3f)\n",
-              psnr_bicubic, psnr_joint, rel_joint, rel_baseline, ate_joint, ate_baseline, path);
+  std::printf(
+      "from scratch: PSNR bicubic %.2f joint %.2f dB; depth rel joint %.4f baseline %.4f; "
+      "ATE joint %.5f baseline %.5f (path %.3f)\n",
+      psnr_bicubic, psnr_joint, rel_joint, rel_baseline, ate_joint, ate_baseline, path);
   EXPECT_GT(psnr_joint, psnr_bicubic + 3.0);
   EXPECT_LT(rel_joint, rel_baseline);
   EXPECT_LT(ate_joint, 0.02 * path);
@@ -255,8 +255,9 @@ TEST(EstimatorSafety, NonFiniteInputIsRejectedWithOneLine) {
   EXPECT_THROW(Estimator(options).RunFromStructure(input, sequence.ground_truth->depth, poses), InputError);
   std::vector<SE3> bad_poses = poses;
   bad_poses[2] = SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(std::nan(""), 0, 0));
-  EXPECT_THROW(Estimator(options).RunFromStructure(InputOf(sequence), sequence.ground_truth->depth, bad_poses),
-               InputError);
+  EXPECT_THROW(
+      Estimator(options).RunFromStructure(InputOf(sequence), sequence.ground_truth->depth, bad_poses),
+      InputError);
 }
 
 TEST(EstimatorSafety, BadOptionsAreRejected) {

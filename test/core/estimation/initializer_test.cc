@@ -10,13 +10,13 @@
 #include <string>
 #include <vector>
 
-#include <Eigen/Geometry>
 #include <gtest/gtest.h>
+#include <Eigen/Geometry>
 #include <opencv2/imgproc.hpp>
 
 #include "deblur_sr_mvs/core/common/errors.h"
-#include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/evaluation/metrics.h"
+#include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/io/sequence_io.h"
 
 namespace deblur_sr_mvs {
@@ -34,9 +34,9 @@ const Sequence& DollsSequence() {
     const std::string tool = std::string(DSM_TOOL_DIR) + "/synthesize_sequence";
     std::error_code error;
     const auto stamp = fs::last_write_time(tool, error).time_since_epoch().count();
-    const fs::path folder = fs::path(::testing::TempDir()) /
-                            ("dsm_initializer_dolls5_" + std::to_string(stamp) + "_" +
-                             std::to_string(fs::file_size(tool, error)));
+    const fs::path folder =
+        fs::path(::testing::TempDir()) / ("dsm_initializer_dolls5_" + std::to_string(stamp) + "_" +
+                                          std::to_string(fs::file_size(tool, error)));
     if (!fs::exists(folder / "frames.csv")) {
       const fs::path scratch = folder.string() + ".tmp" + std::to_string(::getpid());
       const std::string command = tool + " --scene " + std::string(DSM_SOURCE_DIR) +
@@ -109,9 +109,7 @@ TEST(InitializerTest, RecoversTrajectoryWithUnitFirstBaseline) {
 
   // Gauge: world = camera 0, cameras 0 and 1 one unit apart.
   EXPECT_LT(result.T_world_cam[0].Log().norm(), 1e-9);
-  EXPECT_NEAR(
-      (result.T_world_cam[1].translation() - result.T_world_cam[0].translation()).norm(), 1.0,
-      1e-9);
+  EXPECT_NEAR((result.T_world_cam[1].translation() - result.T_world_cam[0].translation()).norm(), 1.0, 1e-9);
 
   // Positions after Sim(3) alignment. Measured: 0.46 % of the path on this
   // sequence, 0.3-0.6 % on the four 10-frame scenes.
@@ -131,8 +129,7 @@ TEST(InitializerTest, RecoversTrajectoryWithUnitFirstBaseline) {
   for (size_t t = 1; t < result.T_world_cam.size(); ++t) {
     const Eigen::Matrix3d R_true =
         (T_world0.Inverse() * sequence.ground_truth->poses[t].T_world_cam).rotation();
-    const double angle =
-        Eigen::AngleAxisd(result.T_world_cam[t].rotation().transpose() * R_true).angle();
+    const double angle = Eigen::AngleAxisd(result.T_world_cam[t].rotation().transpose() * R_true).angle();
     EXPECT_LT(angle * 180.0 / M_PI, 0.3) << "frame " << t;
   }
 
@@ -183,8 +180,7 @@ TEST(InitializerTest, GrayFramesAndTwoFramesWork) {
   const InitialStructure result =
       InitializeStructure(gray, sequence.calibration.camera, frames, InitializerOptions());
   ASSERT_EQ(result.T_world_cam.size(), 2u);
-  EXPECT_NEAR((result.T_world_cam[1].translation() - result.T_world_cam[0].translation()).norm(),
-              1.0, 1e-9);
+  EXPECT_NEAR((result.T_world_cam[1].translation() - result.T_world_cam[0].translation()).norm(), 1.0, 1e-9);
   // The ground truth moves along +x of camera 0.
   const Eigen::Vector3d direction = result.T_world_cam[1].translation();
   EXPECT_GT(direction.x(), 0.99);
@@ -196,8 +192,8 @@ TEST(InitializerTest, UntexturedFramesGiveInitializationError) {
   const Sequence& sequence = DollsSequence();
   const PinholeCamera& camera = sequence.calibration.camera;
   for (const double value : {0.0, 0.5}) {
-    const std::vector<cv::Mat> blank(3, cv::Mat(camera.height, camera.width, CV_32FC3,
-                                                cv::Scalar::all(value)));
+    const std::vector<cv::Mat> blank(3,
+                                     cv::Mat(camera.height, camera.width, CV_32FC3, cv::Scalar::all(value)));
     const std::vector<FrameRecord> frames(sequence.frames.begin(), sequence.frames.begin() + 3);
     ExpectThrowsWith<InitializationError>(
         [&] { InitializeStructure(blank, camera, frames, InitializerOptions()); }, "features");
@@ -252,12 +248,13 @@ TEST(InitializerTest, PureRotationGivesInitializationError) {
   // so no parallax and no depth. The initialiser must say so, not invent depth.
   const Sequence& sequence = DollsSequence();
   const PinholeCamera& camera = sequence.calibration.camera;
-  const Eigen::Matrix3d K = (Eigen::Matrix3d() << camera.fx, 0, camera.cx, 0, camera.fy, camera.cy, 0, 0, 1)
-                                .finished();
+  const Eigen::Matrix3d K =
+      (Eigen::Matrix3d() << camera.fx, 0, camera.cx, 0, camera.fy, camera.cy, 0, 0, 1).finished();
   const cv::Mat first = ToFloat01(sequence.images[2]);
   std::vector<cv::Mat> images;
   for (int t = 0; t < 3; ++t) {
-    const Eigen::Matrix3d R = Eigen::AngleAxisd(0.01 * t, Eigen::Vector3d(0.2, 1.0, 0.1).normalized()).matrix();
+    const Eigen::Matrix3d R =
+        Eigen::AngleAxisd(0.01 * t, Eigen::Vector3d(0.2, 1.0, 0.1).normalized()).matrix();
     const Eigen::Matrix3d H = K * R * K.inverse();
     cv::Mat homography(3, 3, CV_64F);
     for (int r = 0; r < 3; ++r) {
@@ -272,8 +269,7 @@ TEST(InitializerTest, PureRotationGivesInitializationError) {
 }
 
 TEST(InitializerTest, BadOptionsAndInputsGiveInputError) {
-  auto expect_bad = [](const std::function<void(InitializerOptions*)>& change,
-                       const std::string& field) {
+  auto expect_bad = [](const std::function<void(InitializerOptions*)>& change, const std::string& field) {
     InitializerOptions options;
     change(&options);
     ExpectThrowsWith<InputError>([&] { options.Check(); }, field);
@@ -316,9 +312,7 @@ TEST(InitializerTest, BadOptionsAndInputsGiveInputError) {
   ExpectThrowsWith<InputError>([&] { InitializeStructure(images, camera, frames, bad); },
                                "initializer: min_inliers must be >= 8, got 2");
   ExpectThrowsWith<InputError>(
-      [&] {
-        InitializeStructure({images[0]}, camera, {frames[0]}, InitializerOptions());
-      },
+      [&] { InitializeStructure({images[0]}, camera, {frames[0]}, InitializerOptions()); },
       "at least 2 frames");
   ExpectThrowsWith<InputError>(
       [&] {

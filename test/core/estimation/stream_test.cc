@@ -15,8 +15,8 @@
 #include <gtest/gtest.h>
 
 #include "deblur_sr_mvs/core/common/errors.h"
-#include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/evaluation/metrics.h"
+#include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/io/sequence_io.h"
 
 namespace deblur_sr_mvs {
@@ -179,8 +179,8 @@ TEST(ProblemWithEstimate, AcceptsSmoothMotionRejectsJumpsAndNonFinite) {
 const Sequence& SmallSequence() {
   static const Sequence sequence = [] {
     const std::string folder = testing::TempDir() + "/dsm_stream_seq_" + std::to_string(::getpid());
-    const std::string command = std::string(DSM_TOOL_DIR) + "/synthesize_sequence --scene " +
-                                DSM_SOURCE_DIR + "/data/middlebury/Dolls --output " + folder +
+    const std::string command = std::string(DSM_TOOL_DIR) + "/synthesize_sequence --scene " + DSM_SOURCE_DIR +
+                                "/data/middlebury/Dolls --output " + folder +
                                 " --frames 8 --subframes 100 --hr-width 240 --hr-height 180 > /dev/null";
     EXPECT_EQ(std::system(command.c_str()), 0);
     Sequence read = ReadSequence(folder, true);
@@ -244,7 +244,8 @@ TEST(StreamEstimator, WindowsFormOneContinuousTrajectory) {
   std::vector<Eigen::Vector3d> estimate, truth;
   for (int t = 0; t < 5; ++t) estimate.push_back(first.result.T_world_cam[t].translation());
   for (int i = second.first_new; i < 5; ++i) estimate.push_back(second.result.T_world_cam[i].translation());
-  for (const StampedPose& pose : sequence.ground_truth->poses) truth.push_back(pose.T_world_cam.translation());
+  for (const StampedPose& pose : sequence.ground_truth->poses)
+    truth.push_back(pose.T_world_cam.translation());
   ASSERT_EQ(estimate.size(), truth.size());
   double path = 0.0;
   for (size_t t = 1; t < truth.size(); ++t) path += (truth[t] - truth[t - 1]).norm();

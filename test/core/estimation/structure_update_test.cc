@@ -19,9 +19,9 @@ cv::Mat SmoothTexture(int width, int height) {
   cv::Mat image(height, width, CV_32FC3);
   for (int y = 0; y < height; ++y) {
     for (int x = 0; x < width; ++x) {
-      image.at<cv::Vec3f>(y, x) = cv::Vec3f(0.5f + 0.4f * std::sin(0.07f * x + 0.03f * y),
-                                            0.5f + 0.4f * std::cos(0.06f * y - 0.02f * x),
-                                            0.5f + 0.3f * std::sin(0.04f * (x + y)));
+      image.at<cv::Vec3f>(y, x) =
+          cv::Vec3f(0.5f + 0.4f * std::sin(0.07f * x + 0.03f * y),
+                    0.5f + 0.4f * std::cos(0.06f * y - 0.02f * x), 0.5f + 0.3f * std::sin(0.04f * (x + y)));
     }
   }
   cv::GaussianBlur(image, image, cv::Size(0, 0), 1.5);
@@ -58,8 +58,8 @@ std::vector<cv::Point> CheckedPixels(const WarpLinearization& a, const WarpLinea
 
 TEST(LinearizeWarp, InverseDepthDerivativeMatchesNumeric) {
   Scene scene;
-  const WarpLinearization lin =
-      LinearizeWarp(scene.camera, scene.inverse_depth, scene.T_world_t, scene.T_world_s, scene.latent_s, nullptr);
+  const WarpLinearization lin = LinearizeWarp(scene.camera, scene.inverse_depth, scene.T_world_t,
+                                              scene.T_world_s, scene.latent_s, nullptr);
   const float h = 1e-3f;
   const WarpLinearization plus = LinearizeWarp(scene.camera, scene.inverse_depth + h, scene.T_world_t,
                                                scene.T_world_s, scene.latent_s, nullptr);
@@ -92,22 +92,27 @@ TEST(LinearizeWarp, PoseJacobiansMatchNumeric) {
     Vector6d step = Vector6d::Zero();
     step(j) = h;
     // P_t = exp(eps) P_t0 (eq:updateVariables) ...
-    const WarpLinearization plus = LinearizeWarp(scene.camera, scene.inverse_depth, SE3::Exp(step) * scene.T_world_t,
-                                                 scene.T_world_s, scene.latent_s, nullptr);
-    const WarpLinearization minus = LinearizeWarp(scene.camera, scene.inverse_depth, SE3::Exp(-step) * scene.T_world_t,
-                                                  scene.T_world_s, scene.latent_s, nullptr);
+    const WarpLinearization plus =
+        LinearizeWarp(scene.camera, scene.inverse_depth, SE3::Exp(step) * scene.T_world_t, scene.T_world_s,
+                      scene.latent_s, nullptr);
+    const WarpLinearization minus =
+        LinearizeWarp(scene.camera, scene.inverse_depth, SE3::Exp(-step) * scene.T_world_t, scene.T_world_s,
+                      scene.latent_s, nullptr);
     // ... and P_s = exp(eps) P_s0 moves the warp the opposite way.
     const WarpLinearization plus_s = LinearizeWarp(scene.camera, scene.inverse_depth, scene.T_world_t,
                                                    SE3::Exp(step) * scene.T_world_s, scene.latent_s, nullptr);
-    const WarpLinearization minus_s = LinearizeWarp(scene.camera, scene.inverse_depth, scene.T_world_t,
-                                                    SE3::Exp(-step) * scene.T_world_s, scene.latent_s, nullptr);
+    const WarpLinearization minus_s =
+        LinearizeWarp(scene.camera, scene.inverse_depth, scene.T_world_t, SE3::Exp(-step) * scene.T_world_s,
+                      scene.latent_s, nullptr);
     const std::vector<cv::Point> points = CheckedPixels(lin, plus, minus);
     ASSERT_GT(points.size(), 30u);
     double max_error = 0.0, max_error_s = 0.0, max_value = 0.0;
     for (const cv::Point& p : points) {
       for (int c = 0; c < 3; ++c) {
-        const double numeric = (plus.warped.at<cv::Vec3f>(p)[c] - minus.warped.at<cv::Vec3f>(p)[c]) / (2.0 * h);
-        const double numeric_s = (plus_s.warped.at<cv::Vec3f>(p)[c] - minus_s.warped.at<cv::Vec3f>(p)[c]) / (2.0 * h);
+        const double numeric =
+            (plus.warped.at<cv::Vec3f>(p)[c] - minus.warped.at<cv::Vec3f>(p)[c]) / (2.0 * h);
+        const double numeric_s =
+            (plus_s.warped.at<cv::Vec3f>(p)[c] - minus_s.warped.at<cv::Vec3f>(p)[c]) / (2.0 * h);
         const double analytic = jacobians[j].at<cv::Vec3f>(p)[c];
         max_error = std::max(max_error, std::abs(numeric - analytic));
         max_error_s = std::max(max_error_s, std::abs(numeric_s + analytic));
@@ -145,8 +150,8 @@ TEST(UpdatePoses, RecoversAPerturbedPoseFromAnHrPair) {
     options.pose_iterations = 8;
     std::vector<SE3> poses = {scene.T_world_s, SE3::Exp(perturbation) * scene.T_world_t};
     const double before = (poses[1] * scene.T_world_t.Inverse()).Log().norm();
-    const std::vector<Vector6d> steps = UpdatePoses(scene.camera, inverse_depths, unused_latents, {pair},
-                                                    options, &poses);
+    const std::vector<Vector6d> steps =
+        UpdatePoses(scene.camera, inverse_depths, unused_latents, {pair}, options, &poses);
     const double after = (poses[1] * scene.T_world_t.Inverse()).Log().norm();
     std::printf("stride %d: pose error %.2e -> %.2e\n", stride, before, after);
     EXPECT_LT(after, 0.05 * before) << "stride " << stride;

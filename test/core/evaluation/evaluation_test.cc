@@ -149,8 +149,8 @@ TEST_F(EvaluationTest, ResultRoundTripWithDepthAndPoses) {
   SequenceResult result = PerfectResult(sequence);
   result.depth[1].at<float>(5, 7) = std::numeric_limits<float>::quiet_NaN();
   WriteResult(Path("out"), result);
-  for (const char* file : {"camera.yaml", "frames.csv", "poses.txt", "report.json",
-                           "latent/000002.png", "depth/000002.tiff", "depth_color/000002.png"}) {
+  for (const char* file : {"camera.yaml", "frames.csv", "poses.txt", "report.json", "latent/000002.png",
+                           "depth/000002.tiff", "depth_color/000002.png"}) {
     EXPECT_TRUE(fs::is_regular_file(dir_ / "out" / file)) << file;
   }
   const SequenceResult read = ReadResult(Path("out"));
@@ -167,10 +167,9 @@ TEST_F(EvaluationTest, ResultRoundTripWithDepthAndPoses) {
     EXPECT_DOUBLE_EQ(read.frames[i].exposure, result.frames[i].exposure);
     EXPECT_EQ(cv::norm(read.latent[i], result.latent[i], cv::NORM_INF), 0.0);
     EXPECT_TRUE(SameFloatImage(read.depth[i], result.depth[i])) << "frame " << i;
-    EXPECT_LT((read.poses[i].T_world_cam.translation() - result.poses[i].T_world_cam.translation())
-                  .norm(), 1e-12);
-    EXPECT_LT((read.poses[i].T_world_cam.rotation() - result.poses[i].T_world_cam.rotation())
-                  .norm(), 1e-12);
+    EXPECT_LT((read.poses[i].T_world_cam.translation() - result.poses[i].T_world_cam.translation()).norm(),
+              1e-12);
+    EXPECT_LT((read.poses[i].T_world_cam.rotation() - result.poses[i].T_world_cam.rotation()).norm(), 1e-12);
   }
   EXPECT_TRUE(std::isnan(read.depth[1].at<float>(5, 7)));
   EXPECT_EQ(read.report_json, "{\"method\": \"test\"}\n");
@@ -450,9 +449,9 @@ TEST_F(EvaluationTest, MarkdownAndJsonCarryTheNumbers) {
   SequenceResult result = PerfectResult(sequence);
   for (cv::Mat& latent : result.latent) latent += cv::Scalar::all(10);  // 28.13 dB
   for (cv::Mat& depth : result.depth) depth.at<float>(20, 24) *= 1.5f;
-  result.poses[2].T_world_cam = SE3(result.poses[2].T_world_cam.rotation(),
-                                    result.poses[2].T_world_cam.translation() +
-                                        Eigen::Vector3d(0.05, 0.0, 0.0));
+  result.poses[2].T_world_cam =
+      SE3(result.poses[2].T_world_cam.rotation(),
+          result.poses[2].T_world_cam.translation() + Eigen::Vector3d(0.05, 0.0, 0.0));
   const EvaluationReport report = EvaluateResult(result, sequence);
   ASSERT_TRUE(report.ate_rmse.has_value());
   ASSERT_TRUE(report.mean_depth_psnr_db.has_value());
@@ -466,8 +465,7 @@ TEST_F(EvaluationTest, MarkdownAndJsonCarryTheNumbers) {
             std::string::npos)
       << markdown;
   EXPECT_NE(markdown.find(fixed(*report.mean_depth_psnr_db, 2) + " | " +
-                          fixed(*report.mean_depth_relative_error, 4) + " | " +
-                          fixed(*report.ate_rmse, 4)),
+                          fixed(*report.mean_depth_relative_error, 4) + " | " + fixed(*report.ate_rmse, 4)),
             std::string::npos)
       << markdown;
   EXPECT_NE(markdown.find("tab:quantBlur"), std::string::npos);
@@ -514,10 +512,20 @@ TEST_F(EvaluationTest, JsonIsStrictWithNanAndAwkwardStrings) {
   std::vector<std::string> keys;
   const nlohmann::ordered_json ordered = nlohmann::ordered_json::parse(json);
   for (const auto& item : ordered.items()) keys.push_back(item.key());
-  const std::vector<std::string> expected = {
-      "method", "num_frames", "scale", "hr_width", "hr_height", "colour", "crop_fraction",
-      "align_depth_scale", "mean", "num_depth_frames", "depth_note", "ate_note",
-      "trajectory_alignment", "frames"};
+  const std::vector<std::string> expected = {"method",
+                                             "num_frames",
+                                             "scale",
+                                             "hr_width",
+                                             "hr_height",
+                                             "colour",
+                                             "crop_fraction",
+                                             "align_depth_scale",
+                                             "mean",
+                                             "num_depth_frames",
+                                             "depth_note",
+                                             "ate_note",
+                                             "trajectory_alignment",
+                                             "frames"};
   EXPECT_EQ(keys, expected);
   // Bytes that are not UTF-8 do not make the writer throw.
   EXPECT_NO_THROW(nlohmann::json::parse(ToJson(report, "bad \xff byte")));
@@ -540,12 +548,11 @@ std::string ReadFile(const std::string& path) {
   return content.str();
 }
 
-CommandResult RunTool(const std::string& tool, const std::string& arguments,
-                      const fs::path& scratch) {
+CommandResult RunTool(const std::string& tool, const std::string& arguments, const fs::path& scratch) {
   const std::string out_path = (scratch / (tool + ".stdout")).string();
   const std::string err_path = (scratch / (tool + ".stderr")).string();
-  const std::string command = std::string(DSM_TOOL_DIR) + "/" + tool + " " + arguments + " >" +
-                              out_path + " 2>" + err_path;
+  const std::string command =
+      std::string(DSM_TOOL_DIR) + "/" + tool + " " + arguments + " >" + out_path + " 2>" + err_path;
   const int status = std::system(command.c_str());
   CommandResult result;
   result.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;  // -1: killed by a signal
@@ -567,7 +574,8 @@ TEST_F(EvaluationTest, EvaluateToolRejectsAMissingFolderInOneLine) {
   EXPECT_EQ(CountLines(missing.err), 1) << missing.err;
   EXPECT_NE(missing.err.find(Path("nope")), std::string::npos) << missing.err;
 
-  const CommandResult bad_flag = RunTool("evaluate_sequence", "--crop 2 --result " + Path("seq") + " --sequence " + Path("seq"), dir_);
+  const CommandResult bad_flag =
+      RunTool("evaluate_sequence", "--crop 2 --result " + Path("seq") + " --sequence " + Path("seq"), dir_);
   EXPECT_EQ(bad_flag.exit_code, 2);
   EXPECT_EQ(CountLines(bad_flag.err), 1) << bad_flag.err;
   EXPECT_NE(bad_flag.err.find("--crop"), std::string::npos) << bad_flag.err;
@@ -578,8 +586,8 @@ TEST_F(EvaluationTest, EvaluateToolRejectsAMissingFolderInOneLine) {
   result.latent = sequence.images;
   result.depth.clear();
   WriteResult(Path("lr_result"), result);
-  const CommandResult wrong_size = RunTool(
-      "evaluate_sequence", "--result " + Path("lr_result") + " --sequence " + Path("seq"), dir_);
+  const CommandResult wrong_size =
+      RunTool("evaluate_sequence", "--result " + Path("lr_result") + " --sequence " + Path("seq"), dir_);
   EXPECT_EQ(wrong_size.exit_code, 2);
   EXPECT_EQ(CountLines(wrong_size.err), 1) << wrong_size.err;
   EXPECT_NE(wrong_size.err.find("24x20"), std::string::npos) << wrong_size.err;
@@ -591,11 +599,10 @@ TEST_F(EvaluationTest, EvaluateToolPrintsTablesAndWritesJson) {
   SequenceResult result = PerfectResult(sequence);
   for (cv::Mat& latent : result.latent) latent += cv::Scalar::all(10);
   WriteResult(Path("proposed"), result);
-  const CommandResult run = RunTool(
-      "evaluate_sequence",
-      "--result " + Path("proposed") + " --sequence " + Path("seq") + " --json " +
-          Path("eval/metrics.json") + " --crop 0.5",
-      dir_);
+  const CommandResult run = RunTool("evaluate_sequence",
+                                    "--result " + Path("proposed") + " --sequence " + Path("seq") +
+                                        " --json " + Path("eval/metrics.json") + " --crop 0.5",
+                                    dir_);
   ASSERT_EQ(run.exit_code, 0) << run.err;
   EXPECT_NE(run.out.find("| proposed | 28.13 |"), std::string::npos) << run.out;
   EXPECT_NE(run.out.find("| proposed | inf | 0.0000 | 0.0000 |"), std::string::npos) << run.out;
@@ -616,9 +623,9 @@ TEST_F(EvaluationTest, SuperresBtvl1WritesAnImageOnlyResult) {
     sequence.images[i] = ToImage8(DownsampleBox(ToFloat01(sequence.ground_truth->latent[i]), kScale));
   }
   WriteSequence(Path("seq"), sequence);
-  const CommandResult run = RunTool(
-      "superres_btvl1",
-      "--input " + Path("seq") + " --output " + Path("btv") + " --iterations 10 --threads 1", dir_);
+  const CommandResult run =
+      RunTool("superres_btvl1",
+              "--input " + Path("seq") + " --output " + Path("btv") + " --iterations 10 --threads 1", dir_);
   ASSERT_EQ(run.exit_code, 0) << run.err;
   const SequenceResult result = ReadResult(Path("btv"));
   ASSERT_EQ(result.latent.size(), 3u);
@@ -639,12 +646,12 @@ TEST_F(EvaluationTest, SuperresBtvl1WritesAnImageOnlyResult) {
       EXPECT_GT(own, Psnr(result.latent[k], sequence.ground_truth->latent[j], 255.0) + 1.0);
     }
   }
-  const CommandResult evaluated = RunTool(
-      "evaluate_sequence", "--result " + Path("btv") + " --sequence " + Path("seq"), dir_);
+  const CommandResult evaluated =
+      RunTool("evaluate_sequence", "--result " + Path("btv") + " --sequence " + Path("seq"), dir_);
   EXPECT_EQ(evaluated.exit_code, 0) << evaluated.err;
 
-  const CommandResult missing = RunTool("superres_btvl1", "--input " + Path("none") + " --output " +
-                                                              Path("x"), dir_);
+  const CommandResult missing =
+      RunTool("superres_btvl1", "--input " + Path("none") + " --output " + Path("x"), dir_);
   EXPECT_EQ(missing.exit_code, 2);
   EXPECT_EQ(CountLines(missing.err), 1) << missing.err;
   EXPECT_NE(missing.err.find(Path("none")), std::string::npos) << missing.err;

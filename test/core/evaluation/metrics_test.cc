@@ -4,9 +4,9 @@
 #include <limits>
 #include <random>
 
+#include <gtest/gtest.h>
 #include <Eigen/Geometry>
 #include <Eigen/LU>
-#include <gtest/gtest.h>
 
 #include "deblur_sr_mvs/core/common/errors.h"
 
@@ -25,8 +25,7 @@ TEST(PsnrTest, GrayMatchesHandComputedValue) {
   EXPECT_NEAR(Psnr(estimate, reference, 255.0), 10.0 * std::log10(255.0 * 255.0 / 5.0), 1e-12);
   // Masking out the last pixel leaves 4, 0, 0: MSE = 4/3.
   const cv::Mat mask = (cv::Mat_<uint8_t>(2, 2) << 1, 255, 7, 0);
-  EXPECT_NEAR(Psnr(estimate, reference, 255.0, mask), 10.0 * std::log10(255.0 * 255.0 * 3.0 / 4.0),
-              1e-12);
+  EXPECT_NEAR(Psnr(estimate, reference, 255.0, mask), 10.0 * std::log10(255.0 * 255.0 * 3.0 / 4.0), 1e-12);
   // Masking out the only differing pixels gives a perfect match.
   const cv::Mat exact_mask = (cv::Mat_<uint8_t>(2, 2) << 0, 1, 1, 0);
   EXPECT_EQ(Psnr(estimate, reference, 255.0, exact_mask), kInf);
@@ -42,8 +41,7 @@ TEST(PsnrTest, ColourAveragesOverChannels) {
   // Squared errors 9, 0, 0 | 0, 0, 16 over 6 values.
   EXPECT_NEAR(Psnr(estimate, reference, 255.0), 10.0 * std::log10(255.0 * 255.0 * 6.0 / 25.0), 1e-12);
   const cv::Mat mask = (cv::Mat_<uint8_t>(1, 2) << 0, 1);
-  EXPECT_NEAR(Psnr(estimate, reference, 255.0, mask), 10.0 * std::log10(255.0 * 255.0 * 3.0 / 16.0),
-              1e-12);
+  EXPECT_NEAR(Psnr(estimate, reference, 255.0, mask), 10.0 * std::log10(255.0 * 255.0 * 3.0 / 16.0), 1e-12);
 }
 
 TEST(PsnrTest, FloatImagesAndErrors) {

@@ -13,9 +13,9 @@
 #include <vector>
 
 #include <gtest/gtest.h>
+#include <yaml-cpp/yaml.h>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
-#include <yaml-cpp/yaml.h>
 
 namespace deblur_sr_mvs {
 namespace {
@@ -162,9 +162,13 @@ TEST(SynthesizerSceneTest, RejectsBrokenFolders) {
   ExpectInputError([&] { LoadMiddleburyScene(folder.str()); }, "view1.png");
 }
 
-TEST(SynthesizerRendererTest, View1PoseReproducesView1) { ExpectReproducesView(0); }
+TEST(SynthesizerRendererTest, View1PoseReproducesView1) {
+  ExpectReproducesView(0);
+}
 
-TEST(SynthesizerRendererTest, View5PoseReproducesView5) { ExpectReproducesView(1); }
+TEST(SynthesizerRendererTest, View5PoseReproducesView5) {
+  ExpectReproducesView(1);
+}
 
 // The real calibration check: view5's points alone, seen from view1, must
 // land on view1's pixels with view1's depth and colours. A wrong principal
@@ -190,8 +194,7 @@ TEST(SynthesizerRendererTest, View5PointsSeenFromView1MatchView1) {
   }
   ASSERT_GT(depth_errors.size(), mask.total() / 2);
   colour_error /= depth_errors.size();
-  std::nth_element(depth_errors.begin(), depth_errors.begin() + depth_errors.size() / 2,
-                   depth_errors.end());
+  std::nth_element(depth_errors.begin(), depth_errors.begin() + depth_errors.size() / 2, depth_errors.end());
   EXPECT_LT(depth_errors[depth_errors.size() / 2], 0.01);
   EXPECT_LT(colour_error, 15.0);  // SOURCES.md: warping error 6.4 on Dolls
 }
@@ -204,8 +207,8 @@ TEST(SynthesizerRendererTest, SubPixelShiftIsSmoothAndCrackFree) {
   // Shift of a quarter pixel at the median depth.
   const double shift_m = 0.25 * scene.median_depth / scene.focal_px;
   const RenderResult a = DollsRenderer().Render(camera, SE3());
-  const RenderResult b = DollsRenderer().Render(
-      camera, SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(shift_m, 0.0, 0.0)));
+  const RenderResult b =
+      DollsRenderer().Render(camera, SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(shift_m, 0.0, 0.0)));
   const RenderResult c = DollsRenderer().Render(
       camera, SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(4.0 * shift_m, 0.0, 0.0)));
   EXPECT_LT(b.HoleFraction(), 0.01);
@@ -218,8 +221,7 @@ TEST(SynthesizerRendererTest, SubPixelShiftIsSmoothAndCrackFree) {
 
 TEST(SynthesizerPathTest, PathsAreGeodesicsThroughTheMidpoint) {
   const StereoScene& scene = Dolls();
-  for (CameraPathType type :
-       {CameraPathType::kLateral, CameraPathType::kArc, CameraPathType::kForward}) {
+  for (CameraPathType type : {CameraPathType::kLateral, CameraPathType::kArc, CameraPathType::kForward}) {
     SCOPED_TRACE(CameraPathName(type));
     EXPECT_EQ(ParseCameraPathType(CameraPathName(type)), type);
     CameraPath path = MakeCameraPath(type, scene, 0.2, 2.0);
@@ -285,7 +287,11 @@ TEST(SynthesizerOptionsTest, CheckRejectsBadOptions) {
       {"--blur-px", [](SynthesisOptions* o) { o->blur_px = 0.0; }},
       {"--subframes", [](SynthesisOptions* o) { o->subframes = 50; }},
       {"--fps", [](SynthesisOptions* o) { o->fps = 0.0; }},
-      {"--hr-width", [](SynthesisOptions* o) { o->hr_width = 101; o->hr_height = 100; }},
+      {"--hr-width",
+       [](SynthesisOptions* o) {
+         o->hr_width = 101;
+         o->hr_height = 100;
+       }},
       {"--hr-width", [](SynthesisOptions* o) { o->hr_width = 100; }},
   };
   for (const auto& [flag, spoil] : cases) {
@@ -405,8 +411,7 @@ TEST(SynthesizerSequenceTest, DefaultBlurIsSevereAndGroundTruthIsPlausible) {
   // the sharp image's horizontal detail than of its vertical detail.
   const cv::Mat& blurred8 = result.sequence.images[1];
   cv::Mat sharp_lr, blurred, sharp;
-  cv::resize(result.sequence.ground_truth->latent[1], sharp_lr, blurred8.size(), 0, 0,
-             cv::INTER_AREA);
+  cv::resize(result.sequence.ground_truth->latent[1], sharp_lr, blurred8.size(), 0, 0, cv::INTER_AREA);
   blurred8.convertTo(blurred, CV_32FC3);
   sharp_lr.convertTo(sharp, CV_32FC3);
   auto detail = [](const cv::Mat& image, int dx, int dy) {
@@ -478,8 +483,7 @@ TEST(SynthesizerToolTest, WritesAReadableSequence) {
   const Sequence sequence = ReadSequence(seq, true);
   ASSERT_EQ(sequence.frames.size(), 2u);
   ASSERT_TRUE(sequence.ground_truth.has_value());
-  EXPECT_EQ(sequence.ground_truth->calibration.camera.width,
-            2 * sequence.calibration.camera.width);
+  EXPECT_EQ(sequence.ground_truth->calibration.camera.width, 2 * sequence.calibration.camera.width);
   EXPECT_EQ(sequence.images[0].type(), CV_8UC3);
   EXPECT_TRUE(fs::exists(seq + "/gt/synthesis.yaml"));
 }

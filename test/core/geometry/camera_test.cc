@@ -57,8 +57,7 @@ TEST(PinholeCamera, ScalingRuleMatchesBoxDownsampling) {
     const Eigen::Vector2d expected = lr.Project(point);
     EXPECT_LT((centroid - expected).norm(), 1e-6) << "scale " << scale;
     // The naive rule cx' = cx / s would be off by (s-1)/(2s) px.
-    EXPECT_GT(std::abs(centroid.x() - (hr.cx / scale + hr.fx / scale * point.x() / point.z())),
-              0.2);
+    EXPECT_GT(std::abs(centroid.x() - (hr.cx / scale + hr.fx / scale * point.x() / point.z())), 0.2);
   }
 }
 

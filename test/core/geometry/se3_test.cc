@@ -17,7 +17,9 @@ Vector6d RandomTangent(std::mt19937* rng, double rotation_scale, double translat
   return xi;
 }
 
-double MaxAbs(const Eigen::MatrixXd& m) { return m.cwiseAbs().maxCoeff(); }
+double MaxAbs(const Eigen::MatrixXd& m) {
+  return m.cwiseAbs().maxCoeff();
+}
 
 TEST(SE3, ExpLogRoundTripAtManyScales) {
   std::mt19937 rng(1);
@@ -84,8 +86,7 @@ TEST(SE3, LeftJacobianMatchesNumeric) {
       numeric.col(i) = (plus - minus) / (2.0 * h);
     }
     EXPECT_LT(MaxAbs(SE3LeftJacobian(xi) - numeric), 1e-8) << "rotation scale " << rotation_scale;
-    EXPECT_LT(MaxAbs(SE3LeftJacobianInverse(xi) * SE3LeftJacobian(xi) - Matrix6d::Identity()),
-              1e-10);
+    EXPECT_LT(MaxAbs(SE3LeftJacobianInverse(xi) * SE3LeftJacobian(xi) - Matrix6d::Identity()), 1e-10);
   }
 }
 
@@ -103,8 +104,7 @@ TEST(SO3, LeftJacobianMatchesNumeric) {
                        (2.0 * h);
     }
     EXPECT_LT(MaxAbs(SO3LeftJacobian(phi) - numeric), 1e-8);
-    EXPECT_LT(MaxAbs(SO3LeftJacobianInverse(phi) * SO3LeftJacobian(phi) -
-                     Eigen::Matrix3d::Identity()),
+    EXPECT_LT(MaxAbs(SO3LeftJacobianInverse(phi) * SO3LeftJacobian(phi) - Eigen::Matrix3d::Identity()),
               1e-12);
   }
 }
@@ -127,10 +127,8 @@ TEST(SE3, InterpolationEndPointsAndMidpoint) {
   std::mt19937 rng(8);
   const SE3 T_world_s = SE3::Exp(RandomTangent(&rng, 0.4, 1.0));
   const SE3 T_world_t = SE3::Exp(RandomTangent(&rng, 0.4, 1.0));
-  EXPECT_LT(MaxAbs(InterpolatePose(T_world_s, T_world_t, 0.0).Matrix() - T_world_s.Matrix()),
-            1e-12);
-  EXPECT_LT(MaxAbs(InterpolatePose(T_world_s, T_world_t, 1.0).Matrix() - T_world_t.Matrix()),
-            1e-12);
+  EXPECT_LT(MaxAbs(InterpolatePose(T_world_s, T_world_t, 0.0).Matrix() - T_world_s.Matrix()), 1e-12);
+  EXPECT_LT(MaxAbs(InterpolatePose(T_world_s, T_world_t, 1.0).Matrix() - T_world_t.Matrix()), 1e-12);
   // Two half steps compose to the whole step (constant velocity on the geodesic).
   const SE3 half = InterpolatePose(T_world_s, T_world_t, 0.5);
   const SE3 step = half * T_world_s.Inverse();

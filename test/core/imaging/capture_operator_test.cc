@@ -46,8 +46,8 @@ cv::Mat SceneDepth(int width, int height) {
 
 CaptureGeometry MovingGeometry(int width, int height) {
   CaptureGeometry geometry;
-  geometry.camera_hr = PinholeCamera(width, height, 0.9 * width, 0.9 * width, 0.5 * width - 0.3,
-                                     0.5 * height + 0.2);
+  geometry.camera_hr =
+      PinholeCamera(width, height, 0.9 * width, 0.9 * width, 0.5 * width - 0.3, 0.5 * height + 0.2);
   geometry.depth_hr = SceneDepth(width, height);
   geometry.T_world_cam = SE3::Exp((Vector6d() << 0.02, 0.004, -0.01, 0.01, -0.015, 0.004).finished());
   geometry.T_world_neighbour = SE3();
@@ -107,8 +107,7 @@ TEST(CaptureOperator, ConstantImageStaysConstant) {
   for (int y = 0; y < out.rows; ++y) {
     for (int x = 0; x < out.cols; ++x) {
       const cv::Vec3f v = out.at<cv::Vec3f>(y, x);
-      max_error = std::max({max_error, std::abs(v[0] - 0.25), std::abs(v[1] - 0.5),
-                            std::abs(v[2] - 0.75)});
+      max_error = std::max({max_error, std::abs(v[0] - 0.25), std::abs(v[1] - 0.5), std::abs(v[2] - 0.75)});
     }
   }
   EXPECT_LT(max_error, 1e-5);
@@ -217,8 +216,7 @@ TEST(CaptureOperator, RejectsInconsistentInput) {
   geometry.depth_hr = cv::Mat(10, 10, CV_32FC1, cv::Scalar(1.0f));
   EXPECT_THROW(BuildCaptureOperator(geometry, options), InputError);
   options.samples = 0;
-  ExpectInputError([&] { options.Check(); },
-                   "capture operator: samples (M) must be in [1, 10000], got 0");
+  ExpectInputError([&] { options.Check(); }, "capture operator: samples (M) must be in [1, 10000], got 0");
   options = CaptureOperatorOptions();
   options.num_threads = -2;
   ExpectInputError([&] { options.Check(); }, "capture operator: num_threads must be >= 0, got -2");
@@ -268,11 +266,9 @@ TEST(EdgeWeight, FlatIsOneAndEdgesAreSmall) {
   ExpectInputError([&] { bad.Check(); }, "edge weight: exponent must be > 0, got -1");
   VisibilityOptions visibility;
   visibility.depth_tolerance = 1.0;
-  ExpectInputError([&] { visibility.Check(); },
-                   "visibility: depth_tolerance must be in [0, 1), got 1");
+  ExpectInputError([&] { visibility.Check(); }, "visibility: depth_tolerance must be in [0, 1), got 1");
   visibility.depth_tolerance = -0.5;
-  ExpectInputError([&] { visibility.Check(); },
-                   "visibility: depth_tolerance must be in [0, 1), got -0.5");
+  ExpectInputError([&] { visibility.Check(); }, "visibility: depth_tolerance must be in [0, 1), got -0.5");
 }
 
 }  // namespace

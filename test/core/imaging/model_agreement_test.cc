@@ -14,10 +14,10 @@
 
 #include <gtest/gtest.h>
 
-#include "deblur_sr_mvs/core/imaging/capture_operator.h"
 #include "deblur_sr_mvs/core/estimation/frame_structure.h"
-#include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/evaluation/metrics.h"
+#include "deblur_sr_mvs/core/imaging/capture_operator.h"
+#include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/io/sequence_io.h"
 
 namespace deblur_sr_mvs {
@@ -25,9 +25,8 @@ namespace {
 
 TEST(ModelAgreement, CaptureOperatorReproducesSynthesizedBlur) {
   const std::string folder = testing::TempDir() + "/dsm_model_agreement_" + std::to_string(::getpid());
-  const std::string command = std::string(DSM_TOOL_DIR) + "/synthesize_sequence --scene " +
-                              DSM_SOURCE_DIR + "/data/middlebury/Dolls --output " + folder +
-                              " --frames 4 > /dev/null";
+  const std::string command = std::string(DSM_TOOL_DIR) + "/synthesize_sequence --scene " + DSM_SOURCE_DIR +
+                              "/data/middlebury/Dolls --output " + folder + " --frames 4 > /dev/null";
   ASSERT_EQ(std::system(command.c_str()), 0);
   const Sequence sequence = ReadSequence(folder, true);
   std::filesystem::remove_all(folder);

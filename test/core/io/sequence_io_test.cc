@@ -12,8 +12,8 @@
 
 #include <gtest/gtest.h>
 #include <unistd.h>
-#include <opencv2/imgcodecs.hpp>
 #include <yaml-cpp/yaml.h>
+#include <opencv2/imgcodecs.hpp>
 
 namespace deblur_sr_mvs {
 namespace {
@@ -63,19 +63,19 @@ void ExpectInputError(const std::function<void()>& read, const std::vector<std::
   }
 }
 
-void Truncate(const std::string& path, std::uintmax_t size) { fs::resize_file(path, size); }
+void Truncate(const std::string& path, std::uintmax_t size) {
+  fs::resize_file(path, size);
+}
 
 CameraCalibration AwkwardCalibration() {
   CameraCalibration calibration;
-  calibration.camera = PinholeCamera(641, 479, 0.1 + 0.2 + 500.0, 1.0 / 3.0 + 499.0,
-                                     320.123456789012345, 239.98765432109876);
+  calibration.camera =
+      PinholeCamera(641, 479, 0.1 + 0.2 + 500.0, 1.0 / 3.0 + 499.0, 320.123456789012345, 239.98765432109876);
   calibration.camera_name = "cam: left #1";  // needs quoting
   calibration.distortion_model = "rational_polynomial";
-  calibration.distortion = {-0.1234567890123456, 1e-17, 3.0e-300, -2.5, 0.1 + 0.7, 1.0 / 7.0,
-                            0.0, -0.0};
+  calibration.distortion = {-0.1234567890123456, 1e-17, 3.0e-300, -2.5, 0.1 + 0.7, 1.0 / 7.0, 0.0, -0.0};
   calibration.rectification << 0.9999, 0.01, -1.0 / 3.0, 2e-8, 1.0, 0.5, 0.25, 0.125, 1.0 / 9.0;
-  calibration.projection << 1.0 / 3.0, 0, 320.5, -12.345678901234567, 0, 2.0 / 3.0, 240.25, 1e-9,
-      0, 0, 1, 0;
+  calibration.projection << 1.0 / 3.0, 0, 320.5, -12.345678901234567, 0, 2.0 / 3.0, 240.25, 1e-9, 0, 0, 1, 0;
   return calibration;
 }
 
@@ -150,17 +150,19 @@ TEST_F(SequenceIoTest, CameraYamlReadsRosStyleFileWithDefaults) {
   EXPECT_EQ(read.projection(2, 3), 0.0);
 
   // Flow-style maps are accepted too.
-  const std::string flow = WriteText("flow.yaml",
-                                     "image_width: 4\nimage_height: 3\n"
-                                     "camera_matrix: {rows: 3, cols: 3, data: [2, 0, 1.5, 0, 2, 1, 0, 0, 1]}\n"
-                                     "distortion_coefficients: {rows: 1, cols: 0, data: []}\n");
+  const std::string flow =
+      WriteText("flow.yaml",
+                "image_width: 4\nimage_height: 3\n"
+                "camera_matrix: {rows: 3, cols: 3, data: [2, 0, 1.5, 0, 2, 1, 0, 0, 1]}\n"
+                "distortion_coefficients: {rows: 1, cols: 0, data: []}\n");
   const CameraCalibration flow_read = ReadCameraYaml(flow);
   EXPECT_EQ(flow_read.camera.cx, 1.5);
   EXPECT_TRUE(flow_read.distortion.empty());
 }
 
 TEST_F(SequenceIoTest, CameraYamlErrorsNameFileAndLine) {
-  const std::string good_k = "camera_matrix:\n  rows: 3\n  cols: 3\n  data: [500, 0, 320, 0, 500, 240, 0, 0, 1]\n";
+  const std::string good_k =
+      "camera_matrix:\n  rows: 3\n  cols: 3\n  data: [500, 0, 320, 0, 500, 240, 0, 0, 1]\n";
   const std::string size = "image_width: 640\nimage_height: 480\n";
   auto read = [](const std::string& path) { return [path] { ReadCameraYaml(path); }; };
 
@@ -176,33 +178,48 @@ TEST_F(SequenceIoTest, CameraYamlErrorsNameFileAndLine) {
   ExpectInputError(read(WriteText("nodata.yaml", size + "camera_matrix:\n  rows: 3\n  cols: 3\n")),
                    {"nodata.yaml:3:", "missing key 'data'"});
   ExpectInputError(
-      read(WriteText("count.yaml", size + "camera_matrix:\n  rows: 3\n  cols: 3\n  data: [500, 0, 320, 0, 500, 240, 0, 0]\n")),
+      read(WriteText(
+          "count.yaml",
+          size + "camera_matrix:\n  rows: 3\n  cols: 3\n  data: [500, 0, 320, 0, 500, 240, 0, 0]\n")),
       {"count.yaml:6:", "8 values", "9"});
-  ExpectInputError(read(WriteText("rows.yaml", size + "camera_matrix:\n  rows: 2\n  cols: 3\n  data: [1, 0, 0, 0, 1, 0]\n")),
-                   {"rows.yaml:4:", "rows is 2, expected 3"});
   ExpectInputError(
-      read(WriteText("nan.yaml", size + "camera_matrix:\n  rows: 3\n  cols: 3\n  data: [500, 0, abc, 0, 500, 240, 0, 0, 1]\n")),
+      read(WriteText("rows.yaml",
+                     size + "camera_matrix:\n  rows: 2\n  cols: 3\n  data: [1, 0, 0, 0, 1, 0]\n")),
+      {"rows.yaml:4:", "rows is 2, expected 3"});
+  ExpectInputError(
+      read(WriteText(
+          "nan.yaml",
+          size + "camera_matrix:\n  rows: 3\n  cols: 3\n  data: [500, 0, abc, 0, 500, 240, 0, 0, 1]\n")),
       {"nan.yaml:6:", "'abc' is not a number"});
   ExpectInputError(read(WriteText("width.yaml", "image_width: 0\nimage_height: 480\n" + good_k)),
                    {"width.yaml:1:", "image_width", "positive"});
   ExpectInputError(read(WriteText("widthtext.yaml", "image_width: wide\nimage_height: 480\n" + good_k)),
                    {"widthtext.yaml:1:", "'wide'"});
   ExpectInputError(
-      read(WriteText("focal.yaml", size + "camera_matrix:\n  rows: 3\n  cols: 3\n  data: [-500, 0, 320, 0, 500, 240, 0, 0, 1]\n")),
+      read(WriteText(
+          "focal.yaml",
+          size + "camera_matrix:\n  rows: 3\n  cols: 3\n  data: [-500, 0, 320, 0, 500, 240, 0, 0, 1]\n")),
       {"focal.yaml:3:", "focal length"});
   ExpectInputError(
-      read(WriteText("skew.yaml", size + "camera_matrix:\n  rows: 3\n  cols: 3\n  data: [500, 1, 320, 0, 500, 240, 0, 0, 1]\n")),
+      read(WriteText(
+          "skew.yaml",
+          size + "camera_matrix:\n  rows: 3\n  cols: 3\n  data: [500, 1, 320, 0, 500, 240, 0, 0, 1]\n")),
       {"skew.yaml:3:", "[fx 0 cx; 0 fy cy; 0 0 1]"});
-  ExpectInputError(read(WriteText("unterminated.yaml", size + "camera_matrix:\n  rows: 3\n  cols: 3\n  data: [500, 0, 320,\n")),
+  ExpectInputError(read(WriteText("unterminated.yaml",
+                                  size + "camera_matrix:\n  rows: 3\n  cols: 3\n  data: [500, 0, 320,\n")),
                    {"unterminated.yaml:7:", "closing bracket"});  // yaml-cpp: where the ']' is missing
   ExpectInputError(read(WriteText("dup.yaml", size + "image_width: 320\n" + good_k)),
                    {"dup.yaml:3:", "duplicate key 'image_width'"});
-  ExpectInputError(read(WriteText("dist.yaml", size + good_k +
-                                                   "distortion_coefficients:\n  rows: 1\n  cols: 5\n  data: [0, 0, 0, 0]\n")),
-                   {"dist.yaml:10:", "4 values"});
-  ExpectInputError(read(WriteText("proj.yaml", size + good_k +
-                                                   "projection_matrix:\n  rows: 3\n  cols: 3\n  data: [1, 0, 0, 0, 1, 0, 0, 0, 1]\n")),
-                   {"proj.yaml:9:", "cols is 3, expected 4"});
+  ExpectInputError(
+      read(WriteText(
+          "dist.yaml",
+          size + good_k + "distortion_coefficients:\n  rows: 1\n  cols: 5\n  data: [0, 0, 0, 0]\n")),
+      {"dist.yaml:10:", "4 values"});
+  ExpectInputError(
+      read(WriteText(
+          "proj.yaml",
+          size + good_k + "projection_matrix:\n  rows: 3\n  cols: 3\n  data: [1, 0, 0, 0, 1, 0, 0, 0, 1]\n")),
+      {"proj.yaml:9:", "cols is 3, expected 4"});
 }
 
 TEST_F(SequenceIoTest, CameraYamlKeepsTheCameraCalibrationLayout) {
@@ -215,9 +232,10 @@ TEST_F(SequenceIoTest, CameraYamlKeepsTheCameraCalibrationLayout) {
   EXPECT_EQ(root["image_height"].as<int>(), 479);
   EXPECT_EQ(root["camera_name"].as<std::string>(), "cam: left #1");
   EXPECT_EQ(root["distortion_model"].as<std::string>(), "rational_polynomial");
-  const std::pair<const char*, std::pair<int, int>> matrices[] = {
-      {"camera_matrix", {3, 3}}, {"distortion_coefficients", {1, 8}},
-      {"rectification_matrix", {3, 3}}, {"projection_matrix", {3, 4}}};
+  const std::pair<const char*, std::pair<int, int>> matrices[] = {{"camera_matrix", {3, 3}},
+                                                                  {"distortion_coefficients", {1, 8}},
+                                                                  {"rectification_matrix", {3, 3}},
+                                                                  {"projection_matrix", {3, 4}}};
   for (const auto& [key, size] : matrices) {
     const YAML::Node matrix = root[key];
     ASSERT_TRUE(matrix.IsMap()) << key;
@@ -231,8 +249,8 @@ TEST_F(SequenceIoTest, CameraYamlKeepsTheCameraCalibrationLayout) {
 
 TEST_F(SequenceIoTest, CameraYamlRoundTripsAwkwardNames) {
   CameraCalibration written = AwkwardCalibration();
-  for (const std::string name : {"quote \" and backslash \\", "line\nbreak: #x", "- [a, b]", "",
-                                 " padded ", "true", "42", "caf\xc3\xa9"}) {
+  for (const std::string name : {"quote \" and backslash \\", "line\nbreak: #x", "- [a, b]", "", " padded ",
+                                 "true", "42", "caf\xc3\xa9"}) {
     written.camera_name = name;
     written.distortion_model = name;
     WriteCameraYaml(Path("camera.yaml"), written);
@@ -249,8 +267,8 @@ TEST_F(SequenceIoTest, CameraYamlAcceptsOtherValidYaml) {
     block_list += std::string("    - ") + value + "\n";
   }
   // An OpenCV-style header, and a block list where camera_calibration writes [a, b, ...].
-  const CameraCalibration read =
-      ReadCameraYaml(WriteText("block.yaml", "%YAML:1.0\nimage_width: 640\nimage_height: 480\n" + block_list));
+  const CameraCalibration read = ReadCameraYaml(
+      WriteText("block.yaml", "%YAML:1.0\nimage_width: 640\nimage_height: 480\n" + block_list));
   EXPECT_EQ(read.camera.fx, 500.0);
   EXPECT_EQ(read.camera.cy, 240.0);
 }
@@ -261,7 +279,8 @@ TEST_F(SequenceIoTest, CameraYamlSyntaxErrorsAreOneLine) {
   ExpectInputError(read(WriteText("tab.yaml", size + "camera_matrix:\n\trows: 3\n")), {"tab.yaml:4:"});
   ExpectInputError(read(WriteText("flow.yaml", size + "camera_matrix: {rows: 3\n")),
                    {"flow.yaml:", "missing closing bracket"});
-  ExpectInputError(read(WriteText("close.yaml", size + "camera_name: [a]]\n")), {"close.yaml:3:", "unbalanced"});
+  ExpectInputError(read(WriteText("close.yaml", size + "camera_name: [a]]\n")),
+                   {"close.yaml:3:", "unbalanced"});
   ExpectInputError(read(WriteText("escape.yaml", size + "camera_name: \"\\q\x01\"\n")),
                    {"escape.yaml:3:", "invalid YAML"});
   ExpectInputError(read(WriteText("key.yaml", size + "[a, b]: 1\n")), {"key.yaml:3:", "key '[list]'"});
@@ -269,8 +288,10 @@ TEST_F(SequenceIoTest, CameraYamlSyntaxErrorsAreOneLine) {
   ExpectInputError(read(WriteText("dupk.yaml", size + "camera_matrix: {rows: 3, rows: 3}\n")),
                    {"dupk.yaml:3:", "duplicate key 'rows'"});
   ExpectInputError(read(WriteText("name.yaml", size + "camera_name: {a: 1}\n")), {"name.yaml:3:", "string"});
-  ExpectInputError(read(WriteText("item.yaml", size + "camera_matrix: {rows: 3, cols: 3, data: [1, 0, 1, 0, 1, 1, 0, 0, [1]]}\n")),
-                   {"item.yaml:3:", "'[list]' is not a number"});
+  ExpectInputError(
+      read(WriteText("item.yaml",
+                     size + "camera_matrix: {rows: 3, cols: 3, data: [1, 0, 1, 0, 1, 1, 0, 0, [1]]}\n")),
+      {"item.yaml:3:", "'[list]' is not a number"});
 }
 
 // ------------------------------------------------------------ frames.csv
@@ -297,12 +318,13 @@ TEST_F(SequenceIoTest, FramesCsvRoundTrip) {
 
 TEST_F(SequenceIoTest, FramesCsvToleratesCrlfTrailingSpaceAndDecimalRounding) {
   // 0.3 - 0.2 < 0.1 in binary; an exposure equal to the decimal interval is fine.
-  const std::string path = WriteText("frames.csv",
-                                     "index,stamp,exposure  \r\n0,0.1,0.1\r\n1,0.2,0.1 \r\n2,0.3,0.1\r\n\r\n");
+  const std::string path =
+      WriteText("frames.csv", "index,stamp,exposure  \r\n0,0.1,0.1\r\n1,0.2,0.1 \r\n2,0.3,0.1\r\n\r\n");
   const std::vector<FrameRecord> frames = ReadFramesCsv(path);
   ASSERT_EQ(frames.size(), 3u);
   EXPECT_EQ(frames[2].stamp, 0.3);
-  EXPECT_EQ(ReadFramesCsv(WriteText("bom.csv", "\xEF\xBB\xBFindex,stamp,exposure\n0,1,0.5\n1,2,0.5\n")).size(), 2u);
+  EXPECT_EQ(
+      ReadFramesCsv(WriteText("bom.csv", "\xEF\xBB\xBFindex,stamp,exposure\n0,1,0.5\n1,2,0.5\n")).size(), 2u);
   // A single frame only needs a positive exposure.
   EXPECT_EQ(ReadFramesCsv(WriteText("one.csv", "index,stamp,exposure\n0,5,10\n")).size(), 1u);
 }
@@ -320,7 +342,8 @@ TEST_F(SequenceIoTest, FramesCsvErrorsNameFileAndLine) {
                    {"dup.csv:3:", "is not after"});
   ExpectInputError(read(WriteText("zero.csv", header + "0,0.1,0.05\n1,0.2,0\n")),
                    {"zero.csv:3:", "exposure 0", "> 0"});
-  ExpectInputError(read(WriteText("neg.csv", header + "0,0.1,-0.05\n1,0.2,0.05\n")), {"neg.csv:2:", "exposure"});
+  ExpectInputError(read(WriteText("neg.csv", header + "0,0.1,-0.05\n1,0.2,0.05\n")),
+                   {"neg.csv:2:", "exposure"});
   ExpectInputError(read(WriteText("long.csv", header + "0,0.1,0.05\n1,0.2,0.05\n2,0.25,0.06\n")),
                    {"long.csv:4:", "exceeds the frame interval", "previous"});
   ExpectInputError(read(WriteText("first.csv", header + "0,0.1,0.2\n1,0.2,0.05\n")),
@@ -328,9 +351,12 @@ TEST_F(SequenceIoTest, FramesCsvErrorsNameFileAndLine) {
   ExpectInputError(read(WriteText("index.csv", header + "0,0.1,0.05\n2,0.2,0.05\n")),
                    {"index.csv:3:", "contiguous"});
   ExpectInputError(read(WriteText("fields.csv", header + "0,0.1\n")), {"fields.csv:2:", "3 fields"});
-  ExpectInputError(read(WriteText("text.csv", header + "0,abc,0.05\n")), {"text.csv:2:", "'abc' is not a number"});
-  ExpectInputError(read(WriteText("inf.csv", header + "0,0.1,0.05\n1,inf,0.05\n")), {"inf.csv:3:", "not finite"});
-  ExpectInputError(read(WriteText("gap.csv", header + "0,0.1,0.05\n\n1,0.2,0.05\n")), {"gap.csv:3:", "empty line"});
+  ExpectInputError(read(WriteText("text.csv", header + "0,abc,0.05\n")),
+                   {"text.csv:2:", "'abc' is not a number"});
+  ExpectInputError(read(WriteText("inf.csv", header + "0,0.1,0.05\n1,inf,0.05\n")),
+                   {"inf.csv:3:", "not finite"});
+  ExpectInputError(read(WriteText("gap.csv", header + "0,0.1,0.05\n\n1,0.2,0.05\n")),
+                   {"gap.csv:3:", "empty line"});
 }
 
 // ------------------------------------------------------------ TUM poses
@@ -488,8 +514,9 @@ Sequence MakeSequence(int frames, bool with_gt) {
     gt.depth.push_back(depth);
     StampedPose pose;
     pose.stamp = frame.stamp;
-    pose.T_world_cam = SE3(Eigen::Quaterniond(Eigen::AngleAxisd(0.1 * i, Eigen::Vector3d(1, 2, 3).normalized())),
-                           Eigen::Vector3d(0.1 * i, -0.05 * i, 0.01));
+    pose.T_world_cam =
+        SE3(Eigen::Quaterniond(Eigen::AngleAxisd(0.1 * i, Eigen::Vector3d(1, 2, 3).normalized())),
+            Eigen::Vector3d(0.1 * i, -0.05 * i, 0.01));
     gt.poses.push_back(pose);
   }
   if (with_gt) sequence.ground_truth = gt;

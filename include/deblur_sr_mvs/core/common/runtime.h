@@ -10,8 +10,7 @@ namespace deblur_sr_mvs {
 
 // Monotonic wall time in milliseconds (for stage timings).
 inline double NowMs() {
-  return std::chrono::duration<double, std::milli>(
-             std::chrono::steady_clock::now().time_since_epoch())
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now().time_since_epoch())
       .count();
 }
 

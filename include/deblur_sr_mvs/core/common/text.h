@@ -19,7 +19,11 @@ inline std::string OneLine(const std::string& text) {
 inline std::string SizeText(int width, int height) {
   return std::to_string(width) + "x" + std::to_string(height);
 }
-inline std::string SizeText(const cv::Size& size) { return SizeText(size.width, size.height); }
-inline std::string SizeText(const cv::Mat& image) { return SizeText(image.cols, image.rows); }
+inline std::string SizeText(const cv::Size& size) {
+  return SizeText(size.width, size.height);
+}
+inline std::string SizeText(const cv::Mat& image) {
+  return SizeText(image.cols, image.rows);
+}
 
 }  // namespace deblur_sr_mvs

@@ -11,14 +11,14 @@
 
 #include <opencv2/core.hpp>
 
-#include "deblur_sr_mvs/core/geometry/camera.h"
-#include "deblur_sr_mvs/core/imaging/capture_operator.h"
 #include "deblur_sr_mvs/core/estimation/image_update.h"
 #include "deblur_sr_mvs/core/estimation/initializer.h"
-#include "deblur_sr_mvs/core/geometry/se3.h"
-#include "deblur_sr_mvs/core/geometry/frame_types.h"
 #include "deblur_sr_mvs/core/estimation/structure_update.h"
+#include "deblur_sr_mvs/core/geometry/camera.h"
+#include "deblur_sr_mvs/core/geometry/frame_types.h"
+#include "deblur_sr_mvs/core/geometry/se3.h"
 #include "deblur_sr_mvs/core/geometry/visibility.h"
+#include "deblur_sr_mvs/core/imaging/capture_operator.h"
 
 namespace deblur_sr_mvs {
 
@@ -57,50 +57,50 @@ EstimatorMode ParseEstimatorMode(const std::string& text);
 
 struct EstimatorOptions {
   EstimatorMode mode = EstimatorMode::kJoint;
-  int scale = 2;              // super-resolution factor (1: "w/o SR")
-  int samples = 50;           // M of eq:blurOperator
-  int max_iterations = 3;     // max_iter of Algorithm 1
-  int neighbour_radius = 1;   // N(t) = frames within this distance of t
+  int scale = 2;             // super-resolution factor (1: "w/o SR")
+  int samples = 50;          // M of eq:blurOperator
+  int max_iterations = 3;    // max_iter of Algorithm 1
+  int neighbour_radius = 1;  // N(t) = frames within this distance of t
   // The pose update matches frames up to this far apart (at least N(t)):
   // longer baselines constrain the translations better, and the pose
   // update is cheap next to the image update. kBlurred uses N(t) only.
   int pose_neighbour_radius = 2;
-  double lambda_s = 30.0;     // self-consistency weight (eq:IPterm)
-  ImageUpdateOptions image;   // lambda_i and the IRLS/CG budget
+  double lambda_s = 30.0;            // self-consistency weight (eq:IPterm)
+  ImageUpdateOptions image;          // lambda_i and the IRLS/CG budget
   StructureUpdateOptions structure;  // lambda_d and the IRLS/GN budget
   VisibilityOptions visibility;
   InitializerOptions initializer;
-  bool update_poses = true;   // false keeps the initial poses
+  bool update_poses = true;  // false keeps the initial poses
   // Leading frames whose poses the structure update holds (>= 1: frame 0 is
   // the gauge). The stream holds the frames shared with the previous window,
   // which then also fixes the scale.
   int fixed_leading_poses = 1;
   bool update_structure = true;  // false: images only (depth and poses fixed)
   StructureMatching structure_matching = StructureMatching::kRestoredAndInput;
-  int num_threads = 0;        // OpenMP threads for every stage; 0 = default
+  int num_threads = 0;  // OpenMP threads for every stage; 0 = default
   // Wall-time cap of one run (s): no outer iteration starts after it, the
   // last accepted state is returned and the cap is noted (0: no cap). Every
   // inner stage is capped by its own iteration counts (image.*, structure.*,
   // initializer.*).
   double max_seconds = 0.0;
-  void Check() const;         // throws InputError naming the bad value
+  void Check() const;  // throws InputError naming the bad value
 };
 
 struct EstimatorInput {
-  std::vector<cv::Mat> images;     // LR frames, float in [0, 1], 1 or 3 channels
-  PinholeCamera camera;            // intrinsics of the LR frames
-  std::vector<FrameRecord> frames; // stamps (shutter close) and exposures
+  std::vector<cv::Mat> images;      // LR frames, float in [0, 1], 1 or 3 channels
+  PinholeCamera camera;             // intrinsics of the LR frames
+  std::vector<FrameRecord> frames;  // stamps (shutter close) and exposures
 };
 
 // Energy of eq:energyFunction at one point of the algorithm.
 struct EnergyRecord {
-  int iteration = 0;        // 0 = after initialisation
-  std::string stage;        // "initialization" | "image" | "structure"
+  int iteration = 0;  // 0 = after initialisation
+  std::string stage;  // "initialization" | "image" | "structure"
   double total = 0.0;
-  double matching = 0.0;    // sum_t E_t^m
+  double matching = 0.0;          // sum_t E_t^m
   double self_consistency = 0.0;  // sum_t E_t^s (includes lambda_s)
-  double image_tv = 0.0;    // lambda_i sum_t TV(I_t)
-  double depth_tv = 0.0;    // lambda_d sum_t TV_g(D_t)
+  double image_tv = 0.0;          // lambda_i sum_t TV(I_t)
+  double depth_tv = 0.0;          // lambda_d sum_t TV_g(D_t)
 };
 
 struct StageTiming {
@@ -110,9 +110,9 @@ struct StageTiming {
 
 struct EstimatorResult {
   PinholeCamera camera_hr;
-  std::vector<cv::Mat> latent;      // HR, float in [0, 1]
-  std::vector<cv::Mat> depth;       // HR CV_32FC1, NaN invalid, scale as the poses
-  std::vector<SE3> T_world_cam;     // world = first camera; first baseline = 1
+  std::vector<cv::Mat> latent;   // HR, float in [0, 1]
+  std::vector<cv::Mat> depth;    // HR CV_32FC1, NaN invalid, scale as the poses
+  std::vector<SE3> T_world_cam;  // world = first camera; first baseline = 1
   std::vector<EnergyRecord> energies;
   std::vector<StageTiming> timings;
   std::string initializer_summary;
@@ -152,8 +152,7 @@ class Estimator {
   // Algorithm 1 from a given structure (tests: ground-truth depth and poses;
   // the node: the previous window's poses). depth_hr/T_world_cam must have one
   // entry per frame; the latent images start as bicubic up-samplings.
-  EstimatorResult RunFromStructure(const EstimatorInput& input,
-                                   const std::vector<cv::Mat>& depth_hr,
+  EstimatorResult RunFromStructure(const EstimatorInput& input, const std::vector<cv::Mat>& depth_hr,
                                    const std::vector<SE3>& T_world_cam,
                                    const ProgressCallback& progress = nullptr);
 

@@ -19,12 +19,12 @@
 namespace deblur_sr_mvs {
 
 struct ImageUpdateOptions {
-  double lambda_i = 0.45;      // weight of the image TV (paper: 0.3 - 0.6)
-  int irls_iterations = 4;     // reweightings per update
-  int cg_iterations = 10;      // CG steps per reweighted system
+  double lambda_i = 0.45;          // weight of the image TV (paper: 0.3 - 0.6)
+  int irls_iterations = 4;         // reweightings per update
+  int cg_iterations = 10;          // CG steps per reweighted system
   double residual_epsilon = 1e-3;  // L1 smoothing: weights 1 / max(|r|, eps) (intensity in [0, 1])
-  double tv_epsilon = 1e-3;    // TV smoothing: 1 / max(|grad I|, eps)
-  int num_threads = 0;         // 0: OpenMP default
+  double tv_epsilon = 1e-3;        // TV smoothing: 1 / max(|grad I|, eps)
+  int num_threads = 0;             // 0: OpenMP default
   void Check() const;
 };
 
@@ -46,12 +46,10 @@ double TotalVariation(const cv::Mat& image);
 // out += scale * D^T diag(v) D x per channel: the weighted Laplacian of
 // forward differences with Neumann boundary, the IRLS form of a TV term with
 // weights v (same size and channels as x).
-void AddWeightedLaplacian(const cv::Mat& x, const cv::Mat& v, double scale, cv::Mat* out,
-                          int threads);
+void AddWeightedLaplacian(const cv::Mat& x, const cv::Mat& v, double scale, cv::Mat* out, int threads);
 
 // Minimises the energy over `image` (HR, CV_32FC(C), updated in place from
 // its current value). Returns the energy after the update.
-double UpdateImage(const std::vector<LinearL1Term>& terms, const ImageUpdateOptions& options,
-                   cv::Mat* image);
+double UpdateImage(const std::vector<LinearL1Term>& terms, const ImageUpdateOptions& options, cv::Mat* image);
 
 }  // namespace deblur_sr_mvs

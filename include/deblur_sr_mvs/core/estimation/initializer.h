@@ -8,8 +8,8 @@
 #include <opencv2/core.hpp>
 
 #include "deblur_sr_mvs/core/geometry/camera.h"
-#include "deblur_sr_mvs/core/geometry/se3.h"
 #include "deblur_sr_mvs/core/geometry/frame_types.h"
+#include "deblur_sr_mvs/core/geometry/se3.h"
 #include "deblur_sr_mvs/core/geometry/visibility.h"
 
 namespace deblur_sr_mvs {
@@ -28,52 +28,52 @@ struct InitializerOptions {
   double max_forward_backward_px = 0.5;  // forward-backward LK disagreement to drop a track
 
   // --- Two-view geometry of frames 0-1 and PnP of the later frames.
-  double ransac_threshold_px = 1.0;   // essential-matrix RANSAC threshold (LR px)
-  double ransac_confidence = 0.999;   // RANSAC confidence (E and PnP)
-  int min_inliers = 30;               // features / inliers needed on frames 0-1
-  double min_parallax_px = 1.0;       // median 0-1 displacement the rotation leaves, needed (LR px)
+  double ransac_threshold_px = 1.0;  // essential-matrix RANSAC threshold (LR px)
+  double ransac_confidence = 0.999;  // RANSAC confidence (E and PnP)
+  int min_inliers = 30;              // features / inliers needed on frames 0-1
+  double min_parallax_px = 1.0;      // median 0-1 displacement the rotation leaves, needed (LR px)
   // Median 0-1 displacement that NO rotation explains (LR px): the only depth
   // evidence. A pure rotation leaves only tracking noise (0.04 px in
   // InitializerTest.PureRotation...); the bundled scenes' translations leave
   // 0.19 (Aloe) to 0.78 px (Reindeer). Below it the frames cannot be initialised.
   double min_rotation_free_parallax_px = 0.1;
   double min_triangulation_parallax_px = 2.0;  // rotation-free displacement to add a point (px)
-  double pnp_threshold_px = 2.0;      // PnP RANSAC threshold and BA outlier cut (LR px)
-  int min_pnp_inliers = 12;           // PnP inliers needed per later frame
-  double ba_loss_px = 1.0;            // Cauchy scale of the two-view refinement and BA (LR px)
-  int ba_max_iterations = 50;         // Levenberg-Marquardt iterations per BA round
+  double pnp_threshold_px = 2.0;               // PnP RANSAC threshold and BA outlier cut (LR px)
+  int min_pnp_inliers = 12;                    // PnP inliers needed per later frame
+  double ba_loss_px = 1.0;                     // Cauchy scale of the two-view refinement and BA (LR px)
+  int ba_max_iterations = 50;                  // Levenberg-Marquardt iterations per BA round
   // Prior on each frame-to-frame rotation, as the image shift f * angle (LR
   // px) that costs as much as one 1-px reprojection error: resolves the
   // rotation / translation ambiguity of narrow fields of view.
   double rotation_prior_px = 1.0;
 
   // --- Dense depth (eq:initializationScene): sweep, TV-L1, refinement.
-  bool blur_aware = true;          // match Psi_s o B_t against Psi_t o B_s (false: B_t vs B_s)
-  int capture_samples = 16;        // M of the scale-1 blur operators of the matching
+  bool blur_aware = true;    // match Psi_s o B_t against Psi_t o B_s (false: B_t vs B_s)
+  int capture_samples = 16;  // M of the scale-1 blur operators of the matching
   // Depth of the virtual cameras by reprojection (paper Sec. 3); false uses
   // D_t(x) itself: 2-3x faster builds, differs only within a blur length of
   // depth edges, where the patch cost is unreliable anyway.
   bool capture_reproject_depth = false;
-  int neighbours_per_side = 2;     // frames t-k..t+k matched against frame t
-  int num_planes = 64;             // inverse-depth planes of the first (global) sweep
-  int refine_planes = 16;          // hypotheses per pixel of each refinement pass
+  int neighbours_per_side = 2;  // frames t-k..t+k matched against frame t
+  int num_planes = 64;          // inverse-depth planes of the first (global) sweep
+  int refine_planes = 16;       // hypotheses per pixel of each refinement pass
   // Image pyramid levels of the depth passes: the global sweep runs at
   // 1/2^(levels-1) of the input size (coarsest side kept >= 24 px), each finer
   // level refines around the up-sampled result.
   int depth_levels = 2;
-  double refine_band = 2.0;        // refinement half-band, in hypothesis steps of the previous pass
-  int patch_radius_px = 2;         // matching patch (2r+1)^2 (LR px)
-  double cost_truncation = 0.15;   // per-neighbour cost cap (mean |difference|, [0,1] images)
-  double depth_range_margin = 0.5; // widening of the triangulated inverse-depth range (fraction)
+  double refine_band = 2.0;         // refinement half-band, in hypothesis steps of the previous pass
+  int patch_radius_px = 2;          // matching patch (2r+1)^2 (LR px)
+  double cost_truncation = 0.15;    // per-neighbour cost cap (mean |difference|, [0,1] images)
+  double depth_range_margin = 0.5;  // widening of the triangulated inverse-depth range (fraction)
   // lambda_d: TV weight per unit gradient of the normalised inverse depth
   // (0..1 over the sweep range) per pixel, in cost units (mean |difference|).
   double depth_tv_weight = 0.05;
-  int tv_iterations = 60;           // DTAM alternations per pass
-  double theta_start = 0.5;         // initial coupling theta, x (level span)^2
-  double theta_end = 1e-4;          // final coupling theta, x (level span)^2
-  EdgeWeightOptions edge_weight;    // g_t of eq:regularizingTerm on the input frame
+  int tv_iterations = 60;         // DTAM alternations per pass
+  double theta_start = 0.5;       // initial coupling theta, x (level span)^2
+  double theta_end = 1e-4;        // final coupling theta, x (level span)^2
+  EdgeWeightOptions edge_weight;  // g_t of eq:regularizingTerm on the input frame
 
-  void Check() const;   // throws InputError naming the bad field
+  void Check() const;  // throws InputError naming the bad field
 };
 
 // Poses (T_world_cam at each frame's stamp, the shutter close t_c; world =
@@ -94,8 +94,7 @@ class InitializationError : public std::runtime_error {
 
 // images_lr: the input frames as float in [0, 1] (1 or 3 channels), all of
 // camera_lr's size; frames: their stamps and exposures (>= 2 frames).
-InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr,
-                                     const PinholeCamera& camera_lr,
+InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
                                      const std::vector<FrameRecord>& frames,
                                      const InitializerOptions& options);
 

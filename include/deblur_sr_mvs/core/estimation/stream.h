@@ -17,15 +17,15 @@
 
 #include <opencv2/core.hpp>
 
-#include "deblur_sr_mvs/core/geometry/camera.h"
 #include "deblur_sr_mvs/core/estimation/estimator.h"
-#include "deblur_sr_mvs/core/geometry/sim3.h"
+#include "deblur_sr_mvs/core/geometry/camera.h"
 #include "deblur_sr_mvs/core/geometry/se3.h"
+#include "deblur_sr_mvs/core/geometry/sim3.h"
 
 namespace deblur_sr_mvs {
 
 struct StreamOptions {
-  int window_size = 6;          // frames per window (>= 3)
+  int window_size = 6;  // frames per window (>= 3)
   // Frames shared by consecutive windows (>= 2: two shared cameras fix the
   // relative scale of the next window; < window_size so that windows advance).
   int window_overlap = 2;
@@ -133,9 +133,9 @@ SE3 TransformPose(const Sim3& similarity, const SE3& T_world_cam);
 
 // The estimate of one window, in the stream's world frame.
 struct WindowEstimate {
-  std::vector<uint64_t> ids;          // frame ids, window order
-  std::vector<int64_t> stamps_ns;     // their caller stamps
-  EstimatorResult result;             // poses/depths in the stream's world and scale
+  std::vector<uint64_t> ids;       // frame ids, window order
+  std::vector<int64_t> stamps_ns;  // their caller stamps
+  EstimatorResult result;          // poses/depths in the stream's world and scale
   // Index of the first frame not returned by an earlier window (the frames
   // before it were estimated, and given out, with the previous window).
   int first_new = 0;
@@ -143,7 +143,7 @@ struct WindowEstimate {
   // window, after Reset(), or when the overlap could not be used): its first
   // camera is then the world origin and the first two are 1 unit apart.
   bool continued = false;
-  std::string note;                   // how the window was tied to the previous one
+  std::string note;  // how the window was tied to the previous one
 };
 
 // Why an estimate must not be published, or "" when it may: a pose or a

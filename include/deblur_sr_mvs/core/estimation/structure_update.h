@@ -9,9 +9,9 @@
 #include <opencv2/core.hpp>
 
 #include "deblur_sr_mvs/core/geometry/camera.h"
-#include "deblur_sr_mvs/core/imaging/capture_operator.h"
 #include "deblur_sr_mvs/core/geometry/se3.h"
 #include "deblur_sr_mvs/core/geometry/visibility.h"
+#include "deblur_sr_mvs/core/imaging/capture_operator.h"
 
 namespace deblur_sr_mvs {
 
@@ -24,14 +24,14 @@ struct StructureUpdateOptions {
   // Reindeer sequences (depth rel. error 0.0106 / 0.0285 against 0.0142 /
   // 0.0319 with 1.0).
   double lambda_d = 0.1;
-  EdgeWeightOptions edge_weight;  // g_t
-  int depth_irls_iterations = 3;  // re-linearisations (warps) per update
-  int depth_cg_iterations = 15;   // CG steps per reweighted system
-  int pose_iterations = 6;        // Gauss-Newton steps of the joint pose update
-  double residual_epsilon = 1e-3; // L1 smoothing (intensity in [0, 1])
-  double tv_epsilon = 0.05;       // TV smoothing, parallax px
-  double depth_damping = 1e-3;    // Levenberg damping relative to the data diagonal
-  double pose_damping = 1e-4;     // likewise for the pose normal equations
+  EdgeWeightOptions edge_weight;   // g_t
+  int depth_irls_iterations = 3;   // re-linearisations (warps) per update
+  int depth_cg_iterations = 15;    // CG steps per reweighted system
+  int pose_iterations = 6;         // Gauss-Newton steps of the joint pose update
+  double residual_epsilon = 1e-3;  // L1 smoothing (intensity in [0, 1])
+  double tv_epsilon = 0.05;        // TV smoothing, parallax px
+  double depth_damping = 1e-3;     // Levenberg damping relative to the data diagonal
+  double pose_damping = 1e-4;      // likewise for the pose normal equations
   // HR pairs of the pose update use every stride-th pixel of every
   // stride-th row (shifted row to row): six unknowns per frame need far
   // fewer than every pixel, and the update costs 1/stride^2.
@@ -56,17 +56,17 @@ struct PairMatching {
 // Residual images of the linearisation for one pair at the current structure:
 // warped latent image I_s(W^{t->s}) and its derivatives.
 struct WarpLinearization {
-  cv::Mat warped;        // HR, C channels
+  cv::Mat warped;           // HR, C channels
   cv::Mat d_inverse_depth;  // HR, C channels: d warped / d rho_t
-  cv::Mat valid;         // HR CV_8UC1: warp inside I_s and in front
+  cv::Mat valid;            // HR CV_8UC1: warp inside I_s and in front
 };
 
 // I_s(W^{t->s}(y)) and its derivative w.r.t. the inverse depth of y, for every
 // HR pixel y of t; `pose_jacobians` (optional, 6 images of C channels) gets
 // d/d eps_t of the warped image for P_t = exp(eps_t) P_t0 (d/d eps_s is minus it).
 WarpLinearization LinearizeWarp(const PinholeCamera& camera_hr, const cv::Mat& inverse_depth_t,
-                                const SE3& T_world_t, const SE3& T_world_s,
-                                const cv::Mat& latent_s, std::vector<cv::Mat>* pose_jacobians);
+                                const SE3& T_world_t, const SE3& T_world_s, const cv::Mat& latent_s,
+                                std::vector<cv::Mat>* pose_jacobians);
 
 // The self-consistency term lambda_s |B_t - Psi_t(D_t) I_t| (eq:IPterm)
 // linearised in the inverse depth of t: the virtual cameras of Psi_t sample
@@ -82,26 +82,22 @@ struct SelfConsistencyLinearization {
 // h for the geometry of Psi_t (its depth is ignored; `inverse_depth` is used)
 // from at most `max_samples` of its virtual cameras.
 cv::Mat BlurDerivativeWrtInverseDepth(const CaptureGeometry& geometry, int samples,
-                                      const cv::Mat& inverse_depth, const cv::Mat& latent,
-                                      int max_samples);
+                                      const cv::Mat& inverse_depth, const cv::Mat& latent, int max_samples);
 
 // One IRLS depth update of frame t from its pairs (all with pair.t == t);
 // `latents` are the latent images of every frame (only the pairs' s are read).
 // Updates inverse_depth in place. `parallax_scale` = f_hr * mean baseline.
 void UpdateDepth(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world_cam,
                  const std::vector<cv::Mat>& latents, const std::vector<PairMatching>& pairs,
-                 const SelfConsistencyLinearization* self, const cv::Mat& edge_weight,
-                 double parallax_scale, const StructureUpdateOptions& options,
-                 cv::Mat* inverse_depth);
+                 const SelfConsistencyLinearization* self, const cv::Mat& edge_weight, double parallax_scale,
+                 const StructureUpdateOptions& options, cv::Mat* inverse_depth);
 
 // Gauss-Newton/IRLS update of all poses but the first `num_fixed` (>= 1; frame
 // 0 is the gauge) from all pairs, with depth fixed. Returns the applied
 // tangent steps (6 per frame; zero for the fixed frames).
-std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr,
-                                  const std::vector<cv::Mat>& inverse_depths,
-                                  const std::vector<cv::Mat>& latents,
-                                  const std::vector<PairMatching>& pairs,
-                                  const StructureUpdateOptions& options,
-                                  std::vector<SE3>* T_world_cam, int num_fixed = 1);
+std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr, const std::vector<cv::Mat>& inverse_depths,
+                                  const std::vector<cv::Mat>& latents, const std::vector<PairMatching>& pairs,
+                                  const StructureUpdateOptions& options, std::vector<SE3>* T_world_cam,
+                                  int num_fixed = 1);
 
 }  // namespace deblur_sr_mvs

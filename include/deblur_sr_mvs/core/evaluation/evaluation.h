@@ -50,9 +50,9 @@ struct FrameEvaluation {
 struct EvaluationReport {
   EvaluationOptions options;
   int num_frames = 0;
-  int scale = 1;          // HR / input size
+  int scale = 1;  // HR / input size
   cv::Size hr_size;
-  bool colour = false;    // image PSNRs computed in colour (else in gray)
+  bool colour = false;  // image PSNRs computed in colour (else in gray)
   std::vector<FrameEvaluation> frames;
 
   double mean_image_psnr_db = 0.0;

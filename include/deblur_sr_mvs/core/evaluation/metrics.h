@@ -13,8 +13,7 @@ namespace deblur_sr_mvs {
 // PSNR in dB of `estimate` against `reference` (same size and type, any
 // channel count), computed in double: 10 log10(peak^2 / MSE) over the pixels
 // where `mask` (CV_8UC1, optional) is non-zero. Infinity when MSE is 0.
-double Psnr(const cv::Mat& estimate, const cv::Mat& reference, double peak,
-            const cv::Mat& mask = cv::Mat());
+double Psnr(const cv::Mat& estimate, const cv::Mat& reference, double peak, const cv::Mat& mask = cv::Mat());
 
 // The centred rectangle covering `fraction` of the width and height.
 cv::Rect CentreCrop(const cv::Size& size, double fraction);
@@ -39,7 +38,6 @@ DepthErrors EvaluateDepth(const cv::Mat& estimate, const cv::Mat& ground_truth,
 // alignment of the estimate onto the ground truth.
 // Same preconditions as UmeyamaAlignment.
 double AbsoluteTrajectoryRmse(const std::vector<Eigen::Vector3d>& estimate,
-                              const std::vector<Eigen::Vector3d>& ground_truth,
-                              Sim3* alignment = nullptr);
+                              const std::vector<Eigen::Vector3d>& ground_truth, Sim3* alignment = nullptr);
 
 }  // namespace deblur_sr_mvs

@@ -17,8 +17,8 @@
 
 #include <opencv2/core.hpp>
 
-#include "deblur_sr_mvs/core/geometry/camera.h"
 #include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/geometry/camera.h"
 #include "deblur_sr_mvs/core/geometry/se3.h"
 #include "deblur_sr_mvs/core/io/sequence_io.h"
 
@@ -83,27 +83,25 @@ struct RenderResult {
   cv::Mat hole_mask;  // CV_8UC1, 255 where no view covered the pixel (before filling)
   int num_holes = 0;
   int num_secondary = 0;  // pixels taken from the secondary view
-  double HoleFraction() const {
-    return image.empty() ? 0.0 : static_cast<double>(num_holes) / image.total();
-  }
+  double HoleFraction() const { return image.empty() ? 0.0 : static_cast<double>(num_holes) / image.total(); }
 };
 
 // Reusable buffers of one rendering thread (contents are internal), so that
 // rendering many sub-frames allocates nothing per frame.
 struct RenderWorkspace {
-  std::vector<float> u, v, z;               // projections of one view's points
+  std::vector<float> u, v, z;  // projections of one view's points
   struct Splat {
-    int point;       // index into the view's points
-    int x0, y0;      // top-left pixel of the 2x2 bilinear footprint
-    bool inside;     // the whole footprint is in the image
-    float ax, ay;    // bilinear fractions
+    int point;     // index into the view's points
+    int x0, y0;    // top-left pixel of the 2x2 bilinear footprint
+    bool inside;   // the whole footprint is in the image
+    float ax, ay;  // bilinear fractions
   };
-  std::vector<Splat> active;                // splats into pixels this view renders
-  std::vector<uint8_t> useful;              // secondary: footprints worth splatting
+  std::vector<Splat> active;    // splats into pixels this view renders
+  std::vector<uint8_t> useful;  // secondary: footprints worth splatting
   std::array<std::vector<float>, 2> zbuffer;
   std::array<std::vector<float>, 2> accum;  // per pixel: b, g, r, weight, weight*z
   std::vector<int> holes, next_holes, filled;
-  std::vector<float> fill_values;           // b, g, r, z per filled pixel of one fill pass
+  std::vector<float> fill_values;  // b, g, r, z per filled pixel of one fill pass
 };
 
 class SceneRenderer {
@@ -184,20 +182,20 @@ MotionStats MeasureImageMotion(const PinholeCamera& camera, const cv::Mat& depth
 
 // Options of SynthesizeSequence and of the synthesize_sequence tool.
 struct SynthesisOptions {
-  int num_frames = 10;            // frames to write (--frames)
-  int scale = 2;                  // SR factor: LR = box-downsampled HR (--scale)
-  double exposure_ratio = 0.8;    // exposure / frame interval, in (0, 1] (--exposure-ratio)
+  int num_frames = 10;                             // frames to write (--frames)
+  int scale = 2;                                   // SR factor: LR = box-downsampled HR (--scale)
+  double exposure_ratio = 0.8;                     // exposure / frame interval, in (0, 1] (--exposure-ratio)
   CameraPathType path = CameraPathType::kLateral;  // --path
-  double noise_sigma = 0.0;       // Gaussian noise on the LR frames, 8-bit units (--noise)
-  std::uint64_t seed = 0;         // noise seed; equal seeds give equal output (--seed)
-  double blur_px = 14.0;          // target median HR image motion per exposure (--blur-px)
-  int subframes = 200;            // renders averaged per exposure, > the estimator's M (--subframes)
-  double fps = 30.0;              // frame rate; stamps are t_c = (i + 1) / fps (--fps)
+  double noise_sigma = 0.0;                        // Gaussian noise on the LR frames, 8-bit units (--noise)
+  std::uint64_t seed = 0;                          // noise seed; equal seeds give equal output (--seed)
+  double blur_px = 14.0;                           // target median HR image motion per exposure (--blur-px)
+  int subframes = 200;  // renders averaged per exposure, > the estimator's M (--subframes)
+  double fps = 30.0;    // frame rate; stamps are t_c = (i + 1) / fps (--fps)
   // HR size; 0 = automatic (largest centred crop of the scene size, divisible
   // by the scale, whose pixels stay covered by the views along the whole path).
-  int hr_width = 0;               // --hr-width
-  int hr_height = 0;              // --hr-height
-  double arc_fixation_factor = 2.0;   // arc: fixation point at this x median depth (--arc-fixation)
+  int hr_width = 0;                  // --hr-width
+  int hr_height = 0;                 // --hr-height
+  double arc_fixation_factor = 2.0;  // arc: fixation point at this x median depth (--arc-fixation)
   // forward: total z travel over the sequence <= this x the nearest depth, so
   // the last camera stays >= 0.8 x that depth away (--forward-cap).
   double forward_travel_cap = 0.4;
@@ -210,13 +208,13 @@ struct SynthesisOptions {
 };
 
 struct FrameSynthesisStats {
-  MotionStats blur;                  // image motion over the exposure, HR px
-  double hole_fraction_latent = 0.0; // of the sharp render at t_c
-  double hole_fraction_max = 0.0;    // worst over the exposure's sub-frames
+  MotionStats blur;                   // image motion over the exposure, HR px
+  double hole_fraction_latent = 0.0;  // of the sharp render at t_c
+  double hole_fraction_max = 0.0;     // worst over the exposure's sub-frames
 };
 
 struct SynthesisResult {
-  Sequence sequence;           // LR frames + gt/ (HR latent, depth, poses)
+  Sequence sequence;  // LR frames + gt/ (HR latent, depth, poses)
   PinholeCamera hr_camera;
   PinholeCamera lr_camera;
   CameraPath path;
@@ -232,22 +230,22 @@ double FrameExposure(const SynthesisOptions& options);
 
 // Automatic HR camera: focal length of the scene, principal point at the
 // centre, size a centred crop of the scene image (see SynthesisOptions).
-PinholeCamera ChooseHrCamera(const StereoScene& scene, const SceneRenderer& renderer,
-                             const CameraPath& path, const SynthesisOptions& options);
+PinholeCamera ChooseHrCamera(const StereoScene& scene, const SceneRenderer& renderer, const CameraPath& path,
+                             const SynthesisOptions& options);
 
 // Sets path->speed so that the median image motion over the middle frame's
 // exposure equals options.blur_px (capped for the forward path). Returns the
 // achieved median; *capped tells whether the cap was hit.
 double CalibratePathSpeed(const StereoScene& scene, const SceneRenderer& renderer,
-                          const PinholeCamera& camera, const SynthesisOptions& options,
-                          CameraPath* path, bool* capped);
+                          const PinholeCamera& camera, const SynthesisOptions& options, CameraPath* path,
+                          bool* capped);
 
 // The whole pipeline; `log` (may be null) receives progress lines.
 SynthesisResult SynthesizeSequence(const StereoScene& scene, const SynthesisOptions& options,
                                    std::ostream* log = nullptr);
 
 // gt/synthesis.yaml: options, calibration, path and per-frame blur statistics.
-void WriteSynthesisYaml(const std::string& path, const StereoScene& scene,
-                        const SynthesisOptions& options, const SynthesisResult& result);
+void WriteSynthesisYaml(const std::string& path, const StereoScene& scene, const SynthesisOptions& options,
+                        const SynthesisResult& result);
 
 }  // namespace deblur_sr_mvs

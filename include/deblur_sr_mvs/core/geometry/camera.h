@@ -18,8 +18,7 @@ struct PinholeCamera {
   double cy = 0.0;
 
   PinholeCamera() = default;
-  PinholeCamera(int width_px, int height_px, double fx_px, double fy_px, double cx_px,
-                double cy_px)
+  PinholeCamera(int width_px, int height_px, double fx_px, double fy_px, double cx_px, double cy_px)
       : width(width_px), height(height_px), fx(fx_px), fy(fy_px), cx(cx_px), cy(cy_px) {}
 
   Eigen::Matrix3d K() const;
@@ -29,9 +28,7 @@ struct PinholeCamera {
     return {fx * point_cam.x() / point_cam.z() + cx, fy * point_cam.y() / point_cam.z() + cy};
   }
   // Ray through pixel (u, v) with z = 1, so that point = depth * Ray(u, v).
-  Eigen::Vector3d Ray(double u, double v) const {
-    return {(u - cx) / fx, (v - cy) / fy, 1.0};
-  }
+  Eigen::Vector3d Ray(double u, double v) const { return {(u - cx) / fx, (v - cy) / fy, 1.0}; }
   bool InImage(double u, double v) const {
     return u >= 0.0 && v >= 0.0 && u <= width - 1.0 && v <= height - 1.0;
   }

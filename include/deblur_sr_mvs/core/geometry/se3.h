@@ -36,9 +36,7 @@ class SE3 {
 
   SE3 Inverse() const;
   SE3 operator*(const SE3& other) const;
-  Eigen::Vector3d operator*(const Eigen::Vector3d& point) const {
-    return rotation_ * point + translation_;
-  }
+  Eigen::Vector3d operator*(const Eigen::Vector3d& point) const { return rotation_ * point + translation_; }
   // Adjoint: T Exp(xi) T^-1 = Exp(Adj(T) xi).
   Matrix6d Adjoint() const;
 

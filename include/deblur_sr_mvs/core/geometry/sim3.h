@@ -19,8 +19,8 @@ struct Sim3 {
 // Umeyama (1991) least-squares alignment of corresponding points.
 // Needs >= 3 corresponding points so that the rotation is determined (fewer,
 // a size mismatch, non-finite or coincident source points: InputError).
-Sim3 UmeyamaAlignment(const std::vector<Eigen::Vector3d>& source,
-                      const std::vector<Eigen::Vector3d>& target, bool with_scale);
+Sim3 UmeyamaAlignment(const std::vector<Eigen::Vector3d>& source, const std::vector<Eigen::Vector3d>& target,
+                      bool with_scale);
 
 // Throws InputError (naming `what`) unless source and target have the same
 // size, at least 3 points, and every point is finite.

@@ -23,8 +23,8 @@ struct VisibilityOptions {
 // (eq:occSet); the paper's D is inverse depth, hence its ">". Theta_ts is
 // approximated by the target pixel cell that W^{t->s}(x) rounds to. Pixels
 // with unknown depth or warping outside camera s are not visible.
-cv::Mat ComputeVisibility(const PinholeCamera& camera, const cv::Mat& depth_t,
-                          const SE3& T_s_t, const VisibilityOptions& options);
+cv::Mat ComputeVisibility(const PinholeCamera& camera, const cv::Mat& depth_t, const SE3& T_s_t,
+                          const VisibilityOptions& options);
 
 // LR mask of an HR mask for box-downsampling by `scale`: an LR pixel is kept
 // only when all of its scale x scale HR pixels are.

@@ -22,11 +22,9 @@ struct PixelTransfer {
   // W^{source->target}(x) (eq:warpingFunction) for a pixel with depth `depth`
   // (metres along the source optical axis). Returns false when the point lands
   // behind the target camera. `target_depth` receives its depth there.
-  bool Warp(double u, double v, double depth, Eigen::Vector2d* target,
-            double* target_depth = nullptr) const {
+  bool Warp(double u, double v, double depth, Eigen::Vector2d* target, double* target_depth = nullptr) const {
     const Eigen::Vector3d p =
-        depth * (homography.col(0) * u + homography.col(1) * v + homography.col(2)) +
-        translation;
+        depth * (homography.col(0) * u + homography.col(1) * v + homography.col(2)) + translation;
     if (!(p.z() > 1e-9)) return false;
     *target = p.head<2>() / p.z();
     if (target_depth != nullptr) *target_depth = p.z();
@@ -61,19 +59,20 @@ struct PixelTransferF {
 };
 
 // True for a usable depth sample (finite and > 0); 0 and NaN mark unknown.
-inline bool ValidDepth(float depth) { return depth > 0.0f && depth < 1e30f; }
+inline bool ValidDepth(float depth) {
+  return depth > 0.0f && depth < 1e30f;
+}
 
 // Depth map of the camera T_world_target rendered from the depth map D_source
 // of T_world_source (same intrinsics and size) by reprojecting every source
 // pixel to its nearest target pixel with a z-buffer. Target pixels that no
 // source pixel reaches get `fill_from_source` ? D_source(x) : NaN.
 // `depth_target` is reused when it already has the right size and type.
-void ReprojectDepth(const PinholeCamera& camera, const cv::Mat& depth_source,
-                    const SE3& T_target_source, bool fill_from_source, cv::Mat* depth_target);
+void ReprojectDepth(const PinholeCamera& camera, const cv::Mat& depth_source, const SE3& T_target_source,
+                    bool fill_from_source, cv::Mat* depth_target);
 
 // Per-pixel warp W^{source->target} of a whole depth map: CV_32FC2 of target
 // coordinates, NaN where the depth is unknown or the point is behind.
-cv::Mat WarpCoordinates(const PinholeCamera& camera, const cv::Mat& depth_source,
-                        const SE3& T_target_source);
+cv::Mat WarpCoordinates(const PinholeCamera& camera, const cv::Mat& depth_source, const SE3& T_target_source);
 
 }  // namespace deblur_sr_mvs

@@ -46,16 +46,16 @@ struct CaptureOperatorOptions {
 
 // What fixes Psi_t: D_t, P_t, P_s, the shutter interval (paper Sec. 3).
 struct CaptureGeometry {
-  PinholeCamera camera_hr;   // intrinsics of the latent (HR) images
-  cv::Mat depth_hr;          // D_t: CV_32FC1, HR size, metres; 0 or NaN unknown
-  SE3 T_world_cam;           // P_t: pose at the shutter close time t = t_c
-  SE3 T_world_neighbour;     // P_s: pose of the neighbouring frame for eq:interpolatingP
-  double stamp = 0.0;        // t (= t_c), seconds
+  PinholeCamera camera_hr;       // intrinsics of the latent (HR) images
+  cv::Mat depth_hr;              // D_t: CV_32FC1, HR size, metres; 0 or NaN unknown
+  SE3 T_world_cam;               // P_t: pose at the shutter close time t = t_c
+  SE3 T_world_neighbour;         // P_s: pose of the neighbouring frame for eq:interpolatingP
+  double stamp = 0.0;            // t (= t_c), seconds
   double neighbour_stamp = 0.0;  // s: the previous frame's stamp; the first frame of
                                  // a sequence passes the NEXT frame (s > t), and the
                                  // same formula then extrapolates backwards from P_t
                                  // at constant velocity.
-  double exposure = 0.0;     // t_c - t_o, seconds, 0 < exposure
+  double exposure = 0.0;         // t_c - t_o, seconds, 0 < exposure
   // The camera whose latent image the operator samples; empty = P_t itself.
   std::optional<SE3> T_world_source;
 };
@@ -118,14 +118,13 @@ class CaptureOperatorBuilder {
  private:
   Timings timings_;
   CaptureOperatorOptions options_;
-  std::vector<cv::Mat> virtual_depths_;  // D_tau_m, one per sample
+  std::vector<cv::Mat> virtual_depths_;          // D_tau_m, one per sample
   std::vector<std::vector<int>> block_columns_;  // per-thread CSR pieces
   std::vector<std::vector<float>> block_values_;
   std::vector<int> row_nnz_;
 };
 
 // Convenience: one operator with a temporary builder.
-CaptureOperator BuildCaptureOperator(const CaptureGeometry& geometry,
-                                     const CaptureOperatorOptions& options);
+CaptureOperator BuildCaptureOperator(const CaptureGeometry& geometry, const CaptureOperatorOptions& options);
 
 }  // namespace deblur_sr_mvs

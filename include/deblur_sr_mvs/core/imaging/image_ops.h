@@ -24,7 +24,6 @@ cv::Mat ColorizeDepth(const cv::Mat& depth, double min_depth = 0.0, double max_d
 
 // Copies `panel` (8-bit, 1 or 3 channels) into `canvas` at `origin` as BGR,
 // with a caption in a dark band at its top.
-void PastePanel(const cv::Mat& panel, const std::string& caption, cv::Point origin,
-                cv::Mat* canvas);
+void PastePanel(const cv::Mat& panel, const std::string& caption, cv::Point origin, cv::Mat* canvas);
 
 }  // namespace deblur_sr_mvs

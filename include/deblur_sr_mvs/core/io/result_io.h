@@ -27,9 +27,9 @@
 namespace deblur_sr_mvs {
 
 struct SequenceResult {
-  CameraCalibration calibration;   // intrinsics at the latent (HR) size
-  std::vector<FrameRecord> frames; // as in the input sequence
-  std::vector<cv::Mat> latent;     // CV_8UC1 or CV_8UC3 (BGR), one per frame
+  CameraCalibration calibration;    // intrinsics at the latent (HR) size
+  std::vector<FrameRecord> frames;  // as in the input sequence
+  std::vector<cv::Mat> latent;      // CV_8UC1 or CV_8UC3 (BGR), one per frame
   // Empty for image-only methods; else one CV_32FC1 map per frame (HR size,
   // NaN or <= 0 invalid).
   std::vector<cv::Mat> depth;

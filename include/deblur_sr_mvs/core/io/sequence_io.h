@@ -10,8 +10,8 @@
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
 
-#include "deblur_sr_mvs/core/geometry/camera.h"
 #include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/geometry/camera.h"
 #include "deblur_sr_mvs/core/geometry/frame_types.h"
 #include "deblur_sr_mvs/core/geometry/se3.h"
 
@@ -35,16 +35,16 @@ struct CameraCalibration {
 
 // Optional ground truth (gt/), never read by the estimator.
 struct SequenceGroundTruth {
-  CameraCalibration calibration;  // intrinsics at the HR size
-  std::vector<cv::Mat> latent;    // sharp HR images at t_c (8-bit, as stored)
-  std::vector<cv::Mat> depth;     // CV_32FC1 depth in m along the optical axis; 0/NaN unknown
-  std::vector<StampedPose> poses; // T_world_cam at t_c
+  CameraCalibration calibration;   // intrinsics at the HR size
+  std::vector<cv::Mat> latent;     // sharp HR images at t_c (8-bit, as stored)
+  std::vector<cv::Mat> depth;      // CV_32FC1 depth in m along the optical axis; 0/NaN unknown
+  std::vector<StampedPose> poses;  // T_world_cam at t_c
 };
 
 struct Sequence {
   CameraCalibration calibration;  // intrinsics of the input frames
   std::vector<FrameRecord> frames;
-  std::vector<cv::Mat> images;    // CV_8UC1 or CV_8UC3 (OpenCV BGR order), one per frame
+  std::vector<cv::Mat> images;  // CV_8UC1 or CV_8UC3 (OpenCV BGR order), one per frame
   std::optional<SequenceGroundTruth> ground_truth;
 };
 
