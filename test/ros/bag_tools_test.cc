@@ -233,11 +233,21 @@ TEST_F(BagToolsTest, SynthesizedColourSequenceRoundTripsWithGroundTruth) {
   ExpectSameSequence(original, restored);
 
   // A second round trip changes nothing: stamps and exposures are already on
-  // the nanosecond grid, so the files are identical.
+  // the nanosecond grid, so those files are identical. Poses pass through a
+  // rotation matrix (quaternion -> SE3 -> quaternion), which is exact to a
+  // few ulps only, not bit for bit (it depends on the compiler's contraction).
   ASSERT_EQ(ToBag(dir_ / "back", dir_ / "again.bag").exit_code, 0);
   ASSERT_EQ(ToSequence(dir_ / "again.bag", dir_ / "again").exit_code, 0);
-  for (const char* file : {"frames.csv", "camera.yaml", "gt/camera.yaml", "gt/poses.txt"}) {
+  for (const char* file : {"frames.csv", "camera.yaml", "gt/camera.yaml"}) {
     EXPECT_EQ(ReadText(dir_ / "back" / file), ReadText(dir_ / "again" / file)) << file;
+  }
+  const std::vector<StampedPose> poses_back = ReadTumTrajectory((dir_ / "back/gt/poses.txt").string());
+  const std::vector<StampedPose> poses_again = ReadTumTrajectory((dir_ / "again/gt/poses.txt").string());
+  ASSERT_EQ(poses_back.size(), poses_again.size());
+  for (size_t i = 0; i < poses_back.size(); ++i) {
+    EXPECT_EQ(poses_back[i].stamp, poses_again[i].stamp) << i;
+    EXPECT_EQ(poses_back[i].T_world_cam.translation(), poses_again[i].T_world_cam.translation()) << i;
+    EXPECT_LT((poses_back[i].T_world_cam.rotation() - poses_again[i].T_world_cam.rotation()).norm(), 1e-14) << i;
   }
 }
 
