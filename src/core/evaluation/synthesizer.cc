@@ -92,8 +92,9 @@ PinholeCamera CentredCrop(const PinholeCamera& probe, int width, int height) {
 double PathStart(const SynthesisOptions& options) {
   return FrameStamp(options, 0) - FrameExposure(options);
 }
+// The last frame's bottom row closes a readout time after its stamp.
 double PathEnd(const SynthesisOptions& options) {
-  return FrameStamp(options, options.num_frames - 1);
+  return FrameStamp(options, options.num_frames - 1) + ReadoutTime(options);
 }
 
 // Depth of `result` with its holes set to 0 (unknown): measured blur then
@@ -602,6 +603,10 @@ std::string CameraPathName(CameraPathType type) {
       return "arc";
     case CameraPathType::kForward:
       return "forward";
+    case CameraPathType::kHandheld:
+      return "handheld";
+    case CameraPathType::kRotate:
+      return "rotate";
   }
   return "unknown";
 }
@@ -610,15 +615,94 @@ CameraPathType ParseCameraPathType(const std::string& name) {
   if (name == "lateral") return CameraPathType::kLateral;
   if (name == "arc") return CameraPathType::kArc;
   if (name == "forward") return CameraPathType::kForward;
-  throw InputError("--path: unknown path \"" + name + "\" (expected lateral, arc or forward)");
+  if (name == "handheld") return CameraPathType::kHandheld;
+  if (name == "rotate") return CameraPathType::kRotate;
+  throw InputError("--path: unknown path \"" + name +
+                   "\" (expected lateral, arc, forward, handheld or rotate)");
 }
 
+namespace {
+
+double SumOfSinusoids(const std::vector<PathSinusoid>& terms, double u) {
+  double sum = 0.0;
+  for (const PathSinusoid& term : terms)
+    sum += term.amplitude * std::sin(2.0 * M_PI * term.cycles * u + term.phase);
+  return sum;
+}
+
+// SplitMix64: a small, portable generator, so that a seed gives the same
+// path and gains on every platform (std:: distributions do not promise that).
+class SeededUniform {
+ public:
+  explicit SeededUniform(std::uint64_t seed) : state_(seed) {}
+  double Next(double low, double high) {
+    state_ += 0x9E3779B97F4A7C15ull;
+    std::uint64_t z = state_;
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+    z ^= z >> 31;
+    return low + (high - low) * static_cast<double>(z >> 11) * 0x1.0p-53;
+  }
+
+ private:
+  std::uint64_t state_;
+};
+
+// Stream offsets of the seed: the noise keeps cv::RNG(seed) as before.
+constexpr std::uint64_t kHandheldStream = 0x68616E6468656C64ull;  // "handheld"
+constexpr std::uint64_t kGainStream = 0x6761696E6A697474ull;      // "gainjitt"
+
+// Two components per axis of 0.3 to 1.5 cycles over the path: smooth over an
+// exposure. `relative_rate` bounds each component's peak rate (per unit
+// speed), so the amplitude is relative_rate * duration / (2 pi cycles).
+std::vector<PathSinusoid> RandomSinusoids(SeededUniform* uniform, double duration, double rate_low,
+                                          double rate_high) {
+  std::vector<PathSinusoid> terms(2);
+  for (PathSinusoid& term : terms) {
+    term.cycles = uniform->Next(0.3, 1.5);
+    term.phase = uniform->Next(0.0, 2.0 * M_PI);
+    term.amplitude = uniform->Next(rate_low, rate_high) * duration / (2.0 * M_PI * term.cycles);
+  }
+  return terms;
+}
+
+// Hand-held shake: along the baseline the velocity varies by up to +-60 %
+// (never reversing), a smaller sway in y and z; rotation rates whose image
+// motion is up to ~40 % of the lateral drift's at the median depth.
+HandheldShape MakeHandheldShape(double duration, double median_depth, std::uint64_t seed) {
+  SeededUniform uniform(seed ^ kHandheldStream);
+  HandheldShape shape;
+  shape.duration = duration;
+  const double kTranslationRates[3][2] = {{0.15, 0.3}, {0.08, 0.2}, {0.05, 0.1}};
+  const double kRotationRates[3][2] = {{0.08, 0.2}, {0.08, 0.2}, {0.05, 0.1}};  // pitch, yaw, roll
+  for (int axis = 0; axis < 3; ++axis) {
+    shape.translation[axis] =
+        RandomSinusoids(&uniform, duration, kTranslationRates[axis][0], kTranslationRates[axis][1]);
+  }
+  for (int axis = 0; axis < 3; ++axis) {
+    shape.rotation[axis] = RandomSinusoids(&uniform, duration, kRotationRates[axis][0] / median_depth,
+                                           kRotationRates[axis][1] / median_depth);
+  }
+  return shape;
+}
+
+}  // namespace
+
 SE3 CameraPath::PoseAt(double t) const {
-  return SE3::Exp((t - t_mid) * speed * unit_twist) * T_world_mid;
+  if (type != CameraPathType::kHandheld) return SE3::Exp((t - t_mid) * speed * unit_twist) * T_world_mid;
+  const double u = (t - t_mid) / handheld.duration;
+  Eigen::Vector3d shake, angles;
+  for (int axis = 0; axis < 3; ++axis) {
+    shake[axis] = SumOfSinusoids(handheld.translation[axis], u);
+    angles[axis] = SumOfSinusoids(handheld.rotation[axis], u);
+  }
+  const Eigen::Vector3d centre =
+      T_world_mid.translation() + speed * ((t - t_mid) * unit_twist.head<3>() + shake);
+  return SE3(SO3Exp(speed * angles) * T_world_mid.rotation(), centre);
 }
 
 CameraPath MakeCameraPath(CameraPathType type, const StereoScene& scene, double t_mid,
-                          double arc_fixation_factor) {
+                          double arc_fixation_factor, double duration, std::uint64_t seed) {
   CameraPath path;
   path.type = type;
   path.t_mid = t_mid;
@@ -647,6 +731,20 @@ CameraPath MakeCameraPath(CameraPathType type, const StereoScene& scene, double 
       path.unit_twist.tail<3>() = w;
       break;
     }
+    case CameraPathType::kRotate: {
+      // Mostly yaw (about y) with some pitch, about the camera centre c:
+      // rho = c x w keeps c fixed. |w| = 1 rad/s.
+      const Eigen::Vector3d w = Eigen::Vector3d(0.3, 1.0, 0.0).normalized();
+      path.unit_twist.head<3>() = midpoint.cross(w);
+      path.unit_twist.tail<3>() = w;
+      break;
+    }
+    case CameraPathType::kHandheld:
+      // Drifts along the baseline like the lateral path (inside what the two
+      // views cover), with seeded shake on top (see MakeHandheldShape).
+      path.unit_twist.head<3>() = baseline_direction;
+      path.handheld = MakeHandheldShape(duration, scene.median_depth, seed);
+      break;
   }
   return path;
 }
@@ -700,6 +798,8 @@ void SynthesisOptions::Check() const {
   CheckInRange("--arc-fixation", arc_fixation_factor, 1.2, 100.0);
   CheckInInterval("--forward-cap", forward_travel_cap, 0.0, 1.0, Interval::kRightClosed);
   CheckInInterval("max_hole_fraction", max_hole_fraction, 0.0, 1.0, Interval::kOpen);
+  CheckInRange("--gain-jitter", gain_jitter, 0.0, 0.5);
+  CheckInRange("--readout-ratio", readout_ratio, 0.0, 1.0);
 }
 
 double FrameStamp(const SynthesisOptions& options, int index) {
@@ -709,6 +809,30 @@ double FrameStamp(const SynthesisOptions& options, int index) {
 double FrameExposure(const SynthesisOptions& options) {
   return options.exposure_ratio / options.fps;
 }
+
+double ReadoutTime(const SynthesisOptions& options) {
+  return options.readout_ratio / options.fps;
+}
+
+namespace {
+
+// Range of the camera centre's z over the rendered span of a hand-held path
+// per unit speed (m per m/s), sampled finely against its low frequencies.
+double HandheldDepthTravel(const CameraPath& path, const SynthesisOptions& options) {
+  CameraPath unit = path;
+  unit.speed = 1.0;
+  const double t0 = PathStart(options), t1 = PathEnd(options);
+  double low = std::numeric_limits<double>::infinity(), high = -low;
+  constexpr int kSamples = 257;
+  for (int k = 0; k < kSamples; ++k) {
+    const double z = unit.PoseAt(t0 + (t1 - t0) * k / (kSamples - 1)).translation().z();
+    low = std::min(low, z);
+    high = std::max(high, z);
+  }
+  return std::max(high - low, 1e-9);
+}
+
+}  // namespace
 
 double CalibratePathSpeed(const StereoScene& scene, const SceneRenderer& renderer,
                           const PinholeCamera& camera, const SynthesisOptions& options, CameraPath* path,
@@ -727,18 +851,23 @@ double CalibratePathSpeed(const StereoScene& scene, const SceneRenderer& rendere
         .median_px;
   };
 
-  // Forward motion must stop well before the nearest surface.
+  // Forward (and hand-held) motion must stop well before the nearest surface.
   double max_speed = std::numeric_limits<double>::infinity();
   if (path->type == CameraPathType::kForward) {
     const double duration = PathEnd(options) - PathStart(options);
     max_speed = options.forward_travel_cap * scene.min_depth / (path->unit_twist.z() * duration);
+  } else if (path->type == CameraPathType::kHandheld) {
+    max_speed = options.forward_travel_cap * scene.min_depth / HandheldDepthTravel(*path, options);
   }
   *capped = false;
-  // Lateral estimate (exact for a fronto-parallel plane at the median depth),
-  // then fixed-point steps: image motion is nearly proportional to speed.
-  double speed = path->speed > 0.0
-                     ? path->speed
-                     : options.blur_px * scene.median_depth / (scene.focal_px * FrameExposure(options));
+  // Lateral estimate (exact for a fronto-parallel plane at the median depth;
+  // rotate: at the image centre), then fixed-point steps: image motion is
+  // nearly proportional to speed.
+  const double first_guess =
+      path->type == CameraPathType::kRotate
+          ? options.blur_px / (scene.focal_px * FrameExposure(options))
+          : options.blur_px * scene.median_depth / (scene.focal_px * FrameExposure(options));
+  double speed = path->speed > 0.0 ? path->speed : first_guess;
   double achieved = 0.0;
   for (int iteration = 0; iteration < 10; ++iteration) {
     if (speed >= max_speed) {
@@ -956,7 +1085,8 @@ cv::Mat LowResImage(const cv::Mat& blurred, const SynthesisOptions& options, cv:
 void PlanPathAndCameras(const StereoScene& scene, const SceneRenderer& renderer,
                         const SynthesisOptions& options, SynthesisResult* result, std::ostream* log) {
   const double t_mid = 0.5 * (PathStart(options) + PathEnd(options));
-  result->path = MakeCameraPath(options.path, scene, t_mid, options.arc_fixation_factor);
+  result->path = MakeCameraPath(options.path, scene, t_mid, options.arc_fixation_factor,
+                                PathEnd(options) - PathStart(options), options.seed);
   CalibratePathSpeed(scene, renderer, ProbeCamera(scene), options, &result->path, &result->speed_capped);
   result->hr_camera = ChooseHrCamera(scene, renderer, result->path, options);
   result->achieved_blur_px =
@@ -1100,6 +1230,33 @@ void EmitOptions(YAML::Emitter* out, const SynthesisOptions& options) {
   *out << YAML::EndMap;
 }
 
+// Per axis [amplitude, cycles, phase] of each sinusoid (see CameraPath).
+void EmitSinusoids(YAML::Emitter* out, const char* key,
+                   const std::array<std::vector<PathSinusoid>, 3>& axes) {
+  *out << YAML::Key << key << YAML::Value << YAML::BeginSeq;
+  for (const std::vector<PathSinusoid>& terms : axes) {
+    *out << YAML::Flow << YAML::BeginSeq;
+    for (const PathSinusoid& term : terms) {
+      EmitList(out, Eigen::Vector3d(term.amplitude, term.cycles, term.phase));
+    }
+    *out << YAML::EndSeq;
+  }
+  *out << YAML::EndSeq;
+}
+
+void EmitHandheldShape(YAML::Emitter* out, const HandheldShape& shape) {
+  *out << YAML::Key << "handheld" << YAML::Value
+       << YAML::Comment(
+              "centre = T_world_mid.t + speed * ((t - t_mid) * twist.rho + translation(u)), R = "
+              "Exp(speed * rotation(u)), u = (t - t_mid) / duration; per axis x, y, z a sum of "
+              "amplitude * sin(2 pi cycles u + phase), listed as [amplitude, cycles, phase]")
+       << YAML::BeginMap;
+  *out << YAML::Key << "duration" << YAML::Value << shape.duration;
+  EmitSinusoids(out, "translation", shape.translation);
+  EmitSinusoids(out, "rotation", shape.rotation);
+  *out << YAML::EndMap;
+}
+
 void EmitPath(YAML::Emitter* out, const SynthesisOptions& options, const SynthesisResult& result) {
   const CameraPath& p = result.path;
   const Eigen::Quaterniond q = p.T_world_mid.quaternion();
@@ -1116,11 +1273,16 @@ void EmitPath(YAML::Emitter* out, const SynthesisOptions& options, const Synthes
   *out << YAML::Comment("qx qy qz qw");
   *out << YAML::Key << "twist_per_s" << YAML::Value;
   EmitList(out, p.Twist());
-  *out << YAML::Key << "centre_speed_mps" << YAML::Value << p.speed;
+  if (p.type == CameraPathType::kRotate) {
+    *out << YAML::Key << "angular_speed_radps" << YAML::Value << p.speed;
+  } else {
+    *out << YAML::Key << "centre_speed_mps" << YAML::Value << p.speed;
+  }
   if (p.type == CameraPathType::kArc) {
     *out << YAML::Key << "fixation_point" << YAML::Value;
     EmitList(out, p.fixation_point);
   }
+  if (p.type == CameraPathType::kHandheld) EmitHandheldShape(out, p.handheld);
   *out << YAML::Key << "speed_capped" << YAML::Value << result.speed_capped;
   *out << YAML::Key << "target_blur_px" << YAML::Value << options.blur_px;
   *out << YAML::Key << "achieved_blur_px" << YAML::Value << result.achieved_blur_px
