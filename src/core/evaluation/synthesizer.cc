@@ -92,9 +92,14 @@ PinholeCamera CentredCrop(const PinholeCamera& probe, int width, int height) {
 double PathStart(const SynthesisOptions& options) {
   return FrameStamp(options, 0) - FrameExposure(options);
 }
-// The last frame's bottom row closes a readout time after its stamp.
+// The path's shape and t_mid depend on these frame times only, so that a
+// rolling shutter renders the same path as the global shutter.
 double PathEnd(const SynthesisOptions& options) {
-  return FrameStamp(options, options.num_frames - 1) + ReadoutTime(options);
+  return FrameStamp(options, options.num_frames - 1);
+}
+// The last frame's bottom row closes a readout time after its stamp.
+double RenderedEnd(const SynthesisOptions& options) {
+  return PathEnd(options) + ReadoutTime(options);
 }
 
 // Depth of `result` with its holes set to 0 (unknown): measured blur then
@@ -821,7 +826,7 @@ namespace {
 double HandheldDepthTravel(const CameraPath& path, const SynthesisOptions& options) {
   CameraPath unit = path;
   unit.speed = 1.0;
-  const double t0 = PathStart(options), t1 = PathEnd(options);
+  const double t0 = PathStart(options), t1 = RenderedEnd(options);
   double low = std::numeric_limits<double>::infinity(), high = -low;
   constexpr int kSamples = 257;
   for (int k = 0; k < kSamples; ++k) {
@@ -854,7 +859,7 @@ double CalibratePathSpeed(const StereoScene& scene, const SceneRenderer& rendere
   // Forward (and hand-held) motion must stop well before the nearest surface.
   double max_speed = std::numeric_limits<double>::infinity();
   if (path->type == CameraPathType::kForward) {
-    const double duration = PathEnd(options) - PathStart(options);
+    const double duration = RenderedEnd(options) - PathStart(options);
     max_speed = options.forward_travel_cap * scene.min_depth / (path->unit_twist.z() * duration);
   } else if (path->type == CameraPathType::kHandheld) {
     max_speed = options.forward_travel_cap * scene.min_depth / HandheldDepthTravel(*path, options);
@@ -897,7 +902,7 @@ int CountInRect(const cv::Mat& integral, int x, int y, int w, int h) {
 std::vector<cv::Mat> HoleIntegralsAlongPath(const SceneRenderer& renderer, const PinholeCamera& probe,
                                             const CameraPath& path, const SynthesisOptions& options) {
   const int num_poses = std::max(5, 2 * options.num_frames + 1);
-  const double t0 = PathStart(options), t1 = PathEnd(options);
+  const double t0 = PathStart(options), t1 = RenderedEnd(options);
   std::vector<cv::Mat> hole_integrals(num_poses);
   RenderOptions render_options;
   render_options.fill_holes = false;
@@ -1048,6 +1053,48 @@ class ExposureAverager {
     return *std::max_element(chunk_max_holes_.begin(), chunk_max_holes_.end());
   }
 
+  // Rolling shutter (SPEC section 3): LR row y (of H) is exposed over
+  // [t_o + y r / H, t_c + y r / H], r = readout, and so are the `scale` HR
+  // rows that box-downsample into it. Sub-frames on the global shutter's grid
+  // tau_j = t_o + (j / S) e, j = 1, 2, ..., over [t_o, t_c + r]; each row
+  // averages the S of them inside its window (j in first(y) .. first(y) + S - 1),
+  // so every row has the global shutter's sampling, and row 0 its very times.
+  int AverageRolling(const SceneRenderer& renderer, const CameraPath& path, double t_open, double exposure,
+                     double readout, int scale, cv::Mat* blurred) {
+    const int num_rows = hr_.height / scale;
+    std::vector<int> first(num_rows);
+    for (int y = 0; y < num_rows; ++y) {
+      first[y] = 1 + static_cast<int>(std::floor(y * readout / num_rows * num_subframes_ / exposure));
+    }
+    const int num_renders = first.back() + num_subframes_ - 1;
+    const RenderOptions render_options;
+#pragma omp parallel for schedule(dynamic, 1) num_threads(num_threads_)
+    for (int c = 0; c < num_chunks_; ++c) {
+      const int thread = omp_get_thread_num();
+      RenderResult& render = renders_[thread];
+      chunk_sums_[c].setTo(cv::Scalar::all(0.0));
+      chunk_max_holes_[c] = 0;
+      const int j_begin = 1 + static_cast<int>(static_cast<long>(c) * num_renders / num_chunks_);
+      const int j_end = static_cast<int>(static_cast<long>(c + 1) * num_renders / num_chunks_);
+      for (int j = j_begin; j <= j_end; ++j) {
+        const double tau = t_open + (static_cast<double>(j) / num_subframes_) * exposure;
+        renderer.Render(hr_, path.PoseAt(tau), render_options, &workspaces_[thread], &render);
+        for (int y = 0; y < num_rows; ++y) {
+          if (j < first[y] || j >= first[y] + num_subframes_) continue;
+          const cv::Range rows(y * scale, (y + 1) * scale);
+          cv::Mat sum_rows = chunk_sums_[c].rowRange(rows);
+          cv::add(sum_rows, render.image.rowRange(rows), sum_rows);
+        }
+        chunk_max_holes_[c] = std::max(chunk_max_holes_[c], render.num_holes);
+      }
+    }
+    blurred->create(hr_.height, hr_.width, CV_32FC3);
+    blurred->setTo(cv::Scalar::all(0.0));
+    for (int c = 0; c < num_chunks_; ++c) cv::add(*blurred, chunk_sums_[c], *blurred);
+    *blurred *= 1.0 / num_subframes_;
+    return *std::max_element(chunk_max_holes_.begin(), chunk_max_holes_.end());
+  }
+
  private:
   PinholeCamera hr_;
   int num_subframes_;
@@ -1123,17 +1170,20 @@ void LogFrame(int i, const SynthesisOptions& options, const FrameSynthesisStats&
 
 // Frame i: the ground truth at the shutter close time t_c, the blurred
 // exposure and its LR image, appended to the result.
-void SynthesizeFrame(int i, const SceneRenderer& renderer, const SynthesisOptions& options,
+void SynthesizeFrame(int i, const SceneRenderer& renderer, const SynthesisOptions& options, double gain,
                      ExposureAverager* averager, cv::RNG* rng, SynthesisResult* result) {
   const PinholeCamera& hr = result->hr_camera;
   const double exposure = FrameExposure(options);
+  const double readout = ReadoutTime(options);
   const double t_close = FrameStamp(options, i);
   const double t_open = t_close - exposure;
   const CameraPath& path = result->path;
   const SE3 T_world_close = path.PoseAt(t_close);
   // Only the points this exposure can see: same images, faster renders.
-  const SceneRenderer frame_renderer =
-      renderer.CulledFor(hr, {path.PoseAt(t_open), path.PoseAt(0.5 * (t_open + t_close)), T_world_close});
+  std::vector<SE3> exposure_poses = {path.PoseAt(t_open), path.PoseAt(0.5 * (t_open + t_close)),
+                                     T_world_close};
+  if (readout > 0.0) exposure_poses.push_back(path.PoseAt(t_close + readout));  // the bottom row's close
+  const SceneRenderer frame_renderer = renderer.CulledFor(hr, exposure_poses);
 
   RenderResult sharp;
   frame_renderer.Render(hr, T_world_close, RenderOptions(), averager->workspace(), &sharp);
@@ -1142,10 +1192,17 @@ void SynthesizeFrame(int i, const SceneRenderer& renderer, const SynthesisOption
   stats.blur = MeasureImageMotion(hr, CoveredDepth(sharp), path.PoseAt(t_open), T_world_close);
 
   cv::Mat blurred;
-  const int max_holes = averager->Average(frame_renderer, path, t_open, exposure, &blurred);
+  const int max_holes = readout > 0.0 ? averager->AverageRolling(frame_renderer, path, t_open, exposure,
+                                                                 readout, options.scale, &blurred)
+                                      : averager->Average(frame_renderer, path, t_open, exposure, &blurred);
   stats.hole_fraction_max = static_cast<double>(max_holes) / hr.NumPixels();
+  stats.gain = gain;
+  if (gain != 1.0) {
+    blurred *= gain;
+    sharp.image *= gain;
+  }
   cv::Mat latent8;
-  sharp.image.convertTo(latent8, CV_8UC3);
+  sharp.image.convertTo(latent8, CV_8UC3);  // rounds and clamps to 0..255
 
   Sequence& sequence = result->sequence;
   SequenceGroundTruth& gt = *sequence.ground_truth;
@@ -1155,6 +1212,16 @@ void SynthesizeFrame(int i, const SceneRenderer& renderer, const SynthesisOption
   gt.depth.push_back(sharp.depth.clone());
   gt.poses.push_back({t_close, T_world_close});
   result->frame_stats.push_back(stats);
+}
+
+// Per frame a gain from [1 - G, 1 + G], from its own stream of the seed
+// (the noise keeps cv::RNG(seed)); all 1 for G = 0.
+std::vector<double> FrameGains(const SynthesisOptions& options) {
+  std::vector<double> gains(options.num_frames, 1.0);
+  if (options.gain_jitter <= 0.0) return gains;
+  SeededUniform uniform(options.seed ^ kGainStream);
+  for (double& gain : gains) gain = uniform.Next(1.0 - options.gain_jitter, 1.0 + options.gain_jitter);
+  return gains;
 }
 
 }  // namespace
@@ -1168,9 +1235,11 @@ SynthesisResult SynthesizeSequence(const StereoScene& scene, const SynthesisOpti
   PlanPathAndCameras(scene, renderer, options, &result, log);
   NameCalibrations(scene, &result);
   ExposureAverager averager(result.hr_camera, options.subframes);
+  result.sequence.readout_time = ReadoutTime(options);
   cv::RNG rng(options.seed);
+  const std::vector<double> gains = FrameGains(options);
   for (int i = 0; i < options.num_frames; ++i) {
-    SynthesizeFrame(i, renderer, options, &averager, &rng, &result);
+    SynthesizeFrame(i, renderer, options, gains[i], &averager, &rng, &result);
     LogFrame(i, options, result.frame_stats.back(), log);
   }
   result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_time).count();
@@ -1227,6 +1296,9 @@ void EmitOptions(YAML::Emitter* out, const SynthesisOptions& options) {
   *out << YAML::Key << "arc_fixation_factor" << YAML::Value << options.arc_fixation_factor;
   *out << YAML::Key << "forward_travel_cap" << YAML::Value << options.forward_travel_cap;
   *out << YAML::Key << "max_hole_fraction" << YAML::Value << options.max_hole_fraction;
+  *out << YAML::Key << "gain_jitter" << YAML::Value << options.gain_jitter;
+  *out << YAML::Key << "readout_ratio" << YAML::Value << options.readout_ratio;
+  *out << YAML::Key << "readout_time" << YAML::Value << ReadoutTime(options) << YAML::Comment("s");
   *out << YAML::EndMap;
 }
 
@@ -1306,6 +1378,7 @@ void EmitFrames(YAML::Emitter* out, const SynthesisResult& result) {
     *out << YAML::Key << "blur_max_px" << YAML::Value << s.blur.max_px;
     *out << YAML::Key << "hole_fraction_latent" << YAML::Value << s.hole_fraction_latent;
     *out << YAML::Key << "hole_fraction_max_subframe" << YAML::Value << s.hole_fraction_max;
+    *out << YAML::Key << "gain" << YAML::Value << s.gain;
     *out << YAML::EndMap;
   }
   *out << YAML::EndSeq;
