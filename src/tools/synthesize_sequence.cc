@@ -150,7 +150,9 @@ void PrintSummary(const std::string& output_folder, const deblur_sr_mvs::StereoS
             << "), camera speed " << result.path.speed
             << (options.path == deblur_sr_mvs::CameraPathType::kRotate ? " rad/s" : " m/s")
             << (result.speed_capped ? " (capped)" : "") << "\n"
-            << "  blur per exposure (median HR px): target " << options.blur_px << ", middle frame "
+            << "  blur per exposure (median HR px): target " << options.blur_px
+            << (options.path == deblur_sr_mvs::CameraPathType::kHandheld ? ", median of the frames "
+                                                                         : ", middle frame ")
             << result.achieved_blur_px << ", frames " << blur_min << "-" << blur_max << "\n"
             << "  holes before filling: latent mean " << 100.0 * holes_mean << " %, worst sub-frame "
             << 100.0 * holes_max << " %\n"

@@ -671,18 +671,47 @@ std::vector<PathSinusoid> RandomSinusoids(SeededUniform* uniform, double duratio
   return terms;
 }
 
-// Hand-held shake: along the baseline the velocity varies by up to +-60 %
-// (never reversing), a smaller sway in y and z; rotation rates whose image
-// motion is up to ~40 % of the lateral drift's at the median depth.
-HandheldShape MakeHandheldShape(double duration, double median_depth, std::uint64_t seed) {
+// Ratio of the fastest to the slowest centre speed over the path (u in
+// [-1/2, 1/2]) for a drift of 1 m/s along `drift` plus the shake.
+double SpeedRatio(const HandheldShape& shape, const Eigen::Vector3d& drift) {
+  constexpr int kSamples = 41;
+  double slowest = std::numeric_limits<double>::infinity(), fastest = 0.0;
+  for (int k = 0; k < kSamples; ++k) {
+    const double u = -0.5 + static_cast<double>(k) / (kSamples - 1);
+    Eigen::Vector3d velocity = drift;
+    for (int axis = 0; axis < 3; ++axis) {
+      for (const PathSinusoid& term : shape.translation[axis]) {
+        const double omega = 2.0 * M_PI * term.cycles;
+        velocity[axis] += term.amplitude * omega / shape.duration * std::cos(omega * u + term.phase);
+      }
+    }
+    slowest = std::min(slowest, velocity.norm());
+    fastest = std::max(fastest, velocity.norm());
+  }
+  return fastest / std::max(slowest, 1e-12);
+}
+
+// Hand-held shake: along the drift (x, the baseline) the velocity varies by
+// up to +-60 % (never reversing), a smaller sway in y and z; rotation rates
+// whose image motion is up to ~40 % of the drift's at the median depth.
+// Shapes whose speed hardly varies (fastest < 1.25 x slowest, ~5 % of draws)
+// are drawn again from the same stream, so that every seed has a
+// non-constant velocity.
+HandheldShape MakeHandheldShape(double duration, double median_depth, const Eigen::Vector3d& drift,
+                                std::uint64_t seed) {
+  constexpr double kMinSpeedRatio = 1.25;
+  constexpr int kMaxDraws = 1000;
+  const double kTranslationRates[3][2] = {{0.15, 0.3}, {0.08, 0.2}, {0.05, 0.1}};
+  const double kRotationRates[3][2] = {{0.08, 0.2}, {0.08, 0.2}, {0.05, 0.1}};  // pitch, yaw, roll
   SeededUniform uniform(seed ^ kHandheldStream);
   HandheldShape shape;
   shape.duration = duration;
-  const double kTranslationRates[3][2] = {{0.15, 0.3}, {0.08, 0.2}, {0.05, 0.1}};
-  const double kRotationRates[3][2] = {{0.08, 0.2}, {0.08, 0.2}, {0.05, 0.1}};  // pitch, yaw, roll
-  for (int axis = 0; axis < 3; ++axis) {
-    shape.translation[axis] =
-        RandomSinusoids(&uniform, duration, kTranslationRates[axis][0], kTranslationRates[axis][1]);
+  for (int draw = 0; draw < kMaxDraws; ++draw) {
+    for (int axis = 0; axis < 3; ++axis) {
+      shape.translation[axis] =
+          RandomSinusoids(&uniform, duration, kTranslationRates[axis][0], kTranslationRates[axis][1]);
+    }
+    if (SpeedRatio(shape, drift) >= kMinSpeedRatio) break;
   }
   for (int axis = 0; axis < 3; ++axis) {
     shape.rotation[axis] = RandomSinusoids(&uniform, duration, kRotationRates[axis][0] / median_depth,
@@ -748,7 +777,7 @@ CameraPath MakeCameraPath(CameraPathType type, const StereoScene& scene, double 
       // Drifts along the baseline like the lateral path (inside what the two
       // views cover), with seeded shake on top (see MakeHandheldShape).
       path.unit_twist.head<3>() = baseline_direction;
-      path.handheld = MakeHandheldShape(duration, scene.median_depth, seed);
+      path.handheld = MakeHandheldShape(duration, scene.median_depth, baseline_direction, seed);
       break;
   }
   return path;
@@ -842,18 +871,30 @@ double HandheldDepthTravel(const CameraPath& path, const SynthesisOptions& optio
 double CalibratePathSpeed(const StereoScene& scene, const SceneRenderer& renderer,
                           const PinholeCamera& camera, const SynthesisOptions& options, CameraPath* path,
                           bool* capped) {
-  const int middle = (options.num_frames - 1) / 2;
-  const double t_close = FrameStamp(options, middle);
-  const double t_open = t_close - FrameExposure(options);
+  // The middle frame; the hand-held path, whose speed varies, measures the
+  // median over all frames of each frame's median.
+  std::vector<int> frames = {(options.num_frames - 1) / 2};
+  if (path->type == CameraPathType::kHandheld) {
+    frames.resize(options.num_frames);
+    for (int i = 0; i < options.num_frames; ++i) frames[i] = i;
+  }
   RenderOptions render_options;
   render_options.fill_holes = false;
   RenderWorkspace workspace;
   RenderResult render;
   auto measure = [&](double speed) {
     path->speed = speed;
-    renderer.Render(camera, path->PoseAt(t_close), render_options, &workspace, &render);
-    return MeasureImageMotion(camera, CoveredDepth(render), path->PoseAt(t_open), path->PoseAt(t_close))
-        .median_px;
+    std::vector<double> medians;
+    for (int frame : frames) {
+      const double t_close = FrameStamp(options, frame);
+      const double t_open = t_close - FrameExposure(options);
+      renderer.Render(camera, path->PoseAt(t_close), render_options, &workspace, &render);
+      medians.push_back(
+          MeasureImageMotion(camera, CoveredDepth(render), path->PoseAt(t_open), path->PoseAt(t_close))
+              .median_px);
+    }
+    std::nth_element(medians.begin(), medians.begin() + medians.size() / 2, medians.end());
+    return medians[medians.size() / 2];
   };
 
   // Forward (and hand-held) motion must stop well before the nearest surface.
@@ -1358,7 +1399,8 @@ void EmitPath(YAML::Emitter* out, const SynthesisOptions& options, const Synthes
   *out << YAML::Key << "speed_capped" << YAML::Value << result.speed_capped;
   *out << YAML::Key << "target_blur_px" << YAML::Value << options.blur_px;
   *out << YAML::Key << "achieved_blur_px" << YAML::Value << result.achieved_blur_px
-       << YAML::Comment("median, middle frame");
+       << YAML::Comment(p.type == CameraPathType::kHandheld ? "median over the frames of their medians"
+                                                            : "median, middle frame");
   *out << YAML::EndMap;
 }
 

@@ -248,8 +248,10 @@ struct SynthesisResult {
   PinholeCamera hr_camera;
   PinholeCamera lr_camera;
   CameraPath path;
-  double achieved_blur_px = 0.0;  // median blur of the middle frame after calibration
-  bool speed_capped = false;      // forward path limited by forward_travel_cap
+  // Median blur of the middle frame after calibration (handheld: the median
+  // over the frames of each frame's median).
+  double achieved_blur_px = 0.0;
+  bool speed_capped = false;  // forward path limited by forward_travel_cap
   std::vector<FrameSynthesisStats> frame_stats;
   double seconds = 0.0;
 };
@@ -266,7 +268,9 @@ PinholeCamera ChooseHrCamera(const StereoScene& scene, const SceneRenderer& rend
                              const SynthesisOptions& options);
 
 // Sets path->speed so that the median image motion over the middle frame's
-// exposure equals options.blur_px (capped for the forward path). Returns the
+// exposure equals options.blur_px (capped for the forward and handheld paths;
+// handheld, whose speed varies: the median over the frames of each frame's
+// median). Returns the
 // achieved median; *capped tells whether the cap was hit.
 double CalibratePathSpeed(const StereoScene& scene, const SceneRenderer& renderer,
                           const PinholeCamera& camera, const SynthesisOptions& options, CameraPath* path,
