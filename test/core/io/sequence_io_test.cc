@@ -642,6 +642,15 @@ TEST_F(SequenceIoTest, SensorYamlRoundTripsThroughTheSequence) {
   // The readout may take the whole frame interval (0.1 s here).
   WriteText("rolling/sensor.yaml", "readout_time: 0.1\n");
   EXPECT_EQ(ReadSequence(folder, false).readout_time, 0.1);
+  // A readout of exactly one frame interval passes despite stamp rounding.
+  for (int i = 0; i < 3; ++i) {
+    written.frames[i].stamp = (i + 1) / 30.0;
+    written.frames[i].exposure = 0.8 / 30.0;
+  }
+  written.readout_time = 1.0 / 30.0;
+  written.ground_truth.reset();
+  WriteSequence(folder, written);
+  EXPECT_EQ(ReadSequence(folder, false).readout_time, 1.0 / 30.0);
   // Global shutter: no sensor.yaml, and rewriting removes a stale one.
   written.readout_time = 0.0;
   WriteSequence(folder, written);

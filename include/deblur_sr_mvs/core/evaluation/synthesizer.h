@@ -3,10 +3,11 @@
 // `synthesize_sequence`).
 //
 // World frame = the view1 camera's optical frame (x right, y down, z forward).
-// Both views become coloured 3D points; a virtual camera moving at constant
-// velocity along an SE(3) geodesic is rendered by forward splatting with a
-// z-buffer, and a blurred frame is the mean of many sub-frame renders over the
-// exposure, box-downsampled by the SR scale (eq:blurOperator).
+// Both views become coloured 3D points; a virtual camera moving along a path
+// (constant-velocity SE(3) geodesics, a pure rotation, or a seeded hand-held
+// shake) is rendered by forward splatting with a z-buffer, and a blurred frame
+// is the mean of many sub-frame renders over the exposure (per LR row with a
+// rolling shutter), box-downsampled by the SR scale (eq:blurOperator).
 #pragma once
 
 #include <array>
