@@ -2,8 +2,10 @@
 // from a Middlebury scene (docs/tools.md#synthesize_sequence).
 //
 //   synthesize_sequence --scene DIR --output SEQ [--frames N] [--scale S]
-//                       [--exposure-ratio R] [--path lateral|arc|forward]
-//                       [--noise SIGMA] [--seed N] [--blur-px PX]
+//                       [--exposure-ratio R]
+//                       [--path lateral|arc|forward|handheld|rotate]
+//                       [--noise SIGMA] [--seed N] [--readout-ratio R]
+//                       [--gain-jitter G] [--blur-px PX]
 //                       [--subframes S] [--fps F] [--arc-fixation F]
 //                       [--forward-cap F] [--hr-width W --hr-height H]
 //
@@ -68,11 +70,20 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::SynthesisOptions
   cli.add_option("--exposure-ratio", options->exposure_ratio,
                  "exposure / frame interval, in (0, 1] (default 0.8)")
       ->check(dsm::FlagNumber());
-  cli.add_option("--path", flags->path, "lateral, arc or forward (default lateral)")
-      ->check(CLI::IsMember({"lateral", "arc", "forward"}));
+  cli.add_option("--path", flags->path, "lateral, arc, forward, handheld or rotate (default lateral)")
+      ->check(CLI::IsMember({"lateral", "arc", "forward", "handheld", "rotate"}));
   cli.add_option("--noise", options->noise_sigma, "Gaussian noise on the LR frames, 8-bit units (default 0)")
       ->check(dsm::FlagNumber());
-  cli.add_option("--seed", options->seed, "noise seed (default 0)")->check(SeedValidator());
+  cli.add_option("--seed", options->seed, "seed of the noise, the handheld path and the gains (default 0)")
+      ->check(SeedValidator());
+  cli.add_option("--readout-ratio", options->readout_ratio,
+                 "rolling shutter: readout time = R x frame interval, in [0, 1] (default 0: global); "
+                 "writes sensor.yaml")
+      ->check(dsm::FlagNumber());
+  cli.add_option("--gain-jitter", options->gain_jitter,
+                 "per-frame gain drawn from [1-G, 1+G] on the frame and its gt latent, G in [0, 0.5] "
+                 "(default 0)")
+      ->check(dsm::FlagNumber());
   cli.add_option("--blur-px", options->blur_px, "median HR image motion per exposure (default 14)")
       ->check(dsm::FlagNumber());
   cli.add_option("--subframes", options->subframes, "renders per exposure, > 50 (default 200)")
@@ -83,7 +94,7 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::SynthesisOptions
                  "arc: fixation point at F x the median depth (default 2)")
       ->check(dsm::FlagNumber());
   cli.add_option("--forward-cap", options->forward_travel_cap,
-                 "forward: total travel <= F x the nearest depth (default 0.4)")
+                 "forward, handheld: total depth travel <= F x the nearest depth (default 0.4)")
       ->check(dsm::FlagNumber());
   cli.add_option("--hr-width", options->hr_width, "HR width (default: automatic covered crop)")
       ->check(dsm::FlagInt());
@@ -136,9 +147,12 @@ void PrintSummary(const std::string& output_folder, const deblur_sr_mvs::StereoS
             << result.lr_camera.height << ", HR " << result.hr_camera.width << "x" << result.hr_camera.height
             << " (scale " << options.scale << ")\n"
             << "  depth " << scene.min_depth << "-" << scene.max_depth << " m (median " << scene.median_depth
-            << "), camera speed " << result.path.speed << " m/s" << (result.speed_capped ? " (capped)" : "")
-            << "\n"
-            << "  blur per exposure (median HR px): target " << options.blur_px << ", middle frame "
+            << "), camera speed " << result.path.speed
+            << (options.path == deblur_sr_mvs::CameraPathType::kRotate ? " rad/s" : " m/s")
+            << (result.speed_capped ? " (capped)" : "") << "\n"
+            << "  blur per exposure (median HR px): target " << options.blur_px
+            << (options.path == deblur_sr_mvs::CameraPathType::kHandheld ? ", median of the frames "
+                                                                         : ", middle frame ")
             << result.achieved_blur_px << ", frames " << blur_min << "-" << blur_max << "\n"
             << "  holes before filling: latent mean " << 100.0 * holes_mean << " %, worst sub-frame "
             << 100.0 * holes_max << " %\n"

@@ -92,8 +92,14 @@ PinholeCamera CentredCrop(const PinholeCamera& probe, int width, int height) {
 double PathStart(const SynthesisOptions& options) {
   return FrameStamp(options, 0) - FrameExposure(options);
 }
+// The path's shape and t_mid depend on these frame times only, so that a
+// rolling shutter renders the same path as the global shutter.
 double PathEnd(const SynthesisOptions& options) {
   return FrameStamp(options, options.num_frames - 1);
+}
+// The last frame's bottom row closes a readout time after its stamp.
+double RenderedEnd(const SynthesisOptions& options) {
+  return PathEnd(options) + ReadoutTime(options);
 }
 
 // Depth of `result` with its holes set to 0 (unknown): measured blur then
@@ -602,6 +608,10 @@ std::string CameraPathName(CameraPathType type) {
       return "arc";
     case CameraPathType::kForward:
       return "forward";
+    case CameraPathType::kHandheld:
+      return "handheld";
+    case CameraPathType::kRotate:
+      return "rotate";
   }
   return "unknown";
 }
@@ -610,15 +620,123 @@ CameraPathType ParseCameraPathType(const std::string& name) {
   if (name == "lateral") return CameraPathType::kLateral;
   if (name == "arc") return CameraPathType::kArc;
   if (name == "forward") return CameraPathType::kForward;
-  throw InputError("--path: unknown path \"" + name + "\" (expected lateral, arc or forward)");
+  if (name == "handheld") return CameraPathType::kHandheld;
+  if (name == "rotate") return CameraPathType::kRotate;
+  throw InputError("--path: unknown path \"" + name +
+                   "\" (expected lateral, arc, forward, handheld or rotate)");
 }
 
+namespace {
+
+double SumOfSinusoids(const std::vector<PathSinusoid>& terms, double u) {
+  double sum = 0.0;
+  for (const PathSinusoid& term : terms)
+    sum += term.amplitude * std::sin(2.0 * M_PI * term.cycles * u + term.phase);
+  return sum;
+}
+
+// SplitMix64: a small, portable generator, so that a seed gives the same
+// path and gains on every platform (std:: distributions do not promise that).
+class SeededUniform {
+ public:
+  explicit SeededUniform(std::uint64_t seed) : state_(seed) {}
+  double Next(double low, double high) {
+    state_ += 0x9E3779B97F4A7C15ull;
+    std::uint64_t z = state_;
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+    z ^= z >> 31;
+    return low + (high - low) * static_cast<double>(z >> 11) * 0x1.0p-53;
+  }
+
+ private:
+  std::uint64_t state_;
+};
+
+// Stream offsets of the seed: the noise keeps cv::RNG(seed) as before.
+constexpr std::uint64_t kHandheldStream = 0x68616E6468656C64ull;  // "handheld"
+constexpr std::uint64_t kGainStream = 0x6761696E6A697474ull;      // "gainjitt"
+
+// Two components per axis of 0.3 to 1.5 cycles over the path: smooth over an
+// exposure. `relative_rate` bounds each component's peak rate (per unit
+// speed), so the amplitude is relative_rate * duration / (2 pi cycles).
+std::vector<PathSinusoid> RandomSinusoids(SeededUniform* uniform, double duration, double rate_low,
+                                          double rate_high) {
+  std::vector<PathSinusoid> terms(2);
+  for (PathSinusoid& term : terms) {
+    term.cycles = uniform->Next(0.3, 1.5);
+    term.phase = uniform->Next(0.0, 2.0 * M_PI);
+    term.amplitude = uniform->Next(rate_low, rate_high) * duration / (2.0 * M_PI * term.cycles);
+  }
+  return terms;
+}
+
+// Ratio of the fastest to the slowest centre speed over the path (u in
+// [-1/2, 1/2]) for a drift of 1 m/s along `drift` plus the shake.
+double SpeedRatio(const HandheldShape& shape, const Eigen::Vector3d& drift) {
+  constexpr int kSamples = 41;
+  double slowest = std::numeric_limits<double>::infinity(), fastest = 0.0;
+  for (int k = 0; k < kSamples; ++k) {
+    const double u = -0.5 + static_cast<double>(k) / (kSamples - 1);
+    Eigen::Vector3d velocity = drift;
+    for (int axis = 0; axis < 3; ++axis) {
+      for (const PathSinusoid& term : shape.translation[axis]) {
+        const double omega = 2.0 * M_PI * term.cycles;
+        velocity[axis] += term.amplitude * omega / shape.duration * std::cos(omega * u + term.phase);
+      }
+    }
+    slowest = std::min(slowest, velocity.norm());
+    fastest = std::max(fastest, velocity.norm());
+  }
+  return fastest / std::max(slowest, 1e-12);
+}
+
+// Hand-held shake: along the drift (x, the baseline) the velocity varies by
+// up to +-60 % (never reversing), a smaller sway in y and z; rotation rates
+// whose image motion is up to ~40 % of the drift's at the median depth.
+// Shapes whose speed hardly varies (fastest < 1.25 x slowest, ~5 % of draws)
+// are drawn again from the same stream, so that every seed has a
+// non-constant velocity.
+HandheldShape MakeHandheldShape(double duration, double median_depth, const Eigen::Vector3d& drift,
+                                std::uint64_t seed) {
+  constexpr double kMinSpeedRatio = 1.25;
+  constexpr int kMaxDraws = 1000;
+  const double kTranslationRates[3][2] = {{0.15, 0.3}, {0.08, 0.2}, {0.05, 0.1}};
+  const double kRotationRates[3][2] = {{0.08, 0.2}, {0.08, 0.2}, {0.05, 0.1}};  // pitch, yaw, roll
+  SeededUniform uniform(seed ^ kHandheldStream);
+  HandheldShape shape;
+  shape.duration = duration;
+  for (int draw = 0; draw < kMaxDraws; ++draw) {
+    for (int axis = 0; axis < 3; ++axis) {
+      shape.translation[axis] =
+          RandomSinusoids(&uniform, duration, kTranslationRates[axis][0], kTranslationRates[axis][1]);
+    }
+    if (SpeedRatio(shape, drift) >= kMinSpeedRatio) break;
+  }
+  for (int axis = 0; axis < 3; ++axis) {
+    shape.rotation[axis] = RandomSinusoids(&uniform, duration, kRotationRates[axis][0] / median_depth,
+                                           kRotationRates[axis][1] / median_depth);
+  }
+  return shape;
+}
+
+}  // namespace
+
 SE3 CameraPath::PoseAt(double t) const {
-  return SE3::Exp((t - t_mid) * speed * unit_twist) * T_world_mid;
+  if (type != CameraPathType::kHandheld) return SE3::Exp((t - t_mid) * speed * unit_twist) * T_world_mid;
+  const double u = (t - t_mid) / handheld.duration;
+  Eigen::Vector3d shake, angles;
+  for (int axis = 0; axis < 3; ++axis) {
+    shake[axis] = SumOfSinusoids(handheld.translation[axis], u);
+    angles[axis] = SumOfSinusoids(handheld.rotation[axis], u);
+  }
+  const Eigen::Vector3d centre =
+      T_world_mid.translation() + speed * ((t - t_mid) * unit_twist.head<3>() + shake);
+  return SE3(SO3Exp(speed * angles) * T_world_mid.rotation(), centre);
 }
 
 CameraPath MakeCameraPath(CameraPathType type, const StereoScene& scene, double t_mid,
-                          double arc_fixation_factor) {
+                          double arc_fixation_factor, double duration, std::uint64_t seed) {
   CameraPath path;
   path.type = type;
   path.t_mid = t_mid;
@@ -647,6 +765,20 @@ CameraPath MakeCameraPath(CameraPathType type, const StereoScene& scene, double 
       path.unit_twist.tail<3>() = w;
       break;
     }
+    case CameraPathType::kRotate: {
+      // Mostly yaw (about y) with some pitch, about the camera centre c:
+      // rho = c x w keeps c fixed. |w| = 1 rad/s.
+      const Eigen::Vector3d w = Eigen::Vector3d(0.3, 1.0, 0.0).normalized();
+      path.unit_twist.head<3>() = midpoint.cross(w);
+      path.unit_twist.tail<3>() = w;
+      break;
+    }
+    case CameraPathType::kHandheld:
+      // Drifts along the baseline like the lateral path (inside what the two
+      // views cover), with seeded shake on top (see MakeHandheldShape).
+      path.unit_twist.head<3>() = baseline_direction;
+      path.handheld = MakeHandheldShape(duration, scene.median_depth, baseline_direction, seed);
+      break;
   }
   return path;
 }
@@ -700,6 +832,8 @@ void SynthesisOptions::Check() const {
   CheckInRange("--arc-fixation", arc_fixation_factor, 1.2, 100.0);
   CheckInInterval("--forward-cap", forward_travel_cap, 0.0, 1.0, Interval::kRightClosed);
   CheckInInterval("max_hole_fraction", max_hole_fraction, 0.0, 1.0, Interval::kOpen);
+  CheckInRange("--gain-jitter", gain_jitter, 0.0, 0.5);
+  CheckInRange("--readout-ratio", readout_ratio, 0.0, 1.0);
 }
 
 double FrameStamp(const SynthesisOptions& options, int index) {
@@ -710,35 +844,76 @@ double FrameExposure(const SynthesisOptions& options) {
   return options.exposure_ratio / options.fps;
 }
 
+double ReadoutTime(const SynthesisOptions& options) {
+  return options.readout_ratio / options.fps;
+}
+
+namespace {
+
+// Range of the camera centre's z over the rendered span of a hand-held path
+// per unit speed (m per m/s), sampled finely against its low frequencies.
+double HandheldDepthTravel(const CameraPath& path, const SynthesisOptions& options) {
+  CameraPath unit = path;
+  unit.speed = 1.0;
+  const double t0 = PathStart(options), t1 = RenderedEnd(options);
+  double low = std::numeric_limits<double>::infinity(), high = -low;
+  constexpr int kSamples = 257;
+  for (int k = 0; k < kSamples; ++k) {
+    const double z = unit.PoseAt(t0 + (t1 - t0) * k / (kSamples - 1)).translation().z();
+    low = std::min(low, z);
+    high = std::max(high, z);
+  }
+  return std::max(high - low, 1e-9);
+}
+
+}  // namespace
+
 double CalibratePathSpeed(const StereoScene& scene, const SceneRenderer& renderer,
                           const PinholeCamera& camera, const SynthesisOptions& options, CameraPath* path,
                           bool* capped) {
-  const int middle = (options.num_frames - 1) / 2;
-  const double t_close = FrameStamp(options, middle);
-  const double t_open = t_close - FrameExposure(options);
+  // The middle frame; the hand-held path, whose speed varies, measures the
+  // median over all frames of each frame's median.
+  std::vector<int> frames = {(options.num_frames - 1) / 2};
+  if (path->type == CameraPathType::kHandheld) {
+    frames.resize(options.num_frames);
+    for (int i = 0; i < options.num_frames; ++i) frames[i] = i;
+  }
   RenderOptions render_options;
   render_options.fill_holes = false;
   RenderWorkspace workspace;
   RenderResult render;
   auto measure = [&](double speed) {
     path->speed = speed;
-    renderer.Render(camera, path->PoseAt(t_close), render_options, &workspace, &render);
-    return MeasureImageMotion(camera, CoveredDepth(render), path->PoseAt(t_open), path->PoseAt(t_close))
-        .median_px;
+    std::vector<double> medians;
+    for (int frame : frames) {
+      const double t_close = FrameStamp(options, frame);
+      const double t_open = t_close - FrameExposure(options);
+      renderer.Render(camera, path->PoseAt(t_close), render_options, &workspace, &render);
+      medians.push_back(
+          MeasureImageMotion(camera, CoveredDepth(render), path->PoseAt(t_open), path->PoseAt(t_close))
+              .median_px);
+    }
+    std::nth_element(medians.begin(), medians.begin() + medians.size() / 2, medians.end());
+    return medians[medians.size() / 2];
   };
 
-  // Forward motion must stop well before the nearest surface.
+  // Forward (and hand-held) motion must stop well before the nearest surface.
   double max_speed = std::numeric_limits<double>::infinity();
   if (path->type == CameraPathType::kForward) {
-    const double duration = PathEnd(options) - PathStart(options);
+    const double duration = RenderedEnd(options) - PathStart(options);
     max_speed = options.forward_travel_cap * scene.min_depth / (path->unit_twist.z() * duration);
+  } else if (path->type == CameraPathType::kHandheld) {
+    max_speed = options.forward_travel_cap * scene.min_depth / HandheldDepthTravel(*path, options);
   }
   *capped = false;
-  // Lateral estimate (exact for a fronto-parallel plane at the median depth),
-  // then fixed-point steps: image motion is nearly proportional to speed.
-  double speed = path->speed > 0.0
-                     ? path->speed
-                     : options.blur_px * scene.median_depth / (scene.focal_px * FrameExposure(options));
+  // Lateral estimate (exact for a fronto-parallel plane at the median depth;
+  // rotate: at the image centre), then fixed-point steps: image motion is
+  // nearly proportional to speed.
+  const double first_guess =
+      path->type == CameraPathType::kRotate
+          ? options.blur_px / (scene.focal_px * FrameExposure(options))
+          : options.blur_px * scene.median_depth / (scene.focal_px * FrameExposure(options));
+  double speed = path->speed > 0.0 ? path->speed : first_guess;
   double achieved = 0.0;
   for (int iteration = 0; iteration < 10; ++iteration) {
     if (speed >= max_speed) {
@@ -768,7 +943,7 @@ int CountInRect(const cv::Mat& integral, int x, int y, int w, int h) {
 std::vector<cv::Mat> HoleIntegralsAlongPath(const SceneRenderer& renderer, const PinholeCamera& probe,
                                             const CameraPath& path, const SynthesisOptions& options) {
   const int num_poses = std::max(5, 2 * options.num_frames + 1);
-  const double t0 = PathStart(options), t1 = PathEnd(options);
+  const double t0 = PathStart(options), t1 = RenderedEnd(options);
   std::vector<cv::Mat> hole_integrals(num_poses);
   RenderOptions render_options;
   render_options.fill_holes = false;
@@ -919,6 +1094,48 @@ class ExposureAverager {
     return *std::max_element(chunk_max_holes_.begin(), chunk_max_holes_.end());
   }
 
+  // Rolling shutter (SPEC section 3): LR row y (of H) is exposed over
+  // [t_o + y r / H, t_c + y r / H], r = readout, and so are the `scale` HR
+  // rows that box-downsample into it. Sub-frames on the global shutter's grid
+  // tau_j = t_o + (j / S) e, j = 1, 2, ..., over [t_o, t_c + r]; each row
+  // averages the S of them inside its window (j in first(y) .. first(y) + S - 1),
+  // so every row has the global shutter's sampling, and row 0 its very times.
+  int AverageRolling(const SceneRenderer& renderer, const CameraPath& path, double t_open, double exposure,
+                     double readout, int scale, cv::Mat* blurred) {
+    const int num_rows = hr_.height / scale;
+    std::vector<int> first(num_rows);
+    for (int y = 0; y < num_rows; ++y) {
+      first[y] = 1 + static_cast<int>(std::floor(y * readout / num_rows * num_subframes_ / exposure));
+    }
+    const int num_renders = first.back() + num_subframes_ - 1;
+    const RenderOptions render_options;
+#pragma omp parallel for schedule(dynamic, 1) num_threads(num_threads_)
+    for (int c = 0; c < num_chunks_; ++c) {
+      const int thread = omp_get_thread_num();
+      RenderResult& render = renders_[thread];
+      chunk_sums_[c].setTo(cv::Scalar::all(0.0));
+      chunk_max_holes_[c] = 0;
+      const int j_begin = 1 + static_cast<int>(static_cast<long>(c) * num_renders / num_chunks_);
+      const int j_end = static_cast<int>(static_cast<long>(c + 1) * num_renders / num_chunks_);
+      for (int j = j_begin; j <= j_end; ++j) {
+        const double tau = t_open + (static_cast<double>(j) / num_subframes_) * exposure;
+        renderer.Render(hr_, path.PoseAt(tau), render_options, &workspaces_[thread], &render);
+        for (int y = 0; y < num_rows; ++y) {
+          if (j < first[y] || j >= first[y] + num_subframes_) continue;
+          const cv::Range rows(y * scale, (y + 1) * scale);
+          cv::Mat sum_rows = chunk_sums_[c].rowRange(rows);
+          cv::add(sum_rows, render.image.rowRange(rows), sum_rows);
+        }
+        chunk_max_holes_[c] = std::max(chunk_max_holes_[c], render.num_holes);
+      }
+    }
+    blurred->create(hr_.height, hr_.width, CV_32FC3);
+    blurred->setTo(cv::Scalar::all(0.0));
+    for (int c = 0; c < num_chunks_; ++c) cv::add(*blurred, chunk_sums_[c], *blurred);
+    *blurred *= 1.0 / num_subframes_;
+    return *std::max_element(chunk_max_holes_.begin(), chunk_max_holes_.end());
+  }
+
  private:
   PinholeCamera hr_;
   int num_subframes_;
@@ -956,7 +1173,8 @@ cv::Mat LowResImage(const cv::Mat& blurred, const SynthesisOptions& options, cv:
 void PlanPathAndCameras(const StereoScene& scene, const SceneRenderer& renderer,
                         const SynthesisOptions& options, SynthesisResult* result, std::ostream* log) {
   const double t_mid = 0.5 * (PathStart(options) + PathEnd(options));
-  result->path = MakeCameraPath(options.path, scene, t_mid, options.arc_fixation_factor);
+  result->path = MakeCameraPath(options.path, scene, t_mid, options.arc_fixation_factor,
+                                PathEnd(options) - PathStart(options), options.seed);
   CalibratePathSpeed(scene, renderer, ProbeCamera(scene), options, &result->path, &result->speed_capped);
   result->hr_camera = ChooseHrCamera(scene, renderer, result->path, options);
   result->achieved_blur_px =
@@ -993,17 +1211,20 @@ void LogFrame(int i, const SynthesisOptions& options, const FrameSynthesisStats&
 
 // Frame i: the ground truth at the shutter close time t_c, the blurred
 // exposure and its LR image, appended to the result.
-void SynthesizeFrame(int i, const SceneRenderer& renderer, const SynthesisOptions& options,
+void SynthesizeFrame(int i, const SceneRenderer& renderer, const SynthesisOptions& options, double gain,
                      ExposureAverager* averager, cv::RNG* rng, SynthesisResult* result) {
   const PinholeCamera& hr = result->hr_camera;
   const double exposure = FrameExposure(options);
+  const double readout = ReadoutTime(options);
   const double t_close = FrameStamp(options, i);
   const double t_open = t_close - exposure;
   const CameraPath& path = result->path;
   const SE3 T_world_close = path.PoseAt(t_close);
   // Only the points this exposure can see: same images, faster renders.
-  const SceneRenderer frame_renderer =
-      renderer.CulledFor(hr, {path.PoseAt(t_open), path.PoseAt(0.5 * (t_open + t_close)), T_world_close});
+  std::vector<SE3> exposure_poses = {path.PoseAt(t_open), path.PoseAt(0.5 * (t_open + t_close)),
+                                     T_world_close};
+  if (readout > 0.0) exposure_poses.push_back(path.PoseAt(t_close + readout));  // the bottom row's close
+  const SceneRenderer frame_renderer = renderer.CulledFor(hr, exposure_poses);
 
   RenderResult sharp;
   frame_renderer.Render(hr, T_world_close, RenderOptions(), averager->workspace(), &sharp);
@@ -1012,10 +1233,17 @@ void SynthesizeFrame(int i, const SceneRenderer& renderer, const SynthesisOption
   stats.blur = MeasureImageMotion(hr, CoveredDepth(sharp), path.PoseAt(t_open), T_world_close);
 
   cv::Mat blurred;
-  const int max_holes = averager->Average(frame_renderer, path, t_open, exposure, &blurred);
+  const int max_holes = readout > 0.0 ? averager->AverageRolling(frame_renderer, path, t_open, exposure,
+                                                                 readout, options.scale, &blurred)
+                                      : averager->Average(frame_renderer, path, t_open, exposure, &blurred);
   stats.hole_fraction_max = static_cast<double>(max_holes) / hr.NumPixels();
+  stats.gain = gain;
+  if (gain != 1.0) {
+    blurred *= gain;
+    sharp.image *= gain;
+  }
   cv::Mat latent8;
-  sharp.image.convertTo(latent8, CV_8UC3);
+  sharp.image.convertTo(latent8, CV_8UC3);  // rounds and clamps to 0..255
 
   Sequence& sequence = result->sequence;
   SequenceGroundTruth& gt = *sequence.ground_truth;
@@ -1025,6 +1253,16 @@ void SynthesizeFrame(int i, const SceneRenderer& renderer, const SynthesisOption
   gt.depth.push_back(sharp.depth.clone());
   gt.poses.push_back({t_close, T_world_close});
   result->frame_stats.push_back(stats);
+}
+
+// Per frame a gain from [1 - G, 1 + G], from its own stream of the seed
+// (the noise keeps cv::RNG(seed)); all 1 for G = 0.
+std::vector<double> FrameGains(const SynthesisOptions& options) {
+  std::vector<double> gains(options.num_frames, 1.0);
+  if (options.gain_jitter <= 0.0) return gains;
+  SeededUniform uniform(options.seed ^ kGainStream);
+  for (double& gain : gains) gain = uniform.Next(1.0 - options.gain_jitter, 1.0 + options.gain_jitter);
+  return gains;
 }
 
 }  // namespace
@@ -1038,9 +1276,11 @@ SynthesisResult SynthesizeSequence(const StereoScene& scene, const SynthesisOpti
   PlanPathAndCameras(scene, renderer, options, &result, log);
   NameCalibrations(scene, &result);
   ExposureAverager averager(result.hr_camera, options.subframes);
+  result.sequence.readout_time = ReadoutTime(options);
   cv::RNG rng(options.seed);
+  const std::vector<double> gains = FrameGains(options);
   for (int i = 0; i < options.num_frames; ++i) {
-    SynthesizeFrame(i, renderer, options, &averager, &rng, &result);
+    SynthesizeFrame(i, renderer, options, gains[i], &averager, &rng, &result);
     LogFrame(i, options, result.frame_stats.back(), log);
   }
   result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_time).count();
@@ -1097,6 +1337,36 @@ void EmitOptions(YAML::Emitter* out, const SynthesisOptions& options) {
   *out << YAML::Key << "arc_fixation_factor" << YAML::Value << options.arc_fixation_factor;
   *out << YAML::Key << "forward_travel_cap" << YAML::Value << options.forward_travel_cap;
   *out << YAML::Key << "max_hole_fraction" << YAML::Value << options.max_hole_fraction;
+  *out << YAML::Key << "gain_jitter" << YAML::Value << options.gain_jitter;
+  *out << YAML::Key << "readout_ratio" << YAML::Value << options.readout_ratio;
+  *out << YAML::Key << "readout_time" << YAML::Value << ReadoutTime(options) << YAML::Comment("s");
+  *out << YAML::EndMap;
+}
+
+// Per axis [amplitude, cycles, phase] of each sinusoid (see CameraPath).
+void EmitSinusoids(YAML::Emitter* out, const char* key,
+                   const std::array<std::vector<PathSinusoid>, 3>& axes) {
+  *out << YAML::Key << key << YAML::Value << YAML::BeginSeq;
+  for (const std::vector<PathSinusoid>& terms : axes) {
+    *out << YAML::Flow << YAML::BeginSeq;
+    for (const PathSinusoid& term : terms) {
+      EmitList(out, Eigen::Vector3d(term.amplitude, term.cycles, term.phase));
+    }
+    *out << YAML::EndSeq;
+  }
+  *out << YAML::EndSeq;
+}
+
+void EmitHandheldShape(YAML::Emitter* out, const HandheldShape& shape) {
+  *out << YAML::Key << "handheld" << YAML::Value
+       << YAML::Comment(
+              "centre = T_world_mid.t + speed * ((t - t_mid) * twist.rho + translation(u)), R = "
+              "Exp(speed * rotation(u)), u = (t - t_mid) / duration; per axis x, y, z a sum of "
+              "amplitude * sin(2 pi cycles u + phase), listed as [amplitude, cycles, phase]")
+       << YAML::BeginMap;
+  *out << YAML::Key << "duration" << YAML::Value << shape.duration;
+  EmitSinusoids(out, "translation", shape.translation);
+  EmitSinusoids(out, "rotation", shape.rotation);
   *out << YAML::EndMap;
 }
 
@@ -1116,15 +1386,21 @@ void EmitPath(YAML::Emitter* out, const SynthesisOptions& options, const Synthes
   *out << YAML::Comment("qx qy qz qw");
   *out << YAML::Key << "twist_per_s" << YAML::Value;
   EmitList(out, p.Twist());
-  *out << YAML::Key << "centre_speed_mps" << YAML::Value << p.speed;
+  if (p.type == CameraPathType::kRotate) {
+    *out << YAML::Key << "angular_speed_radps" << YAML::Value << p.speed;
+  } else {
+    *out << YAML::Key << "centre_speed_mps" << YAML::Value << p.speed;
+  }
   if (p.type == CameraPathType::kArc) {
     *out << YAML::Key << "fixation_point" << YAML::Value;
     EmitList(out, p.fixation_point);
   }
+  if (p.type == CameraPathType::kHandheld) EmitHandheldShape(out, p.handheld);
   *out << YAML::Key << "speed_capped" << YAML::Value << result.speed_capped;
   *out << YAML::Key << "target_blur_px" << YAML::Value << options.blur_px;
   *out << YAML::Key << "achieved_blur_px" << YAML::Value << result.achieved_blur_px
-       << YAML::Comment("median, middle frame");
+       << YAML::Comment(p.type == CameraPathType::kHandheld ? "median over the frames of their medians"
+                                                            : "median, middle frame");
   *out << YAML::EndMap;
 }
 
@@ -1144,6 +1420,7 @@ void EmitFrames(YAML::Emitter* out, const SynthesisResult& result) {
     *out << YAML::Key << "blur_max_px" << YAML::Value << s.blur.max_px;
     *out << YAML::Key << "hole_fraction_latent" << YAML::Value << s.hole_fraction_latent;
     *out << YAML::Key << "hole_fraction_max_subframe" << YAML::Value << s.hole_fraction_max;
+    *out << YAML::Key << "gain" << YAML::Value << s.gain;
     *out << YAML::EndMap;
   }
   *out << YAML::EndSeq;

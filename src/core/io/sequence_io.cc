@@ -480,6 +480,52 @@ void WriteCameraYaml(const std::string& path, const CameraCalibration& calibrati
 
 // ---------------------------------------------------------------- frames.csv
 
+// ------------------------------------------------------------- sensor.yaml
+
+double ReadSensorYaml(const std::string& path, const std::vector<FrameRecord>& frames) {
+  const YAML::Node root = LoadYaml(path, ReadTextFile(path));
+  if (root.IsNull()) Fail(path, "file is empty (expected 'readout_time: <seconds>')");
+  if (!root.IsMap())
+    FailAtMark(path, root.Mark(), "expected 'readout_time: <seconds>', got " + Quote(NodeText(root)));
+  const YamlEntries entries = MapEntries(path, root);
+  for (const auto& [key, entry] : entries) {
+    if (key != "readout_time")
+      FailAt(path, entry.line, "unknown key " + Quote(key) + " (expected readout_time)");
+  }
+  const auto it = entries.find("readout_time");
+  if (it == entries.end()) Fail(path, "missing key 'readout_time'");
+  const YamlEntry& entry = it->second;
+  double readout = 0.0;
+  if (!entry.value.IsScalar() || !ParseDouble(Trim(entry.value.Scalar()), &readout)) {
+    FailAt(path, entry.line, "readout_time must be a number of seconds, got " + Quote(NodeText(entry.value)));
+  }
+  if (!std::isfinite(readout) || readout < 0.0) {
+    FailAt(path, entry.line, "readout_time must be finite and >= 0, got " + MessageNumber(readout));
+  }
+  // A row cannot start reading out after the next frame's row 0: at most one
+  // frame interval (with a relative tolerance for stamps rounded in the CSV).
+  for (std::size_t i = 1; i < frames.size(); ++i) {
+    const double interval = frames[i].stamp - frames[i - 1].stamp;
+    if (readout > interval * (1.0 + 1e-9)) {
+      FailAt(path, entry.line,
+             "readout_time " + MessageNumber(readout) + " s exceeds the frame interval " +
+                 MessageNumber(interval) + " s between frames " + std::to_string(i - 1) + " and " +
+                 std::to_string(i));
+    }
+  }
+  return readout;
+}
+
+void WriteSensorYaml(const std::string& path, double readout_time) {
+  if (!std::isfinite(readout_time) || readout_time < 0.0) {
+    Fail(path, "cannot write readout_time " + MessageNumber(readout_time) + " (must be finite and >= 0)");
+  }
+  YAML::Emitter out;
+  out.SetDoublePrecision(17);
+  out << YAML::BeginMap << YAML::Key << "readout_time" << YAML::Value << readout_time << YAML::EndMap;
+  WriteTextFile(path, std::string(out.c_str()) + "\n");
+}
+
 std::vector<FrameRecord> ReadFramesCsv(const std::string& path) {
   static const char* kHeader = "index,stamp,exposure";
   const std::string content = ReadTextFile(path);
@@ -676,6 +722,9 @@ Sequence ReadSequence(const std::string& folder, bool read_ground_truth) {
   Sequence sequence;
   sequence.calibration = ReadCameraYaml(camera_path);
   sequence.frames = ReadFramesCsv((root / "frames.csv").string());
+  const fs::path sensor_path = root / "sensor.yaml";
+  if (fs::exists(sensor_path, error))
+    sequence.readout_time = ReadSensorYaml(sensor_path.string(), sequence.frames);
   const PinholeCamera& camera = sequence.calibration.camera;
   sequence.images.reserve(sequence.frames.size());
   for (const FrameRecord& frame : sequence.frames) {
@@ -763,6 +812,13 @@ void WriteSequence(const std::string& folder, const Sequence& sequence) {
 
   WriteCameraYaml((root / "camera.yaml").string(), sequence.calibration);
   WriteFramesCsv((root / "frames.csv").string(), sequence.frames);
+  const fs::path sensor_path = root / "sensor.yaml";
+  if (sequence.readout_time > 0.0) {
+    WriteSensorYaml(sensor_path.string(), sequence.readout_time);
+  } else if (fs::exists(sensor_path, error)) {
+    fs::remove(sensor_path, error);  // a global-shutter sequence has none
+    if (error) Fail(sensor_path.string(), "cannot remove the stale file: " + error.message());
+  }
   for (std::size_t i = 0; i < count; ++i) {
     const std::string stem = FrameStem(sequence.frames[i].index);
     WriteImage((root / "images" / (stem + ".png")).string(), sequence.images[i]);

@@ -450,6 +450,258 @@ TEST(SynthesizerSequenceTest, NoiseIsDeterministicPerSeed) {
   }
 }
 
+// ------------------------------------------- rotate, handheld, gain, shutter
+
+// A small, fast sequence: 64x48 HR (32x24 LR), few sub-frames.
+SynthesisOptions SmallOptions(CameraPathType path, int frames) {
+  SynthesisOptions options;
+  options.path = path;
+  options.num_frames = frames;
+  options.subframes = 51;
+  options.hr_width = 64;
+  options.hr_height = 48;
+  options.blur_px = 8.0;
+  return options;
+}
+
+double RotationAngle(const SE3& a, const SE3& b) {
+  return Eigen::AngleAxisd(a.rotation().transpose() * b.rotation()).angle();
+}
+
+TEST(SynthesizerPathTest, NewPathNamesRoundTrip) {
+  for (CameraPathType type : {CameraPathType::kHandheld, CameraPathType::kRotate}) {
+    EXPECT_EQ(ParseCameraPathType(CameraPathName(type)), type);
+  }
+  EXPECT_EQ(CameraPathName(CameraPathType::kHandheld), "handheld");
+  EXPECT_EQ(CameraPathName(CameraPathType::kRotate), "rotate");
+}
+
+TEST(SynthesizerPathTest, RotateTurnsAboutTheCameraCentre) {
+  CameraPath path = MakeCameraPath(CameraPathType::kRotate, Dolls(), 0.2, 2.0);
+  path.speed = 0.5;  // rad/s
+  const Eigen::Vector3d centre(0.08, 0.0, 0.0);
+  for (double t : {-0.5, 0.0, 0.13, 0.2, 0.6}) {
+    EXPECT_NEAR((path.PoseAt(t).translation() - centre).norm(), 0.0, 1e-12) << t;
+  }
+  EXPECT_NEAR(RotationAngle(path.PoseAt(0.1), path.PoseAt(0.3)), 0.1, 1e-9);
+  // Mostly yaw (about y) with some pitch (about x), no roll.
+  const Eigen::AngleAxisd turn(path.PoseAt(0.2).rotation().transpose() * path.PoseAt(0.4).rotation());
+  EXPECT_GT(std::abs(turn.axis().y()), 3.0 * std::abs(turn.axis().x()));
+  EXPECT_GT(std::abs(turn.axis().x()), 0.1);
+  EXPECT_NEAR(turn.axis().z(), 0.0, 1e-9);
+}
+
+TEST(SynthesizerSequenceTest, RotateHasConstantPositionAndTheRequestedBlur) {
+  const SynthesisOptions options = SmallOptions(CameraPathType::kRotate, 3);
+  const SynthesisResult result = SynthesizeSequence(Dolls(), options);
+  const std::vector<StampedPose>& poses = result.sequence.ground_truth->poses;
+  ASSERT_EQ(poses.size(), 3u);
+  for (const StampedPose& pose : poses) {
+    EXPECT_NEAR((pose.T_world_cam.translation() - poses[0].T_world_cam.translation()).norm(), 0.0, 1e-12);
+  }
+  EXPECT_GT(RotationAngle(poses[0].T_world_cam, poses[2].T_world_cam), 1e-3);
+  EXPECT_NEAR(result.achieved_blur_px, options.blur_px, 0.02 * options.blur_px);
+  for (const FrameSynthesisStats& stats : result.frame_stats) {
+    EXPECT_NEAR(stats.blur.median_px, options.blur_px, 0.1 * options.blur_px);
+  }
+  // gt depth stays the scene's depth: the rotation does not move the centre.
+  double min_depth = 0.0, max_depth = 0.0;
+  cv::minMaxLoc(result.sequence.ground_truth->depth[1], &min_depth, &max_depth);
+  EXPECT_GE(min_depth, 0.9 * Dolls().min_depth);
+  EXPECT_LE(max_depth, 1.1 * Dolls().max_depth);
+}
+
+// Speeds of the camera centre at n times over [t0, t1] (central differences).
+std::vector<double> CentreSpeeds(const CameraPath& path, double t0, double t1, int n) {
+  std::vector<double> speeds;
+  const double dt = 1e-5;
+  for (int k = 0; k < n; ++k) {
+    const double t = t0 + (t1 - t0) * k / (n - 1);
+    speeds.push_back((path.PoseAt(t + dt).translation() - path.PoseAt(t - dt).translation()).norm() /
+                     (2 * dt));
+  }
+  return speeds;
+}
+
+TEST(SynthesizerPathTest, HandheldIsSeededSmoothAndVariesItsVelocity) {
+  const double duration = 0.3;
+  CameraPath a = MakeCameraPath(CameraPathType::kHandheld, Dolls(), 0.2, 2.0, duration, 1);
+  CameraPath b = MakeCameraPath(CameraPathType::kHandheld, Dolls(), 0.2, 2.0, duration, 1);
+  CameraPath c = MakeCameraPath(CameraPathType::kHandheld, Dolls(), 0.2, 2.0, duration, 2);
+  a.speed = b.speed = c.speed = 0.5;
+  for (double t : {0.05, 0.2, 0.35}) {
+    EXPECT_EQ(a.PoseAt(t).Matrix(), b.PoseAt(t).Matrix());
+    EXPECT_GT((a.PoseAt(t).Matrix() - c.PoseAt(t).Matrix()).norm(), 1e-4);
+  }
+  // Passes the midpoint at t_mid, then drifts along the baseline with shake.
+  EXPECT_NEAR((a.PoseAt(0.2).translation() - Eigen::Vector3d(0.08, 0.0, 0.0)).norm(), 0.0, 0.05);
+  const std::vector<double> speeds = CentreSpeeds(a, 0.05, 0.35, 31);
+  const auto [slowest, fastest] = std::minmax_element(speeds.begin(), speeds.end());
+  EXPECT_GT(*fastest, 1.3 * *slowest) << "velocity should not be constant";
+  EXPECT_GT(*slowest, 0.0);
+  // Rotation jitter: the orientation changes, at a varying rate, and smoothly
+  // (no jump between close times).
+  std::vector<double> turn_rates;
+  for (int k = 0; k < 30; ++k) {
+    const double t = 0.05 + 0.01 * k;
+    turn_rates.push_back(RotationAngle(a.PoseAt(t), a.PoseAt(t + 0.01)) / 0.01);
+  }
+  const auto [slow_turn, fast_turn] = std::minmax_element(turn_rates.begin(), turn_rates.end());
+  EXPECT_GT(*fast_turn, 1e-3);
+  EXPECT_GT(*fast_turn, 1.3 * *slow_turn);
+  EXPECT_LT(RotationAngle(a.PoseAt(0.2), a.PoseAt(0.2001)), 1e-4);
+}
+
+TEST(SynthesizerSequenceTest, HandheldIsDeterministicPerSeedAndHitsTheBlur) {
+  SynthesisOptions options = SmallOptions(CameraPathType::kHandheld, 3);
+  options.seed = 11;
+  const SynthesisResult a = SynthesizeSequence(Dolls(), options);
+  const SynthesisResult b = SynthesizeSequence(Dolls(), options);
+  options.seed = 12;
+  const SynthesisResult c = SynthesizeSequence(Dolls(), options);
+  EXPECT_NEAR(a.achieved_blur_px, options.blur_px, 0.02 * options.blur_px);
+  EXPECT_NEAR(c.achieved_blur_px, options.blur_px, 0.02 * options.blur_px);
+  // Its speed varies, so the blur is calibrated as the median over the frames.
+  std::vector<double> blurs;
+  for (const FrameSynthesisStats& stats : a.frame_stats) blurs.push_back(stats.blur.median_px);
+  std::sort(blurs.begin(), blurs.end());
+  EXPECT_NEAR(blurs[1], options.blur_px, 0.05 * options.blur_px);
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_EQ(cv::norm(a.sequence.images[i], b.sequence.images[i], cv::NORM_INF), 0.0);
+    EXPECT_EQ(cv::norm(a.sequence.ground_truth->latent[i], b.sequence.ground_truth->latent[i], cv::NORM_INF),
+              0.0);
+    EXPECT_EQ(a.sequence.ground_truth->poses[i].T_world_cam.Matrix(),
+              b.sequence.ground_truth->poses[i].T_world_cam.Matrix());
+    EXPECT_GT(cv::norm(a.sequence.images[i], c.sequence.images[i], cv::NORM_L1), 0.0);
+    // The scene stays in view: few pixels that no view covers.
+    EXPECT_LT(a.frame_stats[i].hole_fraction_max, 0.05);
+  }
+  // Non-constant velocity over the rendered span (first open to last close).
+  for (const SynthesisResult* result : {&a, &c}) {
+    const double t0 = result->sequence.frames.front().stamp - result->sequence.frames.front().exposure;
+    const std::vector<double> speeds =
+        CentreSpeeds(result->path, t0, result->sequence.frames.back().stamp, 21);
+    const auto [slowest, fastest] = std::minmax_element(speeds.begin(), speeds.end());
+    EXPECT_GT(*fastest, 1.2 * *slowest);
+  }
+}
+
+// Mean of the pixels of `image` (any 8-bit type) where `mask` is set.
+double MaskedMean(const cv::Mat& image, const cv::Mat& mask) {
+  return cv::mean(image.reshape(1, image.rows), mask.reshape(1, mask.rows))[0];
+}
+
+TEST(SynthesizerSequenceTest, GainJitterScalesFrameAndLatent) {
+  SynthesisOptions options = SmallOptions(CameraPathType::kLateral, 4);
+  options.seed = 4;
+  const SynthesisResult plain = SynthesizeSequence(Dolls(), options);
+  options.gain_jitter = 0.3;
+  const SynthesisResult jittered = SynthesizeSequence(Dolls(), options);
+  std::vector<double> gains;
+  for (int i = 0; i < 4; ++i) {
+    const double gain = jittered.frame_stats[i].gain;
+    EXPECT_EQ(plain.frame_stats[i].gain, 1.0);
+    EXPECT_GE(gain, 0.7);
+    EXPECT_LE(gain, 1.3);
+    gains.push_back(gain);
+    const cv::Mat& frame0 = plain.sequence.images[i];
+    const cv::Mat& latent0 = plain.sequence.ground_truth->latent[i];
+    // Away from the 8-bit clamp, the ratio of means is the gain (rounding aside).
+    const cv::Mat frame_mask = frame0 * gain<250.0 & frame0> 20;
+    const cv::Mat latent_mask = latent0 * gain<250.0 & latent0> 20;
+    EXPECT_NEAR(MaskedMean(jittered.sequence.images[i], frame_mask) / MaskedMean(frame0, frame_mask), gain,
+                0.01);
+    EXPECT_NEAR(
+        MaskedMean(jittered.sequence.ground_truth->latent[i], latent_mask) / MaskedMean(latent0, latent_mask),
+        gain, 0.01);
+    // Depth and poses do not change.
+    EXPECT_EQ(cv::norm(plain.sequence.ground_truth->depth[i], jittered.sequence.ground_truth->depth[i],
+                       cv::NORM_INF),
+              0.0);
+  }
+  EXPECT_GT(*std::max_element(gains.begin(), gains.end()) - *std::min_element(gains.begin(), gains.end()),
+            0.01);
+  // The gains are recorded per frame in gt/synthesis.yaml.
+  TempFolder folder("gain");
+  WriteSynthesisYaml(folder / "synthesis.yaml", Dolls(), options, jittered);
+  const YAML::Node root = YAML::LoadFile(folder / "synthesis.yaml");
+  EXPECT_EQ(root["options"]["gain_jitter"].as<double>(), 0.3);
+  for (int i = 0; i < 4; ++i) EXPECT_NEAR(root["frames"][i]["gain"].as<double>(), gains[i], 1e-9);
+}
+
+TEST(SynthesizerSequenceTest, ReadoutRatioZeroIsTheGlobalShutter) {
+  const SynthesisOptions options = SmallOptions(CameraPathType::kLateral, 2);
+  SynthesisOptions zero = options;
+  zero.readout_ratio = 0.0;
+  zero.gain_jitter = 0.0;
+  const SynthesisResult a = SynthesizeSequence(Dolls(), options);
+  const SynthesisResult b = SynthesizeSequence(Dolls(), zero);
+  EXPECT_EQ(b.sequence.readout_time, 0.0);
+  for (int i = 0; i < 2; ++i) {
+    EXPECT_EQ(cv::norm(a.sequence.images[i], b.sequence.images[i], cv::NORM_INF), 0.0);
+    EXPECT_EQ(cv::norm(a.sequence.ground_truth->latent[i], b.sequence.ground_truth->latent[i], cv::NORM_INF),
+              0.0);
+  }
+  TempFolder folder("global");
+  WriteSequence(folder.str(), b.sequence);
+  EXPECT_FALSE(fs::exists(folder / "sensor.yaml"));
+}
+
+TEST(SynthesizerSequenceTest, RollingShutterDelaysLowerRows) {
+  const SynthesisOptions global = SmallOptions(CameraPathType::kLateral, 2);
+  SynthesisOptions rolling = global;
+  rolling.readout_ratio = 0.8;
+  const SynthesisResult g = SynthesizeSequence(Dolls(), global);
+  const SynthesisResult r = SynthesizeSequence(Dolls(), rolling);
+  EXPECT_DOUBLE_EQ(r.sequence.readout_time, 0.8 / 30.0);
+  const int rows = r.sequence.images[0].rows;  // 24 LR rows
+  for (int i = 0; i < 2; ++i) {
+    SCOPED_TRACE(i);
+    const cv::Mat& gi = g.sequence.images[i];
+    const cv::Mat& ri = r.sequence.images[i];
+    // Row 0 is exposed over the global shutter's window, at the same sub-frame
+    // times: equal up to the float summation order (at most 1 gray level).
+    EXPECT_LE(cv::norm(gi.row(0), ri.row(0), cv::NORM_INF), 1.0);
+    // The bottom rows are exposed ~0.77 frame intervals later: ~10 px of
+    // lateral motion further on.
+    const double bottom = cv::norm(gi.rowRange(rows - 3, rows), ri.rowRange(rows - 3, rows), cv::NORM_L1) /
+                          (3.0 * gi.cols * gi.channels());
+    EXPECT_GT(bottom, 3.0);
+    // gt/ is the global-shutter sharp state at the stamp, unchanged.
+    EXPECT_EQ(cv::norm(g.sequence.ground_truth->latent[i], r.sequence.ground_truth->latent[i], cv::NORM_INF),
+              0.0);
+    EXPECT_EQ(cv::norm(g.sequence.ground_truth->depth[i], r.sequence.ground_truth->depth[i], cv::NORM_INF),
+              0.0);
+    EXPECT_EQ(g.sequence.ground_truth->poses[i].T_world_cam.Matrix(),
+              r.sequence.ground_truth->poses[i].T_world_cam.Matrix());
+    EXPECT_EQ(g.sequence.frames[i].stamp, r.sequence.frames[i].stamp);
+  }
+  // sensor.yaml round-trips through ReadSequence.
+  TempFolder folder("rolling");
+  WriteSequence(folder.str(), r.sequence);
+  ASSERT_TRUE(fs::exists(folder / "sensor.yaml"));
+  EXPECT_EQ(ReadSequence(folder.str(), true).readout_time, r.sequence.readout_time);
+}
+
+TEST(SynthesizerOptionsTest, CheckRejectsBadGainAndReadout) {
+  const std::vector<std::pair<std::string, std::function<void(SynthesisOptions*)>>> cases = {
+      {"--gain-jitter", [](SynthesisOptions* o) { o->gain_jitter = -0.1; }},
+      {"--gain-jitter", [](SynthesisOptions* o) { o->gain_jitter = 0.6; }},
+      {"--gain-jitter", [](SynthesisOptions* o) { o->gain_jitter = std::nan(""); }},
+      {"--readout-ratio", [](SynthesisOptions* o) { o->readout_ratio = -0.5; }},
+      {"--readout-ratio", [](SynthesisOptions* o) { o->readout_ratio = 1.01; }},
+  };
+  for (const auto& [flag, spoil] : cases) {
+    SynthesisOptions options;
+    spoil(&options);
+    ExpectInputError([&] { options.Check(); }, flag);
+  }
+  SynthesisOptions edge;
+  edge.gain_jitter = 0.5;
+  edge.readout_ratio = 1.0;
+  EXPECT_NO_THROW(edge.Check());
+}
+
 // Exit status of a shell command, -1 when it did not exit normally.
 int ExitCode(const std::string& command) {
   const int status = std::system((command + " >/dev/null 2>&1").c_str());

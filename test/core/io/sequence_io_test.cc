@@ -629,5 +629,61 @@ TEST_F(SequenceIoTest, WritersReportUnwritablePaths) {
   ExpectInputError([&] { WriteImage(blocker + "/a.png", cv::Mat(2, 2, CV_8UC1)); }, {"blocker/a.png"});
 }
 
+// ----------------------------------------------------------- sensor.yaml
+
+TEST_F(SequenceIoTest, SensorYamlRoundTripsThroughTheSequence) {
+  Sequence written = MakeSequence(3, true);
+  written.readout_time = 0.08 / 3.0;  // not a short decimal: exact round trip
+  const std::string folder = Path("rolling");
+  WriteSequence(folder, written);
+  ASSERT_TRUE(fs::exists(dir_ / "rolling/sensor.yaml"));
+  EXPECT_EQ(ReadSequence(folder, false).readout_time, written.readout_time);
+  EXPECT_EQ(ReadSensorYaml(Path("rolling/sensor.yaml"), written.frames), written.readout_time);
+  // The readout may take the whole frame interval (0.1 s here).
+  WriteText("rolling/sensor.yaml", "readout_time: 0.1\n");
+  EXPECT_EQ(ReadSequence(folder, false).readout_time, 0.1);
+  // A readout of exactly one frame interval passes despite stamp rounding.
+  for (int i = 0; i < 3; ++i) {
+    written.frames[i].stamp = (i + 1) / 30.0;
+    written.frames[i].exposure = 0.8 / 30.0;
+  }
+  written.readout_time = 1.0 / 30.0;
+  written.ground_truth.reset();
+  WriteSequence(folder, written);
+  EXPECT_EQ(ReadSequence(folder, false).readout_time, 1.0 / 30.0);
+  // Global shutter: no sensor.yaml, and rewriting removes a stale one.
+  written.readout_time = 0.0;
+  WriteSequence(folder, written);
+  EXPECT_FALSE(fs::exists(dir_ / "rolling/sensor.yaml"));
+  EXPECT_EQ(ReadSequence(folder, false).readout_time, 0.0);
+  // An explicit 0 reads as the global shutter.
+  WriteText("rolling/sensor.yaml", "# global shutter\nreadout_time: 0\n");
+  EXPECT_EQ(ReadSequence(folder, false).readout_time, 0.0);
+}
+
+TEST_F(SequenceIoTest, SensorYamlErrorsNameFileAndLine) {
+  WriteSequence(Path("seq"), MakeSequence(3, false));  // frame interval 0.1 s
+  const std::string sensor = Path("seq/sensor.yaml");
+  const std::vector<std::pair<std::string, std::vector<std::string>>> cases = {
+      {"# comment\nreadout_time: -0.01\n", {"sensor.yaml:2:", ">= 0"}},
+      {"readout_time: fast\n", {"sensor.yaml:1:", "number", "'fast'"}},
+      {"readout_time: [0.01]\n", {"sensor.yaml:1:", "number"}},
+      {"readout_time: nan\n", {"sensor.yaml:1:", "finite"}},
+      {"\n\nreadout_time: 0.2\n", {"sensor.yaml:3:", "exceeds the frame interval 0.1"}},
+      {"readout_time: 0.01\nexposure: 0.02\n", {"sensor.yaml:2:", "unknown key 'exposure'"}},
+      {"readout_time: 0.01\nreadout_time: 0.02\n", {"sensor.yaml:2:", "duplicate key"}},
+      {"readout_time: [0.01\n", {"sensor.yaml:", "unterminated"}},
+      {"{}\n", {"sensor.yaml", "missing key 'readout_time'"}},
+      {"", {"sensor.yaml", "empty"}},
+      {"0.01\n", {"sensor.yaml:1:", "expected 'readout_time: <seconds>'"}},
+  };
+  for (const auto& [content, parts] : cases) {
+    SCOPED_TRACE(content);
+    WriteText("seq/sensor.yaml", content);
+    ExpectInputError([&] { ReadSequence(Path("seq"), false); }, parts);
+  }
+  ExpectInputError([&] { WriteSensorYaml(sensor, -1.0); }, {"sensor.yaml", ">= 0"});
+}
+
 }  // namespace
 }  // namespace deblur_sr_mvs

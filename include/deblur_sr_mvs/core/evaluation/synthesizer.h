@@ -3,10 +3,11 @@
 // `synthesize_sequence`).
 //
 // World frame = the view1 camera's optical frame (x right, y down, z forward).
-// Both views become coloured 3D points; a virtual camera moving at constant
-// velocity along an SE(3) geodesic is rendered by forward splatting with a
-// z-buffer, and a blurred frame is the mean of many sub-frame renders over the
-// exposure, box-downsampled by the SR scale (eq:blurOperator).
+// Both views become coloured 3D points; a virtual camera moving along a path
+// (constant-velocity SE(3) geodesics, a pure rotation, or a seeded hand-held
+// shake) is rendered by forward splatting with a z-buffer, and a blurred frame
+// is the mean of many sub-frame renders over the exposure (per LR row with a
+// rolling shutter), box-downsampled by the SR scale (eq:blurOperator).
 #pragma once
 
 #include <array>
@@ -139,16 +140,34 @@ class SceneRenderer {
 
 // ------------------------------------------------------------ camera paths
 
-enum class CameraPathType { kLateral, kArc, kForward };
+enum class CameraPathType { kLateral, kArc, kForward, kHandheld, kRotate };
 
 std::string CameraPathName(CameraPathType type);
-// "lateral", "arc" or "forward"; throws InputError otherwise.
+// "lateral", "arc", "forward", "handheld" or "rotate"; throws InputError otherwise.
 CameraPathType ParseCameraPathType(const std::string& name);
+
+// One low-frequency component of the hand-held path: amplitude * sin(2 pi
+// cycles * u + phase), u = (t - t_mid) / duration.
+struct PathSinusoid {
+  double amplitude = 0.0;
+  double cycles = 0.0;  // over the path's duration
+  double phase = 0.0;   // rad
+};
+
+// The seeded shape of the hand-held path, in units that `speed` scales.
+struct HandheldShape {
+  double duration = 1.0;                                 // s, the rendered span of the path
+  std::array<std::vector<PathSinusoid>, 3> translation;  // m per (m/s of speed), world x, y, z
+  std::array<std::vector<PathSinusoid>, 3> rotation;     // rad per (m/s of speed), world axes
+};
 
 // Constant-velocity motion: T_world_cam(t) = Exp((t - t_mid) * speed * unit_twist)
 // * T_world_mid, a one-parameter subgroup, so between any two frames the path is
 // exactly the SE(3) geodesic of eq:interpolatingP. The twist is in the world
-// frame (left-multiplied), ordered (rho, phi) as in se3.h.
+// frame (left-multiplied), ordered (rho, phi) as in se3.h. `rotate` is such a
+// twist too (a rotation about the camera centre: rho = c x phi). `handheld` is
+// not: T_world_cam(t) = (Exp(speed * rotation(t)), centre + speed * (t - t_mid)
+// * unit_twist.rho + speed * translation(t)) with the sinusoids of `handheld`.
 struct CameraPath {
   CameraPathType type = CameraPathType::kLateral;
   double t_mid = 0.0;  // time at which the camera is at T_world_mid
@@ -156,6 +175,7 @@ struct CameraPath {
   Vector6d unit_twist = Vector6d::Zero();
   double speed = 0.0;  // multiplies unit_twist (m/s of the camera centre at t_mid)
   Eigen::Vector3d fixation_point = Eigen::Vector3d::Zero();  // arc only
+  HandheldShape handheld;                                    // handheld only
 
   SE3 PoseAt(double t) const;
   Vector6d Twist() const { return speed * unit_twist; }  // per second
@@ -163,9 +183,11 @@ struct CameraPath {
 
 // The path through the midpoint of the two views at t_mid with speed 0;
 // `arc_fixation_factor` places the arc's fixation point at that multiple of
-// the median depth. Unit twists give 1 m/s of the camera centre at t_mid.
+// the median depth. Unit twists give 1 m/s of the camera centre at t_mid
+// (rotate: 1 rad/s). `duration` (s, the rendered span) and `seed` shape the
+// hand-held path only.
 CameraPath MakeCameraPath(CameraPathType type, const StereoScene& scene, double t_mid,
-                          double arc_fixation_factor);
+                          double arc_fixation_factor, double duration = 1.0, std::uint64_t seed = 0);
 
 // Image motion over an exposure (HR px) of the pixels with depth > 0: each is
 // back-projected with `depth_end` at T_world_end and projected at T_world_start.
@@ -187,10 +209,12 @@ struct SynthesisOptions {
   double exposure_ratio = 0.8;                     // exposure / frame interval, in (0, 1] (--exposure-ratio)
   CameraPathType path = CameraPathType::kLateral;  // --path
   double noise_sigma = 0.0;                        // Gaussian noise on the LR frames, 8-bit units (--noise)
-  std::uint64_t seed = 0;                          // noise seed; equal seeds give equal output (--seed)
-  double blur_px = 14.0;                           // target median HR image motion per exposure (--blur-px)
-  int subframes = 200;  // renders averaged per exposure, > the estimator's M (--subframes)
-  double fps = 30.0;    // frame rate; stamps are t_c = (i + 1) / fps (--fps)
+  // Seed of the noise, the hand-held path and the gains; equal seeds give
+  // equal output (--seed).
+  std::uint64_t seed = 0;
+  double blur_px = 14.0;  // target median HR image motion per exposure (--blur-px)
+  int subframes = 200;    // renders averaged per exposure, > the estimator's M (--subframes)
+  double fps = 30.0;      // frame rate; stamps are t_c = (i + 1) / fps (--fps)
   // HR size; 0 = automatic (largest centred crop of the scene size, divisible
   // by the scale, whose pixels stay covered by the views along the whole path).
   int hr_width = 0;                  // --hr-width
@@ -202,6 +226,12 @@ struct SynthesisOptions {
   // Automatic crop: the worst pose along the path may leave at most this
   // fraction of the HR pixels uncovered.
   double max_hole_fraction = 0.01;
+  // Per-frame gain drawn from [1 - G, 1 + G], multiplied into the blurred
+  // frame and its gt latent (--gain-jitter), G in [0, 0.5].
+  double gain_jitter = 0.0;
+  // Rolling shutter: readout_time = this x the frame interval (SPEC section 3),
+  // in [0, 1]; 0 = global shutter (--readout-ratio).
+  double readout_ratio = 0.0;
 
   // Throws InputError naming the option and the problem.
   void Check() const;
@@ -211,6 +241,7 @@ struct FrameSynthesisStats {
   MotionStats blur;                   // image motion over the exposure, HR px
   double hole_fraction_latent = 0.0;  // of the sharp render at t_c
   double hole_fraction_max = 0.0;     // worst over the exposure's sub-frames
+  double gain = 1.0;                  // multiplied into the frame and its latent
 };
 
 struct SynthesisResult {
@@ -218,8 +249,10 @@ struct SynthesisResult {
   PinholeCamera hr_camera;
   PinholeCamera lr_camera;
   CameraPath path;
-  double achieved_blur_px = 0.0;  // median blur of the middle frame after calibration
-  bool speed_capped = false;      // forward path limited by forward_travel_cap
+  // Median blur of the middle frame after calibration (handheld: the median
+  // over the frames of each frame's median).
+  double achieved_blur_px = 0.0;
+  bool speed_capped = false;  // forward path limited by forward_travel_cap
   std::vector<FrameSynthesisStats> frame_stats;
   double seconds = 0.0;
 };
@@ -227,6 +260,8 @@ struct SynthesisResult {
 // Frame i: stamp t_c = (i + 1) / fps, exposure = exposure_ratio / fps.
 double FrameStamp(const SynthesisOptions& options, int index);
 double FrameExposure(const SynthesisOptions& options);
+// readout_ratio / fps (s): row y of H LR rows is exposed readout * y / H later.
+double ReadoutTime(const SynthesisOptions& options);
 
 // Automatic HR camera: focal length of the scene, principal point at the
 // centre, size a centred crop of the scene image (see SynthesisOptions).
@@ -234,7 +269,9 @@ PinholeCamera ChooseHrCamera(const StereoScene& scene, const SceneRenderer& rend
                              const SynthesisOptions& options);
 
 // Sets path->speed so that the median image motion over the middle frame's
-// exposure equals options.blur_px (capped for the forward path). Returns the
+// exposure equals options.blur_px (capped for the forward and handheld paths;
+// handheld, whose speed varies: the median over the frames of each frame's
+// median). Returns the
 // achieved median; *capped tells whether the cap was hit.
 double CalibratePathSpeed(const StereoScene& scene, const SceneRenderer& renderer,
                           const PinholeCamera& camera, const SynthesisOptions& options, CameraPath* path,

@@ -45,6 +45,10 @@ struct Sequence {
   CameraCalibration calibration;  // intrinsics of the input frames
   std::vector<FrameRecord> frames;
   std::vector<cv::Mat> images;  // CV_8UC1 or CV_8UC3 (OpenCV BGR order), one per frame
+  // Rolling-shutter readout time (s) from the optional sensor.yaml; 0 (or no
+  // file) = global shutter. frames.csv's stamp is then t_c of row 0, and LR row
+  // y of H is exposed readout_time * y / H later (docs/file_formats.md).
+  double readout_time = 0.0;
   std::optional<SequenceGroundTruth> ground_truth;
 };
 
@@ -58,6 +62,12 @@ void WriteCameraYaml(const std::string& path, const CameraCalibration& calibrati
 // frame, the gap to the next one).
 std::vector<FrameRecord> ReadFramesCsv(const std::string& path);
 void WriteFramesCsv(const std::string& path, const std::vector<FrameRecord>& frames);
+
+// sensor.yaml: one key, `readout_time: <seconds>`, a finite number >= 0 and
+// at most the smallest frame interval of `frames` (the gap between
+// consecutive stamps). Errors name file:line.
+double ReadSensorYaml(const std::string& path, const std::vector<FrameRecord>& frames);
+void WriteSensorYaml(const std::string& path, double readout_time);
 
 // TUM format: `stamp tx ty tz qx qy qz qw` per line, '#' comments allowed.
 std::vector<StampedPose> ReadTumTrajectory(const std::string& path);
@@ -75,9 +85,11 @@ void WriteImage(const std::string& path, const cv::Mat& image);
 std::string FrameStem(int index);
 
 // Whole sequence folder. Checks that every frame's image exists and has the
-// size in camera.yaml; with read_ground_truth and a gt/ folder present, reads
-// and checks it too (one latent, depth and pose per frame, HR sizes equal).
+// size in camera.yaml; reads sensor.yaml when present; with read_ground_truth
+// and a gt/ folder present, reads and checks it too (one latent, depth and
+// pose per frame, HR sizes equal).
 Sequence ReadSequence(const std::string& folder, bool read_ground_truth);
+// Writes sensor.yaml when readout_time > 0 and removes a stale one otherwise.
 void WriteSequence(const std::string& folder, const Sequence& sequence);
 
 }  // namespace deblur_sr_mvs
