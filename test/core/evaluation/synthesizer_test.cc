@@ -607,8 +607,8 @@ TEST(SynthesizerSequenceTest, GainJitterScalesFrameAndLatent) {
     const cv::Mat& frame0 = plain.sequence.images[i];
     const cv::Mat& latent0 = plain.sequence.ground_truth->latent[i];
     // Away from the 8-bit clamp, the ratio of means is the gain (rounding aside).
-    const cv::Mat frame_mask = frame0 * gain<250.0 & frame0> 20;
-    const cv::Mat latent_mask = latent0 * gain<250.0 & latent0> 20;
+    const cv::Mat frame_mask = (frame0 * gain < 250.0) & (frame0 > 20);
+    const cv::Mat latent_mask = (latent0 * gain < 250.0) & (latent0 > 20);
     EXPECT_NEAR(MaskedMean(jittered.sequence.images[i], frame_mask) / MaskedMean(frame0, frame_mask), gain,
                 0.01);
     EXPECT_NEAR(
