@@ -247,7 +247,8 @@ TEST_F(BagToolsTest, SynthesizedColourSequenceRoundTripsWithGroundTruth) {
   for (size_t i = 0; i < poses_back.size(); ++i) {
     EXPECT_EQ(poses_back[i].stamp, poses_again[i].stamp) << i;
     EXPECT_EQ(poses_back[i].T_world_cam.translation(), poses_again[i].T_world_cam.translation()) << i;
-    EXPECT_LT((poses_back[i].T_world_cam.rotation() - poses_again[i].T_world_cam.rotation()).norm(), 1e-14) << i;
+    EXPECT_LT((poses_back[i].T_world_cam.rotation() - poses_again[i].T_world_cam.rotation()).norm(), 1e-14)
+        << i;
   }
 }
 
