@@ -1094,7 +1094,7 @@ class ExposureAverager {
     return *std::max_element(chunk_max_holes_.begin(), chunk_max_holes_.end());
   }
 
-  // Rolling shutter (SPEC section 3): LR row y (of H) is exposed over
+  // Rolling shutter (docs/file_formats.md#rolling-shutter): LR row y (of H) is exposed over
   // [t_o + y r / H, t_c + y r / H], r = readout, and so are the `scale` HR
   // rows that box-downsample into it. Sub-frames on the global shutter's grid
   // tau_j = t_o + (j / S) e, j = 1, 2, ..., over [t_o, t_c + r]; each row

@@ -123,17 +123,6 @@ void WriteText(const std::string& path, const std::string& content) {
   if (!out) Fail(path, "write error");
 }
 
-std::string ReadText(const std::string& path) {
-  std::error_code error;
-  if (fs::is_directory(path, error)) Fail(path, "is a directory, expected a file");
-  std::ifstream in(path, std::ios::binary);
-  if (!in) Fail(path, "cannot open file for reading");
-  std::ostringstream content;
-  content << in.rdbuf();
-  if (in.bad()) Fail(path, "read error");
-  return content.str();
-}
-
 // A folder rewritten by a method without depth or poses must not keep those
 // of an earlier run, or ReadResult would pair them with the new images. Only
 // the files this format names are removed.
@@ -252,7 +241,7 @@ SequenceResult ReadResult(const std::string& folder) {
     CheckPoses(poses_path, result.poses, result.frames);
   }
   const std::string report_path = (root / "report.json").string();
-  if (fs::exists(report_path, error)) result.report_json = ReadText(report_path);
+  if (fs::exists(report_path, error)) result.report_json = ReadTextFile(report_path);
   return result;
 }
 

@@ -96,16 +96,6 @@ void CheckReadableFile(const std::string& path) {
   if (fs::is_directory(status)) Fail(path, "is a directory, expected a file");
 }
 
-std::string ReadTextFile(const std::string& path) {
-  CheckReadableFile(path);
-  std::ifstream in(path, std::ios::binary);
-  if (!in) Fail(path, "cannot open file for reading");
-  std::ostringstream content;
-  content << in.rdbuf();
-  if (in.bad()) Fail(path, "read error");
-  return content.str();
-}
-
 // Lines without their '\n' (and without a trailing '\r', for CRLF files).
 std::vector<std::string> SplitLines(const std::string& text) {
   std::vector<std::string> lines;
@@ -834,6 +824,16 @@ void WriteSequence(const std::string& folder, const Sequence& sequence) {
     WriteDepthTiff((gt_root / "depth" / (stem + ".tiff")).string(), gt.depth[i]);
   }
   WriteTumTrajectory((gt_root / "poses.txt").string(), gt.poses);
+}
+
+std::string ReadTextFile(const std::string& path) {
+  CheckReadableFile(path);
+  std::ifstream in(path, std::ios::binary);
+  if (!in) Fail(path, "cannot open file for reading");
+  std::ostringstream content;
+  content << in.rdbuf();
+  if (in.bad()) Fail(path, "read error");
+  return content.str();
 }
 
 }  // namespace deblur_sr_mvs

@@ -229,7 +229,7 @@ struct SynthesisOptions {
   // Per-frame gain drawn from [1 - G, 1 + G], multiplied into the blurred
   // frame and its gt latent (--gain-jitter), G in [0, 0.5].
   double gain_jitter = 0.0;
-  // Rolling shutter: readout_time = this x the frame interval (SPEC section 3),
+  // Rolling shutter: readout_time = this x the frame interval (docs/file_formats.md#rolling-shutter),
   // in [0, 1]; 0 = global shutter (--readout-ratio).
   double readout_ratio = 0.0;
 

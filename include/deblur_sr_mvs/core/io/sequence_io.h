@@ -81,6 +81,10 @@ void WriteDepthTiff(const std::string& path, const cv::Mat& depth);
 cv::Mat ReadImage8(const std::string& path);
 void WriteImage(const std::string& path, const cv::Mat& image);
 
+// The whole content of a text file; InputError naming it when it is missing,
+// a folder or unreadable.
+std::string ReadTextFile(const std::string& path);
+
 // "000042": the zero-padded file stem of frame `index`.
 std::string FrameStem(int index);
 
