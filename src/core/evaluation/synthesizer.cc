@@ -1067,41 +1067,17 @@ class ExposureAverager {
   // Buffers for renders outside Average, on the calling thread.
   RenderWorkspace* workspace() { return &workspaces_[0]; }
 
-  // eq:blurOperator: mean over tau_m = t_o + (m / S)(t_c - t_o), m = 1..S,
-  // into `blurred` (CV_32FC3, HR size). Returns the most holes of a sub-frame.
-  int Average(const SceneRenderer& renderer, const CameraPath& path, double t_open, double exposure,
-              cv::Mat* blurred) {
-    const RenderOptions render_options;
-#pragma omp parallel for schedule(dynamic, 1) num_threads(num_threads_)
-    for (int c = 0; c < num_chunks_; ++c) {
-      const int thread = omp_get_thread_num();
-      RenderResult& render = renders_[thread];
-      chunk_sums_[c].setTo(cv::Scalar::all(0.0));
-      chunk_max_holes_[c] = 0;
-      const int m_begin = 1 + static_cast<int>(static_cast<long>(c) * num_subframes_ / num_chunks_);
-      const int m_end = static_cast<int>(static_cast<long>(c + 1) * num_subframes_ / num_chunks_);
-      for (int m = m_begin; m <= m_end; ++m) {
-        const double tau = t_open + (static_cast<double>(m) / num_subframes_) * exposure;
-        renderer.Render(hr_, path.PoseAt(tau), render_options, &workspaces_[thread], &render);
-        cv::add(chunk_sums_[c], render.image, chunk_sums_[c]);
-        chunk_max_holes_[c] = std::max(chunk_max_holes_[c], render.num_holes);
-      }
-    }
-    blurred->create(hr_.height, hr_.width, CV_32FC3);
-    blurred->setTo(cv::Scalar::all(0.0));
-    for (int c = 0; c < num_chunks_; ++c) cv::add(*blurred, chunk_sums_[c], *blurred);
-    *blurred *= 1.0 / num_subframes_;
-    return *std::max_element(chunk_max_holes_.begin(), chunk_max_holes_.end());
-  }
-
   // Rolling shutter (docs/file_formats.md#rolling-shutter): LR row y (of H) is exposed over
   // [t_o + y r / H, t_c + y r / H], r = readout, and so are the `scale` HR
   // rows that box-downsample into it. Sub-frames on the global shutter's grid
   // tau_j = t_o + (j / S) e, j = 1, 2, ..., over [t_o, t_c + r]; each row
   // averages the S of them inside its window (j in first(y) .. first(y) + S - 1),
   // so every row has the global shutter's sampling, and row 0 its very times.
-  int AverageRolling(const SceneRenderer& renderer, const CameraPath& path, double t_open, double exposure,
-                     double readout, int scale, cv::Mat* blurred) {
+  // readout 0 is the global shutter, eq:blurOperator's mean over
+  // tau_m = t_o + (m / S)(t_c - t_o), m = 1..S. Writes `blurred` (CV_32FC3,
+  // HR size); returns the most holes of a sub-frame.
+  int Average(const SceneRenderer& renderer, const CameraPath& path, double t_open, double exposure,
+              double readout, int scale, cv::Mat* blurred) {
     const int num_rows = hr_.height / scale;
     std::vector<int> first(num_rows);
     for (int y = 0; y < num_rows; ++y) {
@@ -1120,7 +1096,10 @@ class ExposureAverager {
       for (int j = j_begin; j <= j_end; ++j) {
         const double tau = t_open + (static_cast<double>(j) / num_subframes_) * exposure;
         renderer.Render(hr_, path.PoseAt(tau), render_options, &workspaces_[thread], &render);
-        for (int y = 0; y < num_rows; ++y) {
+        if (readout == 0.0) {  // every row shares the window: one add
+          cv::add(chunk_sums_[c], render.image, chunk_sums_[c]);
+        }
+        for (int y = 0; y < num_rows && readout != 0.0; ++y) {
           if (j < first[y] || j >= first[y] + num_subframes_) continue;
           const cv::Range rows(y * scale, (y + 1) * scale);
           cv::Mat sum_rows = chunk_sums_[c].rowRange(rows);
@@ -1233,9 +1212,8 @@ void SynthesizeFrame(int i, const SceneRenderer& renderer, const SynthesisOption
   stats.blur = MeasureImageMotion(hr, CoveredDepth(sharp), path.PoseAt(t_open), T_world_close);
 
   cv::Mat blurred;
-  const int max_holes = readout > 0.0 ? averager->AverageRolling(frame_renderer, path, t_open, exposure,
-                                                                 readout, options.scale, &blurred)
-                                      : averager->Average(frame_renderer, path, t_open, exposure, &blurred);
+  const int max_holes =
+      averager->Average(frame_renderer, path, t_open, exposure, readout, options.scale, &blurred);
   stats.hole_fraction_max = static_cast<double>(max_holes) / hr.NumPixels();
   stats.gain = gain;
   if (gain != 1.0) {
