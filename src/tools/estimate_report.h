@@ -48,7 +48,12 @@ inline Json EstimateReportJson(const EstimatorOptions& options, const std::strin
   }
   report["initializer"] = summary;
   report["solver_notes"] = result.notes;
-  report["monocular_scale"] = "arbitrary: the first two cameras are 1 unit apart";
+  report["monocular_scale"] =
+      result.depth_observable
+          ? "arbitrary: world = first camera, median scene depth 1 unit "
+            "(docs/file_formats.md#monocular-scale)"
+          : "no parallax: depth not observable; world = first camera, every camera at its centre "
+            "(docs/file_formats.md#no-parallax)";
   return report;
 }
 

@@ -55,9 +55,15 @@ int Run(int argc, char** argv) {
   cli.add_option("--crop", options.crop_fraction,
                  "depth centre-crop fraction in (0, 1] (default 0.7, as the paper)")
       ->check(dsm::FlagNumber(1e-6, 1.0));
+  bool metric = false;
+  cli.add_flag(
+      "--metric", metric,
+      "the result is metric in the ground truth's frame (e.g. aligned to a pose prior): compare depth "
+      "and positions as they are, without the per-frame depth scale or the Sim(3) alignment");
   cli.add_option("--json", json_path, "also write the numbers as JSON");
   cli.add_option("--method", method, "row label (default: the result folder's name)");
   if (!cli.Parse(argc, argv)) return 0;
+  options.align_depth_scale = options.align_trajectory = !metric;
   if (method.empty()) {
     fs::path name = fs::path(result_dir).lexically_normal();
     if (name.filename().empty()) name = name.parent_path();  // "out/"

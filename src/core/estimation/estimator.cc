@@ -6,6 +6,7 @@
 #include <atomic>
 #include <cmath>
 #include <exception>
+#include <limits>
 #include <list>
 #include <map>
 #include <memory>
@@ -784,14 +785,20 @@ std::shared_ptr<const OperatorCache::Entry> WindowSolver::Operator(int t, int so
   return cache_->Get(frames_, depth_version_, pose_version_, t, source, &timer_);
 }
 
-// The result in the output gauge: world = first camera, first two cameras 1
-// unit apart; latent images clamped to [0, 1].
+// The result in the output gauge (EstimatorOptions::keep_input_gauge);
+// latent images clamped to [0, 1].
 EstimatorResult WindowSolver::GaugedResult() {
-  // Monocular scale: first two cameras 1 unit apart (docs/file_formats.md#monocular-scale).
-  const double baseline =
-      (frames_[1].T_world_cam.translation() - frames_[0].T_world_cam.translation()).norm();
-  const double rescale = baseline > 1e-12 ? 1.0 / baseline : 1.0;
-  const SE3 T_first_world = frames_[0].T_world_cam.Inverse();
+  // Monocular scale: world = first camera, median scene depth of the window
+  // 1 unit (docs/file_formats.md#monocular-scale), unless the input's gauge is kept.
+  SE3 T_first_world;
+  double rescale = 1.0;
+  if (!options_.keep_input_gauge) {
+    T_first_world = frames_[0].T_world_cam.Inverse();
+    std::vector<cv::Mat> depths;
+    for (const FrameStructure& frame : frames_) depths.push_back(frame.depth_hr);
+    const double median = MedianDepth(depths);
+    if (median > 0.0) rescale = 1.0 / median;
+  }
   for (int t = 0; t < num_frames_; ++t) {
     const SE3 pose = T_first_world * frames_[t].T_world_cam;
     result_.T_world_cam.emplace_back(pose.rotation(), pose.translation() * rescale);
@@ -885,6 +892,27 @@ Estimator::Estimator(const EstimatorOptions& options) : options_(options) {
   options_.Check();
 }
 
+const char kNoParallaxNote[] =
+    "no parallax: depth not observable (a rotation explains the motion: the images are restored with "
+    "depth at infinity, the cameras keep one translation, depth is NaN)";
+
+double MedianDepth(const std::vector<cv::Mat>& depths) {
+  std::vector<float> values;
+  for (const cv::Mat& depth : depths) {
+    CV_Assert(depth.type() == CV_32FC1);
+    for (int y = 0; y < depth.rows; ++y) {
+      const float* row = depth.ptr<float>(y);
+      for (int x = 0; x < depth.cols; ++x) {
+        if (std::isfinite(row[x]) && row[x] > 0.0f) values.push_back(row[x]);
+      }
+    }
+  }
+  if (values.empty()) return 0.0;
+  const auto middle = values.begin() + values.size() / 2;
+  std::nth_element(values.begin(), middle, values.end());
+  return *middle;
+}
+
 std::vector<cv::Mat> UpsampleInitialDepth(const std::vector<cv::Mat>& depth_lr, int scale) {
   std::vector<cv::Mat> depth_hr;
   for (const cv::Mat& depth : depth_lr) {
@@ -894,20 +922,58 @@ std::vector<cv::Mat> UpsampleInitialDepth(const std::vector<cv::Mat>& depth_lr, 
 }
 
 // Algorithm 1 (alg:optimization): D_t and P_t initialised by
-// eq:initializationScene, then the main loop from that structure.
+// eq:initializationScene, then the main loop from that structure. Without
+// parallax, the images of the rotation-only motion (RunRotationOnly).
 EstimatorResult Estimator::Run(const EstimatorInput& input, const ProgressCallback& progress) {
   const double start = NowMs();
   if (progress) progress(0.0, "initialisation");
   InitializerOptions init_options = options_.initializer;
   init_options.num_threads = options_.num_threads;
-  const InitialStructure initial =
-      InitializeStructure(input.images, input.camera, input.frames, init_options);
+  InitialStructure initial;
+  try {
+    initial = InitializeStructure(input.images, input.camera, input.frames, init_options);
+  } catch (const NoParallaxError& no_parallax) {
+    const RotationOnlyMotion motion =
+        EstimateRotationOnlyMotion(input.images, input.camera, input.frames, init_options);
+    ThrowIfCancelled();
+    std::vector<SE3> T_world_cam;
+    for (const Eigen::Matrix3d& R_world_cam : motion.R_world_cam)
+      T_world_cam.emplace_back(R_world_cam, Eigen::Vector3d::Zero());
+    const double init_seconds = (NowMs() - start) / 1000.0;
+    EstimatorResult result = RunRotationOnly(input, T_world_cam, progress);
+    result.timings.insert(result.timings.begin(), StageTiming{"initialization", init_seconds});
+    result.initializer_summary = std::string(no_parallax.what()) + "\n" + motion.summary;
+    return result;
+  }
   ThrowIfCancelled();
   const std::vector<cv::Mat> depth_hr = UpsampleInitialDepth(initial.depth_lr, options_.scale);
   const double init_seconds = (NowMs() - start) / 1000.0;
   EstimatorResult result = RunFromStructure(input, depth_hr, initial.T_world_cam, progress);
   result.timings.insert(result.timings.begin(), StageTiming{"initialization", init_seconds});
   result.initializer_summary = initial.summary;
+  return result;
+}
+
+EstimatorResult Estimator::RunRotationOnly(const EstimatorInput& input, const std::vector<SE3>& T_world_cam,
+                                           const ProgressCallback& progress) {
+  if (T_world_cam.empty()) throw InputError("estimator: no poses for the rotation-only window");
+  // One translation for every camera: the warps and the rotation path of
+  // the capture operator (eq:interpolatingP) are then homographies, whatever
+  // the depth (here 1 unit everywhere, the median-depth gauge).
+  std::vector<SE3> held;
+  for (const SE3& pose : T_world_cam) held.emplace_back(pose.rotation(), T_world_cam[0].translation());
+  const PinholeCamera camera_hr = input.camera.Upscaled(options_.scale);
+  const cv::Size hr_size(camera_hr.width, camera_hr.height);
+  const std::vector<cv::Mat> unit_depth(T_world_cam.size(), cv::Mat(hr_size, CV_32FC1, cv::Scalar(1.0f)));
+  EstimatorOptions images_only = options_;
+  images_only.update_structure = false;
+  images_only.keep_input_gauge = true;
+  Estimator estimator(images_only);
+  estimator.SetCancelFlag(cancel_);
+  EstimatorResult result = estimator.RunFromStructure(input, unit_depth, held, progress);
+  for (cv::Mat& depth : result.depth) depth.setTo(std::numeric_limits<float>::quiet_NaN());
+  result.depth_observable = false;
+  result.notes.push_back(kNoParallaxNote);
   return result;
 }
 

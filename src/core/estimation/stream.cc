@@ -2,7 +2,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <utility>
+
+#include <opencv2/imgproc.hpp>
 
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/common/options_check.h"
@@ -68,11 +71,14 @@ Sim3 AlignPoseSequence(const std::vector<SE3>& source, const std::vector<SE3>& t
       !std::isfinite(target_length)) {
     throw InputError("pose alignment: the shared cameras do not move (no parallax to carry the scale)");
   }
+  return AnchorAt(source[0], target[0], target_length / source_length);
+}
+
+Sim3 AnchorAt(const SE3& source, const SE3& target, double scale) {
   Sim3 similarity;
-  similarity.scale = target_length / source_length;
-  similarity.rotation = target[0].rotation() * source[0].rotation().transpose();
-  similarity.translation =
-      target[0].translation() - similarity.scale * similarity.rotation * source[0].translation();
+  similarity.scale = scale;
+  similarity.rotation = target.rotation() * source.rotation().transpose();
+  similarity.translation = target.translation() - scale * (similarity.rotation * source.translation());
   return similarity;
 }
 
@@ -120,6 +126,8 @@ void StreamEstimator::SetCancelFlag(const std::atomic<bool>* flag) {
 
 void StreamEstimator::Reset() {
   last_poses_.clear();
+  last_depths_.clear();
+  reference_median_depth_ = 0.0;
   has_returned_ = false;
 }
 
@@ -148,76 +156,170 @@ WindowEstimate StreamEstimator::Process(const StreamWindow& window, const Pinhol
   if (window.size() < 2) throw InputError("stream: a window needs at least 2 frames");
   WindowEstimate estimate;
   const EstimatorInput input = WindowInput(window, camera_lr, &estimate);
-  if (!ContinueTrajectory(input, SharedPreviousPoses(window), progress, &estimate)) {
+  if (!ContinueTrajectory(input, SharedWithPrevious(window), progress, &estimate)) {
     StartSegment(input, progress, &estimate);
   }
   Remember(window, &estimate);
   return estimate;
 }
 
-std::vector<SE3> StreamEstimator::SharedPreviousPoses(const StreamWindow& window) const {
-  std::vector<SE3> shared_previous;
+StreamEstimator::SharedFrames StreamEstimator::SharedWithPrevious(const StreamWindow& window) const {
+  SharedFrames shared;
   for (const StreamFrame& frame : window) {
     const auto found = last_poses_.find(frame.id);
     if (found == last_poses_.end()) break;
-    shared_previous.push_back(found->second);
+    shared.poses.push_back(found->second);
+    const auto depth = last_depths_.find(frame.id);
+    shared.depths.push_back(depth == last_depths_.end() ? cv::Mat() : depth->second);
   }
-  return shared_previous;
+  return shared;
 }
 
-bool StreamEstimator::ContinueTrajectory(const EstimatorInput& input, const std::vector<SE3>& shared_previous,
-                                         const ProgressCallback& progress, WindowEstimate* estimate) const {
+namespace {
+
+// Median over the shared frames' pixels of previous depth / initial depth:
+// the scale of the initial structure in the stream's units (0 when no pixel
+// has both).
+double DepthRatio(const std::vector<cv::Mat>& previous_hr, const std::vector<cv::Mat>& initial_lr) {
+  std::vector<float> ratios;
+  for (size_t i = 0; i < previous_hr.size() && i < initial_lr.size(); ++i) {
+    if (previous_hr[i].empty()) continue;
+    cv::Mat previous;
+    cv::resize(previous_hr[i], previous, initial_lr[i].size(), 0, 0, cv::INTER_NEAREST);
+    for (int y = 0; y < previous.rows; ++y) {
+      const float* p = previous.ptr<float>(y);
+      const float* q = initial_lr[i].ptr<float>(y);
+      for (int x = 0; x < previous.cols; ++x) {
+        if (p[x] > 0.0f && q[x] > 0.0f && std::isfinite(p[x]) && std::isfinite(q[x])) {
+          ratios.push_back(p[x] / q[x]);
+        }
+      }
+    }
+  }
+  if (ratios.empty()) return 0.0;
+  const auto middle = ratios.begin() + ratios.size() / 2;
+  std::nth_element(ratios.begin(), middle, ratios.end());
+  return *middle;
+}
+
+}  // namespace
+
+StreamEstimator::StreamTie StreamEstimator::TieToStream(const InitialStructure& initial,
+                                                        const SharedFrames& shared,
+                                                        const PinholeCamera& camera_lr) const {
+  const std::vector<SE3>& shared_previous = shared.poses;
   const int num_shared = static_cast<int>(shared_previous.size());
-  if (!(num_shared >= 2 && PathLength(shared_previous) > 1e-12)) return false;
+  const std::vector<SE3> shared_initial(initial.T_world_cam.begin(),
+                                        initial.T_world_cam.begin() + num_shared);
+  const double previous_path = PathLength(shared_previous);
+  // Parallax (LR px at the median depth) of the shared cameras' motion: from
+  // kMinSharedParallaxPx on, their path carries the scale and they are all held.
+  const double shared_parallax_px = reference_median_depth_ > 0.0
+                                        ? camera_lr.fx * previous_path / reference_median_depth_
+                                        : std::numeric_limits<double>::infinity();
+  StreamTie tie;
+  if (num_shared >= 2 && previous_path > 1e-12 && PathLength(shared_initial) > 1e-12 &&
+      shared_parallax_px >= kMinSharedParallaxPx) {
+    tie.held = num_shared;
+    tie.initial_to_stream = AlignPoseSequence(shared_initial, shared_previous);
+    tie.how = "through " + std::to_string(num_shared) + " shared frames";
+  } else {
+    tie.held = 1;
+    double scale = DepthRatio(shared.depths, initial.depth_lr);
+    tie.how = "through the first shared frame, scale from the shared frames' depth";
+    if (!(scale > 0.0)) {
+      const double median = MedianDepth(initial.depth_lr);
+      scale = median > 0.0 ? (reference_median_depth_ > 0.0 ? reference_median_depth_ : 1.0) / median : 1.0;
+      tie.how = "through the first shared frame, scale from the median depth of the last window with depth";
+    }
+    tie.initial_to_stream = AnchorAt(shared_initial[0], shared_previous[0], scale);
+  }
+  return tie;
+}
+
+bool StreamEstimator::ContinueTrajectory(const EstimatorInput& input, const SharedFrames& shared,
+                                         const ProgressCallback& progress, WindowEstimate* estimate) const {
+  const std::vector<SE3>& shared_previous = shared.poses;
+  const int num_shared = static_cast<int>(shared_previous.size());
+  if (num_shared < 1) return false;
   const EstimatorOptions& options = estimator_.options();
   const double start = NowMs();
   InitializerOptions init_options = options.initializer;
   init_options.num_threads = options.num_threads;
-  InitialStructure initial = InitializeStructure(input.images, input.camera, input.frames, init_options);
-  std::vector<SE3> shared_initial(initial.T_world_cam.begin(), initial.T_world_cam.begin() + num_shared);
-  if (!(PathLength(shared_initial) > 1e-12)) return false;
+  InitialStructure initial;
+  try {
+    initial = InitializeStructure(input.images, input.camera, input.frames, init_options);
+  } catch (const NoParallaxError& no_parallax) {
+    ContinueRotationOnly(input, shared_previous, no_parallax.what(), progress, estimate);
+    return true;
+  }
   // Initial structure of this window in the stream's world and scale; the
-  // shared cameras start exactly where the previous window left them.
-  const Sim3 to_stream = AlignPoseSequence(shared_initial, shared_previous);
+  // held cameras start exactly where the previous window left them.
+  const StreamTie tie = TieToStream(initial, shared, input.camera);
   std::vector<SE3> poses;
   for (size_t i = 0; i < input.images.size(); ++i) {
-    poses.push_back(static_cast<int>(i) < num_shared ? shared_previous[i]
-                                                     : TransformPose(to_stream, initial.T_world_cam[i]));
+    poses.push_back(static_cast<int>(i) < tie.held
+                        ? shared_previous[i]
+                        : TransformPose(tie.initial_to_stream, initial.T_world_cam[i]));
   }
   std::vector<cv::Mat> depth_lr;
-  for (const cv::Mat& depth : initial.depth_lr) depth_lr.push_back(depth * to_stream.scale);
+  for (const cv::Mat& depth : initial.depth_lr) depth_lr.push_back(depth * tie.initial_to_stream.scale);
   const std::vector<cv::Mat> depth_hr = UpsampleInitialDepth(depth_lr, options.scale);
   const double init_seconds = (NowMs() - start) / 1000.0;
-  // The shared cameras stay where the previous window put them.
+  // The held cameras stay where the previous window put them; the result
+  // stays in the stream's world and scale.
   EstimatorOptions held = options;
-  held.fixed_leading_poses = num_shared;
+  held.fixed_leading_poses = tie.held;
+  held.keep_input_gauge = true;
   Estimator estimator(held);
   estimator.SetCancelFlag(cancel_);
   EstimatorResult& result = estimate->result;
   result = estimator.RunFromStructure(input, depth_hr, poses, progress);
   result.timings.insert(result.timings.begin(), StageTiming{"initialization", init_seconds});
   result.initializer_summary = initial.summary;
-  // The estimator returns its own gauge (first camera, unit baseline):
-  // carry the result back onto the previous window's shared cameras
-  // (exact, since they were held).
-  std::vector<SE3> shared_result(result.T_world_cam.begin(), result.T_world_cam.begin() + num_shared);
-  const Sim3 back = AlignPoseSequence(shared_result, shared_previous);
-  for (SE3& pose : result.T_world_cam) pose = TransformPose(back, pose);
-  for (cv::Mat& depth : result.depth) depth *= back.scale;
   estimate->continued = true;
-  estimate->note = "continued from the previous window through " + std::to_string(num_shared) +
-                   " shared frames (scale factor " + std::to_string(back.scale) + ")";
+  estimate->note = "continued from the previous window " + tie.how + " (scale factor " +
+                   std::to_string(tie.initial_to_stream.scale) + ")";
   return true;
+}
+
+void StreamEstimator::ContinueRotationOnly(const EstimatorInput& input,
+                                           const std::vector<SE3>& shared_previous, const std::string& why,
+                                           const ProgressCallback& progress, WindowEstimate* estimate) const {
+  const double start = NowMs();
+  InitializerOptions init_options = estimator_.options().initializer;
+  init_options.num_threads = estimator_.options().num_threads;
+  const RotationOnlyMotion motion =
+      EstimateRotationOnlyMotion(input.images, input.camera, input.frames, init_options);
+  // Orientations anchored at the first shared camera; every camera keeps
+  // the last shared camera's translation.
+  const Eigen::Matrix3d R_stream_motion = shared_previous[0].rotation() * motion.R_world_cam[0].transpose();
+  std::vector<SE3> poses;
+  for (const Eigen::Matrix3d& R_world_cam : motion.R_world_cam) {
+    poses.emplace_back(R_stream_motion * R_world_cam, shared_previous.back().translation());
+  }
+  const double init_seconds = (NowMs() - start) / 1000.0;
+  EstimatorResult& result = estimate->result;
+  Estimator estimator(estimator_.options());
+  estimator.SetCancelFlag(cancel_);
+  result = estimator.RunRotationOnly(input, poses, progress);
+  result.timings.insert(result.timings.begin(), StageTiming{"initialization", init_seconds});
+  result.initializer_summary = why + "\n" + motion.summary;
+  estimate->continued = true;
+  estimate->note = "rotation-only window, continued from the previous window's cameras";
 }
 
 void StreamEstimator::StartSegment(const EstimatorInput& input, const ProgressCallback& progress,
                                    WindowEstimate* estimate) {
   estimate->result = estimator_.Run(input, progress);
   estimate->continued = false;
-  estimate->note = last_poses_.empty()
-                       ? "new trajectory: world = first camera, first two cameras 1 unit apart"
-                       : "new trajectory segment (no usable overlap with the previous window): "
-                         "world = this window's first camera, first two cameras 1 unit apart";
+  const std::string gauge = estimate->result.depth_observable
+                                ? "world = first camera, median scene depth 1 unit"
+                                : "world = first camera (rotation only: depth not observable)";
+  estimate->note = last_poses_.empty() ? "new trajectory: " + gauge
+                                       : "new trajectory segment (no usable overlap with the previous "
+                                         "window): " +
+                                             gauge;
 }
 
 void StreamEstimator::Remember(const StreamWindow& window, WindowEstimate* estimate) {
@@ -229,7 +331,15 @@ void StreamEstimator::Remember(const StreamWindow& window, WindowEstimate* estim
     }
   }
   last_poses_.clear();
-  for (size_t i = 0; i < window.size(); ++i) last_poses_[window[i].id] = estimate->result.T_world_cam[i];
+  last_depths_.clear();
+  for (size_t i = 0; i < window.size(); ++i) {
+    last_poses_[window[i].id] = estimate->result.T_world_cam[i];
+    if (estimate->result.depth_observable) last_depths_[window[i].id] = estimate->result.depth[i];
+  }
+  if (estimate->result.depth_observable) {
+    const double median = MedianDepth(estimate->result.depth);
+    if (median > 0.0) reference_median_depth_ = median;
+  }
   last_returned_id_ = std::max(has_returned_ ? last_returned_id_ : 0, window.back().id);
   has_returned_ = true;
 }

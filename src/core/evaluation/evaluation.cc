@@ -1,9 +1,11 @@
 #include "deblur_sr_mvs/core/evaluation/evaluation.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <limits>
 
+#include <Eigen/Geometry>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -272,19 +274,45 @@ void EvaluateTrajectory(const SequenceResult& result, const SequenceGroundTruth&
     truth[i] = gt.poses[i].T_world_cam.translation();
   }
   try {
-    Sim3 alignment;
-    report->ate_rmse = AbsoluteTrajectoryRmse(estimate, truth, &alignment);
-    report->trajectory_alignment = alignment;
+    Sim3 alignment;  // identity unless the options ask for the Sim(3) one
+    if (report->options.align_trajectory) {
+      report->ate_rmse = AbsoluteTrajectoryRmse(estimate, truth, &alignment);
+      report->trajectory_alignment = alignment;
+    }
+    double squares = 0.0;
     for (int i = 0; i < count; ++i) {
       const Eigen::Vector3d aligned =
           alignment.scale * (alignment.rotation * estimate[i]) + alignment.translation;
       report->frames[i].position_error = (aligned - truth[i]).norm();
+      squares += (aligned - truth[i]).squaredNorm();
     }
+    if (!report->options.align_trajectory) report->ate_rmse = std::sqrt(squares / count);
   } catch (const InputError& error) {
     // A degenerate estimate (all positions equal, non-finite) has no ATE;
     // it is a result to report, not bad input.
     report->ate_note = std::string("no ATE: ") + error.what();
   }
+}
+
+// Orientation of every frame relative to the first, estimate against ground
+// truth: needs no alignment, so it is measured also where the ATE is not
+// (a rotation-only window, whose cameras share one centre).
+void EvaluateRotations(const SequenceResult& result, const SequenceGroundTruth& gt,
+                       EvaluationReport* report) {
+  if (!result.HasPoses() || report->num_frames == 0) return;
+  const Eigen::Matrix3d R_est0 = result.poses[0].T_world_cam.rotation();
+  const Eigen::Matrix3d R_gt0 = gt.poses[0].T_world_cam.rotation();
+  double sum = 0.0, worst = 0.0;
+  for (int i = 0; i < report->num_frames; ++i) {
+    const Eigen::Matrix3d relative_est = R_est0.transpose() * result.poses[i].T_world_cam.rotation();
+    const Eigen::Matrix3d relative_gt = R_gt0.transpose() * gt.poses[i].T_world_cam.rotation();
+    const double degrees = Eigen::AngleAxisd(relative_est.transpose() * relative_gt).angle() * 180.0 / M_PI;
+    report->frames[i].rotation_error_deg = degrees;
+    sum += degrees;
+    worst = std::max(worst, degrees);
+  }
+  report->mean_rotation_error_deg = sum / report->num_frames;
+  report->max_rotation_error_deg = worst;
 }
 
 }  // namespace
@@ -297,6 +325,7 @@ EvaluationReport EvaluateResult(const SequenceResult& result, const Sequence& se
   EvaluateImages(result, sequence, &report);
   EvaluateDepths(result, *sequence.ground_truth, &report);
   EvaluateTrajectory(result, *sequence.ground_truth, &report);
+  EvaluateRotations(result, *sequence.ground_truth, &report);
   return report;
 }
 
@@ -311,10 +340,11 @@ std::string ToMarkdown(const EvaluationReport& report, const std::string& method
          Cell(report.mean_image_psnr_db - report.mean_bicubic_psnr_db, 2) + " |\n\n";
 
   out += "### Depth and pose (cf. paper table tab:quant)\n\n";
-  out += "| Method | Depth PSNR (dB) | rel. | ATE RMSE |\n";
-  out += "|---|---:|---:|---:|\n";
+  out += "| Method | Depth PSNR (dB) | rel. | ATE RMSE | Rotation error (deg, mean / max) |\n";
+  out += "|---|---:|---:|---:|---:|\n";
   out += "| " + method + " | " + Cell(report.mean_depth_psnr_db, 2) + " | " +
-         Cell(report.mean_depth_relative_error, 4) + " | " + Cell(report.ate_rmse, 4) + " |\n\n";
+         Cell(report.mean_depth_relative_error, 4) + " | " + Cell(report.ate_rmse, 4) + " | " +
+         Cell(report.mean_rotation_error_deg, 3) + " / " + Cell(report.max_rotation_error_deg, 3) + " |\n\n";
 
   out += std::to_string(report.num_frames) + " frames, x" + std::to_string(report.scale) + " (" +
          SizeText(report.hr_size) + "), image PSNR in " + (report.colour ? "colour" : "gray") +
@@ -324,21 +354,23 @@ std::string ToMarkdown(const EvaluationReport& report, const std::string& method
   if (report.mean_depth_psnr_db) {
     out += ", " + Printf("%.1f%%", 100.0 * report.mean_depth_coverage) + " of it covered";
   }
-  out += "; ATE Sim(3)-aligned, in ground-truth units.\n";
+  out += report.options.align_trajectory ? "; ATE Sim(3)-aligned, in ground-truth units"
+                                         : "; ATE without alignment (metric result), in ground-truth units";
+  out += "; rotations relative to the first frame.\n";
   if (!report.depth_note.empty()) out += "Depth: " + report.depth_note + ".\n";
   if (!report.ate_note.empty()) out += "Pose: " + report.ate_note + ".\n";
 
   out += "\n#### Per frame\n\n";
   out +=
       "| Frame | Stamp (s) | Image PSNR (dB) | Bicubic PSNR (dB) | Depth PSNR (dB) | rel. | "
-      "Position error |\n";
-  out += "|---:|---:|---:|---:|---:|---:|---:|\n";
+      "Position error | Rotation error (deg) |\n";
+  out += "|---:|---:|---:|---:|---:|---:|---:|---:|\n";
   for (const FrameEvaluation& frame : report.frames) {
     out += "| " + std::to_string(frame.index) + " | " + Printf("%.6f", frame.stamp) + " | " +
            Cell(frame.image_psnr_db, 2) + " | " + Cell(frame.bicubic_psnr_db, 2) + " | " +
            (frame.depth ? Cell(frame.depth->psnr_db, 2) : "n/a") + " | " +
            (frame.depth ? Cell(frame.depth->relative_error, 4) : "n/a") + " | " +
-           Cell(frame.position_error, 4) + " |\n";
+           Cell(frame.position_error, 4) + " | " + Cell(frame.rotation_error_deg, 3) + " |\n";
   }
   return out;
 }
@@ -368,7 +400,8 @@ Json FrameJson(const FrameEvaluation& frame) {
               {"depth_scale", depth ? JsonNumber(depth->scale) : Json(nullptr)},
               {"depth_pixels", depth ? depth->num_pixels : 0},
               {"depth_coverage", JsonNumber(frame.depth_coverage)},
-              {"position_error", JsonNumber(frame.position_error)}};
+              {"position_error", JsonNumber(frame.position_error)},
+              {"rotation_error_deg", JsonNumber(frame.rotation_error_deg)}};
 }
 
 }  // namespace
@@ -383,12 +416,15 @@ std::string ToJson(const EvaluationReport& report, const std::string& method_nam
   json["colour"] = report.colour;
   json["crop_fraction"] = JsonNumber(report.options.crop_fraction);
   json["align_depth_scale"] = report.options.align_depth_scale;
+  json["align_trajectory"] = report.options.align_trajectory;
   json["mean"] = Json{{"image_psnr_db", JsonNumber(report.mean_image_psnr_db)},
                       {"bicubic_psnr_db", JsonNumber(report.mean_bicubic_psnr_db)},
                       {"depth_psnr_db", JsonNumber(report.mean_depth_psnr_db)},
                       {"depth_relative_error", JsonNumber(report.mean_depth_relative_error)},
                       {"depth_coverage", JsonNumber(report.mean_depth_coverage)},
-                      {"ate_rmse", JsonNumber(report.ate_rmse)}};
+                      {"ate_rmse", JsonNumber(report.ate_rmse)},
+                      {"rotation_error_deg", JsonNumber(report.mean_rotation_error_deg)},
+                      {"max_rotation_error_deg", JsonNumber(report.max_rotation_error_deg)}};
   json["num_depth_frames"] = report.num_depth_frames;
   json["depth_note"] = report.depth_note;
   json["ate_note"] = report.ate_note;

@@ -17,6 +17,7 @@
 
 #include <gtest/gtest.h>
 
+#include "../support/test_sequences.h"
 #include "deblur_sr_mvs/core/evaluation/metrics.h"
 #include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/io/sequence_io.h"
@@ -26,39 +27,15 @@ namespace {
 
 // Synthesizes (once per test binary) a short Dolls sequence with ground truth.
 const Sequence& SmallSequence() {
-  static const Sequence sequence = [] {
-    const std::string folder = testing::TempDir() + "/dsm_estimator_seq_" + std::to_string(::getpid());
-    const std::string command = std::string(DSM_TOOL_DIR) + "/synthesize_sequence --scene " + DSM_SOURCE_DIR +
-                                "/data/middlebury/Dolls --output " + folder +
-                                " --frames 5 --subframes 100 > /dev/null";
-    EXPECT_EQ(std::system(command.c_str()), 0);
-    Sequence read = ReadSequence(folder, true);
-    std::filesystem::remove_all(folder);  // per process (ctest runs tests in parallel)
-    return read;
-  }();
+  static const Sequence sequence =
+      SynthesizedSequence("estimator_seq", "Dolls", "--frames 5 --subframes 100");
   return sequence;
-}
-
-EstimatorInput InputOf(const Sequence& sequence) {
-  EstimatorInput input;
-  input.camera = sequence.calibration.camera;
-  input.frames = sequence.frames;
-  for (const cv::Mat& image : sequence.images) input.images.push_back(ToFloat01(image));
-  return input;
 }
 
 std::vector<SE3> TruePoses(const Sequence& sequence) {
   std::vector<SE3> poses;
   for (const StampedPose& p : sequence.ground_truth->poses) poses.push_back(p.T_world_cam);
   return poses;
-}
-
-double MeanPsnr(const std::vector<cv::Mat>& estimates01, const std::vector<cv::Mat>& truth8) {
-  double sum = 0.0;
-  for (size_t t = 0; t < estimates01.size(); ++t) {
-    sum += Psnr(ToImage8(estimates01[t]), truth8[t], 255.0);
-  }
-  return sum / estimates01.size();
 }
 
 double MeanDepthRel(const std::vector<cv::Mat>& estimate, const std::vector<cv::Mat>& truth) {
@@ -194,8 +171,11 @@ TEST(Estimator, JointBeatsBicubicAndBaselineFromScratch) {
   EXPECT_LT(rel_joint, rel_baseline);
   EXPECT_LT(ate_joint, 0.02 * path);
   EXPECT_LT(ate_baseline, 0.02 * path);
-  // Monocular scale: the first two cameras are 1 unit apart.
-  EXPECT_NEAR((joint.T_world_cam[1].translation() - joint.T_world_cam[0].translation()).norm(), 1.0, 1e-9);
+  // Output gauge: world = first camera, median scene depth 1 unit.
+  for (const EstimatorResult* result : {&joint, &baseline}) {
+    EXPECT_LT(result->T_world_cam[0].Log().norm(), 1e-9);
+    EXPECT_NEAR(MedianDepth(result->depth), 1.0, 1e-6);
+  }
 }
 
 }  // namespace

@@ -14,6 +14,7 @@
 
 #include <gtest/gtest.h>
 
+#include "../support/test_sequences.h"
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/evaluation/metrics.h"
 #include "deblur_sr_mvs/core/imaging/image_ops.h"
@@ -177,16 +178,8 @@ TEST(ProblemWithEstimate, AcceptsSmoothMotionRejectsJumpsAndNonFinite) {
 
 // Synthesizes (once per binary) a small 8-frame Dolls sequence.
 const Sequence& SmallSequence() {
-  static const Sequence sequence = [] {
-    const std::string folder = testing::TempDir() + "/dsm_stream_seq_" + std::to_string(::getpid());
-    const std::string command = std::string(DSM_TOOL_DIR) + "/synthesize_sequence --scene " + DSM_SOURCE_DIR +
-                                "/data/middlebury/Dolls --output " + folder +
-                                " --frames 8 --subframes 100 --hr-width 240 --hr-height 180 > /dev/null";
-    EXPECT_EQ(std::system(command.c_str()), 0);
-    Sequence read = ReadSequence(folder, true);
-    std::filesystem::remove_all(folder);  // per process (ctest runs tests in parallel)
-    return read;
-  }();
+  static const Sequence sequence =
+      SynthesizedSequence("stream_seq", "Dolls", "--frames 8 --subframes 100 --hr-width 240 --hr-height 180");
   return sequence;
 }
 

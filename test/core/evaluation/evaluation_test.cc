@@ -18,6 +18,7 @@
 #include <vector>
 
 #include <gtest/gtest.h>
+#include <Eigen/Geometry>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -313,6 +314,8 @@ TEST_F(EvaluationTest, GroundTruthAsResultIsPerfect) {
     EXPECT_NEAR(frame.depth->scale, 1.0, 1e-12);
     ASSERT_TRUE(frame.position_error.has_value());
     EXPECT_LT(*frame.position_error, 1e-9);
+    ASSERT_TRUE(frame.rotation_error_deg.has_value());
+    EXPECT_LT(*frame.rotation_error_deg, 1e-6);
   }
 }
 
@@ -338,11 +341,43 @@ TEST_F(EvaluationTest, ScaledDepthAndSim3TrajectoryStillPerfect) {
   ASSERT_TRUE(report.trajectory_alignment.has_value());
   EXPECT_NEAR(report.trajectory_alignment->scale, 1.0 / scale, 1e-9);
 
+  // Relative orientations do not depend on the world: still exact.
+  ASSERT_TRUE(report.max_rotation_error_deg.has_value());
+  EXPECT_LT(*report.max_rotation_error_deg, 1e-6);
+
   // Without scale alignment the same depth is far off.
   EvaluationOptions options;
   options.align_depth_scale = false;
   const EvaluationReport unaligned = EvaluateResult(result, sequence, options);
   EXPECT_NEAR(*unaligned.mean_depth_relative_error, 0.75, 1e-6);
+
+  // Without trajectory alignment the positions are compared as they are:
+  // exact for the ground truth itself, off for the similarity-moved ones.
+  EvaluationOptions metric;
+  metric.align_depth_scale = metric.align_trajectory = false;
+  const EvaluationReport exact = EvaluateResult(PerfectResult(sequence), sequence, metric);
+  ASSERT_TRUE(exact.ate_rmse.has_value());
+  EXPECT_LT(*exact.ate_rmse, 1e-12);
+  EXPECT_FALSE(exact.trajectory_alignment.has_value());
+  const EvaluationReport moved = EvaluateResult(result, sequence, metric);
+  ASSERT_TRUE(moved.ate_rmse.has_value());
+  EXPECT_GT(*moved.ate_rmse, 0.5);
+}
+
+TEST_F(EvaluationTest, RotationErrorIsTheAngleRelativeToTheFirstFrame) {
+  const Sequence sequence = MakeSequence(4);
+  SequenceResult result = PerfectResult(sequence);
+  // Frame 2 turned by 0.5 deg about the optical axis, in its own frame.
+  const double angle = 0.5 * M_PI / 180.0;
+  result.poses[2].T_world_cam = SE3(result.poses[2].T_world_cam.rotation() *
+                                        Eigen::AngleAxisd(angle, Eigen::Vector3d::UnitZ()).toRotationMatrix(),
+                                    result.poses[2].T_world_cam.translation());
+  const EvaluationReport report = EvaluateResult(result, sequence);
+  ASSERT_TRUE(report.frames[2].rotation_error_deg.has_value());
+  EXPECT_NEAR(*report.frames[2].rotation_error_deg, 0.5, 1e-9);
+  EXPECT_NEAR(*report.frames[1].rotation_error_deg, 0.0, 1e-9);
+  EXPECT_NEAR(*report.max_rotation_error_deg, 0.5, 1e-9);
+  EXPECT_NEAR(*report.mean_rotation_error_deg, 0.125, 1e-9);
 }
 
 TEST_F(EvaluationTest, HandCheckablePsnrInColourAndGray) {

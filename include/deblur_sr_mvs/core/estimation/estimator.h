@@ -75,6 +75,11 @@ struct EstimatorOptions {
   // the gauge). The stream holds the frames shared with the previous window,
   // which then also fixes the scale.
   int fixed_leading_poses = 1;
+  // Output gauge (docs/file_formats.md#monocular-scale). false: world = the
+  // first camera, monocular scale such that the median scene depth of the
+  // window is 1 unit. true: the world and scale of the structure given to
+  // RunFromStructure / RunRotationOnly (the stream continues its own world).
+  bool keep_input_gauge = false;
   bool update_structure = true;  // false: images only (depth and poses fixed)
   StructureMatching structure_matching = StructureMatching::kRestoredAndInput;
   int num_threads = 0;  // OpenMP threads for every stage; 0 = default
@@ -112,7 +117,10 @@ struct EstimatorResult {
   PinholeCamera camera_hr;
   std::vector<cv::Mat> latent;   // HR, float in [0, 1]
   std::vector<cv::Mat> depth;    // HR CV_32FC1, NaN invalid, scale as the poses
-  std::vector<SE3> T_world_cam;  // world = first camera; first baseline = 1
+  std::vector<SE3> T_world_cam;  // in the output gauge (EstimatorOptions::keep_input_gauge)
+  // False for a window without parallax (RunRotationOnly): the depth maps
+  // are all NaN and every camera keeps one translation.
+  bool depth_observable = true;
   std::vector<EnergyRecord> energies;
   std::vector<StageTiming> timings;
   std::string initializer_summary;
@@ -138,6 +146,13 @@ class EstimationDiverged : public std::runtime_error {
   explicit EstimationDiverged(const std::string& what) : std::runtime_error(what) {}
 };
 
+// Median of the finite positive values of all the depth maps (0 when there
+// are none): the monocular scale of docs/file_formats.md#monocular-scale.
+double MedianDepth(const std::vector<cv::Mat>& depths);
+
+// What the notes (and the node's status) say of a window without parallax.
+extern const char kNoParallaxNote[];
+
 // LR depth maps of the initialisation up-sampled to HR (Sec.
 // optInitialization): bicubic on inverse depth, so that holes and edges behave.
 std::vector<cv::Mat> UpsampleInitialDepth(const std::vector<cv::Mat>& depth_lr, int scale);
@@ -146,7 +161,9 @@ class Estimator {
  public:
   explicit Estimator(const EstimatorOptions& options);
   // Throws InputError on inconsistent input, InitializationError when the
-  // frames cannot be initialised.
+  // frames cannot be initialised. A window in which no pair of frames has
+  // parallax (NoParallaxError of the initialiser) is estimated by
+  // RunRotationOnly from the orientations of EstimateRotationOnlyMotion.
   EstimatorResult Run(const EstimatorInput& input, const ProgressCallback& progress = nullptr);
 
   // Algorithm 1 from a given structure (tests: ground-truth depth and poses;
@@ -155,6 +172,15 @@ class Estimator {
   EstimatorResult RunFromStructure(const EstimatorInput& input, const std::vector<cv::Mat>& depth_hr,
                                    const std::vector<SE3>& T_world_cam,
                                    const ProgressCallback& progress = nullptr);
+
+  // A window whose motion is a rotation (no pair has parallax;
+  // docs/file_formats.md#no-parallax): with depth at infinity the warps are
+  // the homographies of the orientations of T_world_cam, and the capture
+  // operator follows the rotation path. Every camera takes the translation of
+  // T_world_cam[0]; only the images are estimated (eq:imgUpdate); depth
+  // comes out NaN. The result keeps T_world_cam's world.
+  EstimatorResult RunRotationOnly(const EstimatorInput& input, const std::vector<SE3>& T_world_cam,
+                                  const ProgressCallback& progress = nullptr);
 
   // While *flag is true, runs throw EstimationCancelled at the next frame or
   // stage boundary. The flag must outlive the runs; nullptr: never cancelled.

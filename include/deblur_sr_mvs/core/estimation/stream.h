@@ -128,6 +128,8 @@ using PendingWindowQueue = DropOldestQueue<StreamWindow>;
 // and translation come from the first pair; the scale is the ratio of the
 // path lengths, which must be > 0 in both (else InputError: no parallax).
 Sim3 AlignPoseSequence(const std::vector<SE3>& source, const std::vector<SE3>& target);
+// The similarity with the given scale that puts camera `source` on `target`.
+Sim3 AnchorAt(const SE3& source, const SE3& target, double scale);
 // T_world_cam of a camera after a similarity of the world.
 SE3 TransformPose(const Sim3& similarity, const SE3& T_world_cam);
 
@@ -141,7 +143,8 @@ struct WindowEstimate {
   int first_new = 0;
   // False when this window starts a new trajectory segment (the first
   // window, after Reset(), or when the overlap could not be used): its first
-  // camera is then the world origin and the first two are 1 unit apart.
+  // camera is then the world origin and its median scene depth 1 unit
+  // (docs/file_formats.md#monocular-scale).
   bool continued = false;
   std::string note;  // how the window was tied to the previous one
 };
@@ -171,15 +174,38 @@ class StreamEstimator {
   void Reset();
 
  private:
-  // The poses the previous window gave the leading frames of `window`, as
-  // many as the two windows share.
-  std::vector<SE3> SharedPreviousPoses(const StreamWindow& window) const;
+  // What the previous window gave the leading frames of `window`, as many as
+  // the two windows share: poses, and depths (empty where not observable).
+  struct SharedFrames {
+    std::vector<SE3> poses;
+    std::vector<cv::Mat> depths;
+  };
+  SharedFrames SharedWithPrevious(const StreamWindow& window) const;
+  // How this window's initial structure is carried into the stream's world
+  // and scale: by the similarity that puts its first camera on the first
+  // shared one, with the scale from the shared cameras' path when it carries
+  // kMinSharedParallaxPx of parallax (then all of them are held), else from
+  // the shared frames' depths (or the last known median depth; one held).
+  struct StreamTie {
+    Sim3 initial_to_stream;
+    int held = 1;     // leading cameras the estimator holds
+    std::string how;  // for the window's note
+  };
+  static constexpr double kMinSharedParallaxPx = 1.0;
+  StreamTie TieToStream(const InitialStructure& initial, const SharedFrames& shared,
+                        const PinholeCamera& camera_lr) const;
   // Estimates the window from the previous one: its initial structure is
-  // carried into the stream's world and scale through the shared frames,
-  // which the estimator holds. False (estimate untouched) when fewer than
-  // two frames are shared or they do not move.
-  bool ContinueTrajectory(const EstimatorInput& input, const std::vector<SE3>& shared_previous,
+  // carried into the stream's world and scale (TieToStream). A window
+  // without parallax goes to ContinueRotationOnly. False (estimate
+  // untouched) when no frame is shared.
+  bool ContinueTrajectory(const EstimatorInput& input, const SharedFrames& shared,
                           const ProgressCallback& progress, WindowEstimate* estimate) const;
+  // A window without parallax after a previous one: orientations from the
+  // rotation-only motion anchored at the first shared camera, the last
+  // shared camera's translation held, depth NaN (Estimator::RunRotationOnly).
+  void ContinueRotationOnly(const EstimatorInput& input, const std::vector<SE3>& shared_previous,
+                            const std::string& why, const ProgressCallback& progress,
+                            WindowEstimate* estimate) const;
   // Estimates the window on its own: a new trajectory segment.
   void StartSegment(const EstimatorInput& input, const ProgressCallback& progress, WindowEstimate* estimate);
   // Marks the frames already returned and keeps this window's poses.
@@ -187,7 +213,11 @@ class StreamEstimator {
 
   Estimator estimator_;
   const std::atomic<bool>* cancel_ = nullptr;
-  std::map<uint64_t, SE3> last_poses_;  // the previous window's poses, by frame id
+  std::map<uint64_t, SE3> last_poses_;       // the previous window's poses, by frame id
+  std::map<uint64_t, cv::Mat> last_depths_;  // its depths (HR), when observable
+  // Median depth of the last window with observable depth (stream units; 0
+  // before the first).
+  double reference_median_depth_ = 0.0;
   uint64_t last_returned_id_ = 0;
   bool has_returned_ = false;
 };

@@ -27,6 +27,10 @@ struct EvaluationOptions {
   // Monocular depth is up to scale: multiply each estimated depth map by the
   // median of gt / estimate before comparing (the paper's "scaling").
   bool align_depth_scale = true;
+  // Align the estimated positions to the ground truth by Sim(3) before the
+  // ATE. false: compare them as they are (a metric result in the ground
+  // truth's frame, e.g. aligned to a pose prior).
+  bool align_trajectory = true;
   // Throws InputError naming the option when out of range.
   void Check() const;
 };
@@ -45,6 +49,10 @@ struct FrameEvaluation {
   // Distance (gt units) of the Sim(3)-aligned position to the gt position;
   // absent when the ATE is.
   std::optional<double> position_error;
+  // Angle (deg) between the estimated and the true orientation of this
+  // frame relative to the first frame (independent of world and scale);
+  // absent when the result has no poses.
+  std::optional<double> rotation_error_deg;
 };
 
 struct EvaluationReport {
@@ -66,6 +74,8 @@ struct EvaluationReport {
   // trajectory; `ate_note` then says why.
   std::optional<double> ate_rmse;
   std::optional<Sim3> trajectory_alignment;  // result positions -> gt positions
+  // Over the frames (FrameEvaluation::rotation_error_deg); absent without poses.
+  std::optional<double> mean_rotation_error_deg, max_rotation_error_deg;
   std::string ate_note;
   std::string depth_note;  // why depth metrics are absent, when they are
 };
