@@ -2,9 +2,11 @@
 // (paper Sec. optInitialization, eq:initializationScene).
 #pragma once
 
+#include <stdexcept>
 #include <string>
 #include <vector>
 
+#include <Eigen/Core>
 #include <opencv2/core.hpp>
 
 #include "deblur_sr_mvs/core/geometry/camera.h"
@@ -92,10 +94,39 @@ class InitializationError : public std::runtime_error {
   explicit InitializationError(const std::string& message) : std::runtime_error(message) {}
 };
 
+// Thrown only when the frames can be tracked but no pair of them carries
+// parallax that a rotation does not explain (a static or purely rotating
+// camera): depth and scale are not observable, the orientations are
+// (EstimateRotationOnlyMotion). Every other failure is an InitializationError.
+class NoParallaxError : public InitializationError {
+ public:
+  explicit NoParallaxError(const std::string& message) : InitializationError(message) {}
+};
+
 // images_lr: the input frames as float in [0, 1] (1 or 3 channels), all of
 // camera_lr's size; frames: their stamps and exposures (>= 2 frames).
 InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
                                      const std::vector<FrameRecord>& frames,
                                      const InitializerOptions& options);
+
+// Camera orientations of a window whose motion is (close to) a pure rotation:
+// the warps between frames are then homographies K R K^-1 and depth is not
+// observable. R_world_cam at each frame's stamp (the shutter close t_c,
+// docs/file_formats.md#exposure), world = camera 0 at its t_c.
+struct RotationOnlyMotion {
+  std::vector<Eigen::Matrix3d> R_world_cam;
+  std::string summary;  // one line per stage, like InitialStructure::summary
+};
+
+// Same inputs as InitializeStructure. Each frame's rotation relative to the
+// earliest frame that shares enough tracks with it is fitted to the rays of
+// the matches (RANSAC + Kabsch on unit rays) and chained; these mid-exposure
+// orientations (tracks follow blur centroids) are then moved to t_c along
+// eq:interpolatingP. Throws InputError on bad inputs and InitializationError
+// when the frames cannot be tracked.
+RotationOnlyMotion EstimateRotationOnlyMotion(const std::vector<cv::Mat>& images_lr,
+                                              const PinholeCamera& camera_lr,
+                                              const std::vector<FrameRecord>& frames,
+                                              const InitializerOptions& options);
 
 }  // namespace deblur_sr_mvs
