@@ -2,20 +2,26 @@
 // Runs the joint estimator (or the baseline) and writes the HR latent images,
 // HR depth maps, poses and report.json. A progress bar is drawn when stderr
 // is a terminal. Bad input: one line on stderr, exit code 2.
+// With --pose-prior the outputs are carried into the prior's frame and units
+// (docs/file_formats.md#monocular-scale).
 #include <sys/resource.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <iostream>
 #include <limits>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/estimation/estimator.h"
+#include "deblur_sr_mvs/core/estimation/stream.h"
+#include "deblur_sr_mvs/core/geometry/pose_prior.h"
 #include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/io/result_io.h"
 #include "deblur_sr_mvs/core/io/sequence_io.h"
@@ -34,6 +40,7 @@ constexpr char kDescription[] =
 
 struct Flags {
   std::string input, output;
+  std::string pose_prior;  // TUM file of T_prior_cam, empty = none
   std::string mode = "joint";
   std::string structure_matching = "both";
   bool fixed_poses = false;
@@ -70,6 +77,10 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
       ->check(CLI::IsMember({"both", "restored", "blurred"}));
   cli.add_option("--output-scale", flags->output_scale, "bicubic up-sampling of the outputs, 1-4")
       ->check(dsm::FlagInt(1, 4));
+  cli.add_option("--pose-prior", flags->pose_prior,
+                 "TUM trajectory (T_world_camera, metres) of the same camera: output poses in its frame, "
+                 "depth in its units")
+      ->check(CLI::ExistingFile);
   cli.add_flag("--quiet", flags->quiet, "no progress bar, no summary line");
   if (!cli.Parse(argc, argv)) return false;
   options->mode = dsm::ParseEstimatorMode(flags->mode);
@@ -143,6 +154,90 @@ void FillOutputs(const dsm::EstimatorResult& result, const std::vector<dsm::Fram
   }
 }
 
+// Stamps closer than this are one instant (as for gt/poses.txt, docs/file_formats.md).
+constexpr double kStampTolerance = 1e-6;
+
+std::string Seconds(double stamp) {
+  char text[32];
+  std::snprintf(text, sizeof(text), "%.6f", stamp);
+  return text;
+}
+
+// The prior pose at `stamp`: geodesic interpolation (InterpolatePose) between
+// the two neighbouring prior poses; none outside the prior's time span.
+std::optional<dsm::SE3> PriorPoseAt(const std::vector<dsm::StampedPose>& prior, double stamp) {
+  if (stamp < prior.front().stamp - kStampTolerance || stamp > prior.back().stamp + kStampTolerance) {
+    return std::nullopt;
+  }
+  const auto next = std::lower_bound(prior.begin(), prior.end(), stamp,
+                                     [](const dsm::StampedPose& pose, double s) { return pose.stamp < s; });
+  if (next == prior.end()) return prior.back().T_world_cam;
+  if (next == prior.begin() || next->stamp - stamp <= kStampTolerance) return next->T_world_cam;
+  const auto previous = next - 1;
+  if (stamp - previous->stamp <= kStampTolerance) return previous->T_world_cam;
+  const double alpha = (stamp - previous->stamp) / (next->stamp - previous->stamp);
+  return dsm::InterpolatePose(previous->T_world_cam, next->T_world_cam, alpha);
+}
+
+// The prior pose of every frame at its stamp. InputError when the file is
+// bad, its stamps do not increase, or no frame lies in its time span.
+std::vector<std::optional<dsm::SE3>> ReadPriorAtFrames(const std::string& path,
+                                                       const std::vector<dsm::FrameRecord>& frames) {
+  const std::vector<dsm::StampedPose> prior = dsm::ReadTumTrajectory(path);
+  for (size_t k = 1; k < prior.size(); ++k) {
+    if (!(prior[k].stamp > prior[k - 1].stamp)) {
+      throw dsm::InputError(path + ": pose " + std::to_string(k) + " has stamp " + Seconds(prior[k].stamp) +
+                            ", not after the previous pose's " + Seconds(prior[k - 1].stamp) +
+                            " (stamps must increase)");
+    }
+  }
+  std::vector<std::optional<dsm::SE3>> at;
+  bool any = false;
+  for (const dsm::FrameRecord& frame : frames) {
+    at.push_back(PriorPoseAt(prior, frame.stamp));
+    any = any || at.back().has_value();
+  }
+  if (!any) {
+    throw dsm::InputError(path + ": no prior pose in the frames' time span (frames " +
+                          Seconds(frames.front().stamp) + " to " + Seconds(frames.back().stamp) +
+                          " s, prior " + Seconds(prior.front().stamp) + " to " + Seconds(prior.back().stamp) +
+                          " s)");
+  }
+  return at;
+}
+
+// Aligns the outputs' poses to the prior poses of their frames; when the
+// alignment is valid, carries the poses into the prior's frame and the
+// depths into its units, else leaves the outputs unchanged.
+dsm::PriorAlignment ApplyPosePrior(const std::vector<std::optional<dsm::SE3>>& prior,
+                                   dsm::SequenceResult* out) {
+  std::vector<dsm::SE3> estimated, prior_poses;
+  for (size_t t = 0; t < prior.size(); ++t) {
+    if (!prior[t]) continue;
+    estimated.push_back(out->poses[t].T_world_cam);
+    prior_poses.push_back(*prior[t]);
+  }
+  const dsm::PriorAlignment alignment = dsm::AlignToPrior(estimated, prior_poses, dsm::PosePriorOptions());
+  if (!alignment.valid) return alignment;
+  for (dsm::StampedPose& pose : out->poses) {
+    pose.T_world_cam = dsm::TransformPose(alignment.estimate_to_prior, pose.T_world_cam);
+  }
+  for (cv::Mat& depth : out->depth) depth = depth * alignment.estimate_to_prior.scale;  // new buffer
+  return alignment;
+}
+
+// report.json's "pose_prior" object (scale and rms null when not valid).
+dsm::Json PosePriorJson(const std::string& file, const dsm::PriorAlignment& alignment) {
+  const double scale = alignment.valid ? alignment.estimate_to_prior.scale : NAN;
+  return {{"file", file},
+          {"used", alignment.used},
+          {"inliers", alignment.inliers},
+          {"scale", dsm::JsonNumber(scale)},
+          {"rms", dsm::JsonNumber(alignment.valid ? alignment.rms : NAN)},
+          {"note", alignment.note},
+          {"valid", alignment.valid}};
+}
+
 int Run(int argc, char** argv) {
   Flags flags;
   dsm::EstimatorOptions options;
@@ -151,6 +246,8 @@ int Run(int argc, char** argv) {
   const auto start = std::chrono::steady_clock::now();
   std::string camera_name;
   const dsm::EstimatorInput input = ReadInput(flags.input, &camera_name);
+  std::vector<std::optional<dsm::SE3>> prior;
+  if (!flags.pose_prior.empty()) prior = ReadPriorAtFrames(flags.pose_prior, input.frames);
   const dsm::EstimatorResult result = Estimate(options, input, flags.input, flags.quiet);
   const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
@@ -158,8 +255,18 @@ int Run(int argc, char** argv) {
   out.calibration =
       dsm::CameraCalibration::FromCamera(result.camera_hr.Upscaled(flags.output_scale), camera_name);
   FillOutputs(result, input.frames, flags.output_scale, &out);
-  out.report_json =
-      dsm::JsonText(dsm::EstimateReportJson(options, flags.input, result, wall, PeakMemoryMiB()));
+  dsm::Json report = dsm::EstimateReportJson(options, flags.input, result, wall, PeakMemoryMiB());
+  if (!flags.pose_prior.empty()) {
+    const dsm::PriorAlignment alignment = ApplyPosePrior(prior, &out);
+    report["pose_prior"] = PosePriorJson(flags.pose_prior, alignment);
+    if (alignment.valid) {
+      report["monocular_scale"] = "metric: poses in the pose prior's frame, depth in its units (metres)";
+    } else {
+      std::fprintf(stderr, "estimate_sequence: pose prior not used (%s); wrote the estimate unchanged\n",
+                   alignment.note.c_str());
+    }
+  }
+  out.report_json = dsm::JsonText(report);
   dsm::WriteResult(flags.output, out);
   if (!flags.quiet) {
     std::printf("estimate_sequence: %zu frames, %s, %.1f s, peak %.0f MiB, energy %.4g -> %.4g; wrote %s\n",
