@@ -27,6 +27,9 @@ constexpr char kScaleNote[] =
 // How long the worker waits for the pose prior's tf at a window's newest
 // frame (tf may lag the images a little; the older frames' are there by then).
 constexpr double kPriorWaitSeconds = 0.2;
+// How long the prior's tf is kept: a window is looked up after it has waited
+// in the queue and been estimated (seconds, up to max_window_seconds each).
+constexpr double kPriorCacheSeconds = 120.0;
 
 bool IsColour(ros_glue::ImageFamily family) {
   return family == ros_glue::ImageFamily::kRgb8 || family == ros_glue::ImageFamily::kBgr8;
@@ -128,7 +131,7 @@ void EstimatorNodelet::onInit() {
   points_publisher_ = node.advertise<sensor_msgs::PointCloud2>("points", 2, ros_connect, ros_connect);
   if (params_.publish_tf) tf_broadcaster_ = std::make_unique<tf2_ros::TransformBroadcaster>();
   if (!params_.pose_prior_frame.empty()) {
-    tf_buffer_ = std::make_unique<tf2_ros::Buffer>();
+    tf_buffer_ = std::make_unique<tf2_ros::Buffer>(ros::Duration(kPriorCacheSeconds));
     tf_listener_ = std::make_unique<tf2_ros::TransformListener>(*tf_buffer_);
     aligner_ = std::make_unique<PosePriorAligner>(PosePriorOptions());
   }
