@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 
 #include <geometry_msgs/PoseStamped.h>
 #include <geometry_msgs/TransformStamped.h>
@@ -21,8 +22,14 @@ constexpr size_t kMaxUnmatchedImages = 5;         // images waiting for their ca
 constexpr size_t kMaxRecentInfos = 10;            // camera_infos waiting for their image
 const std::string kNoCameraInfo = "no camera_info with the image's stamp on ";
 constexpr char kScaleNote[] =
-    "monocular: poses and depths are in units of the distance between the first two cameras "
-    "of the trajectory segment, not metres";
+    "monocular: poses and depths are in units where the median scene depth of the first window is 1, "
+    "not metres";
+// How long the worker waits for the pose prior's tf at a window's newest
+// frame (tf may lag the images a little; the older frames' are there by then).
+constexpr double kPriorWaitSeconds = 0.2;
+// How long the prior's tf is kept: a window is looked up after it has waited
+// in the queue and been estimated (seconds, up to max_window_seconds each).
+constexpr double kPriorCacheSeconds = 120.0;
 
 bool IsColour(ros_glue::ImageFamily family) {
   return family == ros_glue::ImageFamily::kRgb8 || family == ros_glue::ImageFamily::kBgr8;
@@ -55,6 +62,12 @@ bool ClampExposures(StreamWindow* frames) {
 
 ros::Time TimeFromNs(int64_t stamp_ns) {
   return ros::Time().fromNSec(static_cast<uint64_t>(stamp_ns));
+}
+
+std::string ScaleText(double scale) {
+  char text[32];
+  std::snprintf(text, sizeof(text), "%.4g", scale);
+  return text;
 }
 
 }  // namespace
@@ -117,6 +130,11 @@ void EstimatorNodelet::onInit() {
   path_publisher_ = node.advertise<nav_msgs::Path>("path", 1, ros_connect, ros_connect);
   points_publisher_ = node.advertise<sensor_msgs::PointCloud2>("points", 2, ros_connect, ros_connect);
   if (params_.publish_tf) tf_broadcaster_ = std::make_unique<tf2_ros::TransformBroadcaster>();
+  if (!params_.pose_prior_frame.empty()) {
+    tf_buffer_ = std::make_unique<tf2_ros::Buffer>(ros::Duration(kPriorCacheSeconds));
+    tf_listener_ = std::make_unique<tf2_ros::TransformListener>(*tf_buffer_);
+    aligner_ = std::make_unique<PosePriorAligner>(PosePriorOptions());
+  }
 
   diagnostics_ = std::make_unique<diagnostic_updater::Updater>(node, private_node);
   diagnostics_->setHardwareID("deblur_sr_mvs estimator on " + image_topic_);
@@ -306,9 +324,19 @@ void EstimatorNodelet::StartStream(const ros::Time& stamp, const PinholeCamera& 
   have_stream_ = true;
   epoch_origin_ = stamp;
   stream_camera_ = camera;
-  stream_camera_frame_ = !params_.camera_frame.empty() ? params_.camera_frame
-                         : input_frame.empty()         ? std::string("camera_estimated")
-                                                       : input_frame + "_estimated";
+  stream_input_frame_ = input_frame;
+  const std::string estimated =
+      input_frame.empty() ? std::string("camera_estimated") : input_frame + "_estimated";
+  stream_camera_frame_ = params_.camera_frame.empty() ? estimated : params_.camera_frame;
+  // With a prior, tf already gives the real camera frame its parent
+  // (docs/ros_interface.md#tf): the node must not give it a second one.
+  if (!params_.pose_prior_frame.empty() && stream_camera_frame_ == input_frame) {
+    NODELET_WARN(
+        "deblur_sr_mvs: camera_frame '%s' is the input frame, which pose_prior_frame '%s' already "
+        "parents in tf: publishing %s instead",
+        input_frame.c_str(), params_.pose_prior_frame.c_str(), estimated.c_str());
+    stream_camera_frame_ = estimated;
+  }
 }
 
 void EstimatorNodelet::QueueWindow(StreamWindow frames) {
@@ -317,6 +345,7 @@ void EstimatorNodelet::QueueWindow(StreamWindow frames) {
   window.camera = stream_camera_;
   window.family = stream_family_;
   window.camera_frame = stream_camera_frame_;
+  window.input_frame = stream_input_frame_;
   window.epoch = epoch_;
   window.completed = ros::WallTime::now();
   if (queue_->Push(std::move(window)) > 0) {
@@ -378,11 +407,14 @@ void EstimatorNodelet::ProcessWindow(PendingWindow window) {
   }
 
   if (!estimate.continued) path_.poses.clear();
+  const OutputGauge gauge = PlaceInPrior(window, estimate, params);
+  // A path holds poses of one frame (the prior's once it is fitted).
+  if (path_.header.frame_id != gauge.frame) path_.poses.clear();
   for (size_t i = static_cast<size_t>(estimate.first_new); i < window.frames.size(); ++i) {
     if (shutting_down_ || !ros::ok()) return;
-    PublishFrame(window, estimate.result, i, estimate.stamps_ns[i], params);
+    PublishFrame(window, estimate.result, i, estimate.stamps_ns[i], params, gauge);
   }
-  PublishPath(params, status.header.stamp);
+  PublishPath(params, gauge.frame, status.header.stamp);
 
   const double processing = (ros::WallTime::now() - start).toSec();
   const double latency = (ros::WallTime::now() - window.completed).toSec();
@@ -395,6 +427,13 @@ void EstimatorNodelet::ProcessWindow(PendingWindow window) {
   status.processing_seconds = processing;
   status.latency_seconds = latency;
   DescribeEstimate(estimate, clamped, &status);
+  status.header.frame_id = gauge.frame;
+  if (!gauge.note.empty()) status.message += "; " + gauge.note;
+  if (gauge.metric) {
+    status.scale_note = "metric: poses in " + gauge.frame +
+                        ", depths in metres (aligned to the pose prior; scale " +
+                        ScaleText(gauge.estimate_to_output.scale) + ")";
+  }
   PublishStatus(status);
 }
 
@@ -413,6 +452,7 @@ ros_glue::NodeParameters EstimatorNodelet::SyncWorker(const PendingWindow& windo
   if (window.epoch != worker_epoch_) {
     stream_->Reset();
     path_.poses.clear();
+    if (aligner_) aligner_->Reset();
     worker_epoch_ = window.epoch;
   }
   return params;
@@ -434,41 +474,118 @@ void EstimatorNodelet::SkipWindow(const std::string& message, bool restart, Esti
   PublishStatus(*status);
 }
 
+EstimatorNodelet::OutputGauge EstimatorNodelet::PlaceInPrior(const PendingWindow& window,
+                                                             const WindowEstimate& estimate,
+                                                             const ros_glue::NodeParameters& params) {
+  OutputGauge gauge;
+  gauge.frame = params.world_frame;
+  if (!aligner_) return gauge;
+  // A new segment has a new world: the earlier correspondences do not apply.
+  if (!estimate.continued) aligner_->Reset();
+  const std::string& prior = params.pose_prior_frame;
+  const size_t count = window.frames.size();
+  size_t missing = 0;
+  std::string why = "the images have no frame_id";
+  // Newest first: only its tf may still be on its way.
+  for (size_t k = 0; k < count && !window.input_frame.empty(); ++k) {
+    const size_t i = count - 1 - k;
+    SE3 T_prior_cam;
+    if (LookUpPrior(prior, window.input_frame, estimate.stamps_ns[i], k == 0 ? kPriorWaitSeconds : 0.0,
+                    &T_prior_cam, &why)) {
+      aligner_->Add(estimate.ids[i], estimate.result.T_world_cam[i], T_prior_cam);
+    } else {
+      ++missing;
+    }
+  }
+  if (window.input_frame.empty()) missing = count;
+  gauge.note = "prior: ";
+  if (missing > 0) {
+    gauge.note += std::to_string(missing) + " of " + std::to_string(count) + " frames without tf " + prior +
+                  " <- " + (window.input_frame.empty() ? "?" : window.input_frame) + " (" + why + "); ";
+  }
+  PriorAlignment alignment;
+  try {
+    alignment = aligner_->Fit();
+  } catch (const std::exception& error) {
+    alignment.note = OneLine(error.what());
+  }
+  gauge.note += alignment.note;
+  if (!alignment.valid) {
+    gauge.note += "; poses in " + params.world_frame + " until a fit succeeds";
+    return gauge;
+  }
+  gauge.frame = prior;
+  gauge.estimate_to_output = alignment.estimate_to_prior;
+  gauge.metric = true;
+  return gauge;
+}
+
+bool EstimatorNodelet::LookUpPrior(const std::string& prior_frame, const std::string& input_frame,
+                                   int64_t stamp_ns, double wait, SE3* T_prior_cam, std::string* why) {
+  const ros::Time stamp = TimeFromNs(stamp_ns);
+  // Polled on the wall clock: a paused sim clock must not hold the worker.
+  const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(wait);
+  std::string error;
+  while (!tf_buffer_->canTransform(prior_frame, input_frame, stamp, &error)) {
+    if (shutting_down_ || ros::WallTime::now() >= deadline) {
+      *why = OneLine(error);
+      return false;
+    }
+    error.clear();
+    ros::WallDuration(0.01).sleep();
+  }
+  try {
+    *T_prior_cam =
+        ros_glue::TransformFromMsg(tf_buffer_->lookupTransform(prior_frame, input_frame, stamp).transform);
+  } catch (const std::exception& lookup_error) {
+    *why = OneLine(lookup_error.what());
+    return false;
+  }
+  return true;
+}
+
 void EstimatorNodelet::PublishFrame(const PendingWindow& window, const EstimatorResult& result, size_t i,
-                                    int64_t stamp_ns, const ros_glue::NodeParameters& params) {
+                                    int64_t stamp_ns, const ros_glue::NodeParameters& params,
+                                    const OutputGauge& gauge) {
   std_msgs::Header header;
   header.stamp = TimeFromNs(stamp_ns);
   header.frame_id = window.camera_frame;
   const sensor_msgs::CameraInfo info =
       ros_glue::ScaledCameraInfo(window.camera, params.estimator.scale, header);
   restored_publisher_.publish(ros_glue::Float01ToImage(result.latent[i], window.family, header), info);
-  depth_publisher_.publish(ros_glue::DepthToImage(result.depth[i], header), info);
+  // In the output gauge: depth scaled (metres with a prior), the pose moved.
+  const double scale = gauge.estimate_to_output.scale;
+  const cv::Mat depth = scale == 1.0 ? result.depth[i] : cv::Mat(result.depth[i] * scale);
+  depth_publisher_.publish(ros_glue::DepthToImage(depth, header), info);
+  const SE3 T_output_cam =
+      gauge.metric ? TransformPose(gauge.estimate_to_output, result.T_world_cam[i]) : result.T_world_cam[i];
 
   geometry_msgs::PoseStamped pose;
   pose.header.stamp = header.stamp;
-  pose.header.frame_id = params.world_frame;
-  pose.pose = ros_glue::PoseToMsg(result.T_world_cam[i]);
+  pose.header.frame_id = gauge.frame;
+  pose.pose = ros_glue::PoseToMsg(T_output_cam);
   pose_publisher_.publish(pose);
   path_.poses.push_back(pose);
   if (tf_broadcaster_) {
     geometry_msgs::TransformStamped transform;
     transform.header = pose.header;
     transform.child_frame_id = window.camera_frame;
-    transform.transform = ros_glue::TransformToMsg(result.T_world_cam[i]);
+    transform.transform = ros_glue::TransformToMsg(T_output_cam);
     tf_broadcaster_->sendTransform(transform);
   }
   if (points_publisher_.getNumSubscribers() > 0) {
-    points_publisher_.publish(ros_glue::DepthToPoints(result.depth[i], result.latent[i], result.camera_hr,
-                                                      params.points_stride, header));
+    points_publisher_.publish(
+        ros_glue::DepthToPoints(depth, result.latent[i], result.camera_hr, params.points_stride, header));
   }
   ++frames_published_;
 }
 
-void EstimatorNodelet::PublishPath(const ros_glue::NodeParameters& params, const ros::Time& stamp) {
+void EstimatorNodelet::PublishPath(const ros_glue::NodeParameters& params, const std::string& frame,
+                                   const ros::Time& stamp) {
   while (path_.poses.size() > static_cast<size_t>(params.max_path_length)) {
     path_.poses.erase(path_.poses.begin());
   }
-  path_.header.frame_id = params.world_frame;
+  path_.header.frame_id = frame;
   path_.header.stamp = stamp;
   path_publisher_.publish(path_);
 }
@@ -500,7 +617,7 @@ void EstimatorNodelet::PublishStatus(EstimatorStatus status) {
   status.windows_dropped = queue_->dropped();
   status.windows_failed = windows_failed_;
   status.resets = resets_;
-  status.scale_note = kScaleNote;
+  if (status.scale_note.empty()) status.scale_note = kScaleNote;
   status_publisher_.publish(status);
 }
 

@@ -282,5 +282,14 @@ SE3 PoseFromMsg(const geometry_msgs::Pose& pose) {
   return SE3(rotation.normalized(), translation);
 }
 
+SE3 TransformFromMsg(const geometry_msgs::Transform& transform) {
+  geometry_msgs::Pose pose;
+  pose.position.x = transform.translation.x;
+  pose.position.y = transform.translation.y;
+  pose.position.z = transform.translation.z;
+  pose.orientation = transform.rotation;
+  return PoseFromMsg(pose);
+}
+
 }  // namespace ros_glue
 }  // namespace deblur_sr_mvs

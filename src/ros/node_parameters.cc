@@ -42,6 +42,10 @@ void NodeParameters::Check() const {
   if (!camera_frame.empty() && camera_frame == world_frame) {
     throw InputError("camera_frame must differ from world_frame");
   }
+  if (!pose_prior_frame.empty() && (pose_prior_frame == world_frame || pose_prior_frame == camera_frame)) {
+    throw InputError("pose_prior_frame '" + pose_prior_frame +
+                     "' must differ from world_frame and camera_frame");
+  }
   CheckInRange("points_stride", points_stride, 1, 64);
   CheckAtLeast("max_path_length", max_path_length, 1);
 }

@@ -194,6 +194,9 @@ TEST(PoseConversion, RoundTripsToDoublePrecision) {
     EXPECT_EQ(transform.translation.y, pose.position.y);
     EXPECT_EQ(transform.translation.z, pose.position.z);
     EXPECT_EQ(transform.rotation, pose.orientation);
+    const SE3 from_transform = TransformFromMsg(transform);
+    EXPECT_EQ(from_transform.translation(), back.translation()) << angle;
+    EXPECT_EQ(from_transform.rotation(), back.rotation()) << angle;
     // Message -> SE3 -> message: the same quaternion (up to sign).
     const geometry_msgs::Pose again = PoseToMsg(back);
     const Eigen::Vector4d first(pose.orientation.w, pose.orientation.x, pose.orientation.y,

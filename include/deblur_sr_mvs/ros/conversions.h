@@ -67,6 +67,9 @@ geometry_msgs::Pose PoseToMsg(const SE3& T_world_cam);
 geometry_msgs::Transform TransformToMsg(const SE3& T_world_cam);
 // Throws InputError on non-finite values or a zero quaternion; normalises it.
 SE3 PoseFromMsg(const geometry_msgs::Pose& pose);
+// A tf transform (parent <- child) as the child's pose in the parent, checked
+// as PoseFromMsg.
+SE3 TransformFromMsg(const geometry_msgs::Transform& transform);
 
 }  // namespace ros_glue
 }  // namespace deblur_sr_mvs

@@ -21,12 +21,15 @@
 #include <ros/ros.h>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
+#include <tf2_ros/buffer.h>
 #include <tf2_ros/transform_broadcaster.h>
+#include <tf2_ros/transform_listener.h>
 #include <boost/thread/recursive_mutex.hpp>
 
 #include "deblur_sr_mvs/EstimatorConfig.h"
 #include "deblur_sr_mvs/EstimatorStatus.h"
 #include "deblur_sr_mvs/core/estimation/stream.h"
+#include "deblur_sr_mvs/core/geometry/pose_prior.h"
 #include "deblur_sr_mvs/ros/conversions.h"
 #include "deblur_sr_mvs/ros/node_parameters.h"
 
@@ -44,6 +47,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
     PinholeCamera camera;  // LR intrinsics from camera_info
     ros_glue::ImageFamily family = ros_glue::ImageFamily::kMono8;
     std::string camera_frame;  // child frame of the outputs
+    std::string input_frame;   // the images' frame_id (the real camera's)
     uint64_t epoch = 0;        // stream restarts so far
     ros::WallTime completed;   // arrival of the window's last frame
   };
@@ -66,6 +70,15 @@ class EstimatorNodelet : public nodelet::Nodelet {
   void RejectUnmatchedImage();  // an image whose camera_info never came
   void RestartStream(const std::string& why);
 
+  // Where a window's outputs go: the estimator's world (world_frame, its
+  // units) or, with a valid pose prior fit, the prior's frame in metres.
+  struct OutputGauge {
+    std::string frame;
+    Sim3 estimate_to_output;  // applied to poses; its scale to depths
+    bool metric = false;
+    std::string note;  // what the pose prior did ("" without one)
+  };
+
   // ---- Worker side.
   void WorkerLoop();
   void ProcessWindow(PendingWindow window);
@@ -75,10 +88,18 @@ class EstimatorNodelet : public nodelet::Nodelet {
   // A failed window: counted, warned and said in `status`; `restart` also
   // restarts the trajectory.
   void SkipWindow(const std::string& message, bool restart, EstimatorStatus* status);
+  // The gauge of `estimate`: fits the pose prior (pose_prior_frame) on the
+  // segment's frames so far.
+  OutputGauge PlaceInPrior(const PendingWindow& window, const WindowEstimate& estimate,
+                           const ros_glue::NodeParameters& params);
+  // T_prior_cam of the input frame at the stamp from tf; false when tf has
+  // none (waits up to `wait` seconds).
+  bool LookUpPrior(const std::string& prior_frame, const std::string& input_frame, int64_t stamp_ns,
+                   double wait, SE3* T_prior_cam, std::string* why);
   // Image, depth, pose, tf and points of window frame i.
   void PublishFrame(const PendingWindow& window, const EstimatorResult& result, size_t i, int64_t stamp_ns,
-                    const ros_glue::NodeParameters& params);
-  void PublishPath(const ros_glue::NodeParameters& params, const ros::Time& stamp);
+                    const ros_glue::NodeParameters& params, const OutputGauge& gauge);
+  void PublishPath(const ros_glue::NodeParameters& params, const std::string& frame, const ros::Time& stamp);
   // Success, energies, timings and notes of a published window.
   void DescribeEstimate(const WindowEstimate& estimate, bool clamped, EstimatorStatus* status);
   void PublishStatus(EstimatorStatus status);
@@ -91,6 +112,8 @@ class EstimatorNodelet : public nodelet::Nodelet {
   image_transport::CameraPublisher restored_publisher_, depth_publisher_;
   ros::Publisher pose_publisher_, path_publisher_, points_publisher_, status_publisher_;
   std::unique_ptr<tf2_ros::TransformBroadcaster> tf_broadcaster_;
+  std::unique_ptr<tf2_ros::Buffer> tf_buffer_;  // with pose_prior_frame only
+  std::unique_ptr<tf2_ros::TransformListener> tf_listener_;
   std::unique_ptr<diagnostic_updater::Updater> diagnostics_;
   ros::WallTimer diagnostics_timer_;
   boost::recursive_mutex reconfigure_mutex_;
@@ -115,7 +138,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
   ros::Time last_stamp_, epoch_origin_;
   PinholeCamera stream_camera_;
   ros_glue::ImageFamily stream_family_ = ros_glue::ImageFamily::kMono8;
-  std::string stream_camera_frame_;
+  std::string stream_camera_frame_, stream_input_frame_;
   uint64_t epoch_ = 0;
   uint64_t next_frame_id_ = 1;
   std::map<std::string, uint64_t> rejections_;  // category (a fixed set) -> count
@@ -127,6 +150,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
   uint64_t worker_params_version_ = 0;
   uint64_t worker_epoch_ = 0;
   nav_msgs::Path path_;
+  std::unique_ptr<PosePriorAligner> aligner_;  // with pose_prior_frame only
   uint32_t window_index_ = 0;
 
   // ---- Shared counters and health.

@@ -42,6 +42,10 @@ struct NodeParameters {
   std::string world_frame = "world";
   std::string camera_frame;  // empty: "<input frame_id>_estimated"
   bool publish_tf = true;
+  // Fixed frame in which tf gives the camera's pose at the frame stamps
+  // (wheel odometry, VIO, motion capture): the metric pose prior
+  // (docs/ros_interface.md#pose-prior). Empty: none (monocular units).
+  std::string pose_prior_frame;
   int points_stride = 4;        // every n-th pixel in x and y goes into ~points
   int max_path_length = 10000;  // poses kept in ~path (oldest dropped beyond)
   // A window whose largest camera step exceeds this many times its median
@@ -81,6 +85,7 @@ void ForEachParameter(Params& params, Visitor&& visit) {
   visit("world_frame", params.world_frame);
   visit("camera_frame", params.camera_frame);
   visit("publish_tf", params.publish_tf);
+  visit("pose_prior_frame", params.pose_prior_frame);
   visit("points_stride", params.points_stride);
   visit("max_path_length", params.max_path_length);
   visit("lazy_subscription", params.lazy_subscription);

@@ -1,0 +1,316 @@
+// rostest of the node's metric pose prior (test/ros/pose_prior.test,
+// docs/ros_interface.md#pose-prior): nodelets loaded in this process get a
+// small synthesized sequence as a camera and, on tf, the camera's pose in a
+// fixed frame at every image stamp: the ground truth plus noise (a metric
+// prior), or a prior that does not move (which cannot fix the scale).
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <iostream>
+#include <mutex>
+#include <random>
+#include <string>
+#include <vector>
+
+#include <geometry_msgs/PoseStamped.h>
+#include <gtest/gtest.h>
+#include <nav_msgs/Path.h>
+#include <nodelet/loader.h>
+#include <ros/ros.h>
+#include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/Image.h>
+#include <tf2_msgs/TFMessage.h>
+#include <tf2_ros/transform_listener.h>
+
+#include "deblur_sr_mvs/EstimatorStatus.h"
+#include "deblur_sr_mvs/core/evaluation/metrics.h"
+#include "deblur_sr_mvs/core/imaging/image_ops.h"
+#include "deblur_sr_mvs/core/io/sequence_io.h"
+#include "deblur_sr_mvs/ros/conversions.h"
+
+namespace deblur_sr_mvs {
+namespace {
+
+constexpr int kFrames = 8;               // windows of 4 overlapping by 2: frames 0-3, 2-5, 4-7
+constexpr double kPriorNoise = 0.01;     // m, RMS of the prior's 3D position noise
+constexpr double kPositionBound = 0.03;  // m: three times the prior's noise
+// Depth in metres without alignment may be this much worse (mean relative
+// error, absolute) than after the best per-frame scale: the scale fitted on
+// a noisy prior over a 7-17 cm path is a few percent off. Unscaled
+// (monocular units) the error would be |1/s - 1| for the fit's scale s:
+// over 0.4 for this scene (median depth 1.7 m) in either gauge.
+constexpr double kMetricDepthMargin = 0.10;
+
+const Sequence& TestSequence() {
+  static const Sequence sequence = [] {
+    const std::string folder = "/tmp/dsm_prior_rostest_sequence_" + std::to_string(getpid());
+    const std::string command = std::string(DSM_SYNTHESIZE_SEQUENCE) + " --scene " + DSM_SOURCE_DIR +
+                                "/data/middlebury/Dolls --output " + folder + " --frames " +
+                                std::to_string(kFrames) +
+                                " --subframes 60 --fps 30 --exposure-ratio 0.8"
+                                " --hr-width 192 --hr-height 144 > /dev/null";
+    EXPECT_EQ(std::system(command.c_str()), 0);
+    Sequence read = ReadSequence(folder, true);
+    std::filesystem::remove_all(folder);
+    return read;
+  }();
+  return sequence;
+}
+
+ros::Time FrameStamp(int t) {
+  return ros::Time(100.0) + ros::Duration(TestSequence().frames[t].stamp);
+}
+
+template <typename Predicate>
+bool WaitFor(Predicate done, double seconds) {
+  const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(seconds);
+  while (ros::ok() && ros::WallTime::now() < deadline) {
+    if (done()) return true;
+    ros::WallDuration(0.02).sleep();
+  }
+  return done();
+}
+
+// A nodelet on its own namespace and camera topics with the rostest's cheap
+// settings, and what it publishes.
+class PriorNode {
+ public:
+  PriorNode(const std::string& ns, const std::string& prior_frame, int iterations) : ns_(ns) {
+    ros::param::set(ns + "/estimator/exposure_time", 0.8 / 30.0);
+    ros::param::set(ns + "/estimator/window_size", 4);
+    ros::param::set(ns + "/estimator/window_overlap", 2);
+    ros::param::set(ns + "/estimator/max_pending_windows", 4);
+    ros::param::set(ns + "/estimator/samples", 16);
+    ros::param::set(ns + "/estimator/iterations", iterations);
+    ros::param::set(ns + "/estimator/lazy_subscription", false);
+    ros::param::set(ns + "/estimator/pose_prior_frame", prior_frame);
+    nodelet::M_string remappings{{ns + "/image", ns + "_camera/image"},
+                                 {ns + "/camera_info", ns + "_camera/camera_info"}};
+    loaded_ = loader_.load(ns + "/estimator", "deblur_sr_mvs/EstimatorNodelet", remappings, {});
+    ros::NodeHandle node;
+    subscribers_.push_back(node.subscribe<geometry_msgs::PoseStamped>(
+        ns + "/pose", 20, [this](const geometry_msgs::PoseStampedConstPtr& m) { Keep(&poses, m); }));
+    subscribers_.push_back(node.subscribe<sensor_msgs::Image>(
+        ns + "/depth/image", 20, [this](const sensor_msgs::ImageConstPtr& m) { Keep(&depths, m); }));
+    subscribers_.push_back(node.subscribe<EstimatorStatus>(
+        ns + "/status", 20, [this](const EstimatorStatusConstPtr& m) { Keep(&statuses, m); }));
+    subscribers_.push_back(
+        node.subscribe<nav_msgs::Path>(ns + "/path", 5, [this](const nav_msgs::PathConstPtr& m) {
+          std::lock_guard<std::mutex> lock(mutex);
+          path = m;
+        }));
+    images_ = node.advertise<sensor_msgs::Image>(ns + "_camera/image", 20);
+    infos_ = node.advertise<sensor_msgs::CameraInfo>(ns + "_camera/camera_info", 20);
+  }
+  ~PriorNode() { loader_.unload(ns_ + "/estimator"); }
+
+  bool Connected() {
+    return loaded_ &&
+           WaitFor([&] { return images_.getNumSubscribers() > 0 && infos_.getNumSubscribers() > 0; }, 30.0);
+  }
+  void SendFrame(int t, const std::string& frame_id) {
+    std_msgs::Header header;
+    header.stamp = FrameStamp(t);
+    header.frame_id = frame_id;
+    infos_.publish(ros_glue::ScaledCameraInfo(TestSequence().calibration.camera, 1, header));
+    images_.publish(
+        ros_glue::Float01ToImage(ToFloat01(TestSequence().images[t]), ros_glue::ImageFamily::kRgb8, header));
+  }
+  size_t StatusCount() {
+    std::lock_guard<std::mutex> lock(mutex);
+    return statuses.size();
+  }
+
+  std::mutex mutex;
+  std::vector<geometry_msgs::PoseStampedConstPtr> poses;
+  std::vector<sensor_msgs::ImageConstPtr> depths;
+  std::vector<EstimatorStatusConstPtr> statuses;
+  nav_msgs::PathConstPtr path;
+
+ private:
+  template <typename List, typename Message>
+  void Keep(List* list, const Message& message) {
+    std::lock_guard<std::mutex> lock(mutex);
+    list->push_back(message);
+  }
+
+  std::string ns_;
+  nodelet::Loader loader_{false};
+  bool loaded_ = false;
+  std::vector<ros::Subscriber> subscribers_;
+  ros::Publisher images_, infos_;
+};
+
+// Publishes parent <- child transforms on /tf (after the node's listener is connected).
+class PriorPublisher {
+ public:
+  PriorPublisher() : publisher_(ros::NodeHandle().advertise<tf2_msgs::TFMessage>("/tf", 100)) {}
+  bool Connected() {
+    return WaitFor([&] { return publisher_.getNumSubscribers() > 0; }, 30.0);
+  }
+  void Send(const std::string& parent, const std::string& child, const ros::Time& stamp, const SE3& pose) {
+    tf2_msgs::TFMessage message;
+    geometry_msgs::TransformStamped transform;
+    transform.header.stamp = stamp;
+    transform.header.frame_id = parent;
+    transform.child_frame_id = child;
+    transform.transform = ros_glue::TransformToMsg(pose);
+    message.transforms.push_back(transform);
+    publisher_.publish(message);
+  }
+
+ private:
+  ros::Publisher publisher_;
+};
+
+cv::Mat DepthOf(const sensor_msgs::Image& image) {
+  return cv::Mat(image.height, image.width, CV_32FC1, const_cast<uint8_t*>(image.data.data()), image.step)
+      .clone();
+}
+
+// Where "Frame <child> exists with parent <parent>." is in tf's frame list.
+bool HasParent(const tf2_ros::Buffer& buffer, const std::string& child, const std::string& parent) {
+  return buffer.allFramesAsString().find("Frame " + child + " exists with parent " + parent + ".") !=
+         std::string::npos;
+}
+
+// The estimated copy hangs under the prior's frame; the real camera keeps
+// its one parent, the prior; the estimator's world is not in tf.
+void ExpectTreeUnderThePrior(const tf2_ros::Buffer& buffer) {
+  const std::string frames = buffer.allFramesAsString();
+  EXPECT_TRUE(HasParent(buffer, "prior_camera_estimated", "odom")) << frames;
+  EXPECT_TRUE(HasParent(buffer, "prior_camera", "odom")) << frames;
+  EXPECT_EQ(frames.find("with parent world."), std::string::npos)
+      << "the estimator's world is in tf: " << frames;
+}
+
+// The prior: the ground truth in a frame "odom" (rotated and shifted from the
+// synthesizer's world) with Gaussian position noise. Published poses must
+// land on it without any alignment, and depth must be in metres.
+TEST(PosePrior, PosesInThePriorFrameAndDepthInMetres) {
+  const Sequence& sequence = TestSequence();
+  ASSERT_TRUE(sequence.ground_truth.has_value());
+  tf2_ros::Buffer tf_buffer;
+  tf2_ros::TransformListener tf_listener(tf_buffer);
+  PriorNode node("/metric", "odom", 1);
+  ASSERT_TRUE(node.Connected()) << "the nodelet did not load or subscribe";
+  PriorPublisher prior;
+  ASSERT_TRUE(prior.Connected());
+
+  const SE3 T_odom_world(
+      Eigen::Quaterniond(Eigen::AngleAxisd(0.5, Eigen::Vector3d(0.2, 0.3, 1.0).normalized())),
+      Eigen::Vector3d(1.0, -2.0, 0.3));
+  std::mt19937 random(7);
+  std::normal_distribution<double> noise(0.0, kPriorNoise / std::sqrt(3.0));
+  std::vector<Eigen::Vector3d> truth;  // camera positions in odom
+  for (int t = 0; t < kFrames; ++t) {
+    const SE3 T_odom_cam = T_odom_world * sequence.ground_truth->poses[t].T_world_cam;
+    truth.push_back(T_odom_cam.translation());
+    const Eigen::Vector3d noisy =
+        T_odom_cam.translation() + Eigen::Vector3d(noise(random), noise(random), noise(random));
+    prior.Send("odom", "prior_camera", FrameStamp(t), SE3(T_odom_cam.rotation(), noisy));
+    node.SendFrame(t, "prior_camera");
+    ros::WallDuration(0.1).sleep();
+  }
+  ASSERT_TRUE(WaitFor(
+      [&] {
+        std::lock_guard<std::mutex> lock(node.mutex);
+        return node.poses.size() >= kFrames && node.depths.size() >= kFrames && node.statuses.size() >= 3;
+      },
+      240.0))
+      << "outputs for all " << kFrames << " frames did not arrive";
+  ros::WallDuration(0.5).sleep();
+
+  std::lock_guard<std::mutex> lock(node.mutex);
+  ASSERT_EQ(node.poses.size(), static_cast<size_t>(kFrames)) << "each frame exactly once";
+  ASSERT_EQ(node.depths.size(), static_cast<size_t>(kFrames));
+  for (const auto& status : node.statuses) {
+    std::cout << "window " << status->window_index << ": " << status->message
+              << "\n  scale_note: " << status->scale_note << "\n";
+    EXPECT_TRUE(status->success) << status->message;
+    EXPECT_EQ(status->header.frame_id, "odom") << status->message;
+    EXPECT_EQ(status->scale_note.rfind("metric: poses in odom, depths in metres", 0), 0u)
+        << status->scale_note;
+  }
+  DepthMetricOptions metres, aligned;
+  metres.align_scale = false;
+  double position_max = 0.0, position_sq = 0.0, error_metres = 0.0, error_aligned = 0.0;
+  for (int t = 0; t < kFrames; ++t) {
+    const geometry_msgs::PoseStamped& pose = *node.poses[t];
+    EXPECT_EQ(pose.header.stamp, FrameStamp(t));
+    EXPECT_EQ(pose.header.frame_id, "odom");
+    const double error = (ros_glue::PoseFromMsg(pose.pose).translation() - truth[t]).norm();
+    position_max = std::max(position_max, error);
+    position_sq += error * error;
+    const cv::Mat depth = DepthOf(*node.depths[t]);
+    const DepthErrors in_metres = EvaluateDepth(depth, sequence.ground_truth->depth[t], metres);
+    const DepthErrors scaled = EvaluateDepth(depth, sequence.ground_truth->depth[t], aligned);
+    error_metres += in_metres.relative_error / kFrames;
+    error_aligned += scaled.relative_error / kFrames;
+    std::cout << "frame " << t << ": position error " << error << " m, depth rel. error "
+              << in_metres.relative_error << " (metres) vs " << scaled.relative_error << " (aligned, scale "
+              << scaled.scale << ")\n";
+    EXPECT_TRUE(tf_buffer.canTransform("odom", "prior_camera_estimated", FrameStamp(t), ros::Duration(2.0)))
+        << "tf odom -> prior_camera_estimated at frame " << t;
+  }
+  std::cout << "positions vs the ground truth in odom (no alignment): rms "
+            << std::sqrt(position_sq / kFrames) << " m, max " << position_max << " m; depth rel. error "
+            << error_metres << " in metres, " << error_aligned << " scale-aligned\n";
+  EXPECT_LT(position_max, kPositionBound);
+  EXPECT_LE(error_metres, error_aligned + kMetricDepthMargin) << "depth is not in metres";
+  ASSERT_TRUE(node.path != nullptr);
+  EXPECT_EQ(node.path->header.frame_id, "odom");
+  EXPECT_EQ(node.path->poses.size(), static_cast<size_t>(kFrames));
+  ExpectTreeUnderThePrior(tf_buffer);
+}
+
+// A prior that stays in one place cannot fix the scale, and a frame without
+// a prior is left out: the node says so in status and publishes in its own
+// world, as without a prior.
+TEST(PosePrior, StillPriorIsReportedAndTheWorldIsKept) {
+  const Sequence& sequence = TestSequence();
+  PriorNode node("/still", "still_odom", 0);
+  ASSERT_TRUE(node.Connected()) << "the nodelet did not load or subscribe";
+  PriorPublisher prior;
+  ASSERT_TRUE(prior.Connected());
+  const SE3 fixed(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0.5, 0.0, 0.2));
+  for (int t = 0; t < 4; ++t) {
+    if (t < 3) prior.Send("still_odom", "still_camera", FrameStamp(t), fixed);  // none for frame 3
+    node.SendFrame(t, "still_camera");
+    ros::WallDuration(0.1).sleep();
+  }
+  ASSERT_TRUE(WaitFor([&] { return node.StatusCount() >= 1; }, 120.0)) << "no window was processed";
+  ASSERT_TRUE(WaitFor(
+      [&] {
+        std::lock_guard<std::mutex> lock(node.mutex);
+        return node.poses.size() >= 4;
+      },
+      10.0));
+  std::lock_guard<std::mutex> lock(node.mutex);
+  ASSERT_EQ(sequence.images.size(), static_cast<size_t>(kFrames));
+  const EstimatorStatus& status = *node.statuses.front();
+  std::cout << "still prior: " << status.message << "\n  scale_note: " << status.scale_note << "\n";
+  EXPECT_TRUE(status.success) << status.message;
+  EXPECT_NE(status.message.find("prior: "), std::string::npos) << status.message;
+  EXPECT_NE(status.message.find("too small"), std::string::npos) << status.message;
+  EXPECT_NE(status.message.find("1 of 4 frames without tf still_odom <- still_camera"), std::string::npos)
+      << status.message;
+  EXPECT_EQ(status.message.find('\n'), std::string::npos);
+  EXPECT_EQ(status.header.frame_id, "world");
+  EXPECT_EQ(status.scale_note.rfind("monocular:", 0), 0u) << status.scale_note;
+  for (const auto& pose : node.poses) EXPECT_EQ(pose->header.frame_id, "world");
+}
+
+}  // namespace
+}  // namespace deblur_sr_mvs
+
+int main(int argc, char** argv) {
+  testing::InitGoogleTest(&argc, argv);
+  ros::init(argc, argv, "pose_prior_test");
+  ros::AsyncSpinner spinner(2);
+  spinner.start();
+  const int result = RUN_ALL_TESTS();
+  spinner.stop();
+  ros::shutdown();
+  return result;
+}
