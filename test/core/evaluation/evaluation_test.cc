@@ -555,6 +555,7 @@ TEST_F(EvaluationTest, JsonIsStrictWithNanAndAwkwardStrings) {
                                              "colour",
                                              "crop_fraction",
                                              "align_depth_scale",
+                                             "align_trajectory",
                                              "mean",
                                              "num_depth_frames",
                                              "depth_note",
