@@ -358,26 +358,43 @@ double TranslationalParallax(const PinholeCamera& camera, const SE3& T_b_a, cons
 }
 
 struct SparseStructure {
+  // Gauge of the bundle adjustment: camera `reference` fixed (the world), the
+  // centre of `baseline_frame` 1 unit from it (the two-view pair).
+  int reference = 0;
+  int baseline_frame = 1;
   std::vector<SE3> T_cam_world;
   std::vector<Eigen::Vector3d> points_world;
   std::vector<char> point_inlier;
   std::vector<std::string> log;
 };
 
+// Triangulates the tracks without a point that `frame` (just posed) sees:
+// from all their posed frames, when the posed frame farthest from `frame` in
+// the track leaves at least min_triangulation_parallax_px of displacement
+// that the rotation does not explain, and the point reprojects into every
+// posed frame of the track.
 void TriangulateNewPoints(const PinholeCamera& camera, const InitializerOptions& options, int frame,
                           const std::vector<char>& has_pose, std::vector<Track>* tracks,
                           SparseStructure* structure) {
   for (Track& track : *tracks) {
-    if (track.point_id >= 0 || !track.Sees(frame) || track.first_frame >= frame) continue;
-    const SE3 T_b_a = structure->T_cam_world[frame] * structure->T_cam_world[track.first_frame].Inverse();
-    if (TranslationalParallax(camera, T_b_a, track.At(track.first_frame), track.At(frame)) <
+    if (track.point_id >= 0 || !track.Sees(frame)) continue;
+    int farthest = -1;
+    for (int f = track.first_frame; f <= track.LastFrame(); ++f) {
+      if (f != frame && has_pose[f] && (farthest < 0 || std::abs(f - frame) > std::abs(farthest - frame))) {
+        farthest = f;
+      }
+    }
+    if (farthest < 0) continue;
+    const SE3 T_b_a = structure->T_cam_world[frame] * structure->T_cam_world[farthest].Inverse();
+    if (TranslationalParallax(camera, T_b_a, track.At(farthest), track.At(frame)) <
         options.min_triangulation_parallax_px) {
       continue;
     }
     Eigen::Vector3d point;
-    if (!TriangulateTrack(camera, structure->T_cam_world, has_pose, track, frame, &point)) continue;
+    if (!TriangulateTrack(camera, structure->T_cam_world, has_pose, track, track.LastFrame(), &point))
+      continue;
     bool good = true;
-    for (int f = track.first_frame; f <= std::min(frame, track.LastFrame()) && good; ++f) {
+    for (int f = track.first_frame; f <= track.LastFrame() && good; ++f) {
       if (!has_pose[f]) continue;
       good = ReprojectionError(camera, structure->T_cam_world[f], point, track.At(f)) <=
              options.ransac_threshold_px * 2.0;
@@ -548,7 +565,8 @@ struct RotationPrior {
   double scale;
 };
 
-// Same prior for frame 1 against the fixed identity rotation of frame 0.
+// Same prior for frame b of the two-view pair against the fixed identity
+// rotation of frame a.
 struct AbsoluteRotationPrior {
   explicit AbsoluteRotationPrior(double scale_in) : scale(scale_in) {}
   template <typename T>
@@ -576,12 +594,12 @@ struct TwoViewSolution {
   double cost = std::numeric_limits<double>::infinity();
 };
 
-// Refines frames 0-1 from a starting pose: pose 1 (|t| = 1) and one inverse
-// depth per match, Cauchy reprojection loss (tracks on occlusion edges are
+// Refines the two-view pair from a starting pose: pose b (|t| = 1) and one
+// inverse depth per match, Cauchy reprojection loss (tracks on occlusion edges are
 // gross outliers that a Huber loss lets pull the pose into the pan +
 // forward-motion basin) plus the rotation prior.
 TwoViewSolution RefineTwoView(const PinholeCamera& camera, const InitializerOptions& options, int threads,
-                              const std::vector<Eigen::Vector3d>& rays0,
+                              double prior_px, const std::vector<Eigen::Vector3d>& rays0,
                               const std::vector<cv::Point2f>& points1, const Eigen::Matrix3d& R_start,
                               const Eigen::Vector3d& t_start) {
   TwoViewSolution solution;
@@ -609,7 +627,7 @@ TwoViewSolution RefineTwoView(const PinholeCamera& camera, const InitializerOpti
                              solution.translation.data(), &solution.inverse_depth[k]);
   }
   problem.AddResidualBlock(new ceres::AutoDiffCostFunction<AbsoluteRotationPrior, 3, 3>(
-                               new AbsoluteRotationPrior(camera.fx / options.rotation_prior_px)),
+                               new AbsoluteRotationPrior(camera.fx / prior_px)),
                            nullptr, solution.rotation.data());
   problem.SetManifold(solution.translation.data(), new ceres::SphereManifold<3>());
   solution.cost = SolveQuietly(options, threads, &problem).final_cost;
@@ -678,28 +696,32 @@ Eigen::Vector3d PureTranslationEpipole(const PinholeCamera& camera, const std::v
   return in_front < 0 ? Eigen::Vector3d(-t) : t;
 }
 
-// The tracks that start in frame 0 and reach frame 1: their points in both
-// frames and their indices.
+// The tracks that see both frames a < b of the two-view pair: their points
+// in both frames (0 = frame a, 1 = frame b) and their indices.
 struct TwoViewMatches {
+  int a = 0, b = 1;
   std::vector<cv::Point2f> points0, points1;
   std::vector<int> track_index;
   int Count() const { return static_cast<int>(points0.size()); }
+  std::string Name() const { return "frames " + std::to_string(a) + "-" + std::to_string(b); }
 };
 
-TwoViewMatches CollectTwoViewMatches(const std::vector<Track>& tracks) {
+TwoViewMatches CollectTwoViewMatches(const std::vector<Track>& tracks, int a, int b) {
   TwoViewMatches matches;
+  matches.a = a;
+  matches.b = b;
   for (size_t i = 0; i < tracks.size(); ++i) {
     const Track& track = tracks[i];
-    if (track.first_frame == 0 && track.Sees(1)) {
-      matches.points0.push_back(track.At(0));
-      matches.points1.push_back(track.At(1));
+    if (track.Sees(a) && track.Sees(b)) {
+      matches.points0.push_back(track.At(a));
+      matches.points1.push_back(track.At(b));
       matches.track_index.push_back(static_cast<int>(i));
     }
   }
   return matches;
 }
 
-// The essential-matrix start of frames 0-1: E by RANSAC, then recoverPose.
+// The essential-matrix start of the pair: E by RANSAC, then recoverPose.
 // Throws InitializationError when E is degenerate or has too few inliers.
 struct EssentialStart {
   Eigen::Matrix3d R = Eigen::Matrix3d::Identity();  // R_cam1_cam0
@@ -716,16 +738,16 @@ EssentialStart EssentialMatrixStart(const PinholeCamera& camera, const Initializ
                                    options.ransac_threshold_px, inlier_mask);
   if (E.rows > 3 && E.cols == 3) E = E.rowRange(0, 3).clone();  // ambiguous minimal sets
   if (E.rows != 3 || E.cols != 3) {
-    throw InitializationError("initialisation: frames 0-1 give no essential matrix (" +
+    throw InitializationError("initialisation: " + matches.Name() + " give no essential matrix (" +
                               std::to_string(matches.Count()) + " matches; degenerate geometry)");
   }
   EssentialStart start;
   start.ransac_inliers = cv::countNonZero(inlier_mask);
   if (start.ransac_inliers < options.min_inliers) {
-    throw InitializationError("initialisation: frames 0-1: only " + std::to_string(start.ransac_inliers) +
-                              " of " + std::to_string(matches.Count()) +
-                              " matches consistent with one relative pose (need " +
-                              std::to_string(options.min_inliers) + ")");
+    throw InitializationError(
+        "initialisation: " + matches.Name() + ": only " + std::to_string(start.ransac_inliers) + " of " +
+        std::to_string(matches.Count()) + " matches consistent with one relative pose (need " +
+        std::to_string(options.min_inliers) + ")");
   }
   // The default far-point cut (50 baselines) would drop most points: the
   // baseline of two consecutive frames is ~1 % of the scene depth.
@@ -740,9 +762,9 @@ EssentialStart EssentialMatrixStart(const PinholeCamera& camera, const Initializ
   return start;
 }
 
-// Median parallax of the 0-1 matches that the rotation of T_cam1_cam0 leaves.
-// A static camera or a pure rotation leaves none: the scale (|c1 - c0| = 1)
-// and the depths would be undefined, so too little throws.
+// Median parallax of the pair's matches that the rotation of T_cam1_cam0
+// leaves. A static camera or a pure rotation leaves none: the scale and the
+// depths would be undefined, so too little throws.
 double CheckTwoViewParallax(const PinholeCamera& camera, const InitializerOptions& options,
                             const TwoViewMatches& matches, const SE3& T_cam1_cam0) {
   std::vector<double> parallaxes;
@@ -751,16 +773,16 @@ double CheckTwoViewParallax(const PinholeCamera& camera, const InitializerOption
   }
   const double parallax = Median(parallaxes);
   if (parallax < options.min_parallax_px) {
-    throw InitializationError(
-        Format("initialisation: frames 0-1 have too little parallax (median %.2f px not explained by "
-               "rotation, need %.2f px); the camera must translate between them",
-               parallax, options.min_parallax_px));
+    throw InitializationError("initialisation: " + matches.Name() +
+                              Format(" have too little parallax (median %.2f px not explained by "
+                                     "rotation, need %.2f px); the camera must translate between them",
+                                     parallax, options.min_parallax_px));
   }
   return parallax;
 }
 
-// The points of the chosen two-view solution that lie in front of camera 0
-// and reproject into frame 1: added to the structure, linked to their tracks.
+// The points of the chosen two-view solution that lie in front of camera a
+// and reproject into frame b: added to the structure, linked to their tracks.
 // Returns how many.
 int AddTwoViewPoints(const PinholeCamera& camera, const InitializerOptions& options,
                      const TwoViewMatches& matches, const std::vector<Eigen::Vector3d>& rays0,
@@ -772,7 +794,7 @@ int AddTwoViewPoints(const PinholeCamera& camera, const InitializerOptions& opti
     if (!(rho > 1e-9)) continue;
     const Eigen::Vector3d point = rays0[k] / rho;
     Track& track = (*tracks)[matches.track_index[k]];
-    if (ReprojectionError(camera, structure->T_cam_world[1], point, track.At(1)) >
+    if (ReprojectionError(camera, structure->T_cam_world[matches.b], point, track.At(matches.b)) >
         2.0 * options.ransac_threshold_px) {
       continue;
     }
@@ -784,76 +806,76 @@ int AddTwoViewPoints(const PinholeCamera& camera, const InitializerOptions& opti
   return triangulated;
 }
 
-// Frames 0-1: the paper's SfM step. Essential matrix (RANSAC) + recoverPose
-// give one start; because a narrow field of view leaves the rotation /
-// translation split nearly unobservable (see RotationPrior), a second start
-// assumes no rotation and takes the epipole from the linear pure-translation
-// constraint (x0 x x1) . t = 0. Both are refined (RefineTwoView) and the lower
-// final cost wins. Throws InitializationError with the reason when the pair
-// does not allow it.
+// A candidate pair for the two-view start: frames a < b, the tracks they
+// share and the median displacement no rotation explains (RotationFreeParallax).
+struct InitialPair {
+  int a = 0, b = 1;
+  int matches = 0;
+  double rotation_free_parallax = 0.0;
+};
+
+// The pair's two-view geometry: the paper's SfM step. Essential matrix
+// (RANSAC) + recoverPose give one start; because a narrow field of view leaves
+// the rotation / translation split nearly unobservable (see RotationPrior), a
+// second start assumes no rotation and takes the epipole from the linear
+// pure-translation constraint (x0 x x1) . t = 0. Both are refined
+// (RefineTwoView, the rotation prior scaled by the frame gap) and the lower
+// final cost wins. Sets T_cam_world of a (identity: world = camera a) and b
+// (|c_b - c_a| = 1) and the points. Throws InitializationError with the reason
+// when the pair does not allow it.
 void TwoViewInitialisation(const PinholeCamera& camera, const InitializerOptions& options, int threads,
-                           std::vector<Track>* tracks, SparseStructure* structure) {
-  const TwoViewMatches matches = CollectTwoViewMatches(*tracks);
+                           const InitialPair& pair, std::vector<Track>* tracks, SparseStructure* structure) {
+  const TwoViewMatches matches = CollectTwoViewMatches(*tracks, pair.a, pair.b);
   const std::vector<cv::Point2f>& points0 = matches.points0;
   const std::vector<cv::Point2f>& points1 = matches.points1;
   const int count = matches.Count();
-  if (count < options.min_inliers) {
-    throw InitializationError("initialisation: frames 0-1: only " + std::to_string(count) +
-                              " features tracked from frame 0 to frame 1 (need " +
-                              std::to_string(options.min_inliers) + ")");
-  }
-  // With a narrow field of view even a pure translation is nearly explained by
-  // a rotation (see RotationPrior), so what no rotation explains is small; but
-  // a pure rotation (or a static camera) leaves only tracking noise, and then
-  // nothing carries depth or scale.
-  const double rotation_free_parallax = RotationFreeParallax(camera, points0, points1);
-  if (rotation_free_parallax < options.min_rotation_free_parallax_px) {
-    throw NoParallaxError(
-        Format("initialisation: frames 0-1 have no parallax: a rotation explains their motion to %.3f px "
-               "(need %.2f px); the camera must translate, not only rotate",
-               rotation_free_parallax, options.min_rotation_free_parallax_px));
-  }
   const EssentialStart essential = EssentialMatrixStart(camera, options, matches);
 
   // Both starts are refined on all matches (Cauchy loss), so that their final
-  // costs compare; points that stay off are not triangulated below.
+  // costs compare; points that stay off are not triangulated below. The prior
+  // is per frame step: a pair k frames apart may turn k times as much.
+  const double prior_px = options.rotation_prior_px * (pair.b - pair.a);
   std::vector<Eigen::Vector3d> rays0(count);
   for (int k = 0; k < count; ++k) rays0[k] = camera.Ray(points0[k].x, points0[k].y);
   const Eigen::Vector3d t_translation =
       PureTranslationEpipole(camera, points0, points1, options.ransac_threshold_px);
   const TwoViewSolution from_essential =
-      RefineTwoView(camera, options, threads, rays0, points1, essential.R, essential.t);
-  const TwoViewSolution from_translation =
-      RefineTwoView(camera, options, threads, rays0, points1, Eigen::Matrix3d::Identity(), t_translation);
+      RefineTwoView(camera, options, threads, prior_px, rays0, points1, essential.R, essential.t);
+  const TwoViewSolution from_translation = RefineTwoView(camera, options, threads, prior_px, rays0, points1,
+                                                         Eigen::Matrix3d::Identity(), t_translation);
   const bool essential_wins = from_essential.cost <= from_translation.cost;
   const TwoViewSolution& best = essential_wins ? from_essential : from_translation;
 
-  // T_cam1_cam0 with |t| = 1: world = camera 0, centres 1 apart.
-  structure->T_cam_world[0] = SE3();
-  structure->T_cam_world[1] = SE3(RotationFromAngleAxis(best.rotation), best.translation.normalized());
-  const double parallax = CheckTwoViewParallax(camera, options, matches, structure->T_cam_world[1]);
+  // T_camb_cama with |t| = 1: world = camera a, centres 1 apart.
+  structure->reference = pair.a;
+  structure->baseline_frame = pair.b;
+  structure->T_cam_world[pair.a] = SE3();
+  structure->T_cam_world[pair.b] = SE3(RotationFromAngleAxis(best.rotation), best.translation.normalized());
+  const double parallax = CheckTwoViewParallax(camera, options, matches, structure->T_cam_world[pair.b]);
   const int triangulated = AddTwoViewPoints(camera, options, matches, rays0, best, tracks, structure);
   if (triangulated < options.min_inliers) {
-    throw InitializationError("initialisation: only " + std::to_string(triangulated) +
-                              " points of frames 0-1 triangulate in front of both cameras "
+    throw InitializationError("initialisation: only " + std::to_string(triangulated) + " points of " +
+                              matches.Name() +
+                              " triangulate in front of both cameras "
                               "(degenerate geometry)");
   }
-  structure->log.push_back(
-      Format("two-view 0-1: %.0f matches, %.0f RANSAC inliers, %.0f pass cheirality, parallax %.2f px "
-             "(%.2f px not explained by any rotation), %.0f points",
-             count, essential.ransac_inliers, essential.pose_inliers, parallax, rotation_free_parallax,
-             triangulated));
-  structure->log.push_back(
-      Format("two-view 0-1: refined cost from E %.4g (rotation %.3f deg), from pure translation %.4g "
-             "(rotation %.3f deg)",
-             from_essential.cost, from_essential.rotation.norm() * 180.0 / M_PI, from_translation.cost,
-             from_translation.rotation.norm() * 180.0 / M_PI));
+  const std::string name = Format("two-view %.0f-%.0f: ", pair.a, pair.b);
+  structure->log.push_back(name +
+                           Format("%.0f matches, %.0f RANSAC inliers, %.0f pass cheirality, parallax %.2f px "
+                                  "(%.2f px not explained by any rotation), %.0f points",
+                                  count, essential.ransac_inliers, essential.pose_inliers, parallax,
+                                  pair.rotation_free_parallax, triangulated));
+  structure->log.push_back(name +
+                           Format("refined cost from E %.4g (rotation %.3f deg), from pure translation "
+                                  "%.4g (rotation %.3f deg)",
+                                  from_essential.cost, from_essential.rotation.norm() * 180.0 / M_PI,
+                                  from_translation.cost, from_translation.rotation.norm() * 180.0 / M_PI));
 }
 
 // Camera pose of `frame` from its 2D-3D correspondences (PnP, RANSAC), started
-// from a constant-velocity prediction.
+// from `predicted` (T_cam_world).
 void LocaliseFrame(const PinholeCamera& camera, const InitializerOptions& options, int frame,
-                   const std::vector<Track>& tracks, SparseStructure* structure) {
+                   const SE3& predicted, const std::vector<Track>& tracks, SparseStructure* structure) {
   std::vector<cv::Point3f> object;
   std::vector<cv::Point2f> image;
   for (const Track& track : tracks) {
@@ -869,9 +891,6 @@ void LocaliseFrame(const PinholeCamera& camera, const InitializerOptions& option
                               std::to_string(object.size()) + " triangulated points (need " +
                               std::to_string(options.min_pnp_inliers) + ")");
   }
-  const SE3& T_prev = structure->T_cam_world[frame - 1];
-  const SE3& T_prev2 = structure->T_cam_world[frame - 2];
-  const SE3 predicted = (T_prev * T_prev2.Inverse()) * T_prev;
   cv::Mat rvec, tvec;
   ToOpenCv(predicted, &rvec, &tvec);
   std::vector<int> inliers;
@@ -945,8 +964,9 @@ double InlierRms(const PinholeCamera& camera, const std::vector<Track>& tracks,
 }
 
 // All poses and points by reprojection error (Cauchy loss) plus the
-// frame-to-frame RotationPrior, camera 0 fixed and |t_1| = |c_1 - c_0| = 1 on
-// a sphere: the gauge of docs/file_formats.md#monocular-scale. Two rounds, dropping observations
+// frame-to-frame RotationPrior, in the two-view pair's gauge: camera a fixed
+// (T_cam_world = identity) and |t_b| = |c_b - c_a| = 1 on a sphere (the
+// output gauge is set later, see NormaliseGauge). Two rounds, dropping observations
 // beyond the outlier threshold in between. Returns the RMS reprojection error
 // (px) of the observations within the threshold.
 double BundleAdjust(const PinholeCamera& camera, const InitializerOptions& options, int threads,
@@ -970,12 +990,13 @@ double BundleAdjust(const PinholeCamera& camera, const InitializerOptions& optio
                                    new RotationPrior(camera.fx, options.rotation_prior_px)),
                                nullptr, poses[t - 1].rotation, poses[t].rotation);
     }
-    if (problem.HasParameterBlock(poses[0].rotation)) {
-      problem.SetParameterBlockConstant(poses[0].rotation);
-      problem.SetParameterBlockConstant(poses[0].translation);
+    PoseParameters& reference = poses[structure->reference];
+    if (problem.HasParameterBlock(reference.rotation)) {
+      problem.SetParameterBlockConstant(reference.rotation);
+      problem.SetParameterBlockConstant(reference.translation);
     }
-    if (num_frames > 1 && problem.HasParameterBlock(poses[1].translation)) {
-      problem.SetManifold(poses[1].translation, new ceres::SphereManifold<3>());
+    if (problem.HasParameterBlock(poses[structure->baseline_frame].translation)) {
+      problem.SetManifold(poses[structure->baseline_frame].translation, new ceres::SphereManifold<3>());
     }
     SolveQuietly(options, threads, &problem);
     rms = InlierRms(camera, tracks, *structure, poses, points, outlier_px);
@@ -1566,21 +1587,129 @@ TrackingResult TrackStage(const std::vector<cv::Mat>& gray, const InitializerOpt
   return tracking;
 }
 
-// Stages 2-3: frames 0-1, then every later frame by PnP, then all together.
-// The poses are those of mid-exposure (T_cam_world), camera 0 the world.
+// The pairs to start from, in the order they are tried: those sharing at
+// least min_inliers tracks whose rotation-free parallax reaches
+// min_rotation_free_parallax_px, nearest frames first (smaller gap, then
+// earlier). Like the first-pair-with-parallax rule of SLAM initialisers and
+// unlike "the largest parallax": the nearest pair shares the most tracks, has
+// the most similar blur (Lucas-Kanade's brightness constancy) and the least
+// rotation for the prior to absorb, and PnP, triangulation and the bundle
+// adjustment widen the baseline over the window anyway. Where frames 0-1
+// qualify this is the paper's pair. *best receives the pair of largest
+// rotation-free parallax among those with enough tracks (matches = 0 when none
+// has), *most_matches the most tracks any pair shares.
+std::vector<InitialPair> RankInitialPairs(const PinholeCamera& camera, const InitializerOptions& options,
+                                          const std::vector<Track>& tracks, int num_frames, InitialPair* best,
+                                          int* most_matches) {
+  std::vector<InitialPair> candidates;
+  *best = InitialPair();
+  *most_matches = 0;
+  for (int gap = 1; gap < num_frames; ++gap) {
+    for (int a = 0; a + gap < num_frames; ++a) {
+      const TwoViewMatches matches = CollectTwoViewMatches(tracks, a, a + gap);
+      *most_matches = std::max(*most_matches, matches.Count());
+      if (matches.Count() < options.min_inliers) continue;
+      InitialPair pair;
+      pair.a = a;
+      pair.b = a + gap;
+      pair.matches = matches.Count();
+      // With a narrow field of view even a pure translation is nearly
+      // explained by a rotation (see RotationPrior), so what no rotation
+      // explains is small; but a pure rotation (or a static camera) leaves
+      // only tracking noise, and then nothing carries depth or scale.
+      pair.rotation_free_parallax = RotationFreeParallax(camera, matches.points0, matches.points1);
+      if (best->matches == 0 || pair.rotation_free_parallax > best->rotation_free_parallax) *best = pair;
+      if (pair.rotation_free_parallax >= options.min_rotation_free_parallax_px) candidates.push_back(pair);
+    }
+  }
+  return candidates;
+}
+
+// The two-view start from the first candidate of RankInitialPairs whose
+// geometry works. Throws NoParallaxError when no pair qualifies but some
+// share enough tracks, InitializationError otherwise (the first candidate's
+// reason when all fail).
+InitialPair InitialiseFromBestPair(const PinholeCamera& camera, const InitializerOptions& options,
+                                   int threads, int num_frames, std::vector<Track>* tracks,
+                                   SparseStructure* structure) {
+  InitialPair best;
+  int most_matches = 0;
+  const std::vector<InitialPair> candidates =
+      RankInitialPairs(camera, options, *tracks, num_frames, &best, &most_matches);
+  if (candidates.empty() && best.matches == 0) {
+    const int count = CollectTwoViewMatches(*tracks, 0, 1).Count();
+    throw InitializationError(
+        Format("initialisation: frames 0-1: only %.0f features tracked from frame 0 to "
+               "frame 1 (need %.0f); no pair of the %.0f frames shares more than %.0f",
+               count, options.min_inliers, num_frames, most_matches));
+  }
+  if (candidates.empty()) {
+    throw NoParallaxError(Format(
+        "initialisation: no pair of the %.0f frames has parallax: the best, frames "
+        "%.0f-%.0f, leaves %.3f px that no rotation explains (need %.2f px); the "
+        "camera must translate, not only rotate",
+        num_frames, best.a, best.b, best.rotation_free_parallax, options.min_rotation_free_parallax_px));
+  }
+  std::string first_error;
+  for (const InitialPair& pair : candidates) {
+    for (Track& track : *tracks) track.point_id = -1;
+    structure->points_world.clear();
+    structure->point_inlier.clear();
+    try {
+      TwoViewInitialisation(camera, options, threads, pair, tracks, structure);
+      return pair;
+    } catch (const InitializationError& error) {
+      if (first_error.empty()) first_error = error.what();
+      structure->log.push_back(Format("two-view %.0f-%.0f failed: ", pair.a, pair.b) + error.what());
+    }
+  }
+  throw InitializationError(first_error);
+}
+
+// Start pose (T_cam_world) of frame t for PnP: between the pair, the geodesic
+// between its cameras; else constant velocity from the two posed neighbours
+// on one side (t-1, t-2, else t+1, t+2); else the nearest posed frame.
+SE3 PredictPose(const SparseStructure& structure, const std::vector<char>& has_pose, int t) {
+  const std::vector<SE3>& T = structure.T_cam_world;
+  const int a = structure.reference, b = structure.baseline_frame;
+  const int n = static_cast<int>(T.size());
+  if (t > a && t < b) {
+    const double alpha = static_cast<double>(t - a) / (b - a);
+    return InterpolatePose(T[a].Inverse(), T[b].Inverse(), alpha).Inverse();
+  }
+  if (t >= 2 && has_pose[t - 1] && has_pose[t - 2]) return (T[t - 1] * T[t - 2].Inverse()) * T[t - 1];
+  if (t + 2 < n && has_pose[t + 1] && has_pose[t + 2]) return (T[t + 1] * T[t + 2].Inverse()) * T[t + 1];
+  for (int d = 1; d < n; ++d) {
+    if (t - d >= 0 && has_pose[t - d]) return T[t - d];
+    if (t + d < n && has_pose[t + d]) return T[t + d];
+  }
+  return SE3();
+}
+
+// Stages 2-3: the two-view pair, then every other frame by PnP (those
+// between the pair, then forward, then backward), triangulating new points
+// as frames are added, then all together. The poses are those of
+// mid-exposure (T_cam_world) in the pair's gauge.
 SparseStructure SparseStage(const PinholeCamera& camera_lr, const InitializerOptions& options, int threads,
                             int num_frames, std::vector<Track>* tracks, std::ostringstream* summary) {
   double stage_ms = NowMs();
   SparseStructure structure;
   structure.T_cam_world.assign(num_frames, SE3());
-  TwoViewInitialisation(camera_lr, options, threads, tracks, &structure);
+  const InitialPair pair =
+      InitialiseFromBestPair(camera_lr, options, threads, num_frames, tracks, &structure);
   std::vector<char> has_pose(num_frames, 0);
-  has_pose[0] = has_pose[1] = 1;
-  for (int t = 2; t < num_frames; ++t) {
-    LocaliseFrame(camera_lr, options, t, *tracks, &structure);
+  has_pose[pair.a] = has_pose[pair.b] = 1;
+  std::vector<int> order;
+  for (int t = pair.a + 1; t < pair.b; ++t) order.push_back(t);
+  for (int t = pair.b + 1; t < num_frames; ++t) order.push_back(t);
+  for (int t = pair.a - 1; t >= 0; --t) order.push_back(t);
+  for (int t : order) {
+    LocaliseFrame(camera_lr, options, t, PredictPose(structure, has_pose, t), *tracks, &structure);
     has_pose[t] = 1;
     TriangulateNewPoints(camera_lr, options, t, has_pose, tracks, &structure);
   }
+  *summary << Format("pair: frames %.0f-%.0f (%.0f shared tracks, %.3f px of rotation-free parallax)\n",
+                     pair.a, pair.b, pair.matches, pair.rotation_free_parallax);
   for (const std::string& line : structure.log) *summary << line << "\n";
   *summary << Format("two-view + pnp: %.1f ms\n", NowMs() - stage_ms);
   stage_ms = NowMs();
@@ -1613,11 +1742,10 @@ std::vector<SE3> MidExposureToShutterClose(const std::vector<FrameRecord>& frame
 // The tracks follow the blurred patterns, i.e. the blur centroids: the
 // sparse poses are those of mid-exposure, t_c - exposure / 2 (exact for
 // motion that is linear in the image over an exposure). The output poses
-// are at the shutter close t_c (docs/file_formats.md#exposure): each is moved along
-// the geodesic through the neighbouring mid-exposure poses
-// (eq:interpolatingP, extrapolated by half an exposure; frame 0 uses frames
-// 0-1). World = camera 0 at t_c, |c1 - c0| = 1 (exact, re-applied here); the
-// points follow.
+// are at the shutter close t_c (docs/file_formats.md#exposure), by
+// MidExposureToShutterClose (eq:interpolatingP). World = camera 0 at t_c
+// (re-anchored here; the points follow); the scale stays the pair's
+// (|c_b - c_a| = 1 at mid-exposure) until NormaliseGauge.
 void MoveToShutterClose(const std::vector<FrameRecord>& frames, SparseStructure* structure,
                         std::vector<SE3>* T_world_cam, std::vector<SE3>* T_world_mid,
                         std::ostringstream* summary) {
@@ -1626,26 +1754,40 @@ void MoveToShutterClose(const std::vector<FrameRecord>& frames, SparseStructure*
   for (int t = 0; t < num_frames; ++t) (*T_world_mid)[t] = structure->T_cam_world[t].Inverse();
   *T_world_cam = MidExposureToShutterClose(frames, *T_world_mid);
   const SE3 T_new_old = (*T_world_cam)[0].Inverse();
-  const double baseline = ((*T_world_cam)[1].translation() - (*T_world_cam)[0].translation()).norm();
-  if (!(baseline > 1e-9)) {
-    throw InitializationError(
-        "initialisation: frames 0-1 collapsed onto one centre "
-        "(degenerate geometry)");
-  }
-  auto normalise = [&](const SE3& T_old_cam) {
-    const SE3 T = T_new_old * T_old_cam;
-    return SE3(T.rotation(), T.translation() / baseline);
-  };
   for (int t = 0; t < num_frames; ++t) {
-    (*T_world_cam)[t] = normalise((*T_world_cam)[t]);
-    (*T_world_mid)[t] = normalise((*T_world_mid)[t]);
+    (*T_world_cam)[t] = T_new_old * (*T_world_cam)[t];
+    (*T_world_mid)[t] = T_new_old * (*T_world_mid)[t];
   }
-  for (auto& point : structure->points_world) point = (T_new_old * point) / baseline;
+  for (auto& point : structure->points_world) point = T_new_old * point;
   *summary << Format(
-      "poses moved from mid-exposure to shutter close: %.3f (frame 0), %.3f (last) "
+      "poses moved from mid-exposure to shutter close: %.3f (frame 0), %.3f (last) pair "
       "baselines\n",
       ((*T_world_mid)[0].translation() - (*T_world_cam)[0].translation()).norm(),
       ((*T_world_mid)[num_frames - 1].translation() - (*T_world_cam)[num_frames - 1].translation()).norm());
+}
+
+// The output gauge (docs/file_formats.md#monocular-scale): the monocular
+// scale such that the median of all valid LR depths of the window (every
+// frame's depth_lr pixels > 0) is exactly 1; depths and camera centres are
+// divided by that median (world = camera 0 at t_c stays). Throws
+// InitializationError when no depth is valid.
+void NormaliseGauge(InitialStructure* result, std::ostringstream* summary) {
+  std::vector<float> values;
+  for (const cv::Mat& depth : result->depth_lr) {
+    for (int y = 0; y < depth.rows; ++y) {
+      const float* row = depth.ptr<float>(y);
+      for (int x = 0; x < depth.cols; ++x) {
+        if (row[x] > 0.0f && std::isfinite(row[x])) values.push_back(row[x]);
+      }
+    }
+  }
+  if (values.empty()) throw InitializationError("initialisation: no valid depth (degenerate geometry)");
+  const size_t middle = values.size() / 2;
+  std::nth_element(values.begin(), values.begin() + middle, values.end());
+  const double median = values[middle];
+  for (cv::Mat& depth : result->depth_lr) depth *= 1.0 / median;
+  for (SE3& T : result->T_world_cam) T = SE3(T.rotation(), T.translation() / median);
+  *summary << Format("gauge: world = camera 0 at t_c, median depth 1 (%.4g pair baselines)\n", median);
 }
 
 // Inverse-depth range of each frame's sweep and its median depth (the start
@@ -1958,6 +2100,7 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
   const DepthRanges ranges = ComputeDepthRanges(tracking.tracks, structure, result.T_world_cam, options);
   result.depth_lr = DepthStage(images, camera_lr, frames, result.T_world_cam, T_world_mid, ranges, options,
                                threads, &summary);
+  NormaliseGauge(&result, &summary);
   summary << Format("total: %.1f ms", NowMs() - start_ms);
   result.summary = summary.str();
   return result;

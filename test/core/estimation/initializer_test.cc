@@ -86,6 +86,19 @@ double MeanDepthError(const std::vector<cv::Mat>& depth_lr, const Sequence& sequ
   return sum / depth_lr.size();
 }
 
+// Median of the valid (> 0) values of all the depth maps.
+double MedianDepth(const std::vector<cv::Mat>& depth_lr) {
+  std::vector<float> values;
+  for (const cv::Mat& depth : depth_lr) {
+    for (auto it = depth.begin<float>(); it != depth.end<float>(); ++it) {
+      if (*it > 0.0f) values.push_back(*it);
+    }
+  }
+  if (values.empty()) return 0.0;
+  std::nth_element(values.begin(), values.begin() + values.size() / 2, values.end());
+  return values[values.size() / 2];
+}
+
 void ExpectOneLine(const std::string& message) {
   EXPECT_FALSE(message.empty());
   EXPECT_EQ(message.find('\n'), std::string::npos) << message;
@@ -103,15 +116,15 @@ void ExpectThrowsWith(const std::function<void()>& call, const std::string& part
   }
 }
 
-TEST(InitializerTest, RecoversTrajectoryWithUnitFirstBaseline) {
+TEST(InitializerTest, RecoversTrajectoryWithUnitMedianDepth) {
   const Sequence& sequence = DollsSequence();
   ASSERT_EQ(sequence.images.size(), 5u);
   const InitialStructure& result = DollsResult();
   ASSERT_EQ(result.T_world_cam.size(), 5u);
 
-  // Gauge: world = camera 0, cameras 0 and 1 one unit apart.
+  // Gauge: world = camera 0 at t_c, median of all valid LR depths 1.
   EXPECT_LT(result.T_world_cam[0].Log().norm(), 1e-9);
-  EXPECT_NEAR((result.T_world_cam[1].translation() - result.T_world_cam[0].translation()).norm(), 1.0, 1e-9);
+  EXPECT_NEAR(MedianDepth(result.depth_lr), 1.0, 1e-6);
 
   // Positions after Sim(3) alignment. Measured: 0.46 % of the path on this
   // sequence, 0.3-0.6 % on the four 10-frame scenes.
@@ -135,7 +148,8 @@ TEST(InitializerTest, RecoversTrajectoryWithUnitFirstBaseline) {
     EXPECT_LT(angle * 180.0 / M_PI, 0.3) << "frame " << t;
   }
 
-  for (const char* stage : {"tracking", "two-view", "bundle adjustment", "depth", "total"}) {
+  for (const char* stage :
+       {"tracking", "pair: frames 0-1", "two-view", "bundle adjustment", "depth", "gauge", "total"}) {
     EXPECT_NE(result.summary.find(stage), std::string::npos) << result.summary;
   }
 }
@@ -182,9 +196,9 @@ TEST(InitializerTest, GrayFramesAndTwoFramesWork) {
   const InitialStructure result =
       InitializeStructure(gray, sequence.calibration.camera, frames, InitializerOptions());
   ASSERT_EQ(result.T_world_cam.size(), 2u);
-  EXPECT_NEAR((result.T_world_cam[1].translation() - result.T_world_cam[0].translation()).norm(), 1.0, 1e-9);
+  EXPECT_NEAR(MedianDepth(result.depth_lr), 1.0, 1e-6);
   // The ground truth moves along +x of camera 0.
-  const Eigen::Vector3d direction = result.T_world_cam[1].translation();
+  const Eigen::Vector3d direction = result.T_world_cam[1].translation().normalized();
   EXPECT_GT(direction.x(), 0.99);
   // Measured 0.013 (two frames, one neighbour each).
   EXPECT_LT(MeanDepthError(result.depth_lr, sequence), 0.035);
@@ -216,10 +230,19 @@ TEST(InitializerTest, UnrelatedFramesGiveInitializationError) {
   const std::vector<FrameRecord> frames(sequence.frames.begin(), sequence.frames.begin() + 3);
   // Lucas-Kanade follows some blurred-noise corners consistently forward and
   // backward (OpenCV's tracker ~100 of 600, the earlier hand-written one ~50),
-  // so the pair fails on too few tracks or, with enough, on too few points
-  // that triangulate: either way frames 0-1 are named.
-  ExpectThrowsWith<InitializationError>(
-      [&] { InitializeStructure(noise, camera, frames, InitializerOptions()); }, "frames 0-1");
+  // so a pair fails on too few tracks or points that triangulate, or a pair
+  // passes and another frame then fails PnP ("frame 0 sees only 4
+  // triangulated points" here): a one-line InitializationError either way,
+  // and not a NoParallaxError (the noise tracks have parallax).
+  try {
+    InitializeStructure(noise, camera, frames, InitializerOptions());
+    ADD_FAILURE() << "unrelated frames cannot be initialised";
+  } catch (const NoParallaxError& error) {
+    ADD_FAILURE() << "unrelated frames are not a pure rotation: " << error.what();
+  } catch (const InitializationError& error) {
+    ExpectOneLine(error.what());
+    EXPECT_NE(std::string(error.what()).find("initialisation: "), std::string::npos) << error.what();
+  }
 }
 
 // The frames carry no depth (the camera did not translate): initialisation
@@ -329,6 +352,107 @@ TEST(RotationOnlyMotionTest, UntexturedFramesGiveInitializationError) {
   const std::vector<FrameRecord> frames(sequence.frames.begin(), sequence.frames.begin() + 3);
   ExpectThrowsWith<InitializationError>(
       [&] { EstimateRotationOnlyMotion(blank, camera, frames, InitializerOptions()); }, "features");
+}
+
+// A Dolls clip that starts slowly, like a hand-held one: the camera turns
+// all along (0.1 rad/s about a mostly vertical axis, ~2 LR px per frame),
+// frames 0-2 share one centre, and from frame 2's shutter close on the centre
+// follows the calibrated lateral path (default 14 HR px of blur). Made with
+// the synthesizer's API: the lateral sequence fixes the path's speed and the
+// cameras; each frame is the mean of 60 sub-frame renders over its exposure,
+// box-downsampled by 2 to 8 bits, as the synthesizer makes its frames.
+const Sequence& StillThenTranslatingSequence() {
+  static const Sequence sequence = [] {
+    const StereoScene scene = LoadMiddleburyScene(std::string(DSM_SOURCE_DIR) + "/data/middlebury/Dolls");
+    SynthesisOptions options;
+    options.num_frames = 7;
+    options.subframes = 51;
+    const SynthesisResult lateral = SynthesizeSequence(scene, options);
+    const CameraPath& path = lateral.path;
+    const double still_until = FrameStamp(options, 2);
+    const Eigen::Vector3d turn = 0.1 * Eigen::Vector3d(0.3, 1.0, 0.0).normalized();  // rad/s
+    auto pose_at = [&](double t) {
+      return SE3(SO3Exp((t - path.t_mid) * turn) * path.T_world_mid.rotation(),
+                 path.PoseAt(std::max(t, still_until)).translation());
+    };
+    const PinholeCamera& hr = lateral.hr_camera;
+    Sequence result;
+    result.calibration = lateral.sequence.calibration;
+    result.ground_truth.emplace();
+    result.ground_truth->calibration = lateral.sequence.ground_truth->calibration;
+    const SceneRenderer renderer(scene);
+    RenderWorkspace workspace;
+    RenderResult render;
+    const int subframes = 60;
+    const double exposure = FrameExposure(options);
+    for (int i = 0; i < options.num_frames; ++i) {
+      const double t_close = FrameStamp(options, i);
+      const double t_open = t_close - exposure;
+      const SceneRenderer culled =
+          renderer.CulledFor(hr, {pose_at(t_open), pose_at(t_close - 0.5 * exposure), pose_at(t_close)});
+      cv::Mat sum(hr.height, hr.width, CV_32FC3, cv::Scalar::all(0.0));
+      for (int k = 0; k < subframes; ++k) {
+        culled.Render(hr, pose_at(t_open + (k + 0.5) / subframes * exposure), RenderOptions(), &workspace,
+                      &render);
+        sum += render.image;
+      }
+      culled.Render(hr, pose_at(t_close), RenderOptions(), &workspace, &render);
+      cv::Mat low_res, image8;
+      cv::resize(sum / subframes, low_res, cv::Size(hr.width / 2, hr.height / 2), 0.0, 0.0, cv::INTER_AREA);
+      low_res.convertTo(image8, CV_8UC3);
+      result.frames.push_back({i, t_close, exposure});
+      result.images.push_back(image8);
+      result.ground_truth->depth.push_back(render.depth.clone());
+      result.ground_truth->poses.push_back({t_close, pose_at(t_close)});
+    }
+    return result;
+  }();
+  return sequence;
+}
+
+TEST(InitializerTest, StartsFromThePairWithParallax) {
+  const Sequence& sequence = StillThenTranslatingSequence();
+  const PinholeCamera& camera = sequence.calibration.camera;
+  const std::vector<cv::Mat> images = FloatImages(sequence);
+  // Frames 0-2 alone only turn: no pair of them has parallax.
+  ExpectNoParallaxError({images.begin(), images.begin() + 3}, camera,
+                        {sequence.frames.begin(), sequence.frames.begin() + 3}, "frames that only turn");
+
+  const InitialStructure result = InitializeStructure(images, camera, sequence.frames, InitializerOptions());
+  std::printf("%s\n", result.summary.c_str());
+  ASSERT_EQ(result.T_world_cam.size(), 7u);
+  EXPECT_EQ(result.summary.find("pair: frames 0-1"), std::string::npos) << result.summary;
+  EXPECT_LT(result.T_world_cam[0].Log().norm(), 1e-9);
+  EXPECT_NEAR(MedianDepth(result.depth_lr), 1.0, 1e-6);
+
+  const std::vector<StampedPose>& poses = sequence.ground_truth->poses;
+  std::vector<Eigen::Vector3d> estimate, truth;
+  double path = 0.0;
+  for (size_t t = 0; t < poses.size(); ++t) {
+    estimate.push_back(result.T_world_cam[t].translation());
+    truth.push_back(poses[t].T_world_cam.translation());
+    if (t > 0) path += (truth[t] - truth[t - 1]).norm();
+  }
+  const double ate = AbsoluteTrajectoryRmse(estimate, truth);
+  double worst_rotation = 0.0;
+  for (size_t t = 1; t < poses.size(); ++t) {
+    const double error = RotationErrorDeg(sequence, result.T_world_cam[t].rotation(), t);
+    std::printf("frame %zu: rotation error %.3f deg\n", t, error);
+    worst_rotation = std::max(worst_rotation, error);
+  }
+  const double depth_error = MeanDepthError(result.depth_lr, sequence);
+  std::printf("ATE %.2f %% of the path, worst rotation error %.3f deg, depth rel. error %.4f\n",
+              100.0 * ate / path, worst_rotation, depth_error);
+  // Measured: pair 2-3 (0.49 px of rotation-free parallax), ATE 1.25 % of
+  // the path (the lateral Dolls test's bound, 3 %, holds), depth rel. error
+  // 0.035 (lateral 5-frame Dolls: 0.018). The orientation errors grow by
+  // ~0.19 deg per frame (0.07 at frame 1, 0.92 at frame 6): the true turn,
+  // ~2 LR px per frame, is mostly taken for sideways motion, the narrow-field
+  // ambiguity that RotationPrior (rotation_prior_px = 1 px per frame) settles
+  // towards the least rotation; the positions absorb it. Guarded at ~1.5x.
+  EXPECT_LT(ate, 0.03 * path);
+  EXPECT_LT(depth_error, 0.05);
+  EXPECT_LT(worst_rotation, 1.5);
 }
 
 TEST(InitializerTest, BadOptionsAndInputsGiveInputError) {

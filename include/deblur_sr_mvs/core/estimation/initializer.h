@@ -29,15 +29,16 @@ struct InitializerOptions {
   double klt_max_residual = 0.08;        // mean |intensity difference| ([0,1]) of a kept match
   double max_forward_backward_px = 0.5;  // forward-backward LK disagreement to drop a track
 
-  // --- Two-view geometry of frames 0-1 and PnP of the later frames.
+  // --- Two-view geometry of the first pair with parallax, PnP of the others.
   double ransac_threshold_px = 1.0;  // essential-matrix RANSAC threshold (LR px)
   double ransac_confidence = 0.999;  // RANSAC confidence (E and PnP)
-  int min_inliers = 30;              // features / inliers needed on frames 0-1
-  double min_parallax_px = 1.0;      // median 0-1 displacement the rotation leaves, needed (LR px)
-  // Median 0-1 displacement that NO rotation explains (LR px): the only depth
+  int min_inliers = 30;              // features / inliers needed on the two-view pair
+  double min_parallax_px = 1.0;      // median pair displacement the rotation leaves, needed (LR px)
+  // Median displacement of a pair that NO rotation explains (LR px): the only depth
   // evidence. A pure rotation leaves only tracking noise (0.04 px in
   // InitializerTest.PureRotation...); the bundled scenes' translations leave
-  // 0.19 (Aloe) to 0.78 px (Reindeer). Below it the frames cannot be initialised.
+  // 0.19 (Aloe) to 0.78 px (Reindeer) on frames 0-1. The two-view start needs
+  // a pair that reaches it.
   double min_rotation_free_parallax_px = 0.1;
   double min_triangulation_parallax_px = 2.0;  // rotation-free displacement to add a point (px)
   double pnp_threshold_px = 2.0;               // PnP RANSAC threshold and BA outlier cut (LR px)
@@ -78,9 +79,11 @@ struct InitializerOptions {
   void Check() const;  // throws InputError naming the bad field
 };
 
-// Poses (T_world_cam at each frame's stamp, the shutter close t_c; world =
-// first camera, monocular scale fixed so that the first two cameras are 1
-// unit apart) and LR depth maps (on the t_c image grid) in the same units.
+// Poses (T_world_cam at each frame's stamp, the shutter close t_c) and LR
+// depth maps (on the t_c image grid) in one gauge: world = camera 0 at its
+// t_c; monocular scale such that the median of all valid LR depths of the
+// window (every frame's depth_lr pixels > 0) is exactly 1
+// (docs/file_formats.md#monocular-scale).
 struct InitialStructure {
   std::vector<SE3> T_world_cam;
   std::vector<cv::Mat> depth_lr;  // CV_32FC1, input size; NaN where unknown
@@ -104,7 +107,11 @@ class NoParallaxError : public InitializationError {
 };
 
 // images_lr: the input frames as float in [0, 1] (1 or 3 channels), all of
-// camera_lr's size; frames: their stamps and exposures (>= 2 frames).
+// camera_lr's size; frames: their stamps and exposures (>= 2 frames). The
+// two-view start uses the nearest pair of frames with rotation-free parallax
+// (frames 0-1 when they have it), every other frame is registered by PnP.
+// Throws InputError on bad inputs, NoParallaxError when no pair has parallax
+// (see EstimateRotationOnlyMotion), InitializationError on other failures.
 InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
                                      const std::vector<FrameRecord>& frames,
                                      const InitializerOptions& options);
