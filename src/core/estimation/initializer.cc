@@ -1780,6 +1780,9 @@ void MoveToShutterClose(const std::vector<FrameRecord>& frames, SparseStructure*
 // InitializationError when no depth is valid.
 void NormaliseGauge(InitialStructure* result, std::ostringstream* summary) {
   std::vector<float> values;
+  size_t total = 0;
+  for (const cv::Mat& depth : result->depth_lr) total += depth.total();
+  values.reserve(total);
   for (const cv::Mat& depth : result->depth_lr) {
     for (int y = 0; y < depth.rows; ++y) {
       const float* row = depth.ptr<float>(y);
