@@ -6,17 +6,20 @@
 //     frames of a smoothly moving camera carry nearly the same blur, so
 //     brightness constancy holds between them far better than descriptor
 //     repeatability does on tiny, smeared LR frames.
-//  2. two-view: essential matrix (RANSAC) and recoverPose on frames 0-1, the
-//     paper's SfM step, plus a pure-translation start; both refined with a
-//     rotation prior that settles the rotation / translation ambiguity of
-//     narrow fields of view (RotationPrior); checks features, inliers and
-//     parallax.
-//  3. poses: triangulation, PnP (RANSAC) per later frame, then a bundle
-//     adjustment of all poses and points (Ceres) with camera 0 fixed and
-//     |c1 - c0| = 1 held by a sphere manifold (the monocular scale, docs/file_formats.md#monocular-scale).
-//     Tracks on blurred frames follow blur centroids, so these are
-//     mid-exposure poses; they are moved to the shutter close t_c along
-//     eq:interpolatingP.
+//  2. two-view: the nearest pair of frames whose matches leave displacement
+//     that no rotation explains (RankInitialPairs; frames 0-1 when they have
+//     it, NoParallaxError when no pair has), then essential matrix (RANSAC)
+//     and recoverPose on it, the paper's SfM step, plus a pure-translation
+//     start; both refined with a rotation prior that settles the rotation /
+//     translation ambiguity of narrow fields of view (RotationPrior); checks
+//     features, inliers and parallax.
+//  3. poses: triangulation, PnP (RANSAC) of every other frame (between the
+//     pair, then forward, then backward), then a bundle adjustment of all
+//     poses and points (Ceres) with the pair's first camera fixed and its
+//     baseline held at 1 by a sphere manifold. Tracks on blurred frames
+//     follow blur centroids, so these are mid-exposure poses; they are moved
+//     to the shutter close t_c along eq:interpolatingP, world = camera 0 at
+//     t_c.
 //  4. depths: eq:initializationScene per frame, coarse to fine: a plane
 //     sweep over inverse depth on a half-size pyramid level, of blur-aware L1
 //     patch costs (Psi_s o B_t vs Psi_t o B_s from scale-1 capture operators,
@@ -24,7 +27,11 @@
 //     the t_c grid) against up to two neighbours per side, TV-L1 with the
 //     edge weight g_t (eq:regularizingTerm) by the DTAM alternation, then a
 //     full-size pass with operators re-built from that depth, a narrow
-//     per-pixel sweep and sub-plane refinement.
+//     per-pixel sweep and sub-plane refinement. Last the output scale: the
+//     median LR depth of the window is 1 (NormaliseGauge,
+//     docs/file_formats.md#monocular-scale).
+// EstimateRotationOnlyMotion shares stage 1 and the move to t_c: the
+// orientations of a camera that only turns, fitted to the tracks' rays.
 #include "deblur_sr_mvs/core/estimation/initializer.h"
 
 #include <omp.h>
@@ -1773,6 +1780,9 @@ void MoveToShutterClose(const std::vector<FrameRecord>& frames, SparseStructure*
 // InitializationError when no depth is valid.
 void NormaliseGauge(InitialStructure* result, std::ostringstream* summary) {
   std::vector<float> values;
+  size_t total = 0;
+  for (const cv::Mat& depth : result->depth_lr) total += depth.total();
+  values.reserve(total);
   for (const cv::Mat& depth : result->depth_lr) {
     for (int y = 0; y < depth.rows; ++y) {
       const float* row = depth.ptr<float>(y);
