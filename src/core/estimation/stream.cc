@@ -224,15 +224,17 @@ StreamEstimator::StreamTie StreamEstimator::TieToStream(const InitialStructure& 
     tie.initial_to_stream = AlignPoseSequence(shared_initial, shared_previous);
     tie.how = "through " + std::to_string(num_shared) + " shared frames";
   } else {
-    tie.held = 1;
+    // The shared cameras stay where the previous window put them; the new
+    // ones follow the last shared camera.
+    tie.held = num_shared;
     double scale = DepthRatio(shared.depths, initial.depth_lr);
-    tie.how = "through the first shared frame, scale from the shared frames' depth";
+    tie.how = "through the last shared frame, scale from the shared frames' depth";
     if (!(scale > 0.0)) {
       const double median = MedianDepth(initial.depth_lr);
       scale = median > 0.0 ? (reference_median_depth_ > 0.0 ? reference_median_depth_ : 1.0) / median : 1.0;
-      tie.how = "through the first shared frame, scale from the median depth of the last window with depth";
+      tie.how = "through the last shared frame, scale from the median depth of the last window with depth";
     }
-    tie.initial_to_stream = AnchorAt(shared_initial[0], shared_previous[0], scale);
+    tie.initial_to_stream = AnchorAt(shared_initial.back(), shared_previous.back(), scale);
   }
   return tie;
 }

@@ -138,7 +138,9 @@ TEST(RotationOnly, StreamPublishesEveryFrameAndContinuesIntoParallax) {
   EXPECT_TRUE(observable.back());    // frames 6-7 come from a window with parallax
   double worst_deg = 0.0;
   for (size_t t = 1; t < published.size(); ++t) {
-    worst_deg = std::max(worst_deg, RelativeRotationErrorDeg(published, truth, 0, t));
+    const double error = RelativeRotationErrorDeg(published, truth, 0, t);
+    std::printf("  frame %zu: orientation error %.3f deg\n", t, error);
+    worst_deg = std::max(worst_deg, error);
   }
   std::printf("rotation then translation: worst orientation error %.3f deg over 8 frames\n", worst_deg);
   EXPECT_LE(worst_deg, 0.5);

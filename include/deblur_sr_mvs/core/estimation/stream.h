@@ -182,13 +182,15 @@ class StreamEstimator {
   };
   SharedFrames SharedWithPrevious(const StreamWindow& window) const;
   // How this window's initial structure is carried into the stream's world
-  // and scale: by the similarity that puts its first camera on the first
-  // shared one, with the scale from the shared cameras' path when it carries
-  // kMinSharedParallaxPx of parallax (then all of them are held), else from
-  // the shared frames' depths (or the last known median depth; one held).
+  // and scale; the estimator holds every shared camera where the previous
+  // window put it. When the shared cameras' path carries kMinSharedParallaxPx
+  // of parallax, the similarity of AlignPoseSequence (scale from the path).
+  // Else (cameras that barely move, or only rotate) the similarity that puts
+  // the last shared camera on its previous pose, with the scale from the
+  // shared frames' depths, or the last known median depth.
   struct StreamTie {
     Sim3 initial_to_stream;
-    int held = 1;     // leading cameras the estimator holds
+    int held = 1;     // leading (shared) cameras the estimator holds
     std::string how;  // for the window's note
   };
   static constexpr double kMinSharedParallaxPx = 1.0;
