@@ -89,3 +89,18 @@ dsm_prepare_ros_run() {
   dsm_source_workspace
   DSM_ROS_BIN="$DSM_WORKSPACE/devel/lib/deblur_sr_mvs"
 }
+
+# The demo's input: synthesizes the bundled Dolls sequence (FRAMES blurry LR
+# frames with ground truth) into OUT/dolls_sequence and writes it as the bag
+# OUT/dolls.bag; sets DSM_DEMO_SEQUENCE, DSM_DEMO_BAG and DSM_DEMO_EXPOSURE (s).
+# Needs dsm_prepare_ros_run first. Usage: dsm_make_demo_bag OUT FRAMES
+# shellcheck disable=SC2034  # the outputs are read by the callers
+dsm_make_demo_bag() {
+  DSM_DEMO_SEQUENCE="$1/dolls_sequence"
+  DSM_DEMO_BAG="$1/dolls.bag"
+  rm -rf "$DSM_DEMO_SEQUENCE" "$DSM_DEMO_BAG"
+  "$(dsm_tool synthesize_sequence)" --scene "$DSM_REPO/data/middlebury/Dolls" \
+    --output "$DSM_DEMO_SEQUENCE" --frames "$2" --scale 2 --seed 0
+  "$DSM_ROS_BIN/sequence_to_bag" --input "$DSM_DEMO_SEQUENCE" --output "$DSM_DEMO_BAG"
+  DSM_DEMO_EXPOSURE="$(awk -F, 'NR == 2 { print $3 }' "$DSM_DEMO_SEQUENCE/frames.csv")"
+}

@@ -25,11 +25,9 @@ mkdir -p "$out"
 out="$(cd "$out" && pwd)"
 seq_dir="$out/dolls_sequence"
 echo "== synthesizing the Dolls sequence ($frames frames) and its bag"
-rm -rf "$seq_dir" "$out/dolls_result" "$out/dolls.bag" "$out/node_outputs.bag"
-"$(dsm_tool synthesize_sequence)" --scene "$DSM_REPO/data/middlebury/Dolls" \
-  --output "$seq_dir" --frames "$frames" --scale 2 --seed 0
-"$ros_bin/sequence_to_bag" --input "$seq_dir" --output "$out/dolls.bag"
-exposure="$(awk -F, 'NR == 2 { print $3 }' "$seq_dir/frames.csv")"
+rm -rf "$out/dolls_result" "$out/node_outputs.bag"
+dsm_make_demo_bag "$out" "$frames"
+exposure="$DSM_DEMO_EXPOSURE"
 
 # A private master, so that a running robot system is not disturbed.
 dsm_start_master "${DSM_DEMO_PORT:-11399}" "$out/roscore.log"

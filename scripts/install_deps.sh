@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Installs the Debian packages deblur_sr_mvs needs, skipping those already
 # installed (a warm machine pays nothing). Safe to run repeatedly.
-# Usage: scripts/install_deps.sh [--core-only]
+# Usage: scripts/install_deps.sh [--core-only | --viewer]
+#   --viewer: also rviz, Xvfb and ImageMagick (scripts/rviz_screenshot.sh)
 set -euo pipefail
 
 core_pkgs=(cmake g++ make pkg-config libopencv-dev libeigen3-dev libceres-dev
@@ -18,8 +19,11 @@ ros_pkgs=(catkin catkin-tools ros-core rosbash rospack-tools ros-message-generat
           libdiagnostic-updater-dev libnodeletlib-dev libnodelet-dev libnodeletlib-tools
           libcamera-calibration-parsers-dev libopencv-superres-dev)
 
+viewer_pkgs=(rviz xvfb xauth imagemagick)
+
 pkgs=("${core_pkgs[@]}")
 [ "${1:-}" = "--core-only" ] || pkgs+=("${ros_pkgs[@]}")
+[ "${1:-}" = "--viewer" ] && pkgs+=("${viewer_pkgs[@]}")
 
 missing=()
 for p in "${pkgs[@]}"; do
