@@ -267,6 +267,12 @@ TEST(NodeParameters, ChecksEveryValue) {
   bad = params;
   bad.camera_frame = bad.world_frame;
   EXPECT_EQ(CheckMessage(bad), "camera_frame must differ from world_frame");
+  bad = params;
+  bad.pose_prior_frame = bad.world_frame;
+  EXPECT_EQ(CheckMessage(bad),
+            "pose_prior_frame '" + bad.world_frame + "' must differ from world_frame and camera_frame");
+  bad.pose_prior_frame = "odom";
+  EXPECT_EQ(CheckMessage(bad), "");
 }
 
 TEST(NodeParameters, ReconfigureAppliesTuningOrNothing) {
