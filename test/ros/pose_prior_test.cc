@@ -36,7 +36,9 @@ constexpr double kPriorNoise = 0.01;     // m, RMS of the prior's 3D position no
 constexpr double kPositionBound = 0.03;  // m: three times the prior's noise
 // Depth in metres without alignment may be this much worse (mean relative
 // error, absolute) than after the best per-frame scale: the scale fitted on
-// a noisy prior over a 7-17 cm path is a few percent off. Unscaled
+// a noisy prior over a 7-17 cm path is a few percent off (the status'
+// scale_note gives the fit's uncertainty, docs/ros_interface.md#pose-prior),
+// so issue 11's 1.1 x criterion is printed, not asserted. Unscaled
 // (monocular units) the error would be |1/s - 1| for the fit's scale s:
 // over 0.4 for this scene (median depth 1.7 m) in either gauge.
 constexpr double kMetricDepthMargin = 0.10;
@@ -231,6 +233,7 @@ TEST(PosePrior, PosesInThePriorFrameAndDepthInMetres) {
     EXPECT_EQ(status->header.frame_id, "odom") << status->message;
     EXPECT_EQ(status->scale_note.rfind("metric: poses in odom, depths in metres", 0), 0u)
         << status->scale_note;
+    EXPECT_NE(status->scale_note.find(" +- "), std::string::npos) << status->scale_note;
   }
   DepthMetricOptions metres, aligned;
   metres.align_scale = false;
@@ -255,7 +258,9 @@ TEST(PosePrior, PosesInThePriorFrameAndDepthInMetres) {
   }
   std::cout << "positions vs the ground truth in odom (no alignment): rms "
             << std::sqrt(position_sq / kFrames) << " m, max " << position_max << " m; depth rel. error "
-            << error_metres << " in metres, " << error_aligned << " scale-aligned\n";
+            << error_metres << " in metres, " << error_aligned << " scale-aligned; issue 11's criterion "
+            << "(metres <= 1.1 x aligned) " << (error_metres <= 1.1 * error_aligned ? "met" : "missed")
+            << " (windows of 7-17 cm: the scale is uncertain by the percents in scale_note)\n";
   EXPECT_LT(position_max, kPositionBound);
   EXPECT_LE(error_metres, error_aligned + kMetricDepthMargin) << "depth is not in metres";
   ASSERT_TRUE(node.path != nullptr);
