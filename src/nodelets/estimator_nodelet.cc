@@ -70,6 +70,13 @@ std::string ScaleText(double scale) {
   return text;
 }
 
+// "2.1 %" for 0.021.
+std::string PercentText(double fraction) {
+  char text[32];
+  std::snprintf(text, sizeof(text), "%.2g %%", 100.0 * fraction);
+  return text;
+}
+
 }  // namespace
 
 EstimatorNodelet::EstimatorNodelet() = default;
@@ -430,9 +437,9 @@ void EstimatorNodelet::ProcessWindow(PendingWindow window) {
   status.header.frame_id = gauge.frame;
   if (!gauge.note.empty()) status.message += "; " + gauge.note;
   if (gauge.metric) {
-    status.scale_note = "metric: poses in " + gauge.frame +
-                        ", depths in metres (aligned to the pose prior; scale " +
-                        ScaleText(gauge.estimate_to_output.scale) + ")";
+    status.scale_note =
+        "metric: poses in " + gauge.frame + ", depths in metres (aligned to the pose prior; scale " +
+        ScaleText(gauge.estimate_to_output.scale) + " +- " + PercentText(gauge.scale_uncertainty) + ")";
   }
   PublishStatus(status);
 }
@@ -516,6 +523,7 @@ EstimatorNodelet::OutputGauge EstimatorNodelet::PlaceInPrior(const PendingWindow
   }
   gauge.frame = prior;
   gauge.estimate_to_output = alignment.estimate_to_prior;
+  gauge.scale_uncertainty = alignment.scale_uncertainty;
   gauge.metric = true;
   return gauge;
 }

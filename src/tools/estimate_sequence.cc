@@ -226,7 +226,8 @@ dsm::PriorAlignment ApplyPosePrior(const std::vector<std::optional<dsm::SE3>>& p
   return alignment;
 }
 
-// report.json's "pose_prior" object (scale and rms null when not valid).
+// report.json's "pose_prior" object (scale, rms and scale_uncertainty null
+// when not valid).
 dsm::Json PosePriorJson(const std::string& file, const dsm::PriorAlignment& alignment) {
   const double scale = alignment.valid ? alignment.estimate_to_prior.scale : NAN;
   return {{"file", file},
@@ -234,6 +235,7 @@ dsm::Json PosePriorJson(const std::string& file, const dsm::PriorAlignment& alig
           {"inliers", alignment.inliers},
           {"scale", dsm::JsonNumber(scale)},
           {"rms", dsm::JsonNumber(alignment.valid ? alignment.rms : NAN)},
+          {"scale_uncertainty", dsm::JsonNumber(alignment.valid ? alignment.scale_uncertainty : NAN)},
           {"note", alignment.note},
           {"valid", alignment.valid}};
 }

@@ -36,7 +36,9 @@ constexpr double kPriorNoise = 0.01;     // m, RMS of the prior's 3D position no
 constexpr double kPositionBound = 0.03;  // m: three times the prior's noise
 // Depth in metres without alignment may be this much worse (mean relative
 // error, absolute) than after the best per-frame scale: the scale fitted on
-// a noisy prior over a 7-17 cm path is a few percent off. Unscaled
+// a noisy prior over a 7-17 cm path is a few percent off (the status'
+// scale_note gives the fit's uncertainty, docs/ros_interface.md#pose-prior),
+// so issue 11's 1.1 x criterion is printed, not asserted. Unscaled
 // (monocular units) the error would be |1/s - 1| for the fit's scale s:
 // over 0.4 for this scene (median depth 1.7 m) in either gauge.
 constexpr double kMetricDepthMargin = 0.10;
@@ -184,6 +186,31 @@ void ExpectTreeUnderThePrior(const tf2_ros::Buffer& buffer) {
       << "the estimator's world is in tf: " << frames;
 }
 
+// The prior fit's relative scale uncertainty with which frame t was
+// published: the "+- u %" of the scale_note of the first window whose stamp
+// (its last frame's) is not before the frame's; NaN if none.
+double PublishedScaleUncertainty(const std::vector<EstimatorStatusConstPtr>& statuses, int t) {
+  for (const auto& status : statuses) {
+    if (status->header.stamp < FrameStamp(t)) continue;
+    const size_t at = status->scale_note.find(" +- ");
+    return at == std::string::npos ? NAN : 0.01 * std::stod(status->scale_note.substr(at + 4));
+  }
+  return NAN;
+}
+
+// Every window was published in odom, in metres, with the fit's uncertainty.
+void ExpectMetricStatuses(const std::vector<EstimatorStatusConstPtr>& statuses) {
+  for (const auto& status : statuses) {
+    std::cout << "window " << status->window_index << ": " << status->message
+              << "\n  scale_note: " << status->scale_note << "\n";
+    EXPECT_TRUE(status->success) << status->message;
+    EXPECT_EQ(status->header.frame_id, "odom") << status->message;
+    EXPECT_EQ(status->scale_note.rfind("metric: poses in odom, depths in metres", 0), 0u)
+        << status->scale_note;
+    EXPECT_NE(status->scale_note.find(" +- "), std::string::npos) << status->scale_note;
+  }
+}
+
 // The prior: the ground truth in a frame "odom" (rotated and shifted from the
 // synthesizer's world) with Gaussian position noise. Published poses must
 // land on it without any alignment, and depth must be in metres.
@@ -224,14 +251,7 @@ TEST(PosePrior, PosesInThePriorFrameAndDepthInMetres) {
   std::lock_guard<std::mutex> lock(node.mutex);
   ASSERT_EQ(node.poses.size(), static_cast<size_t>(kFrames)) << "each frame exactly once";
   ASSERT_EQ(node.depths.size(), static_cast<size_t>(kFrames));
-  for (const auto& status : node.statuses) {
-    std::cout << "window " << status->window_index << ": " << status->message
-              << "\n  scale_note: " << status->scale_note << "\n";
-    EXPECT_TRUE(status->success) << status->message;
-    EXPECT_EQ(status->header.frame_id, "odom") << status->message;
-    EXPECT_EQ(status->scale_note.rfind("metric: poses in odom, depths in metres", 0), 0u)
-        << status->scale_note;
-  }
+  ExpectMetricStatuses(node.statuses);
   DepthMetricOptions metres, aligned;
   metres.align_scale = false;
   double position_max = 0.0, position_sq = 0.0, error_metres = 0.0, error_aligned = 0.0;
@@ -247,15 +267,23 @@ TEST(PosePrior, PosesInThePriorFrameAndDepthInMetres) {
     const DepthErrors scaled = EvaluateDepth(depth, sequence.ground_truth->depth[t], aligned);
     error_metres += in_metres.relative_error / kFrames;
     error_aligned += scaled.relative_error / kFrames;
+    // The published depth is 1 / scale times the truth: its scale error is
+    // within 3 standard deviations of the fit that placed it.
+    const double scale_error = 1.0 / scaled.scale - 1.0;
+    const double uncertainty = PublishedScaleUncertainty(node.statuses, t);
     std::cout << "frame " << t << ": position error " << error << " m, depth rel. error "
               << in_metres.relative_error << " (metres) vs " << scaled.relative_error << " (aligned, scale "
-              << scaled.scale << ")\n";
+              << scaled.scale << "); scale error " << scale_error << ", fit's uncertainty " << uncertainty
+              << "\n";
+    EXPECT_LE(std::abs(scale_error), 3.0 * uncertainty) << "frame " << t;
     EXPECT_TRUE(tf_buffer.canTransform("odom", "prior_camera_estimated", FrameStamp(t), ros::Duration(2.0)))
         << "tf odom -> prior_camera_estimated at frame " << t;
   }
   std::cout << "positions vs the ground truth in odom (no alignment): rms "
             << std::sqrt(position_sq / kFrames) << " m, max " << position_max << " m; depth rel. error "
-            << error_metres << " in metres, " << error_aligned << " scale-aligned\n";
+            << error_metres << " in metres, " << error_aligned << " scale-aligned; issue 11's criterion "
+            << "(metres <= 1.1 x aligned) " << (error_metres <= 1.1 * error_aligned ? "met" : "missed")
+            << " (windows of 7-17 cm: the scale is uncertain by the percents in scale_note)\n";
   EXPECT_LT(position_max, kPositionBound);
   EXPECT_LE(error_metres, error_aligned + kMetricDepthMargin) << "depth is not in metres";
   ASSERT_TRUE(node.path != nullptr);

@@ -76,7 +76,8 @@ class EstimatorNodelet : public nodelet::Nodelet {
     std::string frame;
     Sim3 estimate_to_output;  // applied to poses; its scale to depths
     bool metric = false;
-    std::string note;  // what the pose prior did ("" without one)
+    double scale_uncertainty = 0.0;  // PriorAlignment::scale_uncertainty when metric
+    std::string note;                // what the pose prior did ("" without one)
   };
 
   // ---- Worker side.

@@ -256,6 +256,34 @@ std::string ExtentNote(double extent) {
   return Format("prior translation %.3g m over the window is too small to fix the scale", extent);
 }
 
+double SquaredResidualSum(const Sim3& s, const std::vector<Eigen::Vector3d>& estimated,
+                          const std::vector<Eigen::Vector3d>& prior, const std::vector<int>& inliers) {
+  double sum = 0.0;
+  for (int i : inliers)
+    sum += (s.scale * (s.rotation * estimated[i]) + s.translation - prior[i]).squaredNorm();
+  return sum;
+}
+
+double InlierRms(const Sim3& s, const std::vector<Eigen::Vector3d>& estimated,
+                 const std::vector<Eigen::Vector3d>& prior, const std::vector<int>& inliers) {
+  return std::sqrt(SquaredResidualSum(s, estimated, prior, inliers) / static_cast<double>(inliers.size()));
+}
+
+// PriorAlignment::scale_uncertainty: for target = s q + t + noise (sigma per
+// axis), the least-squares s has variance sigma^2 / sum |q - mean q|^2 with
+// q the rotated estimated positions; relative to s, in prior units q -> s q.
+double ScaleUncertainty(const Sim3& s, const std::vector<Eigen::Vector3d>& estimated,
+                        const std::vector<Eigen::Vector3d>& prior, const std::vector<int>& inliers) {
+  const int dof = 3 * static_cast<int>(inliers.size()) - 4;
+  if (dof <= 0) return std::numeric_limits<double>::infinity();
+  const double sigma = std::sqrt(SquaredResidualSum(s, estimated, prior, inliers) / dof);
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (int i : inliers) mean += s.scale * estimated[i] / static_cast<double>(inliers.size());
+  double spread = 0.0;
+  for (int i : inliers) spread += (s.scale * estimated[i] - mean).squaredNorm();
+  return spread > 0.0 ? sigma / std::sqrt(spread) : std::numeric_limits<double>::infinity();
+}
+
 }  // namespace
 
 void PosePriorOptions::Check() const {
@@ -301,14 +329,11 @@ PriorAlignment AlignToPrior(const std::vector<SE3>& T_world_cam, const std::vect
   alignment.estimate_to_prior = similarity;
   alignment.used = n;
   alignment.inliers = count;
-  double sum = 0.0;
-  for (int i : inliers) {
-    sum += (similarity.scale * (similarity.rotation * estimated[i]) + similarity.translation - prior[i])
-               .squaredNorm();
-  }
-  alignment.rms = std::sqrt(sum / count);
-  alignment.note = Format("scale %.4g from ", similarity.scale) + std::to_string(count) + " of " +
-                   std::to_string(n) + Format(" frames, rms %.3g m", alignment.rms);
+  alignment.rms = InlierRms(similarity, estimated, prior, inliers);
+  alignment.scale_uncertainty = ScaleUncertainty(similarity, estimated, prior, inliers);
+  alignment.note =
+      Format("scale %.4g +- %.2g %% from ", similarity.scale, 100.0 * alignment.scale_uncertainty) +
+      std::to_string(count) + " of " + std::to_string(n) + Format(" frames, rms %.3g m", alignment.rms);
   return alignment;
 }
 

@@ -95,6 +95,7 @@ void ExpectExactRecovery(const std::vector<SE3>& estimated) {
   EXPECT_LT(RotationError(alignment.estimate_to_prior, truth), 1e-9);
   EXPECT_LT((alignment.estimate_to_prior.translation - truth.translation).norm(), 1e-9);
   EXPECT_LT(alignment.rms, 1e-9);
+  EXPECT_LT(alignment.scale_uncertainty, 1e-9);
 }
 
 TEST(AlignToPrior, RecoversAKnownSimilarityOnACurvedPath) {
@@ -127,6 +128,36 @@ TEST(AlignToPrior, OneCentimetreNoiseMovesTheResultByTheNoiseLevel) {
       EXPECT_LT(position_error, 0.03);  // 3 sigma of one axis' noise
       EXPECT_NEAR(alignment.rms, 0.01 * std::sqrt(3.0), 0.01);
     }
+  }
+}
+
+// scale_uncertainty is the spread of the fitted scale that the prior's noise
+// causes: over 200 noisy priors on each path, the standard deviation of the
+// relative scale error and the mean reported uncertainty agree within 20 %
+// (the sampling error of a standard deviation from 200 draws is 5 %), and
+// the reported figure is about noise / sqrt(sum |p - mean p|^2).
+TEST(AlignToPrior, ScaleUncertaintyMatchesTheSpreadOfTheScale) {
+  const Sim3 truth = KnownSimilarity();
+  for (const auto& path : {CurvedPath(), LateralPath()}) {
+    const std::vector<SE3> exact = ApplyAll(truth, path);
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    for (const SE3& pose : exact) mean += pose.translation() / static_cast<double>(exact.size());
+    double spread = 0.0;
+    for (const SE3& pose : exact) spread += (pose.translation() - mean).squaredNorm();
+    const double expected = 0.01 / std::sqrt(spread);
+    constexpr int kDraws = 200;
+    double sum_sq = 0.0, sum_reported = 0.0;
+    for (int seed = 1; seed <= kDraws; ++seed) {
+      const PriorAlignment alignment = AlignToPrior(path, Noisy(exact, 0.01, 0.0, seed), PosePriorOptions());
+      ASSERT_TRUE(alignment.valid) << alignment.note;
+      const double error = alignment.estimate_to_prior.scale / truth.scale - 1.0;
+      sum_sq += error * error / kDraws;
+      sum_reported += alignment.scale_uncertainty / kDraws;
+    }
+    std::printf("scale error std %.4f, mean reported uncertainty %.4f, noise / spread %.4f\n",
+                std::sqrt(sum_sq), sum_reported, expected);
+    EXPECT_NEAR(sum_reported / std::sqrt(sum_sq), 1.0, 0.2);
+    EXPECT_NEAR(sum_reported / expected, 1.0, 0.2);
   }
 }
 
