@@ -32,6 +32,7 @@
 #include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/io/sequence_io.h"
 #include "deblur_sr_mvs/ros/conversions.h"
+#include "loaded_nodelet.h"
 
 namespace deblur_sr_mvs {
 namespace {
@@ -40,18 +41,9 @@ constexpr int kFrames = 6;       // windows of 4 overlapping by 2: frames 0-3 an
 constexpr int kExtraFrames = 2;  // frames 6-7: a third window after a reconfigure
 
 const Sequence& TestSequence() {
-  static const Sequence sequence = [] {
-    const std::string folder = "/tmp/dsm_rostest_sequence_" + std::to_string(getpid());
-    const std::string command = std::string(DSM_SYNTHESIZE_SEQUENCE) + " --scene " + DSM_SOURCE_DIR +
-                                "/data/middlebury/Dolls --output " + folder + " --frames " +
-                                std::to_string(kFrames + kExtraFrames) +
-                                " --subframes 60 --fps 30 --exposure-ratio 0.8"
-                                " --hr-width 192 --hr-height 144 > /dev/null";
-    EXPECT_EQ(std::system(command.c_str()), 0);
-    Sequence read = ReadSequence(folder, true);
-    std::filesystem::remove_all(folder);
-    return read;
-  }();
+  static const Sequence sequence = test::SynthesizedDolls(
+      "node", "--frames " + std::to_string(kFrames + kExtraFrames) +
+                  " --subframes 60 --fps 30 --exposure-ratio 0.8 --hr-width 192 --hr-height 144");
   return sequence;
 }
 
@@ -61,32 +53,14 @@ ros::Time FrameStamp(int t) {
 }
 
 sensor_msgs::ImagePtr Rgb8Message(const cv::Mat& bgr, const ros::Time& stamp) {
-  std_msgs::Header header;
-  header.stamp = stamp;
-  header.frame_id = "test_camera";
-  cv::Mat float01 = ToFloat01(bgr);
-  return boost::make_shared<sensor_msgs::Image>(
-      ros_glue::Float01ToImage(float01, ros_glue::ImageFamily::kRgb8, header));
+  return test::Rgb8Message(bgr, stamp, "test_camera");
 }
 
 sensor_msgs::CameraInfoPtr InfoMessage(const ros::Time& stamp) {
-  const PinholeCamera& camera = TestSequence().calibration.camera;
-  std_msgs::Header header;
-  header.stamp = stamp;
-  header.frame_id = "test_camera";
-  auto info = boost::make_shared<sensor_msgs::CameraInfo>(ros_glue::ScaledCameraInfo(camera, 1, header));
-  return info;
+  return test::InfoMessage(TestSequence().calibration.camera, stamp, "test_camera");
 }
 
-template <typename Predicate>
-bool WaitFor(Predicate done, double seconds) {
-  const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(seconds);
-  while (ros::ok() && ros::WallTime::now() < deadline) {
-    if (done()) return true;
-    ros::WallDuration(0.02).sleep();
-  }
-  return done();
-}
+using test::WaitFor;
 
 struct Outputs {
   std::mutex mutex;
@@ -364,48 +338,24 @@ TEST(EstimatorNodeletShutdown, UnloadWhileAWindowIsEstimated) {
 // (docs/file_formats.md#no-parallax).
 TEST(EstimatorNodeletHostileInput, RejectsCountsRestartsAndPublishesAStillCamera) {
   const Sequence& sequence = TestSequence();
-  const std::string ns = "/hostile";
-  ros::NodeHandle node;
-  ros::param::set(ns + "/estimator/exposure_time", 0.8 / 30.0);
-  ros::param::set(ns + "/estimator/window_size", 3);
-  ros::param::set(ns + "/estimator/samples", 8);
-  ros::param::set(ns + "/estimator/iterations", 0);
-  ros::param::set(ns + "/estimator/max_pending_windows", 10);
-  ros::param::set(ns + "/estimator/lazy_subscription", false);
-  nodelet::Loader loader(false);
-  nodelet::M_string remappings{{ns + "/image", "/hostile_camera/image"},
-                               {ns + "/camera_info", "/hostile_camera/camera_info"}};
-  ASSERT_TRUE(loader.load(ns + "/estimator", "deblur_sr_mvs/EstimatorNodelet", remappings, {}));
-  std::mutex mutex;
-  std::vector<EstimatorStatusConstPtr> statuses;
-  std::vector<sensor_msgs::ImageConstPtr> restored;
+  test::LoadedNodelet node(
+      "/hostile", {{"window_size", 3}, {"samples", 8}, {"iterations", 0}, {"max_pending_windows", 10}});
+  std::mutex mutex;  // guards diagnostics
   diagnostic_msgs::DiagnosticStatus diagnostics;
-  ros::Subscriber status_sub =
-      node.subscribe<EstimatorStatus>(ns + "/status", 20, [&](const EstimatorStatusConstPtr& m) {
-        std::lock_guard<std::mutex> lock(mutex);
-        statuses.push_back(m);
-      });
-  ros::Subscriber restored_sub = node.subscribe<sensor_msgs::Image>(ns + "/restored/image", 20,
-                                                                    [&](const sensor_msgs::ImageConstPtr& m) {
-                                                                      std::lock_guard<std::mutex> lock(mutex);
-                                                                      restored.push_back(m);
-                                                                    });
-  ros::Subscriber diagnostics_sub = node.subscribe<diagnostic_msgs::DiagnosticArray>(
+  ros::Subscriber diagnostics_sub = ros::NodeHandle().subscribe<diagnostic_msgs::DiagnosticArray>(
       "/diagnostics", 20, [&](const diagnostic_msgs::DiagnosticArrayConstPtr& array) {
         std::lock_guard<std::mutex> lock(mutex);
         for (const auto& status : array->status) {
           if (status.hardware_id.find("/hostile_camera/image") != std::string::npos) diagnostics = status;
         }
       });
-  ros::Publisher images = node.advertise<sensor_msgs::Image>("/hostile_camera/image", 50);
-  ros::Publisher infos = node.advertise<sensor_msgs::CameraInfo>("/hostile_camera/camera_info", 50);
-  ASSERT_TRUE(WaitFor([&] { return images.getNumSubscribers() > 0 && infos.getNumSubscribers() > 0; }, 30.0));
+  ASSERT_TRUE(node.Connected()) << "the nodelet did not load or subscribe";
 
   auto send = [&](const sensor_msgs::ImagePtr& image, sensor_msgs::CameraInfoPtr info = nullptr) {
     if (!info) info = InfoMessage(image->header.stamp);
     info->header.stamp = image->header.stamp;
-    infos.publish(info);
-    images.publish(image);
+    node.infos.publish(info);
+    node.images.publish(image);
     ros::WallDuration(0.05).sleep();
   };
   const double base = 1000.0;
@@ -441,22 +391,18 @@ TEST(EstimatorNodeletHostileInput, RejectsCountsRestartsAndPublishesAStillCamera
   small_info->height = small.rows;
   send(small_image, small_info);  // ok, size changed: restart 3
   for (int i = 0; i < 20; ++i) {  // camera_info without images
-    infos.publish(InfoMessage(ros::Time(base + 200.0 + i)));
+    node.infos.publish(InfoMessage(ros::Time(base + 200.0 + i)));
   }
 
-  ASSERT_TRUE(WaitFor(
-      [&] {
-        std::lock_guard<std::mutex> lock(mutex);
-        return statuses.size() >= 2;
-      },
-      120.0))
-      << "two windows were expected";
+  ASSERT_TRUE(WaitFor([&] { return node.StatusCount() >= 2; }, 120.0)) << "two windows were expected";
   ros::WallDuration(2.5).sleep();  // diagnostics publish at 1 Hz
   std::lock_guard<std::mutex> lock(mutex);
+  std::lock_guard<std::mutex> outputs_lock(node.mutex);
+  const std::vector<EstimatorStatusConstPtr>& statuses = node.statuses;
   ASSERT_EQ(statuses.size(), 2u);
   EXPECT_TRUE(statuses[0]->success) << statuses[0]->message;
   EXPECT_NE(statuses[0]->message.find("clamped"), std::string::npos) << statuses[0]->message;
-  EXPECT_EQ(restored.size(), 6u) << "windows 1 and 2 publish";
+  EXPECT_EQ(node.restored.size(), 6u) << "windows 1 and 2 publish";
   const EstimatorStatus& still = *statuses[1];
   EXPECT_TRUE(still.success) << still.message;
   EXPECT_NE(still.message.find("no parallax: depth not observable"), std::string::npos) << still.message;
@@ -507,236 +453,44 @@ TEST(EstimatorNodeletHostileInput, BadParameterKeepsTheNodeIdleAndSaysWhy) {
 // NaN depth, the restored images beat bicubic, and status says why.
 TEST(EstimatorNodeletRotation, PublishesEveryFrameOfAPureRotation) {
   constexpr int kRotationFrames = 6;  // windows 0-3 and 2-5
-  const std::string folder = "/tmp/dsm_rostest_rotation_" + std::to_string(getpid());
-  const std::string command = std::string(DSM_SYNTHESIZE_SEQUENCE) + " --scene " + DSM_SOURCE_DIR +
-                              "/data/middlebury/Dolls --output " + folder + " --path rotate --frames " +
-                              std::to_string(kRotationFrames) +
-                              " --subframes 60 --fps 30 --exposure-ratio 0.8 --hr-width 192 --hr-height 144"
-                              " > /dev/null";
-  ASSERT_EQ(std::system(command.c_str()), 0);
-  const Sequence sequence = ReadSequence(folder, true);
-  std::filesystem::remove_all(folder);
-  const std::string ns = "/rotation";
-  ros::param::set(ns + "/estimator/exposure_time", 0.8 / 30.0);
-  ros::param::set(ns + "/estimator/window_size", 4);
-  ros::param::set(ns + "/estimator/window_overlap", 2);
-  ros::param::set(ns + "/estimator/samples", 16);
-  ros::param::set(ns + "/estimator/lazy_subscription", false);
-  nodelet::Loader loader(false);
-  nodelet::M_string remappings{{ns + "/image", "/rotation_camera/image"},
-                               {ns + "/camera_info", "/rotation_camera/camera_info"}};
-  ASSERT_TRUE(loader.load(ns + "/estimator", "deblur_sr_mvs/EstimatorNodelet", remappings, {}));
-  ros::NodeHandle node;
-  std::mutex mutex;
-  std::vector<sensor_msgs::ImageConstPtr> restored, depth;
-  std::vector<geometry_msgs::PoseStampedConstPtr> poses;
-  std::vector<EstimatorStatusConstPtr> statuses;
-  auto keep = [&mutex](auto* list) {
-    return [list, &mutex](const auto& message) {
-      std::lock_guard<std::mutex> lock(mutex);
-      list->push_back(message);
-    };
-  };
-  std::vector<ros::Subscriber> subscribers{
-      node.subscribe<sensor_msgs::Image>(ns + "/restored/image", 20, keep(&restored)),
-      node.subscribe<sensor_msgs::Image>(ns + "/depth/image", 20, keep(&depth)),
-      node.subscribe<geometry_msgs::PoseStamped>(ns + "/pose", 20, keep(&poses)),
-      node.subscribe<EstimatorStatus>(ns + "/status", 20, keep(&statuses))};
-  ros::Publisher images = node.advertise<sensor_msgs::Image>("/rotation_camera/image", 20);
-  ros::Publisher infos = node.advertise<sensor_msgs::CameraInfo>("/rotation_camera/camera_info", 20);
-  ASSERT_TRUE(WaitFor([&] { return images.getNumSubscribers() > 0 && infos.getNumSubscribers() > 0; }, 30.0));
+  const Sequence sequence = test::SynthesizedDolls(
+      "rotation", "--path rotate --frames " + std::to_string(kRotationFrames) +
+                      " --subframes 60 --fps 30 --exposure-ratio 0.8 --hr-width 192 --hr-height 144");
+  test::LoadedNodelet node("/rotation", {});
+  ASSERT_TRUE(node.Connected()) << "the nodelet did not load or subscribe";
   for (int t = 0; t < kRotationFrames; ++t) {
-    const ros::Time stamp = ros::Time(100.0) + ros::Duration(sequence.frames[t].stamp);
-    std_msgs::Header header;
-    header.stamp = stamp;
-    header.frame_id = "test_camera";
-    infos.publish(ros_glue::ScaledCameraInfo(sequence.calibration.camera, 1, header));
-    images.publish(image);
-    ros::WallDuration(0.05).sleep();
-  };
-  const double base = 1000.0;
-  const double dt = 1.0 / 30.0;
-  auto frame = [&](int t, double stamp) { return Rgb8Message(sequence.images[t], ros::Time(stamp)); };
-  const cv::Mat black(sequence.images[0].size(), sequence.images[0].type(), cv::Scalar::all(0));
-  const cv::Mat white(sequence.images[0].size(), sequence.images[0].type(), cv::Scalar::all(255));
-
-  send(frame(0, base + 0.02));                        // ok
-  send(frame(0, base + 0.02));                        // rejected: duplicate stamp
-  send(Rgb8Message(black, ros::Time(base + 0.021)));  // rejected: constant (black)
-  send(Rgb8Message(white, ros::Time(base + 0.022)));  // rejected: constant (saturated)
-  send(frame(1, 0.0));                                // rejected: zero stamp
-  send(frame(1, ros::Time::now().toSec() + 1000.0));  // rejected: far in the future
-  sensor_msgs::CameraInfoPtr distorted = InfoMessage(ros::Time(base + 0.025));
-  distorted->D = {-0.3, 0.1, 0.0, 0.0, 0.0};
-  send(frame(1, base + 0.025), distorted);  // rejected: distortion
-  sensor_msgs::ImagePtr bgra = frame(1, base + 0.03);
-  bgra->encoding = "bgra8";
-  send(bgra);  // rejected: encoding
-  // Frames 20 ms apart: shorter than the 26.7 ms exposure, which is clamped.
-  send(frame(1, base + 0.04));            // ok
-  send(frame(2, base + 0.06));            // ok: window 1 (frames 0-2)
-  send(frame(3, base - 10.0));            // ok, stamp went back: restart 1
-  send(frame(4, base + 100.0));           // ok, 110 s gap: restart 2
-  send(frame(4, base + 100.0 + dt));      // the same image again:
-  send(frame(4, base + 100.0 + 2 * dt));  //   window 2 has no parallax, published
-  cv::Mat small;
-  cv::resize(sequence.images[5], small, cv::Size(), 0.5, 0.5, cv::INTER_AREA);
-  sensor_msgs::ImagePtr small_image = Rgb8Message(small, ros::Time(base + 100.0 + 3 * dt));
-  sensor_msgs::CameraInfoPtr small_info = InfoMessage(small_image->header.stamp);
-  small_info->width = small.cols;
-  small_info->height = small.rows;
-  send(small_image, small_info);  // ok, size changed: restart 3
-  for (int i = 0; i < 20; ++i) {  // camera_info without images
-    infos.publish(InfoMessage(ros::Time(base + 200.0 + i)));
-  }
-
-  ASSERT_TRUE(WaitFor(
-      [&] {
-        std::lock_guard<std::mutex> lock(mutex);
-        return statuses.size() >= 2;
-      },
-      120.0))
-      << "two windows were expected";
-  ros::WallDuration(2.5).sleep();  // diagnostics publish at 1 Hz
-  std::lock_guard<std::mutex> lock(mutex);
-  ASSERT_EQ(statuses.size(), 2u);
-  EXPECT_TRUE(statuses[0]->success) << statuses[0]->message;
-  EXPECT_NE(statuses[0]->message.find("clamped"), std::string::npos) << statuses[0]->message;
-  EXPECT_EQ(restored.size(), 6u) << "windows 1 and 2 publish";
-  const EstimatorStatus& still = *statuses[1];
-  EXPECT_TRUE(still.success) << still.message;
-  EXPECT_NE(still.message.find("no parallax: depth not observable"), std::string::npos) << still.message;
-  EXPECT_EQ(still.frames_rejected, 7u);
-  EXPECT_EQ(still.windows_failed, 0u);
-  // Counters are read when the status is published: the size change after
-  // this window may already be counted when estimation is slow (sanitizers).
-  EXPECT_GE(still.resets, 2u);
-  EXPECT_LE(still.resets, 3u);
-  std::map<std::string, std::string> values;
-  for (const auto& value : diagnostics.values) values[value.key] = value.value;
-  EXPECT_EQ(values["stream resets"], "3");
-  EXPECT_EQ(values["frames rejected"], "7");
-  EXPECT_EQ(values["windows failed"], "0");
-  EXPECT_EQ(diagnostics.level, diagnostic_msgs::DiagnosticStatus::OK) << diagnostics.message;
-}
-
-// A bad static parameter: the nodelet says which in one line, publishes that
-// on its latched status and stays idle (it never guesses an exposure).
-TEST(EstimatorNodeletHostileInput, BadParameterKeepsTheNodeIdleAndSaysWhy) {
-  ros::param::set("/badparam/estimator/exposure_time", -0.01);
-  nodelet::Loader loader(false);
-  ASSERT_TRUE(loader.load("/badparam/estimator", "deblur_sr_mvs/EstimatorNodelet", nodelet::M_string(), {}));
-  std::mutex mutex;
-  EstimatorStatusConstPtr status;
-  ros::NodeHandle node;
-  ros::Subscriber sub =
-      node.subscribe<EstimatorStatus>("/badparam/status", 1, [&](const EstimatorStatusConstPtr& m) {
-        std::lock_guard<std::mutex> lock(mutex);
-        status = m;
-      });
-  ASSERT_TRUE(WaitFor(
-      [&] {
-        std::lock_guard<std::mutex> lock(mutex);
-        return status != nullptr;
-      },
-      20.0));
-  EXPECT_FALSE(status->success);
-  EXPECT_NE(status->message.find("exposure_time"), std::string::npos) << status->message;
-  EXPECT_EQ(status->message.find('\n'), std::string::npos);
-  ros::Publisher images = node.advertise<sensor_msgs::Image>("/badparam/image", 5);
-  ros::WallDuration(1.0).sleep();
-  EXPECT_EQ(images.getNumSubscribers(), 0u) << "an idle node subscribes to nothing";
-}
-
-// A camera that only rotates (docs/file_formats.md#no-parallax), to a
-// nodelet loaded here: every frame is published, with its orientation and
-// NaN depth, the restored images beat bicubic, and status says why.
-TEST(EstimatorNodeletRotation, PublishesEveryFrameOfAPureRotation) {
-  constexpr int kRotationFrames = 6;  // windows 0-3 and 2-5
-  const std::string folder = "/tmp/dsm_rostest_rotation_" + std::to_string(getpid());
-  const std::string command = std::string(DSM_SYNTHESIZE_SEQUENCE) + " --scene " + DSM_SOURCE_DIR +
-                              "/data/middlebury/Dolls --output " + folder + " --path rotate --frames " +
-                              std::to_string(kRotationFrames) +
-                              " --subframes 60 --fps 30 --exposure-ratio 0.8 --hr-width 192 --hr-height 144"
-                              " > /dev/null";
-  ASSERT_EQ(std::system(command.c_str()), 0);
-  const Sequence sequence = ReadSequence(folder, true);
-  std::filesystem::remove_all(folder);
-  const std::string ns = "/rotation";
-  ros::param::set(ns + "/estimator/exposure_time", 0.8 / 30.0);
-  ros::param::set(ns + "/estimator/window_size", 4);
-  ros::param::set(ns + "/estimator/window_overlap", 2);
-  ros::param::set(ns + "/estimator/samples", 16);
-  ros::param::set(ns + "/estimator/lazy_subscription", false);
-  nodelet::Loader loader(false);
-  nodelet::M_string remappings{{ns + "/image", "/rotation_camera/image"},
-                               {ns + "/camera_info", "/rotation_camera/camera_info"}};
-  ASSERT_TRUE(loader.load(ns + "/estimator", "deblur_sr_mvs/EstimatorNodelet", remappings, {}));
-  ros::NodeHandle node;
-  std::mutex mutex;
-  std::vector<sensor_msgs::ImageConstPtr> restored, depth;
-  std::vector<geometry_msgs::PoseStampedConstPtr> poses;
-  std::vector<EstimatorStatusConstPtr> statuses;
-  auto keep = [&mutex](auto* list) {
-    return [list, &mutex](const auto& message) {
-      std::lock_guard<std::mutex> lock(mutex);
-      list->push_back(message);
-    };
-  };
-  std::vector<ros::Subscriber> subscribers{
-      node.subscribe<sensor_msgs::Image>(ns + "/restored/image", 20, keep(&restored)),
-      node.subscribe<sensor_msgs::Image>(ns + "/depth/image", 20, keep(&depth)),
-      node.subscribe<geometry_msgs::PoseStamped>(ns + "/pose", 20, keep(&poses)),
-      node.subscribe<EstimatorStatus>(ns + "/status", 20, keep(&statuses))};
-  ros::Publisher images = node.advertise<sensor_msgs::Image>("/rotation_camera/image", 20);
-  ros::Publisher infos = node.advertise<sensor_msgs::CameraInfo>("/rotation_camera/camera_info", 20);
-  ASSERT_TRUE(WaitFor([&] { return images.getNumSubscribers() > 0 && infos.getNumSubscribers() > 0; }, 30.0));
-  for (int t = 0; t < kRotationFrames; ++t) {
-    const ros::Time stamp = ros::Time(100.0) + ros::Duration(sequence.frames[t].stamp);
-    sensor_msgs::CameraInfoPtr info = InfoMessage(stamp);
-    info->K = {sequence.calibration.camera.fx,
-               0,
-               sequence.calibration.camera.cx,
-               0,
-               sequence.calibration.camera.fy,
-               sequence.calibration.camera.cy,
-               0,
-               0,
-               1};
-    info->P = {info->K[0], 0, info->K[2], 0, 0, info->K[4], info->K[5], 0, 0, 0, 1, 0};
-    infos.publish(info);
-    images.publish(Rgb8Message(sequence.images[t], stamp));
+    node.Send(sequence.images[t], sequence.calibration.camera,
+              ros::Time(100.0) + ros::Duration(sequence.frames[t].stamp));
     ros::WallDuration(0.05).sleep();
   }
   ASSERT_TRUE(WaitFor(
       [&] {
-        std::lock_guard<std::mutex> lock(mutex);
-        return statuses.size() >= 2 && poses.size() >= static_cast<size_t>(kRotationFrames);
+        std::lock_guard<std::mutex> lock(node.mutex);
+        return node.statuses.size() >= 2 && node.poses.size() >= static_cast<size_t>(kRotationFrames);
       },
       180.0));
-  std::lock_guard<std::mutex> lock(mutex);
-  ASSERT_EQ(restored.size(), static_cast<size_t>(kRotationFrames)) << "every frame once";
-  ASSERT_EQ(depth.size(), static_cast<size_t>(kRotationFrames));
-  for (const EstimatorStatusConstPtr& status : statuses) {
+  std::lock_guard<std::mutex> lock(node.mutex);
+  ASSERT_EQ(node.restored.size(), static_cast<size_t>(kRotationFrames)) << "every frame once";
+  ASSERT_EQ(node.depths.size(), static_cast<size_t>(kRotationFrames));
+  for (const EstimatorStatusConstPtr& status : node.statuses) {
     EXPECT_TRUE(status->success) << status->message;
     EXPECT_NE(status->message.find("no parallax: depth not observable"), std::string::npos)
         << status->message;
   }
   double psnr_restored = 0.0, psnr_bicubic = 0.0, worst_deg = 0.0;
-  const Eigen::Matrix3d R_est0 = ros_glue::PoseFromMsg(poses[0]->pose).rotation();
+  const Eigen::Matrix3d R_est0 = ros_glue::PoseFromMsg(node.poses[0]->pose).rotation();
   const Eigen::Matrix3d R_gt0 = sequence.ground_truth->poses[0].T_world_cam.rotation();
   for (int t = 0; t < kRotationFrames; ++t) {
     ros_glue::ImageFamily family;
-    psnr_restored += Psnr(ToImage8(ros_glue::ImageToFloat01(*restored[t], &family)),
+    psnr_restored += Psnr(ToImage8(ros_glue::ImageToFloat01(*node.restored[t], &family)),
                           sequence.ground_truth->latent[t], 255.0) /
                      kRotationFrames;
     psnr_bicubic += Psnr(ToImage8(UpsampleBicubic(ToFloat01(sequence.images[t]), 2)),
                          sequence.ground_truth->latent[t], 255.0) /
                     kRotationFrames;
-    const cv::Mat depth_map(depth[t]->height, depth[t]->width, CV_32FC1,
-                            const_cast<uint8_t*>(depth[t]->data.data()));
-    EXPECT_EQ(cv::countNonZero(depth_map == depth_map), 0) << "frame " << t << ": depth not NaN";
-    const Eigen::Matrix3d R_est = R_est0.transpose() * ros_glue::PoseFromMsg(poses[t]->pose).rotation();
+    const cv::Mat depth = test::DepthOf(*node.depths[t]);
+    EXPECT_EQ(cv::countNonZero(depth == depth), 0) << "frame " << t << ": depth not NaN";
+    const Eigen::Matrix3d R_est = R_est0.transpose() * ros_glue::PoseFromMsg(node.poses[t]->pose).rotation();
     const Eigen::Matrix3d R_gt = R_gt0.transpose() * sequence.ground_truth->poses[t].T_world_cam.rotation();
     worst_deg = std::max(worst_deg, Eigen::AngleAxisd(R_est.transpose() * R_gt).angle() * 180.0 / M_PI);
   }

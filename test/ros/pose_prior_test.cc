@@ -27,6 +27,7 @@
 #include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/io/sequence_io.h"
 #include "deblur_sr_mvs/ros/conversions.h"
+#include "loaded_nodelet.h"
 
 namespace deblur_sr_mvs {
 namespace {
@@ -44,18 +45,9 @@ constexpr double kPositionBound = 0.03;  // m: three times the prior's noise
 constexpr double kMetricDepthMargin = 0.10;
 
 const Sequence& TestSequence() {
-  static const Sequence sequence = [] {
-    const std::string folder = "/tmp/dsm_prior_rostest_sequence_" + std::to_string(getpid());
-    const std::string command = std::string(DSM_SYNTHESIZE_SEQUENCE) + " --scene " + DSM_SOURCE_DIR +
-                                "/data/middlebury/Dolls --output " + folder + " --frames " +
-                                std::to_string(kFrames) +
-                                " --subframes 60 --fps 30 --exposure-ratio 0.8"
-                                " --hr-width 192 --hr-height 144 > /dev/null";
-    EXPECT_EQ(std::system(command.c_str()), 0);
-    Sequence read = ReadSequence(folder, true);
-    std::filesystem::remove_all(folder);
-    return read;
-  }();
+  static const Sequence sequence = test::SynthesizedDolls(
+      "prior", "--frames " + std::to_string(kFrames) +
+                   " --subframes 60 --fps 30 --exposure-ratio 0.8 --hr-width 192 --hr-height 144");
   return sequence;
 }
 
@@ -63,84 +55,14 @@ ros::Time FrameStamp(int t) {
   return ros::Time(100.0) + ros::Duration(TestSequence().frames[t].stamp);
 }
 
-template <typename Predicate>
-bool WaitFor(Predicate done, double seconds) {
-  const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(seconds);
-  while (ros::ok() && ros::WallTime::now() < deadline) {
-    if (done()) return true;
-    ros::WallDuration(0.02).sleep();
-  }
-  return done();
-}
-
-// A nodelet on its own namespace and camera topics with the rostest's cheap
-// settings, and what it publishes.
-class PriorNode {
+// The rostest's nodelet with a prior frame.
+class PriorNode : public test::LoadedNodelet {
  public:
-  PriorNode(const std::string& ns, const std::string& prior_frame, int iterations) : ns_(ns) {
-    ros::param::set(ns + "/estimator/exposure_time", 0.8 / 30.0);
-    ros::param::set(ns + "/estimator/window_size", 4);
-    ros::param::set(ns + "/estimator/window_overlap", 2);
-    ros::param::set(ns + "/estimator/max_pending_windows", 4);
-    ros::param::set(ns + "/estimator/samples", 16);
-    ros::param::set(ns + "/estimator/iterations", iterations);
-    ros::param::set(ns + "/estimator/lazy_subscription", false);
-    ros::param::set(ns + "/estimator/pose_prior_frame", prior_frame);
-    nodelet::M_string remappings{{ns + "/image", ns + "_camera/image"},
-                                 {ns + "/camera_info", ns + "_camera/camera_info"}};
-    loaded_ = loader_.load(ns + "/estimator", "deblur_sr_mvs/EstimatorNodelet", remappings, {});
-    ros::NodeHandle node;
-    subscribers_.push_back(node.subscribe<geometry_msgs::PoseStamped>(
-        ns + "/pose", 20, [this](const geometry_msgs::PoseStampedConstPtr& m) { Keep(&poses, m); }));
-    subscribers_.push_back(node.subscribe<sensor_msgs::Image>(
-        ns + "/depth/image", 20, [this](const sensor_msgs::ImageConstPtr& m) { Keep(&depths, m); }));
-    subscribers_.push_back(node.subscribe<EstimatorStatus>(
-        ns + "/status", 20, [this](const EstimatorStatusConstPtr& m) { Keep(&statuses, m); }));
-    subscribers_.push_back(
-        node.subscribe<nav_msgs::Path>(ns + "/path", 5, [this](const nav_msgs::PathConstPtr& m) {
-          std::lock_guard<std::mutex> lock(mutex);
-          path = m;
-        }));
-    images_ = node.advertise<sensor_msgs::Image>(ns + "_camera/image", 20);
-    infos_ = node.advertise<sensor_msgs::CameraInfo>(ns + "_camera/camera_info", 20);
-  }
-  ~PriorNode() { loader_.unload(ns_ + "/estimator"); }
-
-  bool Connected() {
-    return loaded_ &&
-           WaitFor([&] { return images_.getNumSubscribers() > 0 && infos_.getNumSubscribers() > 0; }, 30.0);
-  }
+  PriorNode(const std::string& ns, const std::string& prior_frame, int iterations)
+      : LoadedNodelet(ns, {{"pose_prior_frame", prior_frame}, {"iterations", iterations}}) {}
   void SendFrame(int t, const std::string& frame_id) {
-    std_msgs::Header header;
-    header.stamp = FrameStamp(t);
-    header.frame_id = frame_id;
-    infos_.publish(ros_glue::ScaledCameraInfo(TestSequence().calibration.camera, 1, header));
-    images_.publish(
-        ros_glue::Float01ToImage(ToFloat01(TestSequence().images[t]), ros_glue::ImageFamily::kRgb8, header));
+    Send(TestSequence().images[t], TestSequence().calibration.camera, FrameStamp(t), frame_id);
   }
-  size_t StatusCount() {
-    std::lock_guard<std::mutex> lock(mutex);
-    return statuses.size();
-  }
-
-  std::mutex mutex;
-  std::vector<geometry_msgs::PoseStampedConstPtr> poses;
-  std::vector<sensor_msgs::ImageConstPtr> depths;
-  std::vector<EstimatorStatusConstPtr> statuses;
-  nav_msgs::PathConstPtr path;
-
- private:
-  template <typename List, typename Message>
-  void Keep(List* list, const Message& message) {
-    std::lock_guard<std::mutex> lock(mutex);
-    list->push_back(message);
-  }
-
-  std::string ns_;
-  nodelet::Loader loader_{false};
-  bool loaded_ = false;
-  std::vector<ros::Subscriber> subscribers_;
-  ros::Publisher images_, infos_;
 };
 
 // Publishes parent <- child transforms on /tf (after the node's listener is connected).
@@ -148,7 +70,7 @@ class PriorPublisher {
  public:
   PriorPublisher() : publisher_(ros::NodeHandle().advertise<tf2_msgs::TFMessage>("/tf", 100)) {}
   bool Connected() {
-    return WaitFor([&] { return publisher_.getNumSubscribers() > 0; }, 30.0);
+    return test::WaitFor([&] { return publisher_.getNumSubscribers() > 0; }, 30.0);
   }
   void Send(const std::string& parent, const std::string& child, const ros::Time& stamp, const SE3& pose) {
     tf2_msgs::TFMessage message;
@@ -164,11 +86,6 @@ class PriorPublisher {
  private:
   ros::Publisher publisher_;
 };
-
-cv::Mat DepthOf(const sensor_msgs::Image& image) {
-  return cv::Mat(image.height, image.width, CV_32FC1, const_cast<uint8_t*>(image.data.data()), image.step)
-      .clone();
-}
 
 // Where "Frame <child> exists with parent <parent>." is in tf's frame list.
 bool HasParent(const tf2_ros::Buffer& buffer, const std::string& child, const std::string& parent) {
@@ -239,7 +156,7 @@ TEST(PosePrior, PosesInThePriorFrameAndDepthInMetres) {
     node.SendFrame(t, "prior_camera");
     ros::WallDuration(0.1).sleep();
   }
-  ASSERT_TRUE(WaitFor(
+  ASSERT_TRUE(test::WaitFor(
       [&] {
         std::lock_guard<std::mutex> lock(node.mutex);
         return node.poses.size() >= kFrames && node.depths.size() >= kFrames && node.statuses.size() >= 3;
@@ -262,7 +179,7 @@ TEST(PosePrior, PosesInThePriorFrameAndDepthInMetres) {
     const double error = (ros_glue::PoseFromMsg(pose.pose).translation() - truth[t]).norm();
     position_max = std::max(position_max, error);
     position_sq += error * error;
-    const cv::Mat depth = DepthOf(*node.depths[t]);
+    const cv::Mat depth = test::DepthOf(*node.depths[t]);
     const DepthErrors in_metres = EvaluateDepth(depth, sequence.ground_truth->depth[t], metres);
     const DepthErrors scaled = EvaluateDepth(depth, sequence.ground_truth->depth[t], aligned);
     error_metres += in_metres.relative_error / kFrames;
@@ -307,8 +224,8 @@ TEST(PosePrior, StillPriorIsReportedAndTheWorldIsKept) {
     node.SendFrame(t, "still_camera");
     ros::WallDuration(0.1).sleep();
   }
-  ASSERT_TRUE(WaitFor([&] { return node.StatusCount() >= 1; }, 120.0)) << "no window was processed";
-  ASSERT_TRUE(WaitFor(
+  ASSERT_TRUE(test::WaitFor([&] { return node.StatusCount() >= 1; }, 120.0)) << "no window was processed";
+  ASSERT_TRUE(test::WaitFor(
       [&] {
         std::lock_guard<std::mutex> lock(node.mutex);
         return node.poses.size() >= 4;
