@@ -104,3 +104,19 @@ dsm_make_demo_bag() {
   "$DSM_ROS_BIN/sequence_to_bag" --input "$DSM_DEMO_SEQUENCE" --output "$DSM_DEMO_BAG"
   DSM_DEMO_EXPOSURE="$(awk -F, 'NR == 2 { print $3 }' "$DSM_DEMO_SEQUENCE/frames.csv")"
 }
+
+# Waits (up to 10 minutes) until the node in namespace $1 says in its status
+# that it has published $2 frames; on failure prints the tail of log $3 and
+# one line naming the caller $4, and returns 1.
+dsm_wait_published() {
+  local ns="$1" frames="$2" log="$3" who="$4" published=0
+  echo "== waiting for the node to publish all $frames frames (log: $log)"
+  for _ in $(seq 300); do
+    published="$(timeout 5 rostopic echo -n 1 "$ns/status/frames_published" 2>/dev/null | head -n 1 || true)"
+    [ -n "$published" ] && [ "$published" -ge "$frames" ] && return 0
+    sleep 2
+  done
+  tail -n 20 "$log"
+  echo "$who: the node published ${published:-0} of $frames frames (log: $log)" >&2
+  return 1
+}

@@ -43,18 +43,7 @@ roslaunch deblur_sr_mvs play_bag.launch bag:="$out/dolls.bag" exposure_time:="$e
   delay:=3 >"$out/node.log" 2>&1 &
 dsm_pids+=($!)
 
-echo "== waiting for the node to publish all $frames frames (log: $out/node.log)"
-published=0
-for _ in $(seq 300); do
-  published="$(timeout 5 rostopic echo -n 1 $ns/status/frames_published 2>/dev/null | head -n 1 || true)"
-  [ -n "$published" ] && [ "$published" -ge "$frames" ] && break
-  sleep 2
-done
-if [ -z "$published" ] || [ "$published" -lt "$frames" ]; then
-  tail -n 20 "$out/node.log"
-  echo "demo: the node published ${published:-0} of $frames frames (log: $out/node.log)" >&2
-  exit 1
-fi
+dsm_wait_published "$ns" "$frames" "$out/node.log" demo
 sleep 1  # the recorder writes the last messages
 dsm_stop_processes
 trap - EXIT

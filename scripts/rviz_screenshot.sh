@@ -49,18 +49,7 @@ roslaunch deblur_sr_mvs play_bag.launch bag:="$DSM_DEMO_BAG" exposure_time:="$DS
 dsm_pids+=($!)
 
 ns=/deblur_sr_mvs
-echo "== waiting for the node to publish all $frames frames (log: $work/node.log)"
-published=0
-for _ in $(seq 300); do
-  published="$(timeout 5 rostopic echo -n 1 $ns/status/frames_published 2>/dev/null | head -n 1 || true)"
-  [ -n "$published" ] && [ "$published" -ge "$frames" ] && break
-  sleep 2
-done
-if [ -z "$published" ] || [ "$published" -lt "$frames" ]; then
-  tail -n 20 "$work/node.log"
-  echo "rviz_screenshot: the node published ${published:-0} of $frames frames (log: $work/node.log)" >&2
-  exit 1
-fi
+dsm_wait_published "$ns" "$frames" "$work/node.log" rviz_screenshot
 rosnode list 2>/dev/null | grep -qx /rviz ||
   { tail -n 20 "$work/node.log"; echo "rviz_screenshot: rviz is not running (log: $work/node.log)" >&2; exit 1; }
 sleep 3  # rviz draws the last messages

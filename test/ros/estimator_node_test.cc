@@ -504,12 +504,5 @@ TEST(EstimatorNodeletRotation, PublishesEveryFrameOfAPureRotation) {
 }  // namespace deblur_sr_mvs
 
 int main(int argc, char** argv) {
-  testing::InitGoogleTest(&argc, argv);
-  ros::init(argc, argv, "estimator_node_test");
-  ros::AsyncSpinner spinner(2);
-  spinner.start();
-  const int result = RUN_ALL_TESTS();
-  spinner.stop();
-  ros::shutdown();
-  return result;
+  return deblur_sr_mvs::test::RunRosTests(argc, argv, "estimator_node_test");
 }

@@ -141,5 +141,18 @@ class LoadedNodelet {
   std::vector<ros::Subscriber> subscribers_;
 };
 
+// main() of a rostest binary: gtest and ROS initialised, callbacks on a
+// spinner of two threads while the tests run.
+inline int RunRosTests(int argc, char** argv, const std::string& node_name) {
+  testing::InitGoogleTest(&argc, argv);
+  ros::init(argc, argv, node_name);
+  ros::AsyncSpinner spinner(2);
+  spinner.start();
+  const int result = RUN_ALL_TESTS();
+  spinner.stop();
+  ros::shutdown();
+  return result;
+}
+
 }  // namespace test
 }  // namespace deblur_sr_mvs

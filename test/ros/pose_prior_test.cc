@@ -250,12 +250,5 @@ TEST(PosePrior, StillPriorIsReportedAndTheWorldIsKept) {
 }  // namespace deblur_sr_mvs
 
 int main(int argc, char** argv) {
-  testing::InitGoogleTest(&argc, argv);
-  ros::init(argc, argv, "pose_prior_test");
-  ros::AsyncSpinner spinner(2);
-  spinner.start();
-  const int result = RUN_ALL_TESTS();
-  spinner.stop();
-  ros::shutdown();
-  return result;
+  return deblur_sr_mvs::test::RunRosTests(argc, argv, "pose_prior_test");
 }
