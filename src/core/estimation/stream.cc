@@ -213,20 +213,17 @@ StreamEstimator::StreamTie StreamEstimator::TieToStream(const InitialStructure& 
                                         initial.T_world_cam.begin() + num_shared);
   const double previous_path = PathLength(shared_previous);
   // Parallax (LR px at the median depth) of the shared cameras' motion: from
-  // kMinSharedParallaxPx on, their path carries the scale and they are all held.
+  // kMinSharedParallaxPx on, their path carries the scale.
   const double shared_parallax_px = reference_median_depth_ > 0.0
                                         ? camera_lr.fx * previous_path / reference_median_depth_
                                         : std::numeric_limits<double>::infinity();
   StreamTie tie;
   if (num_shared >= 2 && previous_path > 1e-12 && PathLength(shared_initial) > 1e-12 &&
       shared_parallax_px >= kMinSharedParallaxPx) {
-    tie.held = num_shared;
     tie.initial_to_stream = AlignPoseSequence(shared_initial, shared_previous);
     tie.how = "through " + std::to_string(num_shared) + " shared frames";
   } else {
-    // The shared cameras stay where the previous window put them; the new
-    // ones follow the last shared camera.
-    tie.held = num_shared;
+    // The new cameras follow the last shared one.
     double scale = DepthRatio(shared.depths, initial.depth_lr);
     tie.how = "through the last shared frame, scale from the shared frames' depth";
     if (!(scale > 0.0)) {
@@ -260,7 +257,7 @@ bool StreamEstimator::ContinueTrajectory(const EstimatorInput& input, const Shar
   const StreamTie tie = TieToStream(initial, shared, input.camera);
   std::vector<SE3> poses;
   for (size_t i = 0; i < input.images.size(); ++i) {
-    poses.push_back(static_cast<int>(i) < tie.held
+    poses.push_back(static_cast<int>(i) < num_shared
                         ? shared_previous[i]
                         : TransformPose(tie.initial_to_stream, initial.T_world_cam[i]));
   }
@@ -271,7 +268,7 @@ bool StreamEstimator::ContinueTrajectory(const EstimatorInput& input, const Shar
   // The held cameras stay where the previous window put them; the result
   // stays in the stream's world and scale.
   EstimatorOptions held = options;
-  held.fixed_leading_poses = tie.held;
+  held.fixed_leading_poses = num_shared;
   held.keep_input_gauge = true;
   Estimator estimator(held);
   estimator.SetCancelFlag(cancel_);

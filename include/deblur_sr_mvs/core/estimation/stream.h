@@ -190,7 +190,6 @@ class StreamEstimator {
   // shared frames' depths, or the last known median depth.
   struct StreamTie {
     Sim3 initial_to_stream;
-    int held = 1;     // leading (shared) cameras the estimator holds
     std::string how;  // for the window's note
   };
   static constexpr double kMinSharedParallaxPx = 1.0;
