@@ -525,7 +525,11 @@ TEST(EstimatorNodeletExposure, TopicExposureBeatsAWrongParameterAndFallsBack) {
   const std::map<std::string, XmlRpc::XmlRpcValue> params{{"exposure_time", wrong}, {"iterations", 1}};
   test::LoadedNodelet with_topic("/exposure_topic", params);
   test::LoadedNodelet without("/exposure_parameter", params);
-  ASSERT_TRUE(with_topic.Connected() && without.Connected()) << "the nodelets did not load or subscribe";
+  // The reference: the right exposure_time (every frame has the same exposure).
+  test::LoadedNodelet right("/exposure_right",
+                            {{"exposure_time", sequence.frames[0].exposure}, {"iterations", 1}});
+  ASSERT_TRUE(with_topic.Connected() && without.Connected() && right.Connected())
+      << "the nodelets did not load or subscribe";
   ASSERT_TRUE(WaitFor([&] { return with_topic.exposures.getNumSubscribers() > 0; }, 30.0));
   for (int t = 0; t < kWindow; ++t) {
     const ros::Time stamp = FrameStamp(t);
@@ -535,13 +539,14 @@ TEST(EstimatorNodeletExposure, TopicExposureBeatsAWrongParameterAndFallsBack) {
     with_topic.Send(sequence.images[t], sequence.calibration.camera, stamp);
     if (t % 2 == 1) with_topic.SendExposure(stamp, exposure);  // after its image
     without.Send(sequence.images[t], sequence.calibration.camera, stamp);
+    right.Send(sequence.images[t], sequence.calibration.camera, stamp);
     ros::WallDuration(0.05).sleep();
   }
   auto done = [&](test::LoadedNodelet& node) {
     std::lock_guard<std::mutex> lock(node.mutex);
     return !node.statuses.empty() && node.restored.size() >= static_cast<size_t>(kWindow);
   };
-  ASSERT_TRUE(WaitFor([&] { return done(with_topic) && done(without); }, 180.0));
+  ASSERT_TRUE(WaitFor([&] { return done(with_topic) && done(without) && done(right); }, 180.0));
 
   const EstimatorStatus topic = *with_topic.statuses[0];
   const EstimatorStatus parameter = *without.statuses[0];
@@ -562,9 +567,15 @@ TEST(EstimatorNodeletExposure, TopicExposureBeatsAWrongParameterAndFallsBack) {
   }
   const double psnr_topic = MeanRestoredPsnr(&with_topic, sequence, kWindow);
   const double psnr_parameter = MeanRestoredPsnr(&without, sequence, kWindow);
-  std::printf("node, exposure_time 2x too short: restored %.2f dB with the exposure topic, %.2f dB without\n",
-              psnr_topic, psnr_parameter);
+  const double psnr_right = MeanRestoredPsnr(&right, sequence, kWindow);
+  std::printf(
+      "node, exposure_time 2x too short: restored %.2f dB with the exposure topic, %.2f dB without "
+      "(right exposure_time: %.2f dB)\n",
+      psnr_topic, psnr_parameter, psnr_right);
   EXPECT_GT(psnr_topic, psnr_parameter);
+  // The topic carries the true exposure (to 1 ns): as good as the right
+  // parameter, up to a small fraction of what the wrong one loses.
+  EXPECT_NEAR(psnr_topic, psnr_right, 0.1 * (psnr_right - psnr_parameter));
 }
 
 // Exposures for some frames only: the others fall back to exposure_time, and
