@@ -20,6 +20,13 @@ constexpr double kMaxFutureSeconds = 10.0;        // stamps further ahead of the
 constexpr double kMinImageDeviation = 1.0 / 512;  // below: a constant image (no texture at all)
 constexpr size_t kMaxUnmatchedImages = 5;         // images waiting for their camera_info
 constexpr size_t kMaxRecentInfos = 10;            // camera_infos waiting for their image
+// Exposure messages kept for frames not yet taken by the worker (a window of
+// up to 64 frames plus the pending windows).
+constexpr size_t kMaxExposures = 512;
+constexpr double kMaxExposureSeconds = 10.0;  // the range of exposure_time
+// How long the worker waits for the exposure of a window's newest frame (the
+// message may follow its image a little).
+constexpr double kExposureWaitSeconds = 0.1;
 const std::string kNoCameraInfo = "no camera_info with the image's stamp on ";
 constexpr char kScaleNote[] =
     "monocular: poses and depths are in units where the median scene depth of the first window is 1, "
@@ -87,6 +94,7 @@ EstimatorNodelet::~EstimatorNodelet() {
     std::lock_guard<std::mutex> lock(connect_mutex_);
     image_subscriber_.shutdown();
     info_subscriber_.shutdown();
+    exposure_subscriber_.shutdown();
   }
   diagnostics_timer_.stop();
   if (queue_) queue_->Stop();
@@ -119,6 +127,7 @@ void EstimatorNodelet::onInit() {
   transport_ = std::make_shared<image_transport::ImageTransport>(node);
   image_topic_ = node.resolveName("image");
   info_topic_ = image_transport::getCameraInfoTopic(image_topic_);
+  exposure_topic_ = node.resolveName("exposure");
   image_transport::SubscriberStatusCallback image_connect =
       [this](const image_transport::SingleSubscriberPublisher&) { ConnectCallback(); };
   ros::SubscriberStatusCallback ros_connect = [this](const ros::SingleSubscriberPublisher&) {
@@ -158,10 +167,11 @@ void EstimatorNodelet::onInit() {
       [this](EstimatorConfig& config, uint32_t level) { ReconfigureCallback(config, level); });
 
   worker_ = std::thread(&EstimatorNodelet::WorkerLoop, this);
-  NODELET_INFO("deblur_sr_mvs: windows of %d frames (overlap %d), x%d, exposure %.4f s; input %s + %s%s",
-               params_.stream.window_size, params_.stream.window_overlap, params_.estimator.scale,
-               params_.exposure_time, image_topic_.c_str(), info_topic_.c_str(),
-               params_.lazy_subscription ? " (subscribed while outputs have subscribers)" : "");
+  NODELET_INFO(
+      "deblur_sr_mvs: windows of %d frames (overlap %d), x%d, exposure from %s else %.4f s; input %s + %s%s",
+      params_.stream.window_size, params_.stream.window_overlap, params_.estimator.scale,
+      exposure_topic_.c_str(), params_.exposure_time, image_topic_.c_str(), info_topic_.c_str(),
+      params_.lazy_subscription ? " (subscribed while outputs have subscribers)" : "");
   lock.unlock();
   ConnectCallback();  // eager mode subscribes at once
 }
@@ -178,10 +188,12 @@ void EstimatorNodelet::ConnectCallback() {
     image_transport::TransportHints hints("raw", ros::TransportHints(), getPrivateNodeHandle());
     image_subscriber_ = transport_->subscribe("image", 2, &EstimatorNodelet::ImageCallback, this, hints);
     info_subscriber_ = node.subscribe(info_topic_, 10, &EstimatorNodelet::InfoCallback, this);
+    exposure_subscriber_ = node.subscribe(exposure_topic_, 20, &EstimatorNodelet::ExposureCallback, this);
     subscribed_ = true;
   } else if (!wanted && subscribed_) {
     image_subscriber_.shutdown();
     info_subscriber_.shutdown();
+    exposure_subscriber_.shutdown();
     subscribed_ = false;
   }
 }
@@ -225,6 +237,42 @@ void EstimatorNodelet::InfoCallback(const sensor_msgs::CameraInfoConstPtr& info)
   }
   recent_infos_.push_back(info);
   while (recent_infos_.size() > kMaxRecentInfos) recent_infos_.pop_front();
+}
+
+void EstimatorNodelet::ExposureCallback(const sensor_msgs::TimeReferenceConstPtr& message) {
+  if (shutting_down_) return;
+  std::lock_guard<std::mutex> lock(input_mutex_);
+  const ros::Time& stamp = message->header.stamp;
+  if (params_.stamp_position == ros_glue::StampPosition::kStart) {
+    RejectExposure(
+        "exposure message ignored: with stamp_position start the stamp is the shutter open "
+        "time, so time_ref cannot give the exposure; using exposure_time");
+    return;
+  }
+  if (stamp.isZero() || message->time_ref.isZero()) {
+    RejectExposure("exposure message with a zero header.stamp or time_ref: not used");
+    return;
+  }
+  const double exposure = params_.ExposureFromShutterOpen((stamp - message->time_ref).toSec());
+  if (!(exposure > 0.0) || exposure > kMaxExposureSeconds) {
+    RejectExposure("exposure message at " + std::to_string(stamp.toSec()) + " gives exposure " +
+                   std::to_string(exposure) + " s (time_ref must be the shutter open time, 0 to " +
+                   std::to_string(kMaxExposureSeconds) + " s before the shutter closes): not used");
+    return;
+  }
+  exposures_.emplace_back(stamp, exposure);
+  while (exposures_.size() > kMaxExposures) exposures_.pop_front();
+  exposures_seen_ = true;
+}
+
+void EstimatorNodelet::RejectExposure(const std::string& why) {
+  const uint64_t count = ++exposures_rejected_;
+  if (count == 1) {
+    NODELET_WARN("deblur_sr_mvs: %s (on %s)", why.c_str(), exposure_topic_.c_str());
+  } else {
+    NODELET_WARN_THROTTLE(10.0, "deblur_sr_mvs: %s (%lu exposure messages rejected so far)", why.c_str(),
+                          static_cast<unsigned long>(count));
+  }
 }
 
 void EstimatorNodelet::RejectFrame(const std::string& category, const std::string& reason) {
@@ -354,6 +402,7 @@ void EstimatorNodelet::QueueWindow(StreamWindow frames) {
   window.camera_frame = stream_camera_frame_;
   window.input_frame = stream_input_frame_;
   window.epoch = epoch_;
+  window.epoch_origin = epoch_origin_;
   window.completed = ros::WallTime::now();
   if (queue_->Push(std::move(window)) > 0) {
     NODELET_WARN_THROTTLE(5.0,
@@ -392,7 +441,7 @@ void EstimatorNodelet::ProcessWindow(PendingWindow window) {
   status.header.stamp = TimeFromNs(window.frames.back().stamp_ns);
   status.window_index = window_index_;
   for (const StreamFrame& frame : window.frames) status.frame_stamps.push_back(TimeFromNs(frame.stamp_ns));
-  const bool clamped = ClampExposures(&window.frames);
+  const bool clamped = ResolveExposures(params, &window, &status);
 
   const ros::WallTime start = ros::WallTime::now();
   WindowEstimate estimate;
@@ -463,6 +512,45 @@ ros_glue::NodeParameters EstimatorNodelet::SyncWorker(const PendingWindow& windo
     worker_epoch_ = window.epoch;
   }
   return params;
+}
+
+bool EstimatorNodelet::ResolveExposures(const ros_glue::NodeParameters& params, PendingWindow* window,
+                                        EstimatorStatus* status) {
+  StreamWindow& frames = window->frames;
+  auto find = [this](const ros::Time& stamp) {  // the latest message for `stamp` (input_mutex_ held)
+    return std::find_if(exposures_.rbegin(), exposures_.rend(),
+                        [&](const std::pair<ros::Time, double>& entry) { return entry.first == stamp; });
+  };
+  const ros::Time newest = TimeFromNs(frames.back().stamp_ns);
+  const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(kExposureWaitSeconds);
+  std::unique_lock<std::mutex> lock(input_mutex_);
+  while (exposures_seen_ && find(newest) == exposures_.rend() && !shutting_down_ &&
+         ros::WallTime::now() < deadline) {
+    lock.unlock();
+    ros::WallDuration(0.005).sleep();
+    lock.lock();
+  }
+  size_t from_topic = 0;
+  for (StreamFrame& frame : frames) {
+    const ros::Time stamp = TimeFromNs(frame.stamp_ns);
+    const auto found = find(stamp);
+    frame.exposure = found != exposures_.rend() ? found->second : params.exposure_time;
+    from_topic += found != exposures_.rend();
+    // t_c follows the exposure unless the stamp is t_c (stamp_position end).
+    frame.stamp_close = (stamp - window->epoch_origin).toSec() + params.CloseOffset(frame.exposure);
+  }
+  lock.unlock();
+  const bool clamped = ClampExposures(&frames);
+  for (const StreamFrame& frame : frames) status->frame_exposures.push_back(frame.exposure);
+  if (from_topic == frames.size()) {
+    status->exposure_source = "topic";
+  } else if (from_topic == 0) {
+    status->exposure_source = "parameter";
+  } else {
+    status->exposure_source = "topic for " + std::to_string(from_topic) + " of " +
+                              std::to_string(frames.size()) + " frames, parameter for the rest";
+  }
+  return clamped;
 }
 
 void EstimatorNodelet::SkipWindow(const std::string& message, bool restart, EstimatorStatus* status) {
@@ -604,7 +692,8 @@ void EstimatorNodelet::DescribeEstimate(const WindowEstimate& estimate, bool cla
   status->success = true;
   status->continued = estimate.continued;
   status->first_new = estimate.first_new;
-  status->message = estimate.note + (clamped ? "; exposure_time clamped to the frame interval" : "");
+  status->message = (estimate.note.empty() ? "" : estimate.note + "; ") + "exposure from " +
+                    status->exposure_source + (clamped ? " (clamped to the frame interval)" : "");
   for (const std::string& note : result.notes) status->message += "; " + note;
   for (const EnergyRecord& energy : result.energies) {
     status->energy_stages.push_back(energy.stage);
@@ -625,6 +714,7 @@ void EstimatorNodelet::PublishStatus(EstimatorStatus status) {
   status.windows_dropped = queue_->dropped();
   status.windows_failed = windows_failed_;
   status.resets = resets_;
+  status.exposures_rejected = exposures_rejected_;
   if (status.scale_note.empty()) status.scale_note = kScaleNote;
   status_publisher_.publish(status);
 }

@@ -1,5 +1,7 @@
 #include "deblur_sr_mvs/ros/node_parameters.h"
 
+#include <limits>
+
 #include "deblur_sr_mvs/core/common/options_check.h"
 
 namespace deblur_sr_mvs {
@@ -50,16 +52,28 @@ void NodeParameters::Check() const {
   CheckAtLeast("max_path_length", max_path_length, 1);
 }
 
-double NodeParameters::CloseOffset() const {
+double NodeParameters::CloseOffset(double exposure) const {
   switch (stamp_position) {
     case StampPosition::kStart:
-      return exposure_time;
+      return exposure;
     case StampPosition::kMiddle:
-      return 0.5 * exposure_time;
+      return 0.5 * exposure;
     case StampPosition::kEnd:
       return 0.0;
   }
   return 0.0;
+}
+
+double NodeParameters::ExposureFromShutterOpen(double stamp_minus_open) const {
+  switch (stamp_position) {
+    case StampPosition::kStart:
+      break;
+    case StampPosition::kMiddle:
+      return 2.0 * stamp_minus_open;
+    case StampPosition::kEnd:
+      return stamp_minus_open;
+  }
+  return std::numeric_limits<double>::quiet_NaN();
 }
 
 namespace {

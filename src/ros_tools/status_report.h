@@ -33,6 +33,10 @@ inline Json StatusReportJson(const std::vector<EstimatorStatusConstPtr>& statuse
       stages[s.stage_names[k]] = JsonNumber(s.stage_seconds[k]);
     }
     window["stages"] = stages;
+    window["exposure_source"] = s.exposure_source;
+    Json exposures = Json::array();
+    for (const double exposure : s.frame_exposures) exposures.push_back(JsonNumber(exposure));
+    window["frame_exposures"] = exposures;
     windows.push_back(window);
   }
   report["windows"] = windows;
@@ -43,6 +47,7 @@ inline Json StatusReportJson(const std::vector<EstimatorStatusConstPtr>& statuse
     report["frames_published"] = last.frames_published;
     report["windows_dropped"] = last.windows_dropped;
     report["windows_failed"] = last.windows_failed;
+    report["exposures_rejected"] = last.exposures_rejected;
     report["scale_note"] = last.scale_note;
   }
   return report;

@@ -526,7 +526,8 @@ TEST_F(BagToolsTest, BadCommandLinesAndFoldersExitWithOneLine) {
 }
 
 // bag_to_result's report.json: a window whose iteration was undone has a NaN
-// energy; the report is strict JSON with null in its place.
+// energy; the report is strict JSON with null in its place. The exposures
+// come along.
 TEST(BagToResultReport, NanEnergyBecomesNullInStrictJson) {
   auto status = boost::make_shared<EstimatorStatus>();
   status->window_index = 1;
@@ -538,6 +539,9 @@ TEST(BagToResultReport, NanEnergyBecomesNullInStrictJson) {
   status->stage_seconds = {0.25, std::numeric_limits<double>::infinity()};
   status->processing_seconds = 1.5;
   status->scale_note = "arbitrary";
+  status->exposure_source = "topic for 2 of 3 frames, parameter for the rest";
+  status->frame_exposures = {0.02, 0.021, 0.01};
+  status->exposures_rejected = 4;
   const std::vector<EstimatorStatusConstPtr> statuses = {status};
   const std::string text = JsonText(StatusReportJson(statuses));
   nlohmann::json report;
@@ -551,6 +555,11 @@ TEST(BagToResultReport, NanEnergyBecomesNullInStrictJson) {
   EXPECT_TRUE(window["energies"][1].is_null());
   EXPECT_TRUE(window["stages"]["structure update"].is_null());
   EXPECT_EQ(report["scale_note"], "arbitrary");
+  // The exposure of each frame and where it came from (docs/file_formats.md#report).
+  EXPECT_EQ(window["exposure_source"], status->exposure_source);
+  ASSERT_EQ(window["frame_exposures"].size(), 3u);
+  EXPECT_EQ(window["frame_exposures"][1].get<double>(), 0.021);
+  EXPECT_EQ(report["exposures_rejected"], 4);
   EXPECT_EQ(nlohmann::json::parse(JsonText(StatusReportJson({})))["windows"].size(), 0u);
 }
 

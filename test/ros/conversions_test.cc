@@ -231,6 +231,24 @@ TEST(NodeParameters, StampPositionGivesTheShutterClose) {
   EXPECT_THROW(ParseStampPosition("centre"), InputError);
 }
 
+// An exposure message (time_ref = shutter open t_o, docs/ros_interface.md#exposure)
+// gives back the exposure e whose shutter close follows stamp_position:
+// t_c - t_o = e for the stamp that stamp_position puts within [t_o, t_c].
+TEST(NodeParameters, ShutterOpenGivesTheExposureConsistentWithTheClose) {
+  NodeParameters params;
+  params.exposure_time = 0.5;  // not used: each frame's own exposure
+  const double exposure = 0.02;
+  for (const char* position : {"middle", "end"}) {
+    params.stamp_position = ParseStampPosition(position);
+    const double stamp = 10.0;
+    const double t_close = stamp + params.CloseOffset(exposure);
+    const double t_open = t_close - exposure;
+    EXPECT_NEAR(params.ExposureFromShutterOpen(stamp - t_open), exposure, 1e-12) << position;
+  }
+  params.stamp_position = ParseStampPosition("start");  // the stamp is t_o: nothing to read
+  EXPECT_TRUE(std::isnan(params.ExposureFromShutterOpen(0.0)));
+}
+
 // The message of params.Check(), "" when it passes.
 std::string CheckMessage(const NodeParameters& params) {
   try {

@@ -500,6 +500,109 @@ TEST(EstimatorNodeletRotation, PublishesEveryFrameOfAPureRotation) {
   EXPECT_LE(worst_deg, 0.2);
 }
 
+// Mean PSNR (dB) of the restored frames against the ground truth latents.
+double MeanRestoredPsnr(test::LoadedNodelet* node, const Sequence& sequence, int frames) {
+  std::lock_guard<std::mutex> lock(node->mutex);
+  double psnr = 0.0;
+  for (int t = 0; t < frames; ++t) {
+    ros_glue::ImageFamily family;
+    psnr += Psnr(ToImage8(ros_glue::ImageToFloat01(*node->restored[t], &family)),
+                 sequence.ground_truth->latent[t], 255.0) /
+            frames;
+  }
+  return psnr;
+}
+
+// Per-frame exposure on the exposure topic (docs/ros_interface.md#exposure):
+// with exposure_time wrong by 2x, the node given the right exposures says
+// "topic", uses exactly them and restores better than a node given the wrong
+// parameter alone, which says "parameter". Exposures arrive before or after
+// their images; a bad one is rejected and counted.
+TEST(EstimatorNodeletExposure, TopicExposureBeatsAWrongParameterAndFallsBack) {
+  constexpr int kWindow = 4;  // one window: frames 0-3
+  const Sequence& sequence = TestSequence();
+  const double wrong = 0.5 * sequence.frames[0].exposure;  // 2x too short (too long would be clamped)
+  const std::map<std::string, XmlRpc::XmlRpcValue> params{{"exposure_time", wrong}, {"iterations", 1}};
+  test::LoadedNodelet with_topic("/exposure_topic", params);
+  test::LoadedNodelet without("/exposure_parameter", params);
+  // The reference: the right exposure_time (every frame has the same exposure).
+  test::LoadedNodelet right("/exposure_right",
+                            {{"exposure_time", sequence.frames[0].exposure}, {"iterations", 1}});
+  ASSERT_TRUE(with_topic.Connected() && without.Connected() && right.Connected())
+      << "the nodelets did not load or subscribe";
+  ASSERT_TRUE(WaitFor([&] { return with_topic.exposures.getNumSubscribers() > 0; }, 30.0));
+  for (int t = 0; t < kWindow; ++t) {
+    const ros::Time stamp = FrameStamp(t);
+    const double exposure = sequence.frames[t].exposure;
+    if (t == 1) with_topic.SendExposure(stamp, -0.01);  // shutter opens after it closes: rejected
+    if (t % 2 == 0) with_topic.SendExposure(stamp, exposure);
+    with_topic.Send(sequence.images[t], sequence.calibration.camera, stamp);
+    if (t % 2 == 1) with_topic.SendExposure(stamp, exposure);  // after its image
+    without.Send(sequence.images[t], sequence.calibration.camera, stamp);
+    right.Send(sequence.images[t], sequence.calibration.camera, stamp);
+    ros::WallDuration(0.05).sleep();
+  }
+  auto done = [&](test::LoadedNodelet& node) {
+    std::lock_guard<std::mutex> lock(node.mutex);
+    return !node.statuses.empty() && node.restored.size() >= static_cast<size_t>(kWindow);
+  };
+  ASSERT_TRUE(WaitFor([&] { return done(with_topic) && done(without) && done(right); }, 180.0));
+
+  const EstimatorStatus topic = *with_topic.statuses[0];
+  const EstimatorStatus parameter = *without.statuses[0];
+  EXPECT_TRUE(topic.success) << topic.message;
+  EXPECT_TRUE(parameter.success) << parameter.message;
+  EXPECT_EQ(topic.exposure_source, "topic");
+  EXPECT_NE(topic.message.find("exposure from topic"), std::string::npos) << topic.message;
+  EXPECT_EQ(topic.exposures_rejected, 1u);
+  EXPECT_EQ(parameter.exposure_source, "parameter");
+  EXPECT_NE(parameter.message.find("exposure from parameter"), std::string::npos) << parameter.message;
+  EXPECT_EQ(parameter.exposures_rejected, 0u);
+  ASSERT_EQ(topic.frame_exposures.size(), static_cast<size_t>(kWindow));
+  ASSERT_EQ(parameter.frame_exposures.size(), static_cast<size_t>(kWindow));
+  for (int t = 0; t < kWindow; ++t) {
+    // The messages carry whole nanoseconds.
+    EXPECT_NEAR(topic.frame_exposures[t], sequence.frames[t].exposure, 1e-9) << "frame " << t;
+    EXPECT_DOUBLE_EQ(parameter.frame_exposures[t], wrong) << "frame " << t;
+  }
+  const double psnr_topic = MeanRestoredPsnr(&with_topic, sequence, kWindow);
+  const double psnr_parameter = MeanRestoredPsnr(&without, sequence, kWindow);
+  const double psnr_right = MeanRestoredPsnr(&right, sequence, kWindow);
+  std::printf(
+      "node, exposure_time 2x too short: restored %.2f dB with the exposure topic, %.2f dB without "
+      "(right exposure_time: %.2f dB)\n",
+      psnr_topic, psnr_parameter, psnr_right);
+  EXPECT_GT(psnr_topic, psnr_parameter);
+  // The topic carries the true exposure (to 1 ns): as good as the right
+  // parameter, up to a small fraction of what the wrong one loses.
+  EXPECT_NEAR(psnr_topic, psnr_right, 0.1 * (psnr_right - psnr_parameter));
+}
+
+// Exposures for some frames only: the others fall back to exposure_time, and
+// status says how many came from where.
+TEST(EstimatorNodeletExposure, FramesWithoutAMessageFallBackToTheParameter) {
+  constexpr int kWindow = 4;
+  const Sequence& sequence = TestSequence();
+  test::LoadedNodelet node("/exposure_mixed", {{"iterations", 0}, {"samples", 8}});
+  ASSERT_TRUE(node.Connected()) << "the nodelet did not load or subscribe";
+  ASSERT_TRUE(WaitFor([&] { return node.exposures.getNumSubscribers() > 0; }, 30.0));
+  const double parameter = 0.8 / 30.0;  // LoadedNodelet's exposure_time
+  for (int t = 0; t < kWindow; ++t) {
+    if (t < 3) node.SendExposure(FrameStamp(t), 0.5 * sequence.frames[t].exposure);
+    node.Send(sequence.images[t], sequence.calibration.camera, FrameStamp(t));
+    ros::WallDuration(0.05).sleep();
+  }
+  ASSERT_TRUE(WaitFor([&] { return node.StatusCount() >= 1; }, 120.0));
+  std::lock_guard<std::mutex> lock(node.mutex);
+  const EstimatorStatus& status = *node.statuses[0];
+  EXPECT_EQ(status.exposure_source, "topic for 3 of 4 frames, parameter for the rest");
+  EXPECT_NE(status.message.find("exposure from topic for 3 of 4 frames"), std::string::npos)
+      << status.message;
+  ASSERT_EQ(status.frame_exposures.size(), static_cast<size_t>(kWindow));
+  for (int t = 0; t < 3; ++t) EXPECT_NEAR(status.frame_exposures[t], 0.5 * sequence.frames[t].exposure, 1e-9);
+  EXPECT_DOUBLE_EQ(status.frame_exposures[3], parameter);
+}
+
 }  // namespace
 }  // namespace deblur_sr_mvs
 

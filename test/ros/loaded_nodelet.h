@@ -19,6 +19,7 @@
 #include <ros/ros.h>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
+#include <sensor_msgs/TimeReference.h>
 
 #include "deblur_sr_mvs/EstimatorStatus.h"
 #include "deblur_sr_mvs/core/imaging/image_ops.h"
@@ -72,7 +73,7 @@ inline cv::Mat DepthOf(const sensor_msgs::Image& image) {
       .clone();
 }
 
-// The nodelet at `ns`/estimator, reading `ns`_camera/image + camera_info,
+// The nodelet at `ns`/estimator, reading `ns`_camera/image + camera_info (+ exposure),
 // with cheap settings (windows of 4 overlapping by 2, M 16) that `params`
 // (private parameter -> value) override.
 class LoadedNodelet {
@@ -84,7 +85,8 @@ class LoadedNodelet {
     for (const auto& [name, value] : params) all[name] = value;
     for (const auto& [name, value] : all) ros::param::set(ns + "/estimator/" + name, value);
     nodelet::M_string remappings{{ns + "/image", ns + "_camera/image"},
-                                 {ns + "/camera_info", ns + "_camera/camera_info"}};
+                                 {ns + "/camera_info", ns + "_camera/camera_info"},
+                                 {ns + "/exposure", ns + "_camera/exposure"}};
     loaded_ = loader_.load(ns + "/estimator", "deblur_sr_mvs/EstimatorNodelet", remappings, {});
     ros::NodeHandle node;
     subscribers_.push_back(node.subscribe<sensor_msgs::Image>(
@@ -102,6 +104,7 @@ class LoadedNodelet {
         }));
     images = node.advertise<sensor_msgs::Image>(ns + "_camera/image", 50);
     infos = node.advertise<sensor_msgs::CameraInfo>(ns + "_camera/camera_info", 50);
+    exposures = node.advertise<sensor_msgs::TimeReference>(ns + "_camera/exposure", 50);
   }
   ~LoadedNodelet() { loader_.unload(ns_ + "/estimator"); }
 
@@ -116,6 +119,15 @@ class LoadedNodelet {
     infos.publish(InfoMessage(camera, stamp, frame_id));
     images.publish(Rgb8Message(bgr, stamp, frame_id));
   }
+  // The exposure of the frame at `stamp` as sequence_to_bag writes it
+  // (docs/file_formats.md#exposure): time_ref = the shutter open time.
+  void SendExposure(const ros::Time& stamp, double exposure) {
+    sensor_msgs::TimeReference message;
+    message.header.stamp = stamp;
+    message.time_ref = stamp - ros::Duration(exposure);
+    message.source = "shutter_open";
+    exposures.publish(message);
+  }
   size_t StatusCount() {
     std::lock_guard<std::mutex> lock(mutex);
     return statuses.size();
@@ -126,7 +138,7 @@ class LoadedNodelet {
   std::vector<geometry_msgs::PoseStampedConstPtr> poses;
   std::vector<EstimatorStatusConstPtr> statuses;
   nav_msgs::PathConstPtr path;
-  ros::Publisher images, infos;
+  ros::Publisher images, infos, exposures;
 
  private:
   template <typename List, typename Message>

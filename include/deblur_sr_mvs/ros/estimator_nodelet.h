@@ -11,6 +11,7 @@
 #include <mutex>
 #include <string>
 #include <thread>
+#include <utility>
 
 #include <diagnostic_updater/diagnostic_updater.h>
 #include <dynamic_reconfigure/server.h>
@@ -21,6 +22,7 @@
 #include <ros/ros.h>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
+#include <sensor_msgs/TimeReference.h>
 #include <tf2_ros/buffer.h>
 #include <tf2_ros/transform_broadcaster.h>
 #include <tf2_ros/transform_listener.h>
@@ -49,6 +51,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
     std::string camera_frame;  // child frame of the outputs
     std::string input_frame;   // the images' frame_id (the real camera's)
     uint64_t epoch = 0;        // stream restarts so far
+    ros::Time epoch_origin;    // the stamp whose StreamFrame::stamp_close is 0 (+ close offset)
     ros::WallTime completed;   // arrival of the window's last frame
   };
 
@@ -56,6 +59,10 @@ class EstimatorNodelet : public nodelet::Nodelet {
   void ConnectCallback();
   void ImageCallback(const sensor_msgs::ImageConstPtr& image);
   void InfoCallback(const sensor_msgs::CameraInfoConstPtr& info);
+  // A frame's exposure (docs/ros_interface.md#exposure): checked and kept by
+  // stamp until the worker takes the frame's window.
+  void ExposureCallback(const sensor_msgs::TimeReferenceConstPtr& message);
+  void RejectExposure(const std::string& why);
   // ---- Input side (input_mutex_ held).
   // Checks one matched image + camera_info and buffers it.
   void AcceptFrame(const sensor_msgs::ImageConstPtr& image, const sensor_msgs::CameraInfoConstPtr& info);
@@ -86,6 +93,11 @@ class EstimatorNodelet : public nodelet::Nodelet {
   // The parameters for `window`, applied to the estimator (reconfigured
   // since the last window); a new epoch resets the stream and the path.
   ros_glue::NodeParameters SyncWorker(const PendingWindow& window);
+  // Each frame's exposure from the exposure topic (waiting briefly for the
+  // newest frame's), else exposure_time, clamped to the frame interval
+  // (true when any was); says which in `status`.
+  bool ResolveExposures(const ros_glue::NodeParameters& params, PendingWindow* window,
+                        EstimatorStatus* status);
   // A failed window: counted, warned and said in `status`; `restart` also
   // restarts the trajectory.
   void SkipWindow(const std::string& message, bool restart, EstimatorStatus* status);
@@ -108,7 +120,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
   void Diagnose(diagnostic_updater::DiagnosticStatusWrapper& status);
 
   // ---- Set in onInit, then read-only.
-  std::string image_topic_, info_topic_;
+  std::string image_topic_, info_topic_, exposure_topic_;
   std::shared_ptr<image_transport::ImageTransport> transport_;
   image_transport::CameraPublisher restored_publisher_, depth_publisher_;
   ros::Publisher pose_publisher_, path_publisher_, points_publisher_, status_publisher_;
@@ -126,7 +138,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
   bool subscribed_ = false;
   bool lazy_subscription_ = true;
   image_transport::Subscriber image_subscriber_;
-  ros::Subscriber info_subscriber_;
+  ros::Subscriber info_subscriber_, exposure_subscriber_;
 
   // ---- Input side (input_mutex_): parameters, matching, windowing.
   std::mutex input_mutex_;
@@ -134,6 +146,9 @@ class EstimatorNodelet : public nodelet::Nodelet {
   uint64_t params_version_ = 0;
   std::deque<sensor_msgs::ImageConstPtr> unmatched_images_;
   std::deque<sensor_msgs::CameraInfoConstPtr> recent_infos_;
+  // (image stamp, exposure s) of the exposure topic, the latest few hundred in arrival order.
+  std::deque<std::pair<ros::Time, double>> exposures_;
+  bool exposures_seen_ = false;  // an exposure was accepted: worth waiting for one
   std::unique_ptr<FrameWindower> windower_;
   bool have_stream_ = false;
   ros::Time last_stamp_, epoch_origin_;
@@ -158,6 +173,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
   std::atomic<bool> shutting_down_{false};
   std::atomic<uint64_t> frames_received_{0}, frames_rejected_{0}, frames_published_{0};
   std::atomic<uint64_t> windows_processed_{0}, windows_failed_{0}, resets_{0};
+  std::atomic<uint64_t> exposures_rejected_{0};
   std::mutex health_mutex_;
   double last_latency_ = 0.0, last_processing_ = 0.0;
   std::string last_problem_;

@@ -56,8 +56,15 @@ struct NodeParameters {
   DistortionPolicy distortion = DistortionPolicy::kReject;  // ~assume_rectified
 
   void Check() const;  // throws InputError naming the bad parameter
-  // Shutter close time t_c minus the header stamp (s).
-  double CloseOffset() const;
+  // Shutter close time t_c minus the header stamp (s), for exposure_time or
+  // for a frame's own exposure (from the exposure topic).
+  double CloseOffset() const { return CloseOffset(exposure_time); }
+  double CloseOffset(double exposure) const;
+  // The exposure of a frame whose header stamp is `stamp_minus_open` seconds
+  // after its shutter opened (sensor_msgs/TimeReference on ~exposure,
+  // docs/ros_interface.md#exposure): stamp - t_o with `end`, twice that with
+  // `middle`; NaN with `start` (the stamp is t_o: the message carries no exposure).
+  double ExposureFromShutterOpen(double stamp_minus_open) const;
 };
 
 // Calls visit(name, member) for every private parameter of the node, in the
