@@ -39,6 +39,9 @@ void NodeParameters::Check() const {
   CheckAbove("max_frame_gap", max_frame_gap, 0.0);
   CheckAbove("max_step_ratio", max_step_ratio, 1.0);
   stream.Check();
+  // The node's name for EstimatorOptions::max_seconds, checked first so that
+  // the message names the parameter the user set.
+  CheckAtLeast("max_window_seconds", estimator.max_seconds, 0.0);
   estimator.Check();
   if (world_frame.empty()) throw InputError("world_frame must not be empty");
   if (!camera_frame.empty() && camera_frame == world_frame) {

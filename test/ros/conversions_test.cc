@@ -286,6 +286,9 @@ TEST(NodeParameters, ChecksEveryValue) {
   bad.camera_frame = bad.world_frame;
   EXPECT_EQ(CheckMessage(bad), "camera_frame must differ from world_frame");
   bad = params;
+  bad.estimator.max_seconds = -1.0;
+  EXPECT_EQ(CheckMessage(bad), "max_window_seconds must be >= 0, got -1");
+  bad = params;
   bad.pose_prior_frame = bad.world_frame;
   EXPECT_EQ(CheckMessage(bad),
             "pose_prior_frame '" + bad.world_frame + "' must differ from world_frame and camera_frame");
