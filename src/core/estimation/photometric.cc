@@ -13,7 +13,8 @@ namespace {
 // The frame as one float channel in [0, 1] and as 8 bit (for the tracker).
 struct GrayFrame {
   cv::Mat gray;     // CV_32FC1
-  cv::Mat gray8;    // CV_8UC1
+  cv::Mat gray8;    // CV_8UC1 (corners)
+  cv::Mat detail8;  // CV_8UC1, 128 + the high-pass of gray (what KLT tracks)
   cv::Mat box;      // local means of gray
   cv::Mat clipped;  // CV_8UC1, non-zero within the box of a clipped pixel
 };
@@ -39,6 +40,14 @@ GrayFrame ToGrayFrame(const cv::Mat& image, const GainEstimationOptions& options
     frame.gray = image;
   }
   frame.gray.convertTo(frame.gray8, CV_8U, 255.0);
+  // KLT assumes brightness constancy: under a gain it moves a corner towards
+  // where b matches a's brightness, which pulls the ratio towards 1 (or
+  // towards any guess b was divided by). A zero-mean high-pass scales with
+  // the gain about 0, which shifts no SSD minimum: it is tracked instead.
+  cv::Mat low;
+  cv::GaussianBlur(frame.gray, low, cv::Size(0, 0), 2.0);
+  cv::Mat detail = frame.gray - low;
+  detail.convertTo(frame.detail8, CV_8U, 2.0 * 255.0, 128.0);
   cv::blur(frame.gray, frame.box, cv::Size(size, size), cv::Point(-1, -1), cv::BORDER_REPLICATE);
   return frame;
 }
@@ -55,18 +64,15 @@ unsigned char ValueAt(const cv::Mat& mask, const cv::Point2f& p) {
   return mask.at<unsigned char>(y, x);
 }
 
-// The ratios of b's over a's local means at the corners of a that KLT finds
-// in b. KLT assumes brightness constancy: under a gain it moves a corner
-// towards where b matches a's brightness, which pulls the ratio towards 1.
-// So b is tracked as b / gain (the current estimate).
-std::vector<double> Ratios(const GrayFrame& a, const GrayFrame& b, const std::vector<cv::Point2f>& corners,
-                           double gain, const GainEstimationOptions& options) {
-  cv::Mat b8;
-  b.gray.convertTo(b8, CV_8U, 255.0 / gain);
-  std::vector<cv::Point2f> tracked;
+// Gain of b relative to a: the median of b's over a's local means at the
+// corners of a that KLT finds in b (1 with too few of them).
+double PairGain(const GrayFrame& a, const GrayFrame& b, const GainEstimationOptions& options) {
+  std::vector<cv::Point2f> corners, tracked;
+  cv::goodFeaturesToTrack(a.gray8, corners, options.max_corners, 0.01, 5.0);
+  if (static_cast<int>(corners.size()) < options.min_matches) return 1.0;
   std::vector<unsigned char> status;
   std::vector<float> error;
-  cv::calcOpticalFlowPyrLK(a.gray8, b8, corners, tracked, status, error);
+  cv::calcOpticalFlowPyrLK(a.detail8, b.detail8, corners, tracked, status, error);
   const float margin = static_cast<float>(options.box_radius);
   std::vector<double> ratios;
   ratios.reserve(corners.size());
@@ -81,25 +87,10 @@ std::vector<double> Ratios(const GrayFrame& a, const GrayFrame& b, const std::ve
     if (mean_a < options.min_intensity || mean_b < options.min_intensity) continue;
     ratios.push_back(mean_b / mean_a);
   }
-  return ratios;
-}
-
-// Gain of b relative to a: the median of the ratios, tracked again with the
-// new estimate (options.passes times); 1 with too few matched corners.
-double PairGain(const GrayFrame& a, const GrayFrame& b, const GainEstimationOptions& options) {
-  std::vector<cv::Point2f> corners;
-  cv::goodFeaturesToTrack(a.gray8, corners, options.max_corners, 0.01, 5.0);
-  if (static_cast<int>(corners.size()) < options.min_matches) return 1.0;
-  // First guess: the ratio of the mean intensities.
-  double gain = std::max(cv::mean(b.gray)[0], 1e-3) / std::max(cv::mean(a.gray)[0], 1e-3);
-  for (int pass = 0; pass < options.passes; ++pass) {
-    std::vector<double> ratios = Ratios(a, b, corners, gain, options);
-    if (static_cast<int>(ratios.size()) < options.min_matches) return 1.0;
-    const auto middle = ratios.begin() + ratios.size() / 2;
-    std::nth_element(ratios.begin(), middle, ratios.end());
-    gain = *middle;
-  }
-  return gain;
+  if (static_cast<int>(ratios.size()) < options.min_matches) return 1.0;
+  const auto middle = ratios.begin() + ratios.size() / 2;
+  std::nth_element(ratios.begin(), middle, ratios.end());
+  return *middle;
 }
 
 }  // namespace
@@ -110,7 +101,6 @@ void GainEstimationOptions::Check() const {
   CheckInRange("gain min_intensity", min_intensity, 0.0, 0.5);
   CheckInRange("gain max_intensity", max_intensity, 0.5, 1.0);
   CheckAtLeast("gain min_matches", min_matches, 3);
-  CheckInRange("gain passes", passes, 1, 5);
 }
 
 std::vector<double> EstimateFrameGains(const std::vector<cv::Mat>& images,

@@ -17,10 +17,7 @@ struct GainEstimationOptions {
   // points near them give no ratio.
   double max_intensity = 0.98;
   int min_matches = 20;  // fewer matched points: the pair's gain is 1
-  // Tracking passes per pair, each with b divided by the previous estimate
-  // (the first by the ratio of the mean intensities).
-  int passes = 2;
-  void Check() const;  // throws InputError naming the bad value
+  void Check() const;    // throws InputError naming the bad value
 };
 
 // Gain of every frame relative to the first (gains[0] = 1): frame t is about
