@@ -25,6 +25,7 @@ inline Json EstimateReportJson(const EstimatorOptions& options, const std::strin
                           {"pose_neighbour_radius", options.pose_neighbour_radius},
                           {"update_poses", options.update_poses},
                           {"structure_matching", ToString(options.structure_matching)},
+                          {"gain_compensation", options.gain_compensation},
                           {"threads", options.num_threads}};
   Json energies = Json::array();
   for (const EnergyRecord& e : result.energies) {
@@ -54,6 +55,9 @@ inline Json EstimateReportJson(const EstimatorOptions& options, const std::strin
             "(docs/file_formats.md#monocular-scale)"
           : "no parallax: depth not observable; world = first camera, every camera at its centre "
             "(docs/file_formats.md#no-parallax)";
+  Json gains = Json::array();
+  for (double gain : result.frame_gains) gains.push_back(JsonNumber(gain));
+  report["frame_gains"] = gains;
   return report;
 }
 

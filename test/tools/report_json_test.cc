@@ -66,16 +66,19 @@ TEST(ReportJson, UndoneIterationWithNanEnergiesIsStrictJson) {
   EXPECT_EQ(report["initializer"], "tracks: 40;\"pairs\": 3");
   ASSERT_EQ(report["solver_notes"].size(), 1u);
   EXPECT_NE(report["solver_notes"][0].get<std::string>().find("undone"), std::string::npos);
-  // The keys, in the order report.json has always had them.
+  // The keys, in the order report.json has always had them (frame_gains
+  // appended for issue 12).
   const nlohmann::ordered_json ordered = nlohmann::ordered_json::parse(text);
   std::vector<std::string> keys;
   for (auto it = ordered.begin(); it != ordered.end(); ++it) keys.push_back(it.key());
-  const std::vector<std::string> expected = {"input",         "parameters",   "energies",
-                                             "stage_seconds", "wall_seconds", "peak_memory_mib",
-                                             "initializer",   "solver_notes", "monocular_scale"};
+  const std::vector<std::string> expected = {
+      "input",           "parameters",  "energies",     "stage_seconds",   "wall_seconds",
+      "peak_memory_mib", "initializer", "solver_notes", "monocular_scale", "frame_gains"};
   EXPECT_EQ(keys, expected);
   EXPECT_EQ(report["parameters"]["mode"], "joint");
   EXPECT_EQ(report["parameters"]["update_poses"], true);
+  EXPECT_EQ(report["parameters"]["gain_compensation"], false);
+  EXPECT_TRUE(report["frame_gains"].is_array());
 }
 
 // The issue's case: an input folder whose name has a quote and a backslash

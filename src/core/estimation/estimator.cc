@@ -840,7 +840,43 @@ void CheckWindowValues(const EstimatorInput& input, const std::vector<SE3>& T_wo
   }
 }
 
+// Frames the gain estimation can read (float, one size and channel count);
+// others pass through uncompensated for the estimator to reject.
+bool GainReadable(const EstimatorInput& input) {
+  for (const cv::Mat& image : input.images) {
+    if (image.empty() || image.depth() != CV_32F || image.size() != input.images[0].size() ||
+        image.channels() != input.images[0].channels() || !cv::checkRange(image)) {
+      return false;
+    }
+  }
+  return !input.images.empty();
+}
+
 }  // namespace
+
+EstimatorResult Estimator::RunGainCompensated(const EstimatorInput& input, const InnerRun& run) const {
+  EstimatorOptions inner = options_;
+  inner.gain_compensation = false;
+  Estimator estimator(inner);
+  estimator.SetCancelFlag(cancel_);
+  if (!GainReadable(input)) return run(&estimator, input);
+  const double start = NowMs();
+  const std::vector<double> gains = EstimateFrameGains(input.images, options_.gain);
+  EstimatorInput compensated;
+  compensated.camera = input.camera;
+  compensated.frames = input.frames;
+  for (size_t t = 0; t < gains.size(); ++t) compensated.images.push_back(input.images[t] * (1.0 / gains[t]));
+  const double gain_seconds = (NowMs() - start) / 1000.0;
+  EstimatorResult result = run(&estimator, compensated);
+  // The gt latent of a frame with gain g is g times the scene, clamped to 1.
+  for (size_t t = 0; t < result.latent.size() && t < gains.size(); ++t) {
+    result.latent[t] *= gains[t];
+    cv::min(result.latent[t], 1.0, result.latent[t]);
+  }
+  result.frame_gains = gains;
+  result.timings.insert(result.timings.begin(), StageTiming{"gain estimation", gain_seconds});
+  return result;
+}
 
 const char* ToString(EstimatorMode mode) {
   return mode == EstimatorMode::kJoint ? "joint" : "baseline";
@@ -882,6 +918,7 @@ void EstimatorOptions::Check() const {
   CheckAtLeast("threads", num_threads, 0);
   CheckAtLeast("fixed_leading_poses", fixed_leading_poses, 1);
   CheckAtLeast("max_seconds", max_seconds, 0.0);
+  gain.Check();
   image.Check();
   structure.Check();
   visibility.Check();
@@ -925,6 +962,10 @@ std::vector<cv::Mat> UpsampleInitialDepth(const std::vector<cv::Mat>& depth_lr, 
 // eq:initializationScene, then the main loop from that structure. Without
 // parallax, the images of the rotation-only motion (RunRotationOnly).
 EstimatorResult Estimator::Run(const EstimatorInput& input, const ProgressCallback& progress) {
+  if (options_.gain_compensation) {
+    return RunGainCompensated(input,
+                              [&](Estimator* e, const EstimatorInput& in) { return e->Run(in, progress); });
+  }
   const double start = NowMs();
   if (progress) progress(0.0, "initialisation");
   InitializerOptions init_options = options_.initializer;
@@ -956,6 +997,11 @@ EstimatorResult Estimator::Run(const EstimatorInput& input, const ProgressCallba
 
 EstimatorResult Estimator::RunRotationOnly(const EstimatorInput& input, const std::vector<SE3>& T_world_cam,
                                            const ProgressCallback& progress) {
+  if (options_.gain_compensation) {
+    return RunGainCompensated(input, [&](Estimator* e, const EstimatorInput& in) {
+      return e->RunRotationOnly(in, T_world_cam, progress);
+    });
+  }
   if (T_world_cam.empty()) throw InputError("estimator: no poses for the rotation-only window");
   // One translation for every camera: the warps and the rotation path of
   // the capture operator (eq:interpolatingP) are then homographies, whatever
@@ -980,6 +1026,11 @@ EstimatorResult Estimator::RunRotationOnly(const EstimatorInput& input, const st
 EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input, const std::vector<cv::Mat>& depth_hr,
                                             const std::vector<SE3>& T_world_cam,
                                             const ProgressCallback& progress) {
+  if (options_.gain_compensation) {
+    return RunGainCompensated(input, [&](Estimator* e, const EstimatorInput& in) {
+      return e->RunFromStructure(in, depth_hr, T_world_cam, progress);
+    });
+  }
   CheckWindowCounts(input, depth_hr, T_world_cam);
   const int threads = ResolveThreads(options_.num_threads);
   omp_set_num_threads(threads);

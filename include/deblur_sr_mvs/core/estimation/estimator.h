@@ -13,6 +13,7 @@
 
 #include "deblur_sr_mvs/core/estimation/image_update.h"
 #include "deblur_sr_mvs/core/estimation/initializer.h"
+#include "deblur_sr_mvs/core/estimation/photometric.h"
 #include "deblur_sr_mvs/core/estimation/structure_update.h"
 #include "deblur_sr_mvs/core/geometry/camera.h"
 #include "deblur_sr_mvs/core/geometry/frame_types.h"
@@ -88,7 +89,20 @@ struct EstimatorOptions {
   // inner stage is capped by its own iteration counts (image.*, structure.*,
   // initializer.*).
   double max_seconds = 0.0;
-  void Check() const;  // throws InputError naming the bad value
+  // Auto-gain (issue 12, docs/file_formats.md#report `frame_gains`): every
+  // frame is divided by its gain relative to the window's first frame
+  // (EstimateFrameGains) before the estimation, so that the brightness
+  // constancy of eq:matchingTerm holds, and its restored latent image is
+  // multiplied by it afterwards (each output keeps its frame's brightness).
+  // Off by default: without auto-gain the estimates drift by up to 1.4 %
+  // over 5 frames (Dolls, lateral path, 640 x 480), and dividing by them
+  // lifts the depth error of test/core/estimation/estimator_test.cc's
+  // JointBeatsBicubicAndBaselineFromScratch from below the baseline's to
+  // just above it. With +-10 % jitter it removes nearly all the damage
+  // (test/core/estimation/gain_test.cc).
+  bool gain_compensation = false;
+  GainEstimationOptions gain;  // the robust ratio's corners, box, thresholds
+  void Check() const;          // throws InputError naming the bad value
 };
 
 struct EstimatorInput {
@@ -127,6 +141,9 @@ struct EstimatorResult {
   // What the solver had to do beyond the plan: an iteration undone because it
   // raised (or lost) the energy, the time cap.
   std::vector<std::string> notes;
+  // Per frame the gain relative to the first that the input was divided by
+  // (EstimatorOptions::gain_compensation); empty when compensation is off.
+  std::vector<double> frame_gains;
 };
 
 // Progress: (fraction done in [0, 1], what is running).
@@ -188,6 +205,10 @@ class Estimator {
   const EstimatorOptions& options() const { return options_; }
 
  private:
+  using InnerRun = std::function<EstimatorResult(Estimator*, const EstimatorInput&)>;
+  // `run` on an estimator without gain compensation, given the input divided
+  // by its frame gains; the latent images multiplied back.
+  EstimatorResult RunGainCompensated(const EstimatorInput& input, const InnerRun& run) const;
   void ThrowIfCancelled() const {
     if (cancel_ != nullptr && cancel_->load()) throw EstimationCancelled();
   }
