@@ -38,15 +38,6 @@ std::vector<SE3> TruePoses(const Sequence& sequence) {
   return poses;
 }
 
-double MeanDepthRel(const std::vector<cv::Mat>& estimate, const std::vector<cv::Mat>& truth) {
-  DepthMetricOptions options;
-  options.crop_fraction = 0.7;
-  double sum = 0.0;
-  for (size_t t = 0; t < estimate.size(); ++t)
-    sum += EvaluateDepth(estimate[t], truth[t], options).relative_error;
-  return sum / estimate.size();
-}
-
 TEST(Estimator, ImageUpdateWithTrueStructureBeatsBicubic) {
   const Sequence& sequence = SmallSequence();
   ASSERT_TRUE(sequence.ground_truth.has_value());

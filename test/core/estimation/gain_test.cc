@@ -46,15 +46,6 @@ const GainSequence& Jittered() {
   return jittered;
 }
 
-double MeanDepthRel(const std::vector<cv::Mat>& estimate, const std::vector<cv::Mat>& truth) {
-  DepthMetricOptions options;
-  options.crop_fraction = 0.7;
-  double sum = 0.0;
-  for (size_t t = 0; t < estimate.size(); ++t)
-    sum += EvaluateDepth(estimate[t], truth[t], options).relative_error;
-  return sum / estimate.size();
-}
-
 TEST(FrameGains, MatchTheSynthesizedGains) {
   const GainSequence& jittered = Jittered();
   ASSERT_EQ(jittered.gains.size(), 8u);

@@ -47,4 +47,14 @@ inline double MeanPsnr(const std::vector<cv::Mat>& estimates01, const std::vecto
   return sum / estimates01.size();
 }
 
+// Mean depth rel. error (per-frame median scale, 70 % centre crop).
+inline double MeanDepthRel(const std::vector<cv::Mat>& estimate, const std::vector<cv::Mat>& truth) {
+  DepthMetricOptions options;
+  options.crop_fraction = 0.7;
+  double sum = 0.0;
+  for (size_t t = 0; t < estimate.size(); ++t)
+    sum += EvaluateDepth(estimate[t], truth[t], options).relative_error;
+  return sum / estimate.size();
+}
+
 }  // namespace deblur_sr_mvs
