@@ -2060,18 +2060,47 @@ Eigen::Matrix3d RegisterRotationOnlyFrame(const PinholeCamera& camera, const Ini
   return R_world_mid[reference] * fit.R_1_0.transpose();  // R_world_t = R_world_r R_r_t
 }
 
+// Stage 1 of both entry points: the inputs checked, continuous and gray
+// copies of the frames, and the KLT tracks.
+struct TrackedWindow {
+  int threads = 1;
+  std::vector<cv::Mat> images, gray;
+  TrackingResult tracking;
+};
+
+TrackedWindow TrackWindow(const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
+                          const std::vector<FrameRecord>& frames, const InitializerOptions& options,
+                          std::ostringstream* summary) {
+  CheckInitializerInputs(images_lr, camera_lr, frames, options);
+  TrackedWindow window;
+  window.threads = ResolveThreads(options.num_threads);
+  ContinuousAndGray(images_lr, &window.images, &window.gray);
+  window.tracking = TrackStage(window.gray, options, window.threads, summary);
+  return window;
+}
+
+// Runs `body`; an OpenCV assertion on degenerate input the checks did not
+// foresee becomes an InitializationError of one line, prefixed by `what`.
+template <typename Body>
+auto WithOpenCvErrorsAsInitializationErrors(const std::string& what, const Body& body) {
+  try {
+    return body();
+  } catch (const cv::Exception& error) {
+    std::string message = error.err.empty() ? std::string(error.what()) : error.err;
+    std::replace(message.begin(), message.end(), '\n', ' ');
+    throw InitializationError(what + message + ")");
+  }
+}
+
 RotationOnlyMotion EstimateRotationOnlyMotionUnguarded(const std::vector<cv::Mat>& images_lr,
                                                        const PinholeCamera& camera_lr,
                                                        const std::vector<FrameRecord>& frames,
                                                        const InitializerOptions& options) {
-  CheckInitializerInputs(images_lr, camera_lr, frames, options);
-  const int num_frames = static_cast<int>(images_lr.size());
-  const int threads = ResolveThreads(options.num_threads);
-  std::ostringstream summary;
   const double start_ms = NowMs();
-  std::vector<cv::Mat> images, gray;
-  ContinuousAndGray(images_lr, &images, &gray);
-  const TrackingResult tracking = TrackStage(gray, options, threads, &summary);
+  std::ostringstream summary;
+  const TrackedWindow window = TrackWindow(images_lr, camera_lr, frames, options, &summary);
+  const TrackingResult& tracking = window.tracking;
+  const int num_frames = static_cast<int>(images_lr.size());
   std::vector<Eigen::Matrix3d> R_world_mid(num_frames, Eigen::Matrix3d::Identity());
   for (int t = 1; t < num_frames; ++t) {
     R_world_mid[t] = RegisterRotationOnlyFrame(camera_lr, options, tracking.tracks, R_world_mid, t, &summary);
@@ -2093,16 +2122,14 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
                                               const PinholeCamera& camera_lr,
                                               const std::vector<FrameRecord>& frames,
                                               const InitializerOptions& options) {
-  CheckInitializerInputs(images_lr, camera_lr, frames, options);
-  const int num_frames = static_cast<int>(images_lr.size());
-  const int threads = ResolveThreads(options.num_threads);
-  InitialStructure result;
-  std::ostringstream summary;
   const double start_ms = NowMs();
-
-  std::vector<cv::Mat> images, gray;
-  ContinuousAndGray(images_lr, &images, &gray);
-  TrackingResult tracking = TrackStage(gray, options, threads, &summary);
+  std::ostringstream summary;
+  TrackedWindow window = TrackWindow(images_lr, camera_lr, frames, options, &summary);
+  TrackingResult& tracking = window.tracking;
+  const std::vector<cv::Mat>& images = window.images;
+  const int num_frames = static_cast<int>(images_lr.size());
+  const int threads = window.threads;
+  InitialStructure result;
   SparseStructure structure =
       SparseStage(camera_lr, options, threads, num_frames, &tracking.tracks, &summary);
   std::vector<SE3> T_world_mid;
@@ -2121,28 +2148,18 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
 InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
                                      const std::vector<FrameRecord>& frames,
                                      const InitializerOptions& options) {
-  try {
+  return WithOpenCvErrorsAsInitializationErrors("initialisation: degenerate geometry (OpenCV: ", [&] {
     return InitializeStructureUnguarded(images_lr, camera_lr, frames, options);
-  } catch (const cv::Exception& error) {
-    // OpenCV's geometry routines assert on degenerate input the checks above
-    // did not foresee: report it as a failed initialisation, in one line.
-    std::string message = error.err.empty() ? std::string(error.what()) : error.err;
-    std::replace(message.begin(), message.end(), '\n', ' ');
-    throw InitializationError("initialisation: degenerate geometry (OpenCV: " + message + ")");
-  }
+  });
 }
 
 RotationOnlyMotion EstimateRotationOnlyMotion(const std::vector<cv::Mat>& images_lr,
                                               const PinholeCamera& camera_lr,
                                               const std::vector<FrameRecord>& frames,
                                               const InitializerOptions& options) {
-  try {
+  return WithOpenCvErrorsAsInitializationErrors("initialisation: rotation-only motion (OpenCV: ", [&] {
     return EstimateRotationOnlyMotionUnguarded(images_lr, camera_lr, frames, options);
-  } catch (const cv::Exception& error) {
-    std::string message = error.err.empty() ? std::string(error.what()) : error.err;
-    std::replace(message.begin(), message.end(), '\n', ' ');
-    throw InitializationError("initialisation: rotation-only motion: OpenCV: " + message);
-  }
+  });
 }
 
 }  // namespace deblur_sr_mvs

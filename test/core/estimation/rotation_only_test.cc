@@ -73,30 +73,6 @@ TEST(RotationOnly, EstimatorRestoresEveryFrameWithItsOrientation) {
   EXPECT_LE(worst_deg, 0.2);
 }
 
-std::vector<StreamWindow> WindowsOf(const std::vector<cv::Mat>& images,
-                                    const std::vector<FrameRecord>& frames,
-                                    const StreamOptions& stream_options) {
-  FrameWindower windower(stream_options);
-  std::vector<StreamWindow> windows;
-  for (size_t t = 0; t < images.size(); ++t) {
-    StreamFrame frame;
-    frame.id = t + 1;
-    frame.stamp_ns = static_cast<int64_t>(t + 1) * 33000000;
-    frame.stamp_close = frames[t].stamp;
-    frame.exposure = frames[t].exposure;
-    frame.image = ToFloat01(images[t]);
-    for (StreamWindow& window : windower.Add(frame)) windows.push_back(std::move(window));
-  }
-  return windows;
-}
-
-EstimatorOptions FastOptions() {
-  EstimatorOptions options;
-  options.samples = 20;
-  options.max_iterations = 1;
-  return options;
-}
-
 // A camera that first rotates about its centre, then translates: the first
 // half of a `rotate` sequence followed by the second half of a `lateral` one
 // (both paths pass through the same pose at the middle of the sequence).
@@ -116,10 +92,10 @@ TEST(RotationOnly, StreamPublishesEveryFrameAndContinuesIntoParallax) {
   StreamOptions stream_options;
   stream_options.window_size = 4;
   stream_options.window_overlap = 2;
-  const std::vector<StreamWindow> windows = WindowsOf(images, frames, stream_options);
+  const std::vector<StreamWindow> windows = StreamWindowsOf(images, frames, stream_options, 1);
   ASSERT_EQ(windows.size(), 3u);  // frames 0-3, 2-5, 4-7
 
-  StreamEstimator stream(FastOptions());
+  StreamEstimator stream(FastEstimatorOptions());
   std::vector<SE3> published;
   std::vector<bool> observable;
   for (size_t w = 0; w < windows.size(); ++w) {

@@ -183,26 +183,8 @@ const Sequence& SmallSequence() {
   return sequence;
 }
 
-EstimatorOptions FastOptions() {
-  EstimatorOptions options;
-  options.samples = 20;
-  options.max_iterations = 1;
-  return options;
-}
-
 std::vector<StreamWindow> WindowsOf(const Sequence& sequence, const StreamOptions& stream_options) {
-  FrameWindower windower(stream_options);
-  std::vector<StreamWindow> windows;
-  for (size_t t = 0; t < sequence.images.size(); ++t) {
-    StreamFrame frame;
-    frame.id = t + 100;
-    frame.stamp_ns = static_cast<int64_t>(t) * 33000000;
-    frame.stamp_close = sequence.frames[t].stamp;
-    frame.exposure = sequence.frames[t].exposure;
-    frame.image = ToFloat01(sequence.images[t]);
-    for (StreamWindow& window : windower.Add(frame)) windows.push_back(std::move(window));
-  }
-  return windows;
+  return StreamWindowsOf(sequence.images, sequence.frames, stream_options, 100);
 }
 
 TEST(StreamEstimator, WindowsFormOneContinuousTrajectory) {
@@ -214,7 +196,7 @@ TEST(StreamEstimator, WindowsFormOneContinuousTrajectory) {
   const std::vector<StreamWindow> windows = WindowsOf(sequence, stream_options);
   ASSERT_EQ(windows.size(), 2u);  // frames 0-4 and 3-7
 
-  StreamEstimator stream(FastOptions());
+  StreamEstimator stream(FastEstimatorOptions());
   const WindowEstimate first = stream.Process(windows[0], sequence.calibration.camera);
   const WindowEstimate second = stream.Process(windows[1], sequence.calibration.camera);
   EXPECT_FALSE(first.continued);
@@ -267,7 +249,7 @@ TEST(StreamEstimator, ResetStartsANewSegmentAndCancelStops) {
   stream_options.window_size = 5;
   stream_options.window_overlap = 2;
   const std::vector<StreamWindow> windows = WindowsOf(sequence, stream_options);
-  StreamEstimator stream(FastOptions());
+  StreamEstimator stream(FastEstimatorOptions());
   std::atomic<bool> cancel{true};
   stream.SetCancelFlag(&cancel);
   EXPECT_THROW(stream.Process(windows[0], sequence.calibration.camera), EstimationCancelled);

@@ -11,6 +11,7 @@
 #include <gtest/gtest.h>
 
 #include "deblur_sr_mvs/core/estimation/estimator.h"
+#include "deblur_sr_mvs/core/estimation/stream.h"
 #include "deblur_sr_mvs/core/evaluation/metrics.h"
 #include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/io/sequence_io.h"
@@ -55,6 +56,33 @@ inline double MeanDepthRel(const std::vector<cv::Mat>& estimate, const std::vect
   for (size_t t = 0; t < estimate.size(); ++t)
     sum += EvaluateDepth(estimate[t], truth[t], options).relative_error;
   return sum / estimate.size();
+}
+
+// The windows a FrameWindower cuts from these frames: frame t gets id
+// first_id + t and caller stamp t x 33 ms.
+inline std::vector<StreamWindow> StreamWindowsOf(const std::vector<cv::Mat>& images8,
+                                                 const std::vector<FrameRecord>& frames,
+                                                 const StreamOptions& stream_options, uint64_t first_id) {
+  FrameWindower windower(stream_options);
+  std::vector<StreamWindow> windows;
+  for (size_t t = 0; t < images8.size(); ++t) {
+    StreamFrame frame;
+    frame.id = first_id + t;
+    frame.stamp_ns = static_cast<int64_t>(t) * 33000000;
+    frame.stamp_close = frames[t].stamp;
+    frame.exposure = frames[t].exposure;
+    frame.image = ToFloat01(images8[t]);
+    for (StreamWindow& window : windower.Add(frame)) windows.push_back(std::move(window));
+  }
+  return windows;
+}
+
+// Cheap estimator settings for the stream tests (M 20, one iteration).
+inline EstimatorOptions FastEstimatorOptions() {
+  EstimatorOptions options;
+  options.samples = 20;
+  options.max_iterations = 1;
+  return options;
 }
 
 }  // namespace deblur_sr_mvs
