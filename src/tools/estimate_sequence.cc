@@ -105,6 +105,7 @@ dsm::EstimatorInput ReadInput(const std::string& input, std::string* camera_name
   dsm::EstimatorInput estimator_input;
   estimator_input.camera = sequence.calibration.camera;
   estimator_input.frames = sequence.frames;
+  estimator_input.readout_time = sequence.readout_time;  // sensor.yaml (0 without)
   for (const cv::Mat& image : sequence.images) estimator_input.images.push_back(dsm::ToFloat01(image));
   return estimator_input;
 }

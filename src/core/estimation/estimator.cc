@@ -413,6 +413,7 @@ WindowSolver::WindowSolver(const EstimatorOptions& options, int threads, const E
     latents_[t] = bicubic_[t].clone();
     frames_[t].stamp = input.frames[t].stamp;
     frames_[t].exposure = input.frames[t].exposure;
+    frames_[t].readout_time = input.readout_time;
     frames_[t].T_world_cam = T_world_cam[t];
     if (depth_hr[t].type() != CV_32FC1 ||
         depth_hr[t].size() != cv::Size(camera_hr_.width, camera_hr_.height)) {
@@ -634,7 +635,7 @@ SelfConsistencyLinearization WindowSolver::SelfConsistencyOf(int t) {
   self.observation = &observations_[t];
   self_op->op.Apply(latents_[t], &self.predicted);
   self.derivative = BlurDerivativeWrtInverseDepth(MakeCaptureGeometry(frames_, camera_hr_, t, t),
-                                                  options_.samples, inverse_depth_[t], latents_[t],
+                                                  options_.samples, scale_, inverse_depth_[t], latents_[t],
                                                   /*max_samples=*/10);
   self.weight = options_.lambda_s;
   self.scale = scale_;
@@ -822,6 +823,9 @@ void CheckWindowCounts(const EstimatorInput& input, const std::vector<cv::Mat>& 
   }
   const std::string problem = input.camera.Problem();
   if (!problem.empty()) throw InputError("estimator: camera: " + problem);
+  if (!std::isfinite(input.readout_time) || input.readout_time < 0.0) {
+    throw InputError("estimator: readout_time must be finite and >= 0, got " + std::to_string(input.readout_time));
+  }
 }
 
 // Pixel types and finiteness of the frames, finiteness of the poses.
@@ -865,6 +869,7 @@ EstimatorResult Estimator::RunGainCompensated(const EstimatorInput& input, const
   EstimatorInput compensated;
   compensated.camera = input.camera;
   compensated.frames = input.frames;
+  compensated.readout_time = input.readout_time;
   for (size_t t = 0; t < gains.size(); ++t) compensated.images.push_back(input.images[t] * (1.0 / gains[t]));
   const double gain_seconds = (NowMs() - start) / 1000.0;
   EstimatorResult result = run(&estimator, compensated);

@@ -19,6 +19,7 @@ CaptureGeometry MakeCaptureGeometry(const std::vector<FrameStructure>& frames, c
   geometry.stamp = frames[t].stamp;
   geometry.neighbour_stamp = frames[neighbour].stamp;
   geometry.exposure = frames[t].exposure;
+  geometry.readout_time = frames[t].readout_time;
   if (source != t) geometry.T_world_source = frames[source].T_world_cam;
   return geometry;
 }

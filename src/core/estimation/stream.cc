@@ -146,6 +146,7 @@ EstimatorInput WindowInput(const StreamWindow& window, const PinholeCamera& came
     estimate->ids.push_back(frame.id);
     estimate->stamps_ns.push_back(frame.stamp_ns);
   }
+  if (!window.empty()) input.readout_time = window.back().readout_time;
   return input;
 }
 

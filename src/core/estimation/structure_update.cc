@@ -196,41 +196,53 @@ class PairWarp {
 
 }  // namespace
 
-cv::Mat BlurDerivativeWrtInverseDepth(const CaptureGeometry& geometry, int samples,
+cv::Mat BlurDerivativeWrtInverseDepth(const CaptureGeometry& geometry, int samples, int scale,
                                       const cv::Mat& inverse_depth, const cv::Mat& latent, int max_samples) {
   const PinholeCamera& camera = geometry.camera_hr;
   const int channels = latent.channels();
   cv::Mat derivative = cv::Mat::zeros(latent.size(), latent.type());
-  const std::vector<SE3> T_world_tau = VirtualCameraPoses(geometry, samples);
   const int step = std::max(1, samples / std::max(1, max_samples));
   std::vector<int> used;
   for (int m = samples - 1; m >= 0; m -= step) used.push_back(m);
-  cv::Mat gx, gy;
-  Gradients(latent, &gx, &gy);
+  // One set of virtual cameras, or one per LR row for a rolling shutter
+  // (their windows open RowDelay later): h = K R K^-1 and K t of T_t_tau.
+  const int lr_rows = camera.height / scale;
+  const int num_sets = geometry.readout_time > 0.0 ? lr_rows : 1;
   const Eigen::Matrix3d k = camera.K();
   const Eigen::Matrix3d k_inv = k.inverse();
+  std::vector<Eigen::Matrix3d> h(num_sets * used.size());
+  std::vector<Eigen::Vector3d> kt(h.size());
+  const SE3 T_t_world = geometry.T_world_cam.Inverse();
+  for (int set = 0; set < num_sets; ++set) {
+    const std::vector<SE3> T_world_tau = VirtualCameraPoses(geometry, samples, RowDelay(geometry, set, lr_rows));
+    for (size_t i = 0; i < used.size(); ++i) {
+      const SE3 T_t_tau = T_t_world * T_world_tau[used[i]];
+      h[set * used.size() + i] = k * T_t_tau.rotation() * k_inv;
+      kt[set * used.size() + i] = k * T_t_tau.translation();
+    }
+  }
+  cv::Mat gx, gy;
+  Gradients(latent, &gx, &gy);
   const float weight = 1.0f / used.size();
   const double max_u = camera.width - 1.0, max_v = camera.height - 1.0;
-  for (int m : used) {
-    const SE3 T_t_tau = geometry.T_world_cam.Inverse() * T_world_tau[m];
-    const Eigen::Matrix3d h = k * T_t_tau.rotation() * k_inv;
-    const Eigen::Vector3d kt = k * T_t_tau.translation();
 #pragma omp parallel for schedule(static)
-    for (int y = 0; y < camera.height; ++y) {
-      const float* rho_row = inverse_depth.ptr<float>(y);
-      float* out = derivative.ptr<float>(y);
-      std::vector<float> grad_x(channels), grad_y(channels);
+  for (int y = 0; y < camera.height; ++y) {
+    const float* rho_row = inverse_depth.ptr<float>(y);
+    float* out = derivative.ptr<float>(y);
+    std::vector<float> grad_x(channels), grad_y(channels);
+    const size_t first = (num_sets > 1 ? std::min(y / scale, lr_rows - 1) : 0) * used.size();
+    for (size_t i = first; i < first + used.size(); ++i) {
       for (int x = 0; x < camera.width; ++x) {
         const double rho = rho_row[x];
         if (!(rho > 0.0)) continue;
-        const Eigen::Vector3d q = h * Eigen::Vector3d(x, y, 1.0) + rho * kt;
+        const Eigen::Vector3d q = h[i] * Eigen::Vector3d(x, y, 1.0) + rho * kt[i];
         if (!(q.z() > 1e-9)) continue;
         const double u = std::clamp(q.x() / q.z(), 0.0, max_u);
         const double v = std::clamp(q.y() / q.z(), 0.0, max_v);
         SampleBilinear(gx, static_cast<float>(u), static_cast<float>(v), grad_x.data());
         SampleBilinear(gy, static_cast<float>(u), static_cast<float>(v), grad_y.data());
-        const double du = (kt.x() - u * kt.z()) / q.z();
-        const double dv = (kt.y() - v * kt.z()) / q.z();
+        const double du = (kt[i].x() - u * kt[i].z()) / q.z();
+        const double dv = (kt[i].y() - v * kt[i].z()) / q.z();
         for (int c = 0; c < channels; ++c) {
           out[x * channels + c] += weight * static_cast<float>(grad_x[c] * du + grad_y[c] * dv);
         }

@@ -132,26 +132,40 @@ void Multiply(const SparseMatrixRM& a, const cv::Size& in_size, const cv::Size& 
 
 }  // namespace
 
-std::vector<SE3> VirtualCameraPoses(const CaptureGeometry& geometry, int samples) {
+namespace {
+
+// The pose at time `tau` on the path of eq:interpolatingP: alpha = (tau - s)
+// / (t - s) also extrapolates backwards when s is the next frame (the first
+// frame of a sequence), and forwards past t (rows of a rolling shutter that
+// close after the stamp).
+SE3 PoseAtTime(const CaptureGeometry& geometry, double tau) {
+  const double alpha = (tau - geometry.neighbour_stamp) / (geometry.stamp - geometry.neighbour_stamp);
+  return InterpolatePose(geometry.T_world_neighbour, geometry.T_world_cam, alpha);
+}
+
+// tau_m of the rows that open `row_delay` after row 0.
+double SampleTime(const CaptureGeometry& geometry, int samples, double row_delay, int m) {
+  return geometry.stamp - geometry.exposure + row_delay + (m + 0.5) / samples * geometry.exposure;
+}
+
+}  // namespace
+
+std::vector<SE3> VirtualCameraPoses(const CaptureGeometry& geometry, int samples, double row_delay) {
   // tau_m = t_o + ((m - 1/2)/M)(t_c - t_o), m = 1..M, on the path of
-  // eq:interpolatingP; alpha = (tau - s)/(t - s) also extrapolates backwards
-  // when s is the next frame (first frame of a sequence). eq:blurOperator
-  // takes m/M, the right end of each of the M slices of the exposure: its
-  // mean instant is then (M + 1)/(2M) of the way, not the middle, so the
-  // modelled blur sits half a slice late and the restored image shifts to
-  // compensate (0.13 HR px on average at 14 px of blur and M 50 on the
-  // synthetic scenes). The midpoint of each slice integrates the exposure
-  // without that bias (0.03 px).
-  const double frame_gap = geometry.stamp - geometry.neighbour_stamp;
-  const double shutter_open = geometry.stamp - geometry.exposure;
+  // eq:interpolatingP. eq:blurOperator takes m/M, the right end of each of
+  // the M slices of the exposure: its mean instant is then (M + 1)/(2M) of
+  // the way, not the middle, so the modelled blur sits half a slice late and
+  // the restored image shifts to compensate (0.13 HR px on average at 14 px
+  // of blur and M 50 on the synthetic scenes). The midpoint of each slice
+  // integrates the exposure without that bias (0.03 px).
   std::vector<SE3> poses;
   poses.reserve(samples);
-  for (int m = 0; m < samples; ++m) {
-    const double tau = shutter_open + (m + 0.5) / samples * geometry.exposure;
-    const double alpha = (tau - geometry.neighbour_stamp) / frame_gap;
-    poses.push_back(InterpolatePose(geometry.T_world_neighbour, geometry.T_world_cam, alpha));
-  }
+  for (int m = 0; m < samples; ++m) poses.push_back(PoseAtTime(geometry, SampleTime(geometry, samples, row_delay, m)));
   return poses;
+}
+
+double RowDelay(const CaptureGeometry& geometry, int lr_row, int lr_rows) {
+  return geometry.readout_time * lr_row / lr_rows;
 }
 
 void CaptureOperatorOptions::Check() const {
@@ -224,6 +238,9 @@ void CheckCaptureGeometry(const CaptureGeometry& geometry, int scale) {
   if (!(geometry.exposure > 0.0) || !std::isfinite(geometry.exposure)) {
     throw InputError("capture operator: exposure must be > 0");
   }
+  if (!(geometry.readout_time >= 0.0) || !std::isfinite(geometry.readout_time)) {
+    throw InputError("capture operator: readout_time must be finite and >= 0");
+  }
   const double frame_gap = geometry.stamp - geometry.neighbour_stamp;
   if (!std::isfinite(frame_gap) || frame_gap == 0.0) {
     throw InputError("capture operator: the neighbour's stamp must differ from the frame's");
@@ -233,15 +250,18 @@ void CheckCaptureGeometry(const CaptureGeometry& geometry, int scale) {
 // Everything the rows of one operator share: sizes, the M warps
 // W^{tau_m -> src} (eq:warpingFunction) as structure-of-arrays over m so that
 // the per-sample loop vectorises, with their row-constant parts precomputed
-// per HR row, and the depth D_tau_m each virtual camera sees.
+// per HR row, and the depth D_tau_m each virtual camera sees. A global
+// shutter has one set of M warps; a rolling shutter one set per LR row
+// (`transfers` and `depth` hold sets * M entries, set-major).
 struct AssemblyContext {
   int hr_width = 0, hr_height = 0, lr_width = 0, lr_height = 0;
   int scale = 1, samples = 1, samples_per_pixel = 1;
+  bool per_row = false;  // one set of warps per LR row (rolling shutter)
   float sample_weight = 1.0f;
   float max_u = 0.0f, max_v = 0.0f;
-  std::vector<const float*> virtual_depth;  // D_tau_m, row-major HR
-  std::vector<float> h0, h3, h6, t0, t1, t2;
-  std::vector<float> row_bases;  // [(y * 3 + k) * samples + m]
+  std::vector<const float*> virtual_depth;  // D_tau_m, row-major HR, [set * samples + m]
+  std::vector<float> h0, h3, h6, t0, t1, t2;  // [set * samples + m]
+  std::vector<float> row_bases;               // [(y * 3 + k) * samples + m]
 
   AssemblyContext(const PinholeCamera& camera, int scale_in, int samples_in,
                   const std::vector<PixelTransferF>& transfers, const std::vector<const cv::Mat*>& depth)
@@ -252,32 +272,38 @@ struct AssemblyContext {
         scale(scale_in),
         samples(samples_in),
         samples_per_pixel(samples_in * scale_in * scale_in),
+        per_row(static_cast<int>(transfers.size()) != samples_in),
         sample_weight(1.0f / static_cast<float>(samples_in * scale_in * scale_in)),
         max_u(static_cast<float>(camera.width - 1)),
         max_v(static_cast<float>(camera.height - 1)),
-        virtual_depth(samples_in),
-        h0(samples_in),
-        h3(samples_in),
-        h6(samples_in),
-        t0(samples_in),
-        t1(samples_in),
-        t2(samples_in),
+        virtual_depth(transfers.size()),
+        h0(transfers.size()),
+        h3(transfers.size()),
+        h6(transfers.size()),
+        t0(transfers.size()),
+        t1(transfers.size()),
+        t2(transfers.size()),
         row_bases(static_cast<size_t>(camera.height) * 3 * samples_in) {
-    for (int m = 0; m < samples; ++m) virtual_depth[m] = depth[m]->ptr<float>();
-    for (int m = 0; m < samples; ++m) {
-      h0[m] = transfers[m].h[0];
-      h3[m] = transfers[m].h[3];
-      h6[m] = transfers[m].h[6];
-      t0[m] = transfers[m].t[0];
-      t1[m] = transfers[m].t[1];
-      t2[m] = transfers[m].t[2];
-      for (int y = 0; y < hr_height; ++y) {
+    for (size_t i = 0; i < transfers.size(); ++i) {
+      virtual_depth[i] = depth[i]->ptr<float>();
+      h0[i] = transfers[i].h[0];
+      h3[i] = transfers[i].h[3];
+      h6[i] = transfers[i].h[6];
+      t0[i] = transfers[i].t[0];
+      t1[i] = transfers[i].t[1];
+      t2[i] = transfers[i].t[2];
+    }
+    for (int y = 0; y < hr_height; ++y) {
+      const int set = SetOfRow(y);
+      for (int m = 0; m < samples; ++m) {
         float base[3];
-        transfers[m].RowBase(static_cast<float>(y), base);
+        transfers[set * samples + m].RowBase(static_cast<float>(y), base);
         for (int k = 0; k < 3; ++k) row_bases[(static_cast<size_t>(y) * 3 + k) * samples + m] = base[k];
       }
     }
   }
+  // The set of warps of HR row y.
+  int SetOfRow(int y) const { return per_row ? y / scale : 0; }
 };
 
 // Per-thread scratch of one LR pixel: its M * scale^2 bilinear taps
@@ -307,7 +333,9 @@ inline int WarpHrPixel(const AssemblyContext& context, int x, int y, int offset,
   const float* base1 = base0 + samples;
   const float* base2 = base1 + samples;
   const size_t pixel = static_cast<size_t>(y) * context.hr_width + x;
-  for (int m = 0; m < samples; ++m) scratch->depth[m] = context.virtual_depth[m][pixel];
+  const size_t set_offset = static_cast<size_t>(context.SetOfRow(y)) * samples;
+  const float* const* virtual_depth = context.virtual_depth.data() + set_offset;
+  for (int m = 0; m < samples; ++m) scratch->depth[m] = virtual_depth[m][pixel];
   int* out_x = scratch->tap_x.data() + offset;
   int* out_y = scratch->tap_y.data() + offset;
   float* out_fx = scratch->frac_x.data() + offset;
@@ -323,12 +351,12 @@ inline int WarpHrPixel(const AssemblyContext& context, int x, int y, int offset,
   // samples outside the image are clamped (border replicated); both
   // count as misses in the coverage.
   const float* __restrict depth_m = scratch->depth.data();
-  const float* __restrict c_h0 = context.h0.data();
-  const float* __restrict c_h3 = context.h3.data();
-  const float* __restrict c_h6 = context.h6.data();
-  const float* __restrict c_t0 = context.t0.data();
-  const float* __restrict c_t1 = context.t1.data();
-  const float* __restrict c_t2 = context.t2.data();
+  const float* __restrict c_h0 = context.h0.data() + set_offset;
+  const float* __restrict c_h3 = context.h3.data() + set_offset;
+  const float* __restrict c_h6 = context.h6.data() + set_offset;
+  const float* __restrict c_t0 = context.t0.data() + set_offset;
+  const float* __restrict c_t1 = context.t1.data() + set_offset;
+  const float* __restrict c_t2 = context.t2.data() + set_offset;
   int misses = 0;
 #pragma omp simd reduction(+ : misses)
   for (int m = 0; m < samples; ++m) {
@@ -510,6 +538,50 @@ void ConcatenateBlocks(const std::vector<std::vector<int>>& block_columns,
   }
 }
 
+// The virtual cameras of one operator: their warps into the source camera
+// (one set of M for a global shutter, one per LR row for a rolling shutter)
+// and, for each, the depth map it reads.
+struct VirtualCameras {
+  std::vector<PixelTransferF> transfers;  // [set * samples + m]
+  std::vector<int> depth_index;           // the entry of T_depth_t each one reads
+  std::vector<SE3> T_depth_t;             // cameras whose depth is reprojected from D_t
+};
+
+VirtualCameras PlanVirtualCameras(const CaptureGeometry& geometry, int scale, int samples) {
+  const PinholeCamera& camera = geometry.camera_hr;
+  const SE3 T_t_world = geometry.T_world_cam.Inverse();
+  const SE3 T_source_world = geometry.T_world_source ? geometry.T_world_source->Inverse() : T_t_world;
+  VirtualCameras cameras;
+  if (geometry.readout_time == 0.0) {
+    for (const SE3& T_world_tau : VirtualCameraPoses(geometry, samples)) {
+      cameras.depth_index.push_back(static_cast<int>(cameras.T_depth_t.size()));
+      cameras.T_depth_t.push_back(T_world_tau.Inverse() * geometry.T_world_cam);
+      cameras.transfers.emplace_back(PixelTransfer(camera, T_source_world * T_world_tau));
+    }
+    return cameras;
+  }
+  // Rolling shutter: M * H warps but only M reprojected depths, at instants
+  // evenly spread from the first row's first sample to the last row's last;
+  // each virtual camera reads the nearest (D_tau changes only where the
+  // motion between the two instants crosses a depth edge).
+  const int lr_rows = camera.height / scale;
+  const double first = SampleTime(geometry, samples, 0.0, 0);
+  const double last = SampleTime(geometry, samples, RowDelay(geometry, lr_rows - 1, lr_rows), samples - 1);
+  const double step = samples > 1 ? (last - first) / (samples - 1) : 1.0;
+  for (int k = 0; k < samples; ++k) {
+    cameras.T_depth_t.push_back(PoseAtTime(geometry, first + k * step).Inverse() * geometry.T_world_cam);
+  }
+  for (int y = 0; y < lr_rows; ++y) {
+    const double delay = RowDelay(geometry, y, lr_rows);
+    for (int m = 0; m < samples; ++m) {
+      const double tau = SampleTime(geometry, samples, delay, m);
+      cameras.transfers.emplace_back(PixelTransfer(camera, T_source_world * PoseAtTime(geometry, tau)));
+      cameras.depth_index.push_back(std::clamp(static_cast<int>(std::lround((tau - first) / step)), 0, samples - 1));
+    }
+  }
+  return cameras;
+}
+
 }  // namespace
 
 CaptureOperatorBuilder::CaptureOperatorBuilder(const CaptureOperatorOptions& options) : options_(options) {
@@ -523,32 +595,24 @@ void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOpera
   const int threads = ResolveThreads(options_.num_threads);
   CheckCaptureGeometry(geometry, scale);
 
-  const SE3& T_world_t = geometry.T_world_cam;
-  const SE3 T_source_world = geometry.T_world_source.value_or(T_world_t).Inverse();
-  const std::vector<SE3> T_world_tau = VirtualCameraPoses(geometry, samples);
-  std::vector<PixelTransferF> transfers;
-  std::vector<SE3> T_tau_t(samples);
-  transfers.reserve(samples);
-  for (int m = 0; m < samples; ++m) {
-    T_tau_t[m] = T_world_tau[m].Inverse() * T_world_t;
-    transfers.emplace_back(PixelTransfer(camera, T_source_world * T_world_tau[m]));
-  }
-
+  const VirtualCameras cameras = PlanVirtualCameras(geometry, scale, samples);
   double stage_start = NowMs();
-  // D_tau_m by reprojecting D_t into each virtual camera (paper Sec. 3).
-  std::vector<const cv::Mat*> virtual_depth(samples, &geometry.depth_hr);
+  // D_tau by reprojecting D_t into each depth camera (paper Sec. 3).
+  std::vector<const cv::Mat*> virtual_depth(cameras.depth_index.size(), &geometry.depth_hr);
   if (options_.reproject_depth) {
-    virtual_depths_.resize(samples);
+    const int num_depths = static_cast<int>(cameras.T_depth_t.size());
+    virtual_depths_.resize(num_depths);
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
-    for (int m = 0; m < samples; ++m) {
-      ReprojectDepth(camera, geometry.depth_hr, T_tau_t[m], /*fill_from_source=*/true, &virtual_depths_[m]);
+    for (int k = 0; k < num_depths; ++k) {
+      ReprojectDepth(camera, geometry.depth_hr, cameras.T_depth_t[k], /*fill_from_source=*/true,
+                     &virtual_depths_[k]);
     }
-    for (int m = 0; m < samples; ++m) virtual_depth[m] = &virtual_depths_[m];
+    for (size_t i = 0; i < virtual_depth.size(); ++i) virtual_depth[i] = &virtual_depths_[cameras.depth_index[i]];
   }
   timings_.reprojection_ms = NowMs() - stage_start;
   stage_start = NowMs();
 
-  const AssemblyContext context(camera, scale, samples, transfers, virtual_depth);
+  const AssemblyContext context(camera, scale, samples, cameras.transfers, virtual_depth);
   const int lr_pixels = context.lr_width * context.lr_height;
   op->lr_size_ = cv::Size(context.lr_width, context.lr_height);
   op->hr_size_ = cv::Size(context.hr_width, context.hr_height);

@@ -109,6 +109,9 @@ struct EstimatorInput {
   std::vector<cv::Mat> images;      // LR frames, float in [0, 1], 1 or 3 channels
   PinholeCamera camera;             // intrinsics of the LR frames
   std::vector<FrameRecord> frames;  // stamps (shutter close) and exposures
+  // Rolling shutter (docs/file_formats.md#rolling-shutter): LR row y of H
+  // opens y * readout_time / H after row 0; stamps are row 0's. 0: global.
+  double readout_time = 0.0;
 };
 
 // Energy of eq:energyFunction at one point of the algorithm.

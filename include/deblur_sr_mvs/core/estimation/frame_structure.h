@@ -14,6 +14,7 @@ namespace deblur_sr_mvs {
 struct FrameStructure {
   double stamp = 0.0;     // shutter close time t_c, s
   double exposure = 0.0;  // t_c - t_o, s
+  double readout_time = 0.0;  // rolling shutter (CaptureGeometry::readout_time), s
   SE3 T_world_cam;        // P_t at t_c
   cv::Mat depth_hr;       // D_t: CV_32FC1 at HR, NaN where unknown
 };

@@ -80,8 +80,9 @@ struct SelfConsistencyLinearization {
   int scale = 1;
 };
 // h for the geometry of Psi_t (its depth is ignored; `inverse_depth` is used)
-// from at most `max_samples` of its virtual cameras.
-cv::Mat BlurDerivativeWrtInverseDepth(const CaptureGeometry& geometry, int samples,
+// from at most `max_samples` of its virtual cameras (per LR row of `scale`
+// HR rows with a rolling shutter).
+cv::Mat BlurDerivativeWrtInverseDepth(const CaptureGeometry& geometry, int samples, int scale,
                                       const cv::Mat& inverse_depth, const cv::Mat& latent, int max_samples);
 
 // One IRLS depth update of frame t from its pairs (all with pair.t == t);

@@ -56,6 +56,12 @@ struct CaptureGeometry {
                                  // same formula then extrapolates backwards from P_t
                                  // at constant velocity.
   double exposure = 0.0;         // t_c - t_o, seconds, 0 < exposure
+  // Rolling shutter (docs/file_formats.md#rolling-shutter): LR row y of H is
+  // exposed over [t_o + y r / H, t_c + y r / H], r = readout_time (0: a
+  // global shutter); every HR row of LR row y shares its window. The
+  // latent image stays the global-shutter image at P_t, so the operator also
+  // models (and the image update undoes) the rolling-shutter distortion.
+  double readout_time = 0.0;
   // The camera whose latent image the operator samples; empty = P_t itself.
   std::optional<SE3> T_world_source;
 };
@@ -66,8 +72,11 @@ void TransposeSparse(const SparseMatrixRM& a, SparseMatrixRM* at, int threads);
 // column of `a`; `out` becomes a (rows x 1) C-channel image (reshape as needed).
 void MultiplySparse(const SparseMatrixRM& a, const cv::Mat& in, cv::Mat* out, int threads);
 
-// Poses T_world_tau_m of the M virtual cameras over the exposure.
-std::vector<SE3> VirtualCameraPoses(const CaptureGeometry& geometry, int samples);
+// Poses T_world_tau_m of the M virtual cameras over the exposure of the rows
+// that open `row_delay` seconds after row 0 (y r / H for LR row y).
+std::vector<SE3> VirtualCameraPoses(const CaptureGeometry& geometry, int samples, double row_delay = 0.0);
+// The delay of LR row `lr_row` of `lr_rows` (y r / H; 0 for a global shutter).
+double RowDelay(const CaptureGeometry& geometry, int lr_row, int lr_rows);
 
 class CaptureOperator {
  public:
