@@ -1036,8 +1036,9 @@ struct NeighbourImages {
   cv::Mat reference;  // Psi_s o B_t on t's grid (or B_t when not blur-aware)
   cv::Mat source;     // Psi_t o B_s on s's grid (or B_s)
   // From t's shutter-close camera to where the reference / source show a
-  // point: their blur centroids (BuildBlurredPairs).
-  std::unique_ptr<PixelTransferF> to_reference, to_source;
+  // point: their blur centroids (BuildBlurredPairs). One transfer, or with a
+  // rolling shutter one per row of t (that row's read-out delay).
+  std::vector<PixelTransferF> to_reference, to_source;
 };
 
 // Per-thread buffers of the sweep and the TV-L1 solver, reused across frames.
@@ -1112,8 +1113,6 @@ void PlaneDifferences(const NeighbourImages& neighbour, const float* depth, int 
   const float* reference = neighbour.reference.ptr<float>();
   const float* source = neighbour.source.ptr<float>();
   const int stride = width * kChannels;
-  const PixelTransferF& to_reference = *neighbour.to_reference;
-  const PixelTransferF& to_source = *neighbour.to_source;
   // Coordinates of a row first (a branch-free loop the compiler vectorises),
   // then the bilinear reads.
   scratch->resize(static_cast<size_t>(4) * width);
@@ -1121,7 +1120,10 @@ void PlaneDifferences(const NeighbourImages& neighbour, const float* depth, int 
   float* rv = ru + width;
   float* su = rv + width;
   float* sv = su + width;
+  const bool per_row = neighbour.to_reference.size() > 1;
   for (int y = 0; y < height; ++y) {
+    const PixelTransferF& to_reference = neighbour.to_reference[per_row ? y : 0];
+    const PixelTransferF& to_source = neighbour.to_source[per_row ? y : 0];
     float base_ref[3], base_src[3];
     to_reference.RowBase(static_cast<float>(y), base_ref);
     to_source.RowBase(static_cast<float>(y), base_src);
@@ -1376,6 +1378,23 @@ void SolveTvL1(const PlaneSet& planes, const cv::Mat& edge_weight, const Initial
   }
 }
 
+// P_f^-1 P_f(t_c + delay) for the read-out delay of each of `rows` rows on
+// frame f's eq:interpolatingP path; one identity for a global shutter.
+std::vector<SE3> ReadoutIncrements(const std::vector<FrameRecord>& frames,
+                                   const std::vector<SE3>& T_world_cam, int f, double readout_time,
+                                   int rows) {
+  if (!(readout_time > 0.0)) return {SE3()};
+  const int n = f > 0 ? f - 1 : 1;
+  const SE3 T_cam_world = T_world_cam[f].Inverse();
+  std::vector<SE3> increments(rows);
+  for (int y = 0; y < rows; ++y) {
+    const double alpha =
+        (frames[f].stamp + readout_time * y / rows - frames[n].stamp) / (frames[f].stamp - frames[n].stamp);
+    increments[y] = T_cam_world * InterpolatePose(T_world_cam[n], T_world_cam[f], alpha);
+  }
+  return increments;
+}
+
 // Equal-blur image pairs for every frame and neighbour (the Psi_t o B_s and
 // Psi_s o B_t of eq:initializationScene) from scale-1 capture operators built
 // with the current depths. Psi_s o B_t is B_t blurred by s's blur: s's
@@ -1385,7 +1404,7 @@ void SolveTvL1(const PlaneSet& planes, const cv::Mat& edge_weight, const Initial
 void BuildBlurredPairs(const std::vector<cv::Mat>& images, const PinholeCamera& camera,
                        const std::vector<FrameRecord>& frames, const std::vector<SE3>& T_world_cam,
                        const std::vector<SE3>& T_world_mid, const std::vector<cv::Mat>& depth,
-                       const InitializerOptions& options, int threads,
+                       const InitializerOptions& options, int threads, double readout_time,
                        std::vector<std::vector<NeighbourImages>>* pairs) {
   const int num_frames = static_cast<int>(images.size());
   CaptureOperatorOptions capture_options;
@@ -1445,10 +1464,17 @@ void BuildBlurredPairs(const std::vector<cv::Mat>& images, const PinholeCamera& 
       const SE3 A_s = T_world_cam[s].Inverse() * T_world_mid[s];
       const SE3 T_world_ref = options.blur_aware ? T_world_cam[t] * A_s * A_t : T_world_mid[t];
       const SE3 T_world_src = options.blur_aware ? T_world_cam[s] * A_t * A_s : T_world_mid[s];
-      neighbour.to_reference =
-          std::make_unique<PixelTransferF>(PixelTransfer(camera, T_world_ref.Inverse() * T_world_cam[t]));
-      neighbour.to_source =
-          std::make_unique<PixelTransferF>(PixelTransfer(camera, T_world_src.Inverse() * T_world_cam[t]));
+      // A rolling shutter shifts both by the read-out delay of the row
+      // (docs/file_formats.md#rolling-shutter): the camera moves on by
+      // each frame's own increment over that delay.
+      const std::vector<SE3> delay_t = ReadoutIncrements(frames, T_world_cam, t, readout_time, camera.height);
+      const std::vector<SE3> delay_s = ReadoutIncrements(frames, T_world_cam, s, readout_time, camera.height);
+      for (size_t y = 0; y < delay_t.size(); ++y) {
+        neighbour.to_reference.emplace_back(
+            PixelTransfer(camera, (T_world_ref * delay_t[y]).Inverse() * T_world_cam[t]));
+        neighbour.to_source.emplace_back(
+            PixelTransfer(camera, (T_world_src * delay_s[y]).Inverse() * T_world_cam[t]));
+      }
       (*pairs)[t].push_back(std::move(neighbour));
     }
   }
@@ -1727,6 +1753,57 @@ SparseStructure SparseStage(const PinholeCamera& camera_lr, const InitializerOpt
   return structure;
 }
 
+// Rolling shutter (docs/file_formats.md#rolling-shutter): a point tracked at
+// LR row v of frame f was seen v * readout / H after row 0, by a camera that
+// had moved on. The bundle adjustment models a global shutter, so every
+// observation is moved to where frame f's mid-exposure camera (row 0) sees
+// its point, by the motion the current poses predict (the pose at mid_f +
+// delay on the path through the neighbouring mid-exposure poses,
+// eq:interpolatingP), and the adjustment runs again; twice, as the
+// corrections follow the poses. The tracks become the corrected ones.
+void CorrectRollingShutter(const PinholeCamera& camera, const InitializerOptions& options, int threads,
+                           const std::vector<FrameRecord>& frames, double readout_time,
+                           std::vector<Track>* tracks, SparseStructure* structure,
+                           std::ostringstream* summary) {
+  const double start_ms = NowMs();
+  const int num_frames = static_cast<int>(frames.size());
+  const std::vector<Track> observed = *tracks;
+  double rms = 0.0, mean_shift = 0.0;
+  int observations = 0;
+  for (int round = 0; round < 2; ++round) {
+    std::vector<SE3> T_world_mid(num_frames);
+    for (int t = 0; t < num_frames; ++t) T_world_mid[t] = structure->T_cam_world[t].Inverse();
+    double shift_sum = 0.0;
+    int shifted = 0;
+    for (size_t i = 0; i < observed.size(); ++i) {
+      const Track& track = observed[i];
+      if (track.point_id < 0 || !structure->point_inlier[track.point_id]) continue;
+      const Eigen::Vector3d& point = structure->points_world[track.point_id];
+      for (int f = track.first_frame; f <= track.LastFrame(); ++f) {
+        const int n = f > 0 ? f - 1 : 1;
+        const double mid_f = frames[f].stamp - 0.5 * frames[f].exposure;
+        const double mid_n = frames[n].stamp - 0.5 * frames[n].exposure;
+        const double delay = readout_time * track.At(f).y / camera.height;
+        const SE3 T_world_row =
+            InterpolatePose(T_world_mid[n], T_world_mid[f], (mid_f + delay - mid_n) / (mid_f - mid_n));
+        const Eigen::Vector3d p_row = T_world_row.Inverse() * point;
+        const Eigen::Vector3d p_mid = structure->T_cam_world[f] * point;
+        if (!(p_row.z() > 1e-9) || !(p_mid.z() > 1e-9)) continue;
+        const Eigen::Vector2d shift = camera.Project(p_mid) - camera.Project(p_row);
+        cv::Point2f& corrected = (*tracks)[i].points[f - track.first_frame];
+        corrected = track.At(f) + cv::Point2f(static_cast<float>(shift.x()), static_cast<float>(shift.y()));
+        shift_sum += shift.norm();
+        ++shifted;
+      }
+    }
+    mean_shift = shift_sum / std::max(1, shifted);
+    rms = BundleAdjust(camera, options, threads, *tracks, structure, &observations);
+  }
+  *summary << Format(
+      "rolling shutter (readout %.4f s): observations moved %.2f px on average; rms %.3f px; %.1f ms\n",
+      readout_time, mean_shift, rms, NowMs() - start_ms);
+}
+
 // Each frame's pose at its shutter close t_c from the mid-exposure poses
 // (t_c - exposure / 2): along the geodesic through the mid-exposure poses of
 // frames t-1 and t (eq:interpolatingP, extrapolated by half an exposure;
@@ -1934,7 +2011,8 @@ void DepthPass(const DepthLevel& level, int pass, double span,
 std::vector<cv::Mat> DepthStage(const std::vector<cv::Mat>& images, const PinholeCamera& camera_lr,
                                 const std::vector<FrameRecord>& frames, const std::vector<SE3>& T_world_cam,
                                 const std::vector<SE3>& T_world_mid, const DepthRanges& ranges,
-                                const InitializerOptions& options, int threads, std::ostringstream* summary) {
+                                const InitializerOptions& options, int threads, double readout_time,
+                                std::ostringstream* summary) {
   const int num_frames = static_cast<int>(images.size());
   const int width = camera_lr.width;
   const int height = camera_lr.height;
@@ -1959,7 +2037,7 @@ std::vector<cv::Mat> DepthStage(const std::vector<cv::Mat>& images, const Pinhol
     }
     double stage_ms = NowMs();
     BuildBlurredPairs(level.images, level.camera, frames, T_world_cam, T_world_mid, depth, options, threads,
-                      &pairs);
+                      readout_time, &pairs);
     timings.blur_ms += NowMs() - stage_ms;
     stage_ms = NowMs();
     if (pass > 0) {
@@ -2121,7 +2199,7 @@ RotationOnlyMotion EstimateRotationOnlyMotionUnguarded(const std::vector<cv::Mat
 InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images_lr,
                                               const PinholeCamera& camera_lr,
                                               const std::vector<FrameRecord>& frames,
-                                              const InitializerOptions& options) {
+                                              const InitializerOptions& options, double readout_time) {
   const double start_ms = NowMs();
   std::ostringstream summary;
   TrackedWindow window = TrackWindow(images_lr, camera_lr, frames, options, &summary);
@@ -2132,11 +2210,15 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
   InitialStructure result;
   SparseStructure structure =
       SparseStage(camera_lr, options, threads, num_frames, &tracking.tracks, &summary);
+  if (readout_time > 0.0) {
+    CorrectRollingShutter(camera_lr, options, threads, frames, readout_time, &tracking.tracks, &structure,
+                          &summary);
+  }
   std::vector<SE3> T_world_mid;
   MoveToShutterClose(frames, &structure, &result.T_world_cam, &T_world_mid, &summary);
   const DepthRanges ranges = ComputeDepthRanges(tracking.tracks, structure, result.T_world_cam, options);
   result.depth_lr = DepthStage(images, camera_lr, frames, result.T_world_cam, T_world_mid, ranges, options,
-                               threads, &summary);
+                               threads, readout_time, &summary);
   NormaliseGauge(&result, &summary);
   summary << Format("total: %.1f ms", NowMs() - start_ms);
   result.summary = summary.str();
@@ -2147,9 +2229,12 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
 
 InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
                                      const std::vector<FrameRecord>& frames,
-                                     const InitializerOptions& options) {
+                                     const InitializerOptions& options, double readout_time) {
+  if (!std::isfinite(readout_time) || readout_time < 0.0) {
+    throw InputError("initialisation: readout_time must be finite and >= 0");
+  }
   return WithOpenCvErrorsAsInitializationErrors("initialisation: degenerate geometry (OpenCV: ", [&] {
-    return InitializeStructureUnguarded(images_lr, camera_lr, frames, options);
+    return InitializeStructureUnguarded(images_lr, camera_lr, frames, options, readout_time);
   });
 }
 

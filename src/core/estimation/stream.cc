@@ -248,7 +248,7 @@ bool StreamEstimator::ContinueTrajectory(const EstimatorInput& input, const Shar
   init_options.num_threads = options.num_threads;
   InitialStructure initial;
   try {
-    initial = InitializeStructure(input.images, input.camera, input.frames, init_options);
+    initial = InitializeStructure(input.images, input.camera, input.frames, init_options, input.readout_time);
   } catch (const NoParallaxError& no_parallax) {
     ContinueRotationOnly(input, shared_previous, no_parallax.what(), progress, estimate);
     return true;

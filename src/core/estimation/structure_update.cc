@@ -214,7 +214,8 @@ cv::Mat BlurDerivativeWrtInverseDepth(const CaptureGeometry& geometry, int sampl
   std::vector<Eigen::Vector3d> kt(h.size());
   const SE3 T_t_world = geometry.T_world_cam.Inverse();
   for (int set = 0; set < num_sets; ++set) {
-    const std::vector<SE3> T_world_tau = VirtualCameraPoses(geometry, samples, RowDelay(geometry, set, lr_rows));
+    const std::vector<SE3> T_world_tau =
+        VirtualCameraPoses(geometry, samples, RowDelay(geometry, set, lr_rows));
     for (size_t i = 0; i < used.size(); ++i) {
       const SE3 T_t_tau = T_t_world * T_world_tau[used[i]];
       h[set * used.size() + i] = k * T_t_tau.rotation() * k_inv;

@@ -160,7 +160,8 @@ std::vector<SE3> VirtualCameraPoses(const CaptureGeometry& geometry, int samples
   // integrates the exposure without that bias (0.03 px).
   std::vector<SE3> poses;
   poses.reserve(samples);
-  for (int m = 0; m < samples; ++m) poses.push_back(PoseAtTime(geometry, SampleTime(geometry, samples, row_delay, m)));
+  for (int m = 0; m < samples; ++m)
+    poses.push_back(PoseAtTime(geometry, SampleTime(geometry, samples, row_delay, m)));
   return poses;
 }
 
@@ -259,7 +260,7 @@ struct AssemblyContext {
   bool per_row = false;  // one set of warps per LR row (rolling shutter)
   float sample_weight = 1.0f;
   float max_u = 0.0f, max_v = 0.0f;
-  std::vector<const float*> virtual_depth;  // D_tau_m, row-major HR, [set * samples + m]
+  std::vector<const float*> virtual_depth;    // D_tau_m, row-major HR, [set * samples + m]
   std::vector<float> h0, h3, h6, t0, t1, t2;  // [set * samples + m]
   std::vector<float> row_bases;               // [(y * 3 + k) * samples + m]
 
@@ -576,7 +577,8 @@ VirtualCameras PlanVirtualCameras(const CaptureGeometry& geometry, int scale, in
     for (int m = 0; m < samples; ++m) {
       const double tau = SampleTime(geometry, samples, delay, m);
       cameras.transfers.emplace_back(PixelTransfer(camera, T_source_world * PoseAtTime(geometry, tau)));
-      cameras.depth_index.push_back(std::clamp(static_cast<int>(std::lround((tau - first) / step)), 0, samples - 1));
+      cameras.depth_index.push_back(
+          std::clamp(static_cast<int>(std::lround((tau - first) / step)), 0, samples - 1));
     }
   }
   return cameras;
@@ -607,7 +609,8 @@ void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOpera
       ReprojectDepth(camera, geometry.depth_hr, cameras.T_depth_t[k], /*fill_from_source=*/true,
                      &virtual_depths_[k]);
     }
-    for (size_t i = 0; i < virtual_depth.size(); ++i) virtual_depth[i] = &virtual_depths_[cameras.depth_index[i]];
+    for (size_t i = 0; i < virtual_depth.size(); ++i)
+      virtual_depth[i] = &virtual_depths_[cameras.depth_index[i]];
   }
   timings_.reprojection_ms = NowMs() - stage_start;
   stage_start = NowMs();

@@ -112,9 +112,12 @@ class NoParallaxError : public InitializationError {
 // (frames 0-1 when they have it), every other frame is registered by PnP.
 // Throws InputError on bad inputs, NoParallaxError when no pair has parallax
 // (see EstimateRotationOnlyMotion), InitializationError on other failures.
+// readout_time > 0: a rolling shutter (docs/file_formats.md#rolling-shutter);
+// the tracked points are corrected to a global shutter before the final
+// bundle adjustments.
 InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
                                      const std::vector<FrameRecord>& frames,
-                                     const InitializerOptions& options);
+                                     const InitializerOptions& options, double readout_time = 0.0);
 
 // Camera orientations of a window whose motion is (close to) a pure rotation:
 // the warps between frames are then homographies K R K^-1 and depth is not

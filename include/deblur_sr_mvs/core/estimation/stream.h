@@ -39,8 +39,9 @@ struct StreamFrame {
   int64_t stamp_ns = 0;    // the caller's stamp (e.g. the message header), returned untouched
   double stamp_close = 0;  // shutter close time t_c (s), as FrameRecord::stamp
   double exposure = 0;     // t_c - t_o (s)
-  double readout_time = 0; // rolling shutter (EstimatorInput::readout_time), s; the window takes its last frame's
-  cv::Mat image;           // float in [0, 1], 1 or 3 channels (BGR)
+  double readout_time =
+      0;          // rolling shutter (EstimatorInput::readout_time), s; the window takes its last frame's
+  cv::Mat image;  // float in [0, 1], 1 or 3 channels (BGR)
 };
 using StreamWindow = std::vector<StreamFrame>;
 
