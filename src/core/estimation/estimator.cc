@@ -298,7 +298,6 @@ class WindowSolver {
   // ---- Phases.
   void ImagePhase(int iteration);
   void StructurePhase(int iteration, bool isolated);
-  void UpdateInputs();
   void UpdateLatent(int t);
   void UpdateEdgeWeight(int t);
   void UpdateFrameDepth(int t, int iteration, bool isolated, const std::vector<SE3>& poses,
@@ -352,12 +351,8 @@ class WindowSolver {
   Timer timer_;
   EstimatorResult result_;
 
-  std::vector<cv::Mat> observations_;  // B_t (LR, continuous)
-  std::vector<cv::Mat> bicubic_;       // B_t up-sampled (HR)
-  // B_t up-sampled in t's global-shutter geometry: bicubic_ itself, or with
-  // a rolling shutter, re-sampled by RollingShutterLookup at the current
-  // structure (the input pairs of kRestoredAndInput; the first latents).
-  std::vector<cv::Mat> inputs_;
+  std::vector<cv::Mat> observations_;   // B_t (LR, continuous)
+  std::vector<cv::Mat> bicubic_;        // B_t up-sampled (HR)
   std::vector<cv::Mat> latents_;        // I_t (HR)
   std::vector<FrameStructure> frames_;  // D_t, P_t, stamps, exposures
   std::vector<cv::Mat> inverse_depth_;  // rho_t = 1 / D_t (HR, holes filled)
@@ -404,7 +399,6 @@ WindowSolver::WindowSolver(const EstimatorOptions& options, int threads, const E
       total_steps_(std::max(1, 2 * options.max_iterations + 1)),
       observations_(num_frames_),
       bicubic_(num_frames_),
-      inputs_(num_frames_),
       latents_(num_frames_),
       frames_(num_frames_),
       inverse_depth_(num_frames_),
@@ -416,7 +410,6 @@ WindowSolver::WindowSolver(const EstimatorOptions& options, int threads, const E
   for (int t = 0; t < num_frames_; ++t) {
     observations_[t] = input.images[t].isContinuous() ? input.images[t] : input.images[t].clone();
     bicubic_[t] = UpsampleBicubic(observations_[t], scale_);
-    inputs_[t] = bicubic_[t];
     latents_[t] = bicubic_[t].clone();
     frames_[t].stamp = input.frames[t].stamp;
     frames_[t].exposure = input.frames[t].exposure;
@@ -429,10 +422,6 @@ WindowSolver::WindowSolver(const EstimatorOptions& options, int threads, const E
     inverse_depth_[t] = InverseDepthFromDepth(depth_hr[t]);
     frames_[t].depth_hr = DepthFromInverse(inverse_depth_[t]);
     UpdateEdgeWeight(t);
-  }
-  if (joint_ && input.readout_time > 0.0) {
-    UpdateInputs();
-    for (int t = 0; t < num_frames_; ++t) latents_[t] = inputs_[t].clone();
   }
   omp_set_max_active_levels(1);
   // Every operator of a 10-frame 640x480 window (30 operators of ~38 MiB)
@@ -545,21 +534,8 @@ void WindowSolver::UpdateEdgeWeight(int t) {
 // mode the latent images were fitted to the old structure, so a step
 // towards the true structure can raise the energy until the images follow:
 // RunJoint judges the structure update after the next image update.
-// Rolling shutter: the up-sampled inputs re-sampled into the global-shutter
-// geometry of the current structure.
-void WindowSolver::UpdateInputs() {
-  for (int t = 0; t < num_frames_; ++t) {
-    if (!(frames_[t].readout_time > 0.0)) continue;
-    cv::Mat resampled;  // a new buffer: inputs_[t] may still share bicubic_[t]'s
-    cv::remap(bicubic_[t], resampled, RollingShutterLookup(frames_, camera_hr_, t, scale_), cv::noArray(),
-              cv::INTER_LINEAR, cv::BORDER_REPLICATE);
-    inputs_[t] = resampled;
-  }
-}
-
 void WindowSolver::StructurePhase(int iteration, bool isolated) {
   const double begin = NowMs();
-  if (input_matching()) UpdateInputs();
   StructureUpdateOptions structure_options = options_.structure;
   structure_options.num_threads = threads_;
   std::vector<SE3> poses(num_frames_);
@@ -645,8 +621,8 @@ void WindowSolver::AppendPairs(int t, const std::vector<int>& sources, std::vect
     if (input_matching()) {
       // The same pair on the up-sampled inputs, which do not depend on
       // the current structure (see StructureMatching).
-      pair.observation = &inputs_[t];
-      pair.source = &inputs_[s];
+      pair.observation = &bicubic_[t];
+      pair.source = &bicubic_[s];
       pairs->push_back(pair);
     }
   }

@@ -26,17 +26,6 @@ struct FrameStructure {
 CaptureGeometry MakeCaptureGeometry(const std::vector<FrameStructure>& frames, const PinholeCamera& camera_hr,
                                     int t, int source);
 
-// Rolling shutter (docs/file_formats.md#rolling-shutter): for every HR pixel x
-// of frame t's global-shutter geometry (D_t, P_t), where the rows read out
-// late see it: the camera of LR row y (of `scale` HR rows) is P_t moved
-// y * readout / H along the eq:interpolatingP path, and y is that of the
-// pixel found (two fixed-point steps). CV_32FC2 (x, y) for cv::remap;
-// resampling an up-sampled input B_t through it gives B_t as a global
-// shutter would have seen it (exact for a constant image velocity).
-// Pixels without depth map to themselves.
-cv::Mat RollingShutterLookup(const std::vector<FrameStructure>& frames, const PinholeCamera& camera_hr, int t,
-                             int scale);
-
 // N(t): the neighbouring frames of t used by the matching terms, `radius`
 // frames on each side inside [0, num_frames).
 std::vector<int> Neighbours(int t, int num_frames, int radius);
