@@ -1,7 +1,9 @@
 // The imaging model and the data agree: Psi_t built from the ground-truth
 // depth and poses, applied to the ground-truth sharp HR frame, reproduces the
 // synthesizer's blurred LR frame (the synthesizer renders every sub-frame from
-// the scene instead; eq:blurOperator approximates that by warping I_t).
+// the scene instead; eq:blurOperator approximates that by warping I_t), with
+// a global shutter and with a rolling shutter (readout 0.8 of the frame
+// interval, docs/file_formats.md#rolling-shutter).
 #include <cstdio>
 #include <cstdlib>
 #include <string>
@@ -23,21 +25,27 @@
 namespace deblur_sr_mvs {
 namespace {
 
-TEST(ModelAgreement, CaptureOperatorReproducesSynthesizedBlur) {
+class ModelAgreement : public testing::TestWithParam<double> {};
+
+TEST_P(ModelAgreement, CaptureOperatorReproducesSynthesizedBlur) {
+  const double readout_ratio = GetParam();
   const std::string folder = testing::TempDir() + "/dsm_model_agreement_" + std::to_string(::getpid());
   const std::string command = std::string(DSM_TOOL_DIR) + "/synthesize_sequence --scene " + DSM_SOURCE_DIR +
-                              "/data/middlebury/Dolls --output " + folder + " --frames 4 > /dev/null";
+                              "/data/middlebury/Dolls --output " + folder +
+                              " --frames 4 --readout-ratio " + std::to_string(readout_ratio) + " > /dev/null";
   ASSERT_EQ(std::system(command.c_str()), 0);
   const Sequence sequence = ReadSequence(folder, true);
   std::filesystem::remove_all(folder);
   ASSERT_TRUE(sequence.ground_truth.has_value());
   const int scale = sequence.ground_truth->calibration.camera.width / sequence.calibration.camera.width;
   ASSERT_EQ(scale, 2);
+  ASSERT_EQ(sequence.readout_time > 0.0, readout_ratio > 0.0);
 
   std::vector<FrameStructure> frames(sequence.frames.size());
   for (size_t t = 0; t < frames.size(); ++t) {
     frames[t].stamp = sequence.frames[t].stamp;
     frames[t].exposure = sequence.frames[t].exposure;
+    frames[t].readout_time = sequence.readout_time;
     frames[t].T_world_cam = sequence.ground_truth->poses[t].T_world_cam;
     frames[t].depth_hr = sequence.ground_truth->depth[t];
   }
@@ -74,12 +82,16 @@ TEST(ModelAgreement, CaptureOperatorReproducesSynthesizedBlur) {
     const double fraction = cv::countNonZero(mask) / double(mask.total());
     const double psnr = Psnr(predicted8, sequence.images[t], 255.0, mask);
     const double psnr_all = Psnr(predicted8, sequence.images[t], 255.0);
-    std::printf("frame %d: Psi_t(gt latent) vs blurred input: %.2f dB on %.0f%% of pixels (%.2f dB on all)\n",
-                t, psnr, 100.0 * fraction, psnr_all);
+    std::printf("readout %.1f, frame %d: Psi_t(gt latent) vs blurred input: %.2f dB on %.0f%% of pixels (%.2f dB "
+                "on all)\n",
+                readout_ratio, t, psnr, 100.0 * fraction, psnr_all);
     EXPECT_GE(psnr, 30.0) << "frame " << t;
     EXPECT_GT(fraction, 0.4);
   }
 }
+
+// 0: global shutter; 0.8: the rolling shutter of issue 12's target.
+INSTANTIATE_TEST_SUITE_P(Shutters, ModelAgreement, testing::Values(0.0, 0.8));
 
 }  // namespace
 }  // namespace deblur_sr_mvs

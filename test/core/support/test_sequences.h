@@ -37,6 +37,7 @@ inline EstimatorInput InputOf(const Sequence& sequence) {
   EstimatorInput input;
   input.camera = sequence.calibration.camera;
   input.frames = sequence.frames;
+  input.readout_time = sequence.readout_time;
   for (const cv::Mat& image : sequence.images) input.images.push_back(ToFloat01(image));
   return input;
 }
