@@ -333,6 +333,7 @@ void EstimatorNodelet::AcceptFrame(const sensor_msgs::ImageConstPtr& image,
   frame.stamp_ns = static_cast<int64_t>(stamp.toNSec());
   frame.stamp_close = (stamp - epoch_origin_).toSec() + params_.CloseOffset();
   frame.exposure = params_.exposure_time;
+  frame.readout_time = params_.readout_time;
   frame.image = image01;
   for (StreamWindow& frames : windower_->Add(std::move(frame))) QueueWindow(std::move(frames));
 }

@@ -36,6 +36,7 @@ void NodeParameters::Check() const {
   // (0, 10] s: the shutter time of the camera.
   CheckAbove("exposure_time", exposure_time, 0.0);
   CheckInRange("exposure_time", exposure_time, 0.0, 10.0);
+  CheckInRange("readout_time", readout_time, 0.0, 1.0);
   CheckAbove("max_frame_gap", max_frame_gap, 0.0);
   CheckAbove("max_step_ratio", max_step_ratio, 1.0);
   stream.Check();

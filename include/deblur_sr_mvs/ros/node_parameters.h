@@ -30,6 +30,10 @@ struct NodeParameters {
   // --- Shutter: exposure time and what the header stamp marks.
   double exposure_time = 0.0;  // s, > 0 (required: the blur model needs it)
   StampPosition stamp_position = StampPosition::kEnd;
+  // Rolling shutter (docs/file_formats.md#rolling-shutter): each row opens
+  // readout_time * y / H after the first, whose exposure the stamp marks
+  // (s, [0, 1]; 0: a global shutter).
+  double readout_time = 0.0;
   // A longer gap between two frames (dropped frames, a paused camera) breaks
   // the constant-velocity exposure model: the trajectory restarts (s).
   double max_frame_gap = 1.0;
@@ -75,6 +79,7 @@ template <typename Params, typename Visitor>
 void ForEachParameter(Params& params, Visitor&& visit) {
   visit("exposure_time", params.exposure_time);
   visit("stamp_position", params.stamp_position);
+  visit("readout_time", params.readout_time);
   visit("max_frame_gap", params.max_frame_gap);
   visit("max_step_ratio", params.max_step_ratio);
   visit("window_size", params.stream.window_size);
