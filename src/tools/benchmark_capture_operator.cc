@@ -1,7 +1,7 @@
 // Times building Psi_t and applying Psi_t / Psi_t^T (issue: operator
 // benchmark). Scene: 640x480 HR -> 320x240 LR, M = 50, a camera translating
 // sideways past a bumpy surface with a depth edge, ~15 HR px of blur.
-// Usage: benchmark_capture_operator [--repeats N] [--samples M]
+// Usage: benchmark_capture_operator [--repeats N] [--samples M] [--readout-ratio R]
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -96,16 +96,23 @@ void BenchmarkThreads(const dsm::CaptureGeometry& geometry, int threads, int sam
 int Run(int argc, char** argv) {
   int repeats = 7;
   int samples = 50;
+  double readout_ratio = 0.0;
   dsm::ToolCommandLine cli("benchmark_capture_operator",
                            "Times building Psi_t and applying Psi_t / Psi_t^T: 640x480 HR -> 320x240 LR, "
                            "a camera translating past a bumpy surface, 1 and 2 threads.");
   cli.add_option("--repeats", repeats, "timed runs per measurement, the median is shown (default 7)")
       ->check(dsm::FlagInt(1));
   cli.add_option("--samples", samples, "M, sub-exposure samples (default 50)")->check(dsm::FlagInt(1, 10000));
+  cli.add_option("--readout-ratio", readout_ratio,
+                 "rolling shutter: readout time = R x frame interval (default 0: global shutter)")
+      ->check(dsm::FlagNumber(0.0, 1.0));
   if (!cli.Parse(argc, argv)) return 0;
-  const dsm::CaptureGeometry geometry = BenchmarkGeometry();
-  std::printf("capture operator benchmark: 640x480 -> 320x240, M = %d, scale 2, median of %d\n", samples,
-              repeats);
+  dsm::CaptureGeometry geometry = BenchmarkGeometry();
+  geometry.readout_time = readout_ratio * (geometry.stamp - geometry.neighbour_stamp);
+  std::printf(
+      "capture operator benchmark: 640x480 -> 320x240, M = %d, scale 2, readout %.2f x frame interval, "
+      "median of %d\n",
+      samples, readout_ratio, repeats);
   std::printf("machine threads available: %d\n", omp_get_max_threads());
   for (int threads : {1, 2}) BenchmarkThreads(geometry, threads, samples, repeats);
   return 0;
