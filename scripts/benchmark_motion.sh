@@ -20,10 +20,8 @@ mkdir -p "$work"
 synthesize="$(dsm_tool synthesize_sequence)"
 estimate="$(dsm_tool estimate_sequence)"
 evaluate="$(dsm_tool evaluate_sequence)"
-echo "# $(date -u '+%Y-%m-%d %H:%M UTC'), $(nproc) cores, commit $(git -C "$DSM_REPO" rev-parse --short HEAD 2>/dev/null || echo '?')"
+dsm_benchmark_header
 
-# The mean of a key of evaluate_sequence's JSON ("mean" object).
-mean_of() { python3 -c "import json,sys; v=json.load(open(sys.argv[1]))['mean'][sys.argv[2]]; print('n/a' if v is None else '%.4f' % v)" "$1" "$2"; }
 
 echo
 echo "## Pure rotation (8 frames, default size and blur, joint, default parameters)"
@@ -35,10 +33,10 @@ for scene in Aloe Dolls Moebius Reindeer; do
   "$synthesize" --scene "$DSM_REPO/data/middlebury/$scene" --output "$sequence" --path rotate --frames 8 >/dev/null
   "$estimate" --input "$sequence" --output "$sequence.out" --quiet
   "$evaluate" --result "$sequence.out" --sequence "$sequence" --json "$sequence.json" >/dev/null
-  bicubic=$(mean_of "$sequence.json" bicubic_psnr_db)
-  restored=$(mean_of "$sequence.json" image_psnr_db)
+  bicubic=$(dsm_evaluation_mean "$sequence.json" bicubic_psnr_db)
+  restored=$(dsm_evaluation_mean "$sequence.json" image_psnr_db)
   gain=$(python3 -c "import sys; print('%.2f' % (float(sys.argv[2]) - float(sys.argv[1])))" "$bicubic" "$restored")
-  echo "| $scene | $bicubic | $restored | $gain | $(mean_of "$sequence.json" rotation_error_deg) / $(mean_of "$sequence.json" max_rotation_error_deg) |"
+  echo "| $scene | $bicubic | $restored | $gain | $(dsm_evaluation_mean "$sequence.json" rotation_error_deg) / $(dsm_evaluation_mean "$sequence.json" max_rotation_error_deg) |"
 done
 
 echo
@@ -64,9 +62,9 @@ EOF
   "$estimate" --input "$sequence" --output "$sequence.out" --pose-prior "$sequence.prior.txt" --quiet
   "$evaluate" --result "$sequence.out" --sequence "$sequence" --json "$sequence.aligned.json" >/dev/null
   "$evaluate" --result "$sequence.out" --sequence "$sequence" --metric --json "$sequence.metric.json" >/dev/null
-  metric=$(mean_of "$sequence.metric.json" depth_relative_error)
-  aligned=$(mean_of "$sequence.aligned.json" depth_relative_error)
+  metric=$(dsm_evaluation_mean "$sequence.metric.json" depth_relative_error)
+  aligned=$(dsm_evaluation_mean "$sequence.aligned.json" depth_relative_error)
   ratio=$(python3 -c "import sys; print('%.2f' % (float(sys.argv[1]) / float(sys.argv[2])))" "$metric" "$aligned")
   note=$(python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['pose_prior']['note'])" "$sequence.out/report.json")
-  echo "| $path | $metric | $aligned | $ratio | $(mean_of "$sequence.metric.json" ate_rmse) | $note |"
+  echo "| $path | $metric | $aligned | $ratio | $(dsm_evaluation_mean "$sequence.metric.json" ate_rmse) | $note |"
 done

@@ -21,13 +21,12 @@ mkdir -p "$work"
 synthesize="$(dsm_tool synthesize_sequence)"
 estimate="$(dsm_tool estimate_sequence)"
 evaluate="$(dsm_tool evaluate_sequence)"
-echo "# $(date -u '+%Y-%m-%d %H:%M UTC'), $(nproc) cores, commit $(git -C "$DSM_REPO" rev-parse --short HEAD 2>/dev/null || echo '?')"
+dsm_benchmark_header
 
-mean_of() { python3 -c "import json,sys; v=json.load(open(sys.argv[1]))['mean'][sys.argv[2]]; print('n/a' if v is None else '%.4f' % v)" "$1" "$2"; }
 row() {  # scene, label, sequence, result
   local json="$4.json"
   "$evaluate" --result "$4" --sequence "$3" --json "$json" >/dev/null
-  echo "| $1 | $2 | $(mean_of "$json" bicubic_psnr_db) | $(mean_of "$json" image_psnr_db) | $(mean_of "$json" depth_relative_error) | $(mean_of "$json" ate_rmse) | $(mean_of "$json" rotation_error_deg) |"
+  echo "| $1 | $2 | $(dsm_evaluation_mean "$json" bicubic_psnr_db) | $(dsm_evaluation_mean "$json" image_psnr_db) | $(dsm_evaluation_mean "$json" depth_relative_error) | $(dsm_evaluation_mean "$json" ate_rmse) | $(dsm_evaluation_mean "$json" rotation_error_deg) |"
 }
 
 echo

@@ -120,3 +120,14 @@ dsm_wait_published() {
   echo "$who: the node published ${published:-0} of $frames frames (log: $log)" >&2
   return 1
 }
+
+# Benchmarks: the first line of their output (date, cores, commit).
+dsm_benchmark_header() {
+  echo "# $(date -u '+%Y-%m-%d %H:%M UTC'), $(nproc) cores, commit $(git -C "$DSM_REPO" rev-parse --short HEAD 2>/dev/null || echo '?')"
+}
+
+# A key of the "mean" object of evaluate_sequence's JSON, 4 decimals ("n/a" for null).
+# Usage: dsm_evaluation_mean FILE KEY
+dsm_evaluation_mean() {
+  python3 -c "import json,sys; v=json.load(open(sys.argv[1]))['mean'][sys.argv[2]]; print('n/a' if v is None else '%.4f' % v)" "$1" "$2"
+}
