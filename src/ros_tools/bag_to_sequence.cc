@@ -2,8 +2,8 @@
 // inverse of sequence_to_bag.
 //
 //   bag_to_sequence --input BAG --output SEQ [--image-topic T] [--info-topic T]
-//                   [--exposure-topic T] [--exposure SECONDS] [--gt-namespace NS]
-//                   [--no-ground-truth]
+//                   [--exposure-topic T] [--exposure SECONDS] [--readout-topic T]
+//                   [--readout-time SECONDS] [--gt-namespace NS] [--no-ground-truth]
 //
 // Reads, in bag order:
 //   /camera/image_raw    sensor_msgs/Image: mono8 (or 8UC1) -> gray PNG,
@@ -18,6 +18,11 @@
 //                        topic, --exposure SECONDS gives every frame the same
 //                        exposure (it also overrides the topic); without either
 //                        the tool fails.
+//   /camera/readout_time std_msgs/Float64, optional: the rolling-shutter
+//                        readout time in s (sequence_to_bag writes one latched
+//                        message). Several messages must agree. Written as
+//                        sensor.yaml when > 0; --readout-time SECONDS sets or
+//                        overrides it (0: global shutter, no sensor.yaml).
 //   /gt/image, /gt/depth (32FC1 m, or 16UC1 mm), /gt/camera_info, /gt/pose
 //                        (PoseStamped, T_world_camera): restored as gt/ when
 //                        present (all four, one per frame).
@@ -25,10 +30,11 @@
 // Checks: every image has a camera_info (and exposure) with the same stamp,
 // image stamps strictly increase, sizes and channel counts agree with each
 // other and with camera_info, K is a pinhole matrix, 0 < exposure <= frame
-// interval (an excess of up to 2 ns, from rounding the stamps to the ROS
-// nanosecond, is clamped). The output folder must be new, empty or an
-// existing sequence folder (has frames.csv), whose camera.yaml, frames.csv,
-// images/ and gt/ are replaced.
+// interval and 0 <= readout time <= the smallest frame interval, as
+// ReadSensorYaml requires (an excess of up to 2 ns, from rounding the stamps
+// to the ROS nanosecond, is clamped). The output folder must be new, empty
+// or an existing sequence folder (has frames.csv), whose camera.yaml,
+// frames.csv, sensor.yaml, images/ and gt/ are replaced.
 //
 // Exit code 0 on success, 2 with one line on stderr on bad input.
 #include <algorithm>
@@ -56,6 +62,7 @@
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/TimeReference.h>
 #include <sensor_msgs/image_encodings.h>
+#include <std_msgs/Float64.h>
 #include <boost/endian/conversion.hpp>
 
 #include "bag_tool_main.h"
@@ -76,7 +83,8 @@ using deblur_sr_mvs::SizeText;
 constexpr char kDescription[] =
     "Writes the images of a rosbag as a sequence folder (camera.yaml, frames.csv,\n"
     "images/, and gt/ when the bag has ground truth). Every image needs a\n"
-    "CameraInfo with the same stamp; stamps must increase.";
+    "CameraInfo with the same stamp; stamps must increase. A rolling-shutter\n"
+    "readout time (topic or --readout-time) becomes sensor.yaml.";
 
 struct Options {
   std::string input;
@@ -84,9 +92,11 @@ struct Options {
   std::string image_topic = "/camera/image_raw";
   std::string info_topic = "/camera/camera_info";
   std::string exposure_topic = "/camera/exposure";
+  std::string readout_topic = "/camera/readout_time";
   std::string gt_namespace = "/gt";
   bool ground_truth = true;
   std::optional<double> exposure;
+  std::optional<double> readout_time;  // --readout-time, overrides the topic
 
   std::string GtTopic(const std::string& name) const {
     return (gt_namespace == "/" ? std::string() : gt_namespace) + "/" + name;
@@ -103,10 +113,17 @@ std::string StampText(const ros::Time& stamp) {
   return Seconds(stamp.toSec());
 }
 
+// A number flag that may be absent: `target` is set only when it is given.
+void AddOptionalNumber(CLI::App* cli, const std::string& name, const std::string& help, double min,
+                       std::optional<double>* target) {
+  cli->add_option_function<double>(
+         name, [target](const double& value) { *target = value; }, help)
+      ->check(deblur_sr_mvs::FlagNumber(min));
+}
+
 // Parses the command line; false after --help.
 bool ParseOptions(int argc, char** argv, Options* options) {
   bool no_ground_truth = false;
-  double exposure = 0.0;
   deblur_sr_mvs::ToolCommandLine cli("bag_to_sequence", kDescription);
   cli.add_option("--input", options->input, "bag file to read")->required();
   cli.add_option("--output", options->output,
@@ -119,19 +136,24 @@ bool ParseOptions(int argc, char** argv, Options* options) {
   cli.add_option("--exposure-topic", options->exposure_topic,
                  "sensor_msgs/TimeReference per frame: exposure = header.stamp - time_ref (default "
                  "/camera/exposure)");
-  CLI::Option* exposure_flag =
-      cli.add_option("--exposure", exposure,
-                     "exposure of every frame in seconds, for bags without that topic (overrides the topic "
-                     "when both are there)")
-          ->check(deblur_sr_mvs::FlagNumber(1e-6));
+  AddOptionalNumber(&cli, "--exposure",
+                    "exposure of every frame in seconds, for bags without that topic (overrides the topic "
+                    "when both are there)",
+                    1e-6, &options->exposure);
+  cli.add_option("--readout-topic", options->readout_topic,
+                 "std_msgs/Float64: the rolling-shutter readout time in s, optional (default "
+                 "/camera/readout_time)");
+  AddOptionalNumber(&cli, "--readout-time",
+                    "rolling-shutter readout time in seconds, at most the frame interval; 0 = global shutter "
+                    "(overrides the topic)",
+                    0.0, &options->readout_time);
   cli.add_option("--gt-namespace", options->gt_namespace,
                  "ground-truth topics NS/image, NS/depth, NS/camera_info, NS/pose (default /gt)");
   cli.add_flag("--no-ground-truth", no_ground_truth, "do not write gt/ even when the bag has it");
   if (!cli.Parse(argc, argv)) return false;
   options->ground_truth = !no_ground_truth;
-  if (exposure_flag->count() > 0) options->exposure = exposure;
-  for (const std::string* topic :
-       {&options->image_topic, &options->info_topic, &options->exposure_topic, &options->gt_namespace}) {
+  for (const std::string* topic : {&options->image_topic, &options->info_topic, &options->exposure_topic,
+                                   &options->readout_topic, &options->gt_namespace}) {
     if (topic->empty()) throw InputError("topic names must not be empty");
   }
   while (options->gt_namespace.size() > 1 && options->gt_namespace.back() == '/') {
@@ -149,6 +171,7 @@ struct BagContents {
   std::map<StampKey, sensor_msgs::CameraInfoConstPtr> infos;
   std::string camera_name;  // from the camera_info connection header, if any
   std::map<StampKey, sensor_msgs::TimeReferenceConstPtr> exposures;
+  std::optional<double> readout_time;  // the readout topic's value, if any
   std::map<StampKey, sensor_msgs::ImageConstPtr> gt_images;
   std::map<StampKey, sensor_msgs::ImageConstPtr> gt_depths;
   std::map<StampKey, sensor_msgs::CameraInfoConstPtr> gt_infos;
@@ -221,6 +244,22 @@ std::string ConnectionField(const rosbag::MessageInstance& message, const std::s
   return it == header->end() ? "" : it->second;
 }
 
+// The readout time of one message of the readout topic: valid on its own
+// (finite, >= 0) and equal to any earlier one (a sequence has one).
+void AddReadoutTime(const std::string& bag_path, const rosbag::MessageInstance& message,
+                    std::optional<double>* readout_time) {
+  const double value = Instantiate<std_msgs::Float64>(message, bag_path)->data;
+  const std::string where =
+      bag_path + ": " + message.getTopic() + ": the message at bag time " + StampText(message.getTime());
+  const std::string problem = deblur_sr_mvs::ReadoutTimeProblem(value, {});
+  if (!problem.empty()) throw InputError(where + ": " + problem);
+  if (*readout_time && **readout_time != value) {
+    throw InputError(where + ": readout_time " + Seconds(value) + " s differs from the earlier " +
+                     Seconds(**readout_time) + " s (a sequence has one readout time)");
+  }
+  *readout_time = value;
+}
+
 using TopicTypes = std::map<std::string, std::set<std::string>>;  // topic -> message types
 
 // Every topic of the bag with its types: the topics we read must carry the
@@ -237,6 +276,7 @@ void CheckTopics(const Options& options, rosbag::Bag& bag) {
   if (!options.exposure) {
     CheckTopicType<sensor_msgs::TimeReference>(path, types, options.exposure_topic);
   }
+  if (!options.readout_time) CheckTopicType<std_msgs::Float64>(path, types, options.readout_topic);
   if (options.ground_truth) {
     CheckTopicType<sensor_msgs::Image>(path, types, options.GtTopic("image"));
     CheckTopicType<sensor_msgs::Image>(path, types, options.GtTopic("depth"));
@@ -263,6 +303,7 @@ void ReadMessages(const Options& options, rosbag::Bag& bag, BagContents* content
   const std::string gt_pose = options.GtTopic("pose");
   std::vector<std::string> topics = {options.image_topic, options.info_topic};
   if (!options.exposure) topics.push_back(options.exposure_topic);
+  if (!options.readout_time) topics.push_back(options.readout_topic);
   if (options.ground_truth) topics.insert(topics.end(), {gt_image, gt_depth, gt_info, gt_pose});
   rosbag::View view(bag, rosbag::TopicQuery(topics));
   for (const rosbag::MessageInstance& message : view) {
@@ -274,6 +315,8 @@ void ReadMessages(const Options& options, rosbag::Bag& bag, BagContents* content
       AddByStamp(path, topic, Instantiate<sensor_msgs::CameraInfo>(message, path), &contents->infos);
     } else if (topic == options.exposure_topic) {
       AddByStamp(path, topic, Instantiate<sensor_msgs::TimeReference>(message, path), &contents->exposures);
+    } else if (topic == options.readout_topic) {
+      AddReadoutTime(path, message, &contents->readout_time);
     } else if (topic == gt_image) {
       AddByStamp(path, topic, Instantiate<sensor_msgs::Image>(message, path), &contents->gt_images);
     } else if (topic == gt_depth) {
@@ -471,12 +514,15 @@ double TopicExposure(const Options& options, const BagContents& bag, const ros::
   return (stamp - shutter_open).toSec();
 }
 
+// What rounding the stamps to the ROS nanosecond may take off a frame
+// interval: an exposure or readout time that filled it may exceed it by this.
+constexpr double kRoundingSlack = 2e-9;
+
 // 0 < exposure <= frame interval, as ReadFramesCsv requires (with its
 // tolerance for decimal and epoch stamps). Stamps rounded to the nanosecond
 // may shorten an interval by 1 ns against an exposure that filled it: such
 // an excess (<= 2 ns) is clamped to the interval, anything more is an error.
 void ClampExposures(const Options& options, Sequence* sequence) {
-  constexpr double kRoundingSlack = 2e-9;
   const std::size_t count = sequence->frames.size();
   const bool exposure_from_topic = !options.exposure.has_value();
   for (std::size_t i = 0; i < count && count > 1; ++i) {
@@ -498,6 +544,31 @@ void ClampExposures(const Options& options, Sequence* sequence) {
                      Seconds(frame.stamp) + " exceeds the frame interval " + Seconds(interval) +
                      " s (gap to the " + (first ? "next" : "previous") + " stamp)");
   }
+}
+
+// The readout time (--readout-time, else the topic, else 0 = global shutter)
+// within ReadSensorYaml's bounds; one that exceeds the smallest frame
+// interval by at most kRoundingSlack is clamped to it, as exposures are.
+double ReadoutTime(const Options& options, const BagContents& bag, const Sequence& sequence) {
+  double readout_time = options.readout_time.value_or(bag.readout_time.value_or(0.0));
+  const std::vector<deblur_sr_mvs::FrameRecord>& frames = sequence.frames;
+  std::string problem = deblur_sr_mvs::ReadoutTimeProblem(readout_time, frames);
+  if (!problem.empty() && std::isfinite(readout_time) && readout_time > 0.0) {
+    double smallest = std::numeric_limits<double>::infinity();
+    for (std::size_t i = 1; i < frames.size(); ++i) {
+      smallest = std::min(smallest, frames[i].stamp - frames[i - 1].stamp);
+    }
+    if (readout_time <= smallest + kRoundingSlack) {
+      readout_time = smallest;
+      problem = deblur_sr_mvs::ReadoutTimeProblem(readout_time, frames);
+    }
+  }
+  if (!problem.empty()) {
+    const std::string source =
+        options.readout_time ? std::string("--readout-time") : options.input + ": " + options.readout_topic;
+    throw InputError(source + ": " + problem);
+  }
+  return readout_time;
 }
 
 Sequence ToSequence(const Options& options, const BagContents& bag) {
@@ -555,6 +626,7 @@ Sequence ToSequence(const Options& options, const BagContents& bag) {
   }
 
   ClampExposures(options, &sequence);
+  sequence.readout_time = ReadoutTime(options, bag, sequence);
   return sequence;
 }
 
@@ -645,7 +717,7 @@ void PrepareOutputFolder(const std::string& folder) {
                      ": folder is not empty and is not a sequence folder (no frames.csv); "
                      "refusing to write into it");
   }
-  for (const char* name : {"camera.yaml", "frames.csv", "images", "gt"}) {
+  for (const char* name : {"camera.yaml", "frames.csv", "sensor.yaml", "images", "gt"}) {
     fs::remove_all(root / name, error);
     if (error) throw InputError((root / name).string() + ": cannot remove: " + error.message());
   }
@@ -665,8 +737,12 @@ int Run(int argc, char** argv) {
   const cv::Mat& first = sequence.images.front();
   std::cout << "wrote " << options.output << ": " << sequence.frames.size() << " frames " << first.cols << "x"
             << first.rows << (first.channels() == 1 ? " gray" : " colour") << ", exposure from "
-            << (options.exposure ? "--exposure" : options.exposure_topic)
-            << (sequence.ground_truth ? ", with gt/" : "") << "\n";
+            << (options.exposure ? "--exposure" : options.exposure_topic);
+  if (sequence.readout_time > 0.0) {
+    std::cout << ", readout time " << sequence.readout_time << " s from "
+              << (options.readout_time ? "--readout-time" : options.readout_topic);
+  }
+  std::cout << (sequence.ground_truth ? ", with gt/" : "") << "\n";
   return 0;
 }
 

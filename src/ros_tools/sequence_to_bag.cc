@@ -2,8 +2,9 @@
 // (docs/file_formats.md#sequences-as-rosbags).
 //
 //   sequence_to_bag --input SEQ --output BAG [--frame-id ID] [--image-topic T]
-//                   [--info-topic T] [--exposure-topic T] [--gt-namespace NS]
-//                   [--world-frame F] [--no-ground-truth] [--compression none|bz2|lz4]
+//                   [--info-topic T] [--exposure-topic T] [--readout-topic T]
+//                   [--gt-namespace NS] [--world-frame F] [--no-ground-truth]
+//                   [--compression none|bz2|lz4]
 //
 // Every message of frame i carries the header {stamp = t_c of frames.csv,
 // frame_id = --frame-id}, and its bag time is that stamp, so `rosbag play`
@@ -15,6 +16,10 @@
 //                                                   K, D, R, P, distortion_model)
 //   /camera/exposure     sensor_msgs/TimeReference  time_ref = shutter open time
 //                                                   t_o, so exposure = stamp - time_ref
+//   and, when the sequence has a rolling shutter (sensor.yaml, readout_time > 0):
+//   /camera/readout_time std_msgs/Float64           ONE latched message, data =
+//                                                   readout time in s, at the
+//                                                   first frame's bag time
 //   and, when the sequence has gt/ (unless --no-ground-truth):
 //   /gt/image            sensor_msgs/Image          sharp HR image (mono8/rgb8)
 //   /gt/depth            sensor_msgs/Image          32FC1 depth in m, 0/NaN unknown
@@ -23,7 +28,9 @@
 //                                                   --world-frame, stamp of poses.txt
 //
 // camera_name of camera.yaml (which CameraInfo has no field for) travels in
-// the connection header of the camera_info connections (field camera_name).
+// the connection header of the camera_info connections (field camera_name);
+// the rolling-shutter row timing in that of the readout connection (field
+// readout_convention). A global-shutter sequence gets no readout topic.
 // ROS time has nanosecond resolution and cannot be negative: stamps are
 // rounded to the nanosecond, and a sequence whose stamps or shutter-open
 // times are negative, or whose stamps collide after rounding, is rejected.
@@ -48,6 +55,7 @@
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/TimeReference.h>
 #include <sensor_msgs/image_encodings.h>
+#include <std_msgs/Float64.h>
 #include <boost/make_shared.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -65,7 +73,8 @@ using deblur_sr_mvs::Sequence;
 constexpr char kDescription[] =
     "Writes a sequence folder (camera.yaml, frames.csv, images/, optional gt/) as a\n"
     "rosbag. Every message of a frame is stamped with the frame's stamp (shutter\n"
-    "close time t_c); the bag time is the stamp.";
+    "close time t_c); the bag time is the stamp. A rolling-shutter sequence\n"
+    "(sensor.yaml) gets one latched readout-time message.";
 
 struct Options {
   std::string input;
@@ -74,6 +83,7 @@ struct Options {
   std::string image_topic = "/camera/image_raw";
   std::string info_topic = "/camera/camera_info";
   std::string exposure_topic = "/camera/exposure";
+  std::string readout_topic = "/camera/readout_time";
   std::string gt_namespace = "/gt";
   std::string world_frame = "world";
   bool ground_truth = true;
@@ -102,6 +112,9 @@ bool ParseOptions(int argc, char** argv, Options* options) {
   cli.add_option("--exposure-topic", options->exposure_topic,
                  "sensor_msgs/TimeReference: time_ref = shutter open time, exposure = header.stamp - "
                  "time_ref (default /camera/exposure)");
+  cli.add_option("--readout-topic", options->readout_topic,
+                 "std_msgs/Float64, one latched message: the rolling-shutter readout time in s, only "
+                 "when sensor.yaml has readout_time > 0 (default /camera/readout_time)");
   cli.add_option("--gt-namespace", options->gt_namespace,
                  "ground-truth topics NS/image, NS/depth (32FC1), NS/camera_info, NS/pose (PoseStamped) "
                  "(default /gt)");
@@ -114,8 +127,8 @@ bool ParseOptions(int argc, char** argv, Options* options) {
   options->compression = compression == "bz2"   ? rosbag::compression::BZ2
                          : compression == "lz4" ? rosbag::compression::LZ4
                                                 : rosbag::compression::Uncompressed;
-  for (const std::string* topic :
-       {&options->image_topic, &options->info_topic, &options->exposure_topic, &options->gt_namespace}) {
+  for (const std::string* topic : {&options->image_topic, &options->info_topic, &options->exposure_topic,
+                                   &options->readout_topic, &options->gt_namespace}) {
     if (topic->empty()) throw InputError("topic names must not be empty");
   }
   while (options->gt_namespace.size() > 1 && options->gt_namespace.back() == '/') {
@@ -177,7 +190,8 @@ sensor_msgs::ImagePtr ToImageMessage(const cv::Mat& image, const std_msgs::Heade
 }
 
 // A connection header that rosbag stores as given: the fields it needs to
-// read the messages back, plus our own (e.g. camera_name).
+// read the messages back, plus our own (e.g. camera_name). Not latched
+// unless `extra` says latching "1".
 template <class Message>
 boost::shared_ptr<ros::M_string> ConnectionHeader(const ros::M_string& extra) {
   auto header = boost::make_shared<ros::M_string>(extra);
@@ -185,8 +199,22 @@ boost::shared_ptr<ros::M_string> ConnectionHeader(const ros::M_string& extra) {
   (*header)["md5sum"] = ros::message_traits::MD5Sum<Message>::value();
   (*header)["message_definition"] = ros::message_traits::Definition<Message>::value();
   (*header)["callerid"] = "/sequence_to_bag";
-  (*header)["latching"] = "0";
+  header->emplace("latching", "0");
   return header;
+}
+
+// The rolling-shutter readout time as one latched message, so that a
+// subscriber that comes late still gets it (docs/file_formats.md#rolling-shutter).
+void WriteReadoutTime(const Options& options, double readout_time, const ros::Time& bag_time,
+                      rosbag::Bag* bag) {
+  const auto header = ConnectionHeader<std_msgs::Float64>(
+      {{"latching", "1"},
+       {"readout_convention",
+        "data = readout time in s; LR row y of H opens y*readout_time/H after row 0; stamps are row "
+        "0's"}});
+  std_msgs::Float64 message;
+  message.data = readout_time;
+  bag->write(options.readout_topic, bag_time, message, header);
 }
 
 std::string GtNamespace(const Options& options) {
@@ -223,6 +251,9 @@ void WriteMessages(const Options& options, const Sequence& sequence, const std::
         {{"camera_name", sequence.ground_truth->calibration.camera_name}});
   }
   const std::string ns = GtNamespace(options);
+  if (sequence.readout_time > 0.0) {
+    WriteReadoutTime(options, sequence.readout_time, std::max(stamps.front(), ros::TIME_MIN), &bag);
+  }
 
   for (std::size_t i = 0; i < count; ++i) {
     const std::string stem = deblur_sr_mvs::FrameStem(sequence.frames[i].index);
@@ -320,6 +351,9 @@ void WriteBag(const Options& options, const Sequence& sequence) {
   std::cout << "wrote " << options.output << ": " << count << " frames " << first.cols << "x" << first.rows
             << " " << (first.channels() == 1 ? "mono8" : "rgb8") << " on " << options.image_topic << " + "
             << options.info_topic << ", exposures on " << options.exposure_topic;
+  if (sequence.readout_time > 0.0) {
+    std::cout << ", readout time " << sequence.readout_time << " s on " << options.readout_topic;
+  }
   if (with_gt) {
     std::cout << ", ground truth on " << GtNamespace(options) << "/{image,depth,camera_info,pose}";
   } else if (sequence.ground_truth) {

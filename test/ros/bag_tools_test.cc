@@ -1,8 +1,9 @@
 // Integration test of sequence_to_bag and bag_to_sequence (docs/tools.md):
 // a synthesized sequence (synthesize_sequence) and hand-made ones go to a bag
 // and back, exactly (images bitwise, stamps and exposures to 1 ns, camera and
-// gt as written); malformed bags and bad input exit with code 2 and one line
-// on stderr. Runs the installed-style executables; no ROS master needed.
+// gt as written, a rolling shutter's readout time exactly); malformed bags and
+// bad input exit with code 2 and one line on stderr. Runs the installed-style executables; no ROS master
+// needed.
 #include <sys/wait.h>
 
 #include <algorithm>
@@ -27,6 +28,7 @@
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/TimeReference.h>
+#include <std_msgs/Float64.h>
 #include <boost/make_shared.hpp>
 
 #include <nlohmann/json.hpp>
@@ -371,6 +373,144 @@ TEST_F(BagToolsTest, GraySequenceWithEpochStampsRoundTrips) {
   ExpectSameSequence(ReadSequence((dir_ / "tight").string(), true), tight_restored, 2e-9);
   EXPECT_EQ(tight_restored.frames[1].exposure,
             tight_restored.frames[1].stamp - tight_restored.frames[0].stamp);
+}
+
+// The values of the std_msgs/Float64 messages on `topic`, with their bag
+// times and (the last one's) connection header.
+std::vector<double> ReadoutMessages(const fs::path& bag_path, const std::string& topic,
+                                    std::vector<ros::Time>* bag_times = nullptr,
+                                    ros::M_string* connection = nullptr) {
+  rosbag::Bag bag;
+  bag.open(bag_path.string(), rosbag::bagmode::Read);
+  std::vector<double> values;
+  for (const rosbag::MessageInstance& m : rosbag::View(bag, rosbag::TopicQuery(topic))) {
+    values.push_back(m.instantiate<std_msgs::Float64>()->data);
+    if (bag_times != nullptr) bag_times->push_back(m.getTime());
+    if (connection != nullptr) *connection = *m.getConnectionHeader();
+  }
+  bag.close();
+  return values;
+}
+
+// A rolling-shutter sequence (sensor.yaml) keeps its readout time exactly:
+// one latched std_msgs/Float64 at the first frame's bag time, back to
+// sensor.yaml; --readout-time overrides it, --readout-topic renames it.
+TEST_F(BagToolsTest, RollingShutterReadoutTimeRoundTripsExactly) {
+  const fs::path synth = dir_ / "rolling";
+  const ToolResult made = RunTool(DSM_SYNTHESIZE_SEQUENCE,
+                                  {"--scene", std::string(DSM_SOURCE_DIR) + "/data/middlebury/Dolls",
+                                   "--output", synth.string(), "--frames", "3", "--subframes", "51",
+                                   "--hr-width", "96", "--hr-height", "64", "--readout-ratio", "0.8"},
+                                  dir_);
+  ASSERT_EQ(made.exit_code, 0) << made.err;
+  const Sequence original = ReadSequence(synth.string(), true);
+  ASSERT_GT(original.readout_time, 0.0);
+
+  const ToolResult to_bag = ToBag(synth, dir_ / "rolling.bag");
+  ASSERT_EQ(to_bag.exit_code, 0) << to_bag.err;
+  std::vector<ros::Time> bag_times;
+  ros::M_string connection;
+  const std::vector<double> values =
+      ReadoutMessages(dir_ / "rolling.bag", "/camera/readout_time", &bag_times, &connection);
+  ASSERT_EQ(values.size(), 1u);
+  EXPECT_EQ(values[0], original.readout_time);  // bit for bit
+  EXPECT_EQ(bag_times[0], ros::Time().fromSec(original.frames[0].stamp));
+  EXPECT_EQ(connection["latching"], "1");
+  EXPECT_EQ(connection["type"], "std_msgs/Float64");
+  EXPECT_NE(connection["readout_convention"].find("row 0"), std::string::npos);
+
+  const ToolResult back = ToSequence(dir_ / "rolling.bag", dir_ / "back");
+  ASSERT_EQ(back.exit_code, 0) << back.err;
+  EXPECT_NE(back.out.find("readout time"), std::string::npos) << back.out;
+  const Sequence restored = ReadSequence((dir_ / "back").string(), true);
+  ExpectSameSequence(original, restored);
+  EXPECT_EQ(restored.readout_time, original.readout_time);
+  EXPECT_EQ(ReadText(synth / "sensor.yaml"), ReadText(dir_ / "back" / "sensor.yaml"));
+
+  // --readout-time sets or overrides the topic; 0 = global shutter.
+  ASSERT_EQ(ToSequence(dir_ / "rolling.bag", dir_ / "back", {"--readout-time", "0.0125"}).exit_code, 0);
+  EXPECT_EQ(ReadSequence((dir_ / "back").string(), false).readout_time, 0.0125);
+  ASSERT_EQ(ToSequence(dir_ / "rolling.bag", dir_ / "back", {"--readout-time", "0"}).exit_code, 0);
+  EXPECT_FALSE(fs::exists(dir_ / "back" / "sensor.yaml"));  // the stale one is gone
+  EXPECT_EQ(ReadSequence((dir_ / "back").string(), false).readout_time, 0.0);
+
+  // Another topic name, in both tools.
+  ASSERT_EQ(ToBag(synth, dir_ / "renamed.bag", {"--readout-topic", "/cam/rs"}).exit_code, 0);
+  EXPECT_TRUE(ReadoutMessages(dir_ / "renamed.bag", "/camera/readout_time").empty());
+  ASSERT_EQ(ToSequence(dir_ / "renamed.bag", dir_ / "renamed", {"--readout-topic", "/cam/rs"}).exit_code, 0);
+  EXPECT_EQ(ReadSequence((dir_ / "renamed").string(), false).readout_time, original.readout_time);
+}
+
+// A global-shutter sequence: no readout topic, no sensor.yaml, and the same
+// bag byte for byte each time.
+TEST_F(BagToolsTest, GlobalShutterSequenceHasNoReadoutTopic) {
+  const fs::path synth = root_ / "synth";
+  ASSERT_EQ(ReadSequence(synth.string(), false).readout_time, 0.0);
+  ASSERT_EQ(ToBag(synth, dir_ / "a.bag").exit_code, 0);
+  ASSERT_EQ(ToBag(synth, dir_ / "b.bag").exit_code, 0);
+  EXPECT_TRUE(ReadText(dir_ / "a.bag") == ReadText(dir_ / "b.bag"));
+  rosbag::Bag bag;
+  bag.open((dir_ / "a.bag").string(), rosbag::bagmode::Read);
+  for (const rosbag::ConnectionInfo* connection : rosbag::View(bag).getConnections()) {
+    EXPECT_NE(connection->datatype, "std_msgs/Float64") << connection->topic;
+  }
+  bag.close();
+  const ToolResult back = ToSequence(dir_ / "a.bag", dir_ / "back");
+  ASSERT_EQ(back.exit_code, 0) << back.err;
+  EXPECT_FALSE(fs::exists(dir_ / "back" / "sensor.yaml"));
+  EXPECT_EQ(back.out.find("readout"), std::string::npos) << back.out;
+}
+
+// Readout times a sequence cannot have are refused with one line naming the
+// problem, and nothing is written.
+TEST_F(BagToolsTest, BadReadoutTimesAreRefused) {
+  // Frames 0.1 s apart; the readout messages as given.
+  const auto bag_with = [this](const std::string& name, const std::vector<double>& readouts) {
+    WriteBag(dir_ / name, [&readouts](rosbag::Bag* bag) {
+      for (int i = 0; i < 3; ++i) {
+        const ros::Time stamp(10, 100000000 * i);
+        bag->write("/camera/image_raw", stamp, MakeImage(stamp, 8, 6, "mono8", 1, i));
+        bag->write("/camera/camera_info", stamp, MakeInfo(stamp, 8, 6));
+        if (i < static_cast<int>(readouts.size())) {
+          std_msgs::Float64 readout;
+          readout.data = readouts[i];
+          bag->write("/camera/readout_time", stamp, readout);
+        }
+      }
+    });
+    return dir_ / name;
+  };
+  const std::vector<std::string> exposure = {"--exposure", "0.05"};
+  const auto refused = [&](const fs::path& bag, const std::string& needle,
+                           std::vector<std::string> extra = {}) {
+    SCOPED_TRACE(bag.filename().string() + " " + needle);
+    extra.insert(extra.end(), exposure.begin(), exposure.end());
+    ExpectOneLineError(ToSequence(bag, dir_ / "out", extra), needle);
+    EXPECT_FALSE(fs::exists(dir_ / "out"));
+  };
+  refused(bag_with("negative.bag", {-0.01}), ">= 0");
+  refused(bag_with("nan.bag", {std::numeric_limits<double>::quiet_NaN()}), "finite");
+  refused(bag_with("long.bag", {0.2}), "exceeds the frame interval 0.1");
+  refused(bag_with("two.bag", {0.01, 0.02}), "differs");
+  refused(bag_with("fine.bag", {0.01}), "--readout-time", {"--readout-time", "0.5"});
+  refused(bag_with("fine.bag", {0.01}), "--readout-time", {"--readout-time", "-1"});
+  refused(bag_with("fine.bag", {0.01}), "--readout-time", {"--readout-time", "nan"});
+
+  // Repeated equal values are one readout time; the whole interval is allowed.
+  const ToolResult same = ToSequence(bag_with("same.bag", {0.1, 0.1, 0.1}), dir_ / "same", exposure);
+  ASSERT_EQ(same.exit_code, 0) << same.err;
+  EXPECT_EQ(ReadSequence((dir_ / "same").string(), false).readout_time, 0.1);
+
+  // The wrong type on the readout topic.
+  WriteBag(dir_ / "type.bag", [](rosbag::Bag* bag) {
+    const ros::Time stamp(1, 0);
+    bag->write("/camera/image_raw", stamp, MakeImage(stamp, 4, 3, "mono8", 1, 0));
+    bag->write("/camera/camera_info", stamp, MakeInfo(stamp, 4, 3));
+    sensor_msgs::TimeReference wrong;
+    wrong.header.stamp = stamp;
+    bag->write("/camera/readout_time", stamp, wrong);
+  });
+  refused(dir_ / "type.bag", "std_msgs/Float64");
 }
 
 TEST_F(BagToolsTest, BagWithoutExposureNeedsTheExposureFlag) {

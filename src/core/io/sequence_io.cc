@@ -489,21 +489,26 @@ double ReadSensorYaml(const std::string& path, const std::vector<FrameRecord>& f
   if (!entry.value.IsScalar() || !ParseDouble(Trim(entry.value.Scalar()), &readout)) {
     FailAt(path, entry.line, "readout_time must be a number of seconds, got " + Quote(NodeText(entry.value)));
   }
-  if (!std::isfinite(readout) || readout < 0.0) {
-    FailAt(path, entry.line, "readout_time must be finite and >= 0, got " + MessageNumber(readout));
+  const std::string problem = ReadoutTimeProblem(readout, frames);
+  if (!problem.empty()) FailAt(path, entry.line, problem);
+  return readout;
+}
+
+std::string ReadoutTimeProblem(double readout_time, const std::vector<FrameRecord>& frames) {
+  if (!std::isfinite(readout_time) || readout_time < 0.0) {
+    return "readout_time must be finite and >= 0, got " + MessageNumber(readout_time);
   }
   // A row cannot start reading out after the next frame's row 0: at most one
   // frame interval (with a relative tolerance for stamps rounded in the CSV).
   for (std::size_t i = 1; i < frames.size(); ++i) {
     const double interval = frames[i].stamp - frames[i - 1].stamp;
-    if (readout > interval * (1.0 + 1e-9)) {
-      FailAt(path, entry.line,
-             "readout_time " + MessageNumber(readout) + " s exceeds the frame interval " +
-                 MessageNumber(interval) + " s between frames " + std::to_string(i - 1) + " and " +
-                 std::to_string(i));
+    if (readout_time > interval * (1.0 + 1e-9)) {
+      return "readout_time " + MessageNumber(readout_time) + " s exceeds the frame interval " +
+             MessageNumber(interval) + " s between frames " + std::to_string(i - 1) + " and " +
+             std::to_string(i);
     }
   }
-  return readout;
+  return "";
 }
 
 void WriteSensorYaml(const std::string& path, double readout_time) {

@@ -685,5 +685,16 @@ TEST_F(SequenceIoTest, SensorYamlErrorsNameFileAndLine) {
   ExpectInputError([&] { WriteSensorYaml(sensor, -1.0); }, {"sensor.yaml", ">= 0"});
 }
 
+// The check behind ReadSensorYaml, shared with bag_to_sequence.
+TEST_F(SequenceIoTest, ReadoutTimeProblemNamesTheProblem) {
+  const std::vector<FrameRecord> frames = MakeSequence(3, false).frames;  // interval 0.1 s
+  EXPECT_EQ(ReadoutTimeProblem(0.0, frames), "");
+  EXPECT_EQ(ReadoutTimeProblem(0.1, frames), "");  // the whole interval
+  EXPECT_NE(ReadoutTimeProblem(-0.01, frames).find(">= 0"), std::string::npos);
+  EXPECT_NE(ReadoutTimeProblem(std::nan(""), {}).find("finite"), std::string::npos);
+  EXPECT_NE(ReadoutTimeProblem(0.2, frames).find("exceeds the frame interval 0.1"), std::string::npos);
+  EXPECT_EQ(ReadoutTimeProblem(0.2, {}), "");  // no interval to exceed
+}
+
 }  // namespace
 }  // namespace deblur_sr_mvs

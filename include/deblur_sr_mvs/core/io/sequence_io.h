@@ -67,6 +67,9 @@ void WriteFramesCsv(const std::string& path, const std::vector<FrameRecord>& fra
 // at most the smallest frame interval of `frames` (the gap between
 // consecutive stamps). Errors name file:line.
 double ReadSensorYaml(const std::string& path, const std::vector<FrameRecord>& frames);
+// ReadSensorYaml's check of a value, for other sources (a rosbag): the
+// problem in words, "" when there is none.
+std::string ReadoutTimeProblem(double readout_time, const std::vector<FrameRecord>& frames);
 void WriteSensorYaml(const std::string& path, double readout_time);
 
 // TUM format: `stamp tx ty tz qx qy qz qw` per line, '#' comments allowed.
