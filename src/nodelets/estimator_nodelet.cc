@@ -540,7 +540,8 @@ bool EstimatorNodelet::ResolveExposures(const ros_glue::NodeParameters& params, 
     const auto found = find(stamp);
     frame.exposure = found != exposures_.rend() ? found->second : params.exposure_time.seconds;
     from_topic += found != exposures_.rend();
-    if (found == exposures_.rend() && params.exposure_time.automatic) frame.exposure = 0.0;  // estimated below
+    if (found == exposures_.rend() && params.exposure_time.automatic)
+      frame.exposure = 0.0;  // estimated below
     // t_c follows the exposure unless the stamp is t_c (stamp_position end).
     frame.stamp_close = (stamp - window->epoch_origin).toSec() + params.CloseOffset(frame.exposure);
   }

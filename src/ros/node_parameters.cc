@@ -115,7 +115,8 @@ class ParameterReader {
   void operator()(const char* name, ExposureTime& exposure) const {
     std::string text;
     if (node_.getParam(name, text)) {
-      if (text != "auto") throw InputError(std::string(name) + " must be a number of seconds or auto, got '" + text + "'");
+      if (text != "auto")
+        throw InputError(std::string(name) + " must be a number of seconds or auto, got '" + text + "'");
       exposure.automatic = true;
       return;
     }

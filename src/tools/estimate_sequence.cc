@@ -158,13 +158,15 @@ dsm::ExposureEstimate EstimateExposure(const dsm::EstimatorOptions& options, con
 dsm::Json ExposureEstimateJson(const dsm::ExposureEstimate& estimate) {
   dsm::Json frames = dsm::Json::array();
   for (double seconds : estimate.frame_exposures) frames.push_back(dsm::JsonNumber(seconds));
-  dsm::Json probes = dsm::Json::array();
-  for (const auto& probe : estimate.probes)
-    probes.push_back({dsm::JsonNumber(probe.first), dsm::JsonNumber(probe.second)});
-  return {{"fraction", dsm::JsonNumber(estimate.fraction)},
+  dsm::Json correlation = dsm::Json::array();
+  for (const auto& point : estimate.correlation)
+    correlation.push_back({dsm::JsonNumber(point.first), dsm::JsonNumber(point.second)});
+  return {{"measured", estimate.measured},
+          {"fraction", dsm::JsonNumber(estimate.fraction)},
           {"seconds", dsm::JsonNumber(estimate.seconds)},
           {"frame_exposures", frames},
-          {"probes", probes},
+          {"correlation", correlation},
+          {"summary", estimate.summary},
           {"elapsed_seconds", dsm::JsonNumber(estimate.elapsed_seconds)}};
 }
 
@@ -291,7 +293,8 @@ int Run(int argc, char** argv) {
   std::vector<std::optional<dsm::SE3>> prior;
   if (!flags.pose_prior.empty()) prior = ReadPriorAtFrames(flags.pose_prior, input.frames);
   dsm::EstimatorResult result = Estimate(options, input, flags.input, flags.quiet);
-  if (exposure) result.timings.insert(result.timings.begin(), {"exposure estimation", exposure->elapsed_seconds});
+  if (exposure)
+    result.timings.insert(result.timings.begin(), {"exposure estimation", exposure->elapsed_seconds});
   const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
   dsm::SequenceResult out;

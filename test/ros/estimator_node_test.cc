@@ -603,6 +603,37 @@ TEST(EstimatorNodeletExposure, FramesWithoutAMessageFallBackToTheParameter) {
   EXPECT_DOUBLE_EQ(status.frame_exposures[3], parameter);
 }
 
+// exposure_time auto (docs/ros_interface.md#exposure): without the exposure
+// topic the node estimates the window's exposure from the blur, publishes
+// the window and says so in status: source "auto", the fraction, the
+// exposures it used (within 10 % of the truth) and the time it took.
+TEST(EstimatorNodeletExposure, AutoEstimatesTheExposureFromTheBlur) {
+  constexpr int kWindow = 4;
+  const Sequence& sequence = TestSequence();
+  test::LoadedNodelet node("/exposure_auto", {{"exposure_time", "auto"}, {"iterations", 1}});
+  ASSERT_TRUE(node.Connected()) << "the nodelet did not load or subscribe";
+  for (int t = 0; t < kWindow; ++t) {
+    node.Send(sequence.images[t], sequence.calibration.camera, FrameStamp(t));
+    ros::WallDuration(0.05).sleep();
+  }
+  ASSERT_TRUE(WaitFor([&] { return node.StatusCount() >= 1; }, 240.0));
+  std::lock_guard<std::mutex> lock(node.mutex);
+  const EstimatorStatus& status = *node.statuses[0];
+  EXPECT_TRUE(status.success) << status.message;
+  EXPECT_EQ(status.exposure_source, "auto");
+  EXPECT_NE(status.message.find("exposure from auto (estimated: "), std::string::npos) << status.message;
+  EXPECT_GT(status.exposure_estimation_seconds, 0.0);
+  const double interval = sequence.frames[1].stamp - sequence.frames[0].stamp;
+  EXPECT_NEAR(status.exposure_fraction, sequence.frames[0].exposure / interval,
+              0.1 * sequence.frames[0].exposure / interval);
+  ASSERT_EQ(status.frame_exposures.size(), static_cast<size_t>(kWindow));
+  for (int t = 0; t < kWindow; ++t) {
+    EXPECT_NEAR(status.frame_exposures[t], sequence.frames[t].exposure, 0.1 * sequence.frames[t].exposure)
+        << "frame " << t;
+  }
+  EXPECT_GE(node.restored.size(), static_cast<size_t>(kWindow));
+}
+
 }  // namespace
 }  // namespace deblur_sr_mvs
 

@@ -21,9 +21,9 @@ class ExposureRatio : public testing::TestWithParam<double> {};
 
 TEST_P(ExposureRatio, EstimateWithinTenPercentAndPsnrWithinHalfDb) {
   const double ratio = GetParam();
-  const Sequence sequence = SynthesizedSequence("exposure_" + std::to_string(static_cast<int>(ratio * 100)),
-                                                "Dolls", std::string(kFlags) + " --exposure-ratio " +
-                                                             std::to_string(ratio));
+  const Sequence sequence =
+      SynthesizedSequence("exposure_" + std::to_string(static_cast<int>(ratio * 100)), "Dolls",
+                          std::string(kFlags) + " --exposure-ratio " + std::to_string(ratio));
   ASSERT_TRUE(sequence.ground_truth.has_value());
   const EstimatorInput known = InputOf(sequence);
   const double interval = sequence.frames[1].stamp - sequence.frames[0].stamp;
@@ -33,18 +33,21 @@ TEST_P(ExposureRatio, EstimateWithinTenPercentAndPsnrWithinHalfDb) {
   const EstimatorOptions options = FastEstimatorOptions();
   const ExposureEstimate estimate = EstimateExposure(known, options, ExposureEstimationOptions());
   std::printf("ratio %.2f: %s\n", ratio, estimate.summary.c_str());
-  for (const auto& probe : estimate.probes) std::printf("  probe %.4f residual %.4f\n", probe.first, probe.second);
+  for (const auto& point : estimate.correlation) std::printf("  %.3f %.4f\n", point.first, point.second);
+  EXPECT_TRUE(estimate.measured);
   EXPECT_NEAR(estimate.seconds, truth, 0.10 * truth);
   ASSERT_EQ(estimate.frame_exposures.size(), sequence.frames.size());
   for (size_t t = 0; t < sequence.frames.size(); ++t)
     EXPECT_NEAR(estimate.frame_exposures[t], sequence.frames[t].exposure, 0.10 * sequence.frames[t].exposure);
 
   EstimatorInput automatic = known;
-  for (size_t t = 0; t < automatic.frames.size(); ++t) automatic.frames[t].exposure = estimate.frame_exposures[t];
+  for (size_t t = 0; t < automatic.frames.size(); ++t)
+    automatic.frames[t].exposure = estimate.frame_exposures[t];
   const double psnr_known = MeanPsnr(Estimator(options).Run(known).latent, sequence.ground_truth->latent);
   const double psnr_auto = MeanPsnr(Estimator(options).Run(automatic).latent, sequence.ground_truth->latent);
-  std::printf("ratio %.2f: truth %.5f s, estimate %.5f s (%+.1f %%), PSNR known %.2f dB, auto %.2f dB\n", ratio,
-              truth, estimate.seconds, 100.0 * (estimate.seconds - truth) / truth, psnr_known, psnr_auto);
+  std::printf("ratio %.2f: truth %.5f s, estimate %.5f s (%+.1f %%), PSNR known %.2f dB, auto %.2f dB\n",
+              ratio, truth, estimate.seconds, 100.0 * (estimate.seconds - truth) / truth, psnr_known,
+              psnr_auto);
   EXPECT_GT(psnr_auto, psnr_known - 0.5);
 }
 
@@ -61,6 +64,22 @@ TEST(ExposureEstimation, FractionsOfTheFrameInterval) {
   EXPECT_THROW(FrameIntervals({frames[0]}), InputError);
 }
 
+// A still camera blurs nothing: the exposure is not measurable and the
+// assumed fraction comes back, flagged.
+TEST(ExposureEstimation, StillCameraIsNotMeasured) {
+  const PinholeCamera camera(64, 48, 60.0, 60.0, 31.5, 23.5);
+  cv::Mat image(48, 64, CV_32FC1);
+  cv::randu(image, 0.0, 1.0);
+  const std::vector<FrameRecord> frames = {{0, 0.1, 0.0}, {1, 0.2, 0.0}, {2, 0.3, 0.0}};
+  const std::vector<cv::Mat> depth(3, cv::Mat(48, 64, CV_32FC1, cv::Scalar(2.0f)));
+  ExposureEstimationOptions options;
+  const ExposureEstimate estimate =
+      EstimateExposureFromMotion({image, image, image}, camera, frames, depth, std::vector<SE3>(3), options);
+  EXPECT_FALSE(estimate.measured);
+  EXPECT_DOUBLE_EQ(estimate.fraction, options.initial_fraction);
+  EXPECT_NEAR(estimate.seconds, 0.1 * options.initial_fraction, 1e-12);
+}
+
 TEST(ExposureEstimation, OptionsCheckNamesTheBadValue) {
   ExposureEstimationOptions options;
   EXPECT_NO_THROW(options.Check());
@@ -70,7 +89,7 @@ TEST(ExposureEstimation, OptionsCheckNamesTheBadValue) {
   options.max_fraction = 0.01;  // below min_fraction
   EXPECT_THROW(options.Check(), InputError);
   options = ExposureEstimationOptions();
-  options.grid_points = 2;
+  options.fraction_step = 0.0;
   EXPECT_THROW(options.Check(), InputError);
 }
 
