@@ -5,6 +5,7 @@
 #include "deblur_sr_mvs/core/estimation/exposure_estimation.h"
 
 #include <cstdio>
+#include <functional>
 #include <string>
 
 #include <gtest/gtest.h>
@@ -81,16 +82,24 @@ TEST(ExposureEstimation, StillCameraIsNotMeasured) {
 }
 
 TEST(ExposureEstimation, OptionsCheckNamesTheBadValue) {
-  ExposureEstimationOptions options;
-  EXPECT_NO_THROW(options.Check());
-  options.min_fraction = 0.0;
-  EXPECT_THROW(options.Check(), InputError);
-  options = ExposureEstimationOptions();
-  options.max_fraction = 0.01;  // below min_fraction
-  EXPECT_THROW(options.Check(), InputError);
-  options = ExposureEstimationOptions();
-  options.fraction_step = 0.0;
-  EXPECT_THROW(options.Check(), InputError);
+  EXPECT_NO_THROW(ExposureEstimationOptions().Check());
+  const std::vector<std::pair<std::string, std::function<void(ExposureEstimationOptions*)>>> bad = {
+      {"min_fraction", [](ExposureEstimationOptions* o) { o->min_fraction = 0.0; }},
+      {"max_fraction", [](ExposureEstimationOptions* o) { o->max_fraction = 0.01; }},  // below min_fraction
+      {"fraction_step", [](ExposureEstimationOptions* o) { o->fraction_step = 0.0; }},
+      {"initial_fraction", [](ExposureEstimationOptions* o) { o->initial_fraction = 1.5; }},
+      {"min_motion_px", [](ExposureEstimationOptions* o) { o->min_motion_px = -1.0; }},
+      {"highpass_sigma_px", [](ExposureEstimationOptions* o) { o->highpass_sigma_px = 0.0; }}};
+  for (const auto& [name, spoil] : bad) {
+    ExposureEstimationOptions options;
+    spoil(&options);
+    try {
+      options.Check();
+      ADD_FAILURE() << name << ": accepted";
+    } catch (const InputError& error) {
+      EXPECT_NE(std::string(error.what()).find(name), std::string::npos) << error.what();
+    }
+  }
 }
 
 }  // namespace
