@@ -168,13 +168,13 @@ void EstimatorNodelet::onInit() {
       [this](EstimatorConfig& config, uint32_t level) { ReconfigureCallback(config, level); });
 
   worker_ = std::thread(&EstimatorNodelet::WorkerLoop, this);
+  const std::string fallback = params_.exposure_time.automatic
+                                   ? std::string("estimated from the blur (auto)")
+                                   : std::to_string(params_.exposure_time.seconds) + " s";
   NODELET_INFO(
       "deblur_sr_mvs: windows of %d frames (overlap %d), x%d, exposure from %s else %s; input %s + %s%s",
       params_.stream.window_size, params_.stream.window_overlap, params_.estimator.scale,
-      exposure_topic_.c_str(),
-      params_.exposure_time.automatic ? "estimated from the blur (auto)"
-                                      : (std::to_string(params_.exposure_time.seconds) + " s").c_str(),
-      image_topic_.c_str(), info_topic_.c_str(),
+      exposure_topic_.c_str(), fallback.c_str(), image_topic_.c_str(), info_topic_.c_str(),
       params_.lazy_subscription ? " (subscribed while outputs have subscribers)" : "");
   lock.unlock();
   ConnectCallback();  // eager mode subscribes at once
@@ -546,8 +546,9 @@ bool EstimatorNodelet::ResolveExposures(const ros_glue::NodeParameters& params, 
     frame.stamp_close = (stamp - window->epoch_origin).toSec() + params.CloseOffset(frame.exposure);
   }
   lock.unlock();
-  const std::string fallback = params.exposure_time.automatic ? "auto" : "parameter";
-  if (params.exposure_time.automatic && from_topic < frames.size()) EstimateExposures(params, window, status);
+  std::string fallback = "parameter";
+  if (params.exposure_time.automatic && from_topic < frames.size())
+    fallback = EstimateExposures(params, window, status);
   const bool clamped = ClampExposures(&frames);
   for (const StreamFrame& frame : frames) status->frame_exposures.push_back(frame.exposure);
   if (from_topic == frames.size()) {
@@ -561,8 +562,8 @@ bool EstimatorNodelet::ResolveExposures(const ros_glue::NodeParameters& params, 
   return clamped;
 }
 
-void EstimatorNodelet::EstimateExposures(const ros_glue::NodeParameters& params, PendingWindow* window,
-                                         EstimatorStatus* status) {
+std::string EstimatorNodelet::EstimateExposures(const ros_glue::NodeParameters& params, PendingWindow* window,
+                                                EstimatorStatus* status) {
   StreamWindow& frames = window->frames;
   EstimatorInput input;
   input.camera = window->camera;
@@ -581,6 +582,7 @@ void EstimatorNodelet::EstimateExposures(const ros_glue::NodeParameters& params,
   }
   status->exposure_fraction = estimate.fraction;
   status->exposure_estimation_seconds = estimate.elapsed_seconds;
+  return estimate.measured ? "auto" : "auto (no blur to measure: assumed)";
 }
 
 void EstimatorNodelet::SkipWindow(const std::string& message, bool restart, EstimatorStatus* status) {

@@ -101,9 +101,10 @@ class EstimatorNodelet : public nodelet::Nodelet {
                         EstimatorStatus* status);
   // exposure_time auto: the exposure of the window's frames without one
   // (0) estimated from the blur (EstimateExposure), their t_c moved with
-  // it; the fraction and the time spent go into `status`.
-  void EstimateExposures(const ros_glue::NodeParameters& params, PendingWindow* window,
-                         EstimatorStatus* status);
+  // it; the fraction and the time spent go into `status`. Returns the
+  // source's name: "auto", or "auto (no blur to measure: assumed)".
+  std::string EstimateExposures(const ros_glue::NodeParameters& params, PendingWindow* window,
+                                EstimatorStatus* status);
   // A failed window: counted, warned and said in `status`; `restart` also
   // restarts the trajectory.
   void SkipWindow(const std::string& message, bool restart, EstimatorStatus* status);
