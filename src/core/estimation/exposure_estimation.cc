@@ -239,11 +239,13 @@ ExposureEstimate EstimateExposure(const EstimatorInput& input, const EstimatorOp
   std::vector<SE3> T_world_cam;
   InitialiseAtFraction(input, estimator_options, options.initial_fraction, &depth_lr, &T_world_cam);
   if (cancel != nullptr && cancel->load()) throw EstimationCancelled();
+  const double search_start = NowMs();
   ExposureEstimate estimate =
       EstimateExposureFromMotion(input.images, input.camera, input.frames, depth_lr, T_world_cam, options);
   estimate.elapsed_seconds = (NowMs() - start) / 1000.0;
-  char time[48];
-  std::snprintf(time, sizeof(time), ", %.2f s", estimate.elapsed_seconds);
+  char time[96];
+  std::snprintf(time, sizeof(time), "; %.2f s (initialisation %.2f s, search %.2f s)", estimate.elapsed_seconds,
+                (search_start - start) / 1000.0, (NowMs() - search_start) / 1000.0);
   estimate.summary += time;
   return estimate;
 }
