@@ -244,8 +244,8 @@ ExposureEstimate EstimateExposure(const EstimatorInput& input, const EstimatorOp
       EstimateExposureFromMotion(input.images, input.camera, input.frames, depth_lr, T_world_cam, options);
   estimate.elapsed_seconds = (NowMs() - start) / 1000.0;
   char time[96];
-  std::snprintf(time, sizeof(time), "; %.2f s (initialisation %.2f s, search %.2f s)", estimate.elapsed_seconds,
-                (search_start - start) / 1000.0, (NowMs() - search_start) / 1000.0);
+  std::snprintf(time, sizeof(time), "; %.2f s (initialisation %.2f s, search %.2f s)",
+                estimate.elapsed_seconds, (search_start - start) / 1000.0, (NowMs() - search_start) / 1000.0);
   estimate.summary += time;
   return estimate;
 }
