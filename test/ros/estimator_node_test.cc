@@ -420,32 +420,56 @@ TEST(EstimatorNodeletHostileInput, RejectsCountsRestartsAndPublishesAStillCamera
   EXPECT_EQ(diagnostics.level, diagnostic_msgs::DiagnosticStatus::OK) << diagnostics.message;
 }
 
-// A bad static parameter: the nodelet says which in one line, publishes that
-// on its latched status and stays idle (it never guesses an exposure).
-TEST(EstimatorNodeletHostileInput, BadParameterKeepsTheNodeIdleAndSaysWhy) {
-  ros::param::set("/badparam/estimator/exposure_time", -0.01);
-  nodelet::Loader loader(false);
-  ASSERT_TRUE(loader.load("/badparam/estimator", "deblur_sr_mvs/EstimatorNodelet", nodelet::M_string(), {}));
+// Loads the nodelet at `ns`/estimator with ~exposure_time `exposure_time`
+// (into `loader`, which keeps it) and returns its first status (null after 20 s).
+EstimatorStatusConstPtr StatusWithExposureTime(const std::string& ns,
+                                               const XmlRpc::XmlRpcValue& exposure_time,
+                                               nodelet::Loader* loader) {
+  XmlRpc::XmlRpcValue value = exposure_time;
+  ros::param::set(ns + "/estimator/exposure_time", value);
+  EXPECT_TRUE(loader->load(ns + "/estimator", "deblur_sr_mvs/EstimatorNodelet", nodelet::M_string(), {}));
   std::mutex mutex;
   EstimatorStatusConstPtr status;
   ros::NodeHandle node;
   ros::Subscriber sub =
-      node.subscribe<EstimatorStatus>("/badparam/status", 1, [&](const EstimatorStatusConstPtr& m) {
+      node.subscribe<EstimatorStatus>(ns + "/status", 1, [&](const EstimatorStatusConstPtr& m) {
         std::lock_guard<std::mutex> lock(mutex);
         status = m;
       });
-  ASSERT_TRUE(WaitFor(
+  WaitFor(
       [&] {
         std::lock_guard<std::mutex> lock(mutex);
         return status != nullptr;
       },
-      20.0));
+      20.0);
+  std::lock_guard<std::mutex> lock(mutex);
+  return status;
+}
+
+// A bad static parameter: the nodelet says which in one line, publishes that
+// on its latched status and stays idle (it never guesses an exposure).
+TEST(EstimatorNodeletHostileInput, BadParameterKeepsTheNodeIdleAndSaysWhy) {
+  nodelet::Loader loader(false);
+  const EstimatorStatusConstPtr status = StatusWithExposureTime("/badparam", -0.01, &loader);
+  ASSERT_NE(status, nullptr);
   EXPECT_FALSE(status->success);
   EXPECT_NE(status->message.find("exposure_time"), std::string::npos) << status->message;
   EXPECT_EQ(status->message.find('\n'), std::string::npos);
+  ros::NodeHandle node;
   ros::Publisher images = node.advertise<sensor_msgs::Image>("/badparam/image", 5);
   ros::WallDuration(1.0).sleep();
   EXPECT_EQ(images.getNumSubscribers(), 0u) << "an idle node subscribes to nothing";
+}
+
+// exposure_time takes seconds or the text auto; other text is a bad parameter.
+TEST(EstimatorNodeletHostileInput, ExposureTimeTextOtherThanAutoIsABadParameter) {
+  nodelet::Loader loader(false);
+  const EstimatorStatusConstPtr status = StatusWithExposureTime("/badtext", "fast", &loader);
+  ASSERT_NE(status, nullptr);
+  EXPECT_FALSE(status->success);
+  EXPECT_NE(status->message.find("exposure_time must be a number of seconds or auto, got 'fast'"),
+            std::string::npos)
+      << status->message;
 }
 
 // A camera that only rotates (docs/file_formats.md#no-parallax), to a
