@@ -10,6 +10,7 @@
 #include <pluginlib/class_list_macros.hpp>
 
 #include "deblur_sr_mvs/core/common/text.h"
+#include "deblur_sr_mvs/core/estimation/exposure_estimation.h"
 #include "deblur_sr_mvs/core/estimation/initializer.h"
 
 namespace deblur_sr_mvs {
@@ -167,10 +168,13 @@ void EstimatorNodelet::onInit() {
       [this](EstimatorConfig& config, uint32_t level) { ReconfigureCallback(config, level); });
 
   worker_ = std::thread(&EstimatorNodelet::WorkerLoop, this);
+  const std::string fallback = params_.exposure_time.automatic
+                                   ? std::string("estimated from the blur (auto)")
+                                   : std::to_string(params_.exposure_time.seconds) + " s";
   NODELET_INFO(
-      "deblur_sr_mvs: windows of %d frames (overlap %d), x%d, exposure from %s else %.4f s; input %s + %s%s",
+      "deblur_sr_mvs: windows of %d frames (overlap %d), x%d, exposure from %s else %s; input %s + %s%s",
       params_.stream.window_size, params_.stream.window_overlap, params_.estimator.scale,
-      exposure_topic_.c_str(), params_.exposure_time, image_topic_.c_str(), info_topic_.c_str(),
+      exposure_topic_.c_str(), fallback.c_str(), image_topic_.c_str(), info_topic_.c_str(),
       params_.lazy_subscription ? " (subscribed while outputs have subscribers)" : "");
   lock.unlock();
   ConnectCallback();  // eager mode subscribes at once
@@ -332,7 +336,7 @@ void EstimatorNodelet::AcceptFrame(const sensor_msgs::ImageConstPtr& image,
   frame.id = next_frame_id_++;
   frame.stamp_ns = static_cast<int64_t>(stamp.toNSec());
   frame.stamp_close = (stamp - epoch_origin_).toSec() + params_.CloseOffset();
-  frame.exposure = params_.exposure_time;
+  frame.exposure = params_.exposure_time.seconds;  // auto: set by the worker
   frame.readout_time = params_.readout_time;
   frame.image = image01;
   for (StreamWindow& frames : windower_->Add(std::move(frame))) QueueWindow(std::move(frames));
@@ -442,11 +446,11 @@ void EstimatorNodelet::ProcessWindow(PendingWindow window) {
   status.header.stamp = TimeFromNs(window.frames.back().stamp_ns);
   status.window_index = window_index_;
   for (const StreamFrame& frame : window.frames) status.frame_stamps.push_back(TimeFromNs(frame.stamp_ns));
-  const bool clamped = ResolveExposures(params, &window, &status);
-
   const ros::WallTime start = ros::WallTime::now();
+  bool clamped = false;
   WindowEstimate estimate;
   try {
+    clamped = ResolveExposures(params, &window, &status);
     estimate = stream_->Process(window.frames, window.camera);
   } catch (const EstimationCancelled&) {
     return;  // shutting down: publish nothing more
@@ -535,23 +539,51 @@ bool EstimatorNodelet::ResolveExposures(const ros_glue::NodeParameters& params, 
   for (StreamFrame& frame : frames) {
     const ros::Time stamp = TimeFromNs(frame.stamp_ns);
     const auto found = find(stamp);
-    frame.exposure = found != exposures_.rend() ? found->second : params.exposure_time;
+    frame.exposure = found != exposures_.rend() ? found->second : params.exposure_time.seconds;
     from_topic += found != exposures_.rend();
+    if (found == exposures_.rend() && params.exposure_time.automatic)
+      frame.exposure = 0.0;  // estimated below
     // t_c follows the exposure unless the stamp is t_c (stamp_position end).
     frame.stamp_close = (stamp - window->epoch_origin).toSec() + params.CloseOffset(frame.exposure);
   }
   lock.unlock();
+  std::string fallback = "parameter";
+  if (params.exposure_time.automatic && from_topic < frames.size())
+    fallback = EstimateExposures(params, window, status);
   const bool clamped = ClampExposures(&frames);
   for (const StreamFrame& frame : frames) status->frame_exposures.push_back(frame.exposure);
   if (from_topic == frames.size()) {
     status->exposure_source = "topic";
   } else if (from_topic == 0) {
-    status->exposure_source = "parameter";
+    status->exposure_source = fallback;
   } else {
     status->exposure_source = "topic for " + std::to_string(from_topic) + " of " +
-                              std::to_string(frames.size()) + " frames, parameter for the rest";
+                              std::to_string(frames.size()) + " frames, " + fallback + " for the rest";
   }
   return clamped;
+}
+
+std::string EstimatorNodelet::EstimateExposures(const ros_glue::NodeParameters& params, PendingWindow* window,
+                                                EstimatorStatus* status) {
+  StreamWindow& frames = window->frames;
+  EstimatorInput input;
+  input.camera = window->camera;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    input.images.push_back(frames[i].image);
+    // Header stamps: their intervals are those of t_c at one exposure.
+    const double stamp = (TimeFromNs(frames[i].stamp_ns) - window->epoch_origin).toSec();
+    input.frames.push_back(FrameRecord{static_cast<int>(i), stamp, 0.0});
+  }
+  const ExposureEstimate estimate =
+      EstimateExposure(input, params.estimator, ExposureEstimationOptions(), &shutting_down_);
+  for (size_t i = 0; i < frames.size(); ++i) {
+    if (frames[i].exposure > 0.0) continue;  // from the topic
+    frames[i].exposure = estimate.frame_exposures[i];
+    frames[i].stamp_close = input.frames[i].stamp + params.CloseOffset(frames[i].exposure);
+  }
+  status->exposure_fraction = estimate.fraction;
+  status->exposure_estimation_seconds = estimate.elapsed_seconds;
+  return estimate.measured ? "auto" : "auto (no blur to measure: assumed)";
 }
 
 void EstimatorNodelet::SkipWindow(const std::string& message, bool restart, EstimatorStatus* status) {
@@ -695,6 +727,12 @@ void EstimatorNodelet::DescribeEstimate(const WindowEstimate& estimate, bool cla
   status->first_new = estimate.first_new;
   status->message = (estimate.note.empty() ? "" : estimate.note + "; ") + "exposure from " +
                     status->exposure_source + (clamped ? " (clamped to the frame interval)" : "");
+  if (status->exposure_fraction > 0.0) {
+    char text[96];
+    std::snprintf(text, sizeof(text), " (estimated: %.3f of the frame interval, in %.1f s)",
+                  status->exposure_fraction, status->exposure_estimation_seconds);
+    status->message += text;
+  }
   for (const std::string& note : result.notes) status->message += "; " + note;
   for (const EnergyRecord& energy : result.energies) {
     status->energy_stages.push_back(energy.stage);

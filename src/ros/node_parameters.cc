@@ -33,9 +33,11 @@ EstimatorOptions NodeEstimatorOptions() {
 }
 
 void NodeParameters::Check() const {
-  // (0, 10] s: the shutter time of the camera.
-  CheckAbove("exposure_time", exposure_time, 0.0);
-  CheckInRange("exposure_time", exposure_time, 0.0, 10.0);
+  // (0, 10] s: the shutter time of the camera, unless estimated ("auto").
+  if (!exposure_time.automatic) {
+    CheckAbove("exposure_time", exposure_time.seconds, 0.0);
+    CheckInRange("exposure_time", exposure_time.seconds, 0.0, 10.0);
+  }
   CheckInRange("readout_time", readout_time, 0.0, 1.0);
   CheckAbove("max_frame_gap", max_frame_gap, 0.0);
   CheckAbove("max_step_ratio", max_step_ratio, 1.0);
@@ -109,6 +111,17 @@ class ParameterReader {
     std::string text = ToString(mode);
     Read(node_, name, &text);
     mode = ParseEstimatorMode(text);
+  }
+  // A number of seconds, or the text "auto".
+  void operator()(const char* name, ExposureTime& exposure) const {
+    std::string text;
+    if (node_.getParam(name, text)) {
+      if (text != "auto")
+        throw InputError(std::string(name) + " must be a number of seconds or auto, got '" + text + "'");
+      exposure.automatic = true;
+      return;
+    }
+    Read(node_, name, &exposure.seconds);
   }
   void operator()(const char* name, DistortionPolicy& policy) const {
     bool assume_rectified = policy == DistortionPolicy::kAssumeRectified;

@@ -37,6 +37,7 @@ inline Json StatusReportJson(const std::vector<EstimatorStatusConstPtr>& statuse
     Json exposures = Json::array();
     for (const double exposure : s.frame_exposures) exposures.push_back(JsonNumber(exposure));
     window["frame_exposures"] = exposures;
+    window["exposure_fraction"] = JsonNumber(s.exposure_fraction);
     windows.push_back(window);
   }
   report["windows"] = windows;

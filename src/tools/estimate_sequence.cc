@@ -20,6 +20,7 @@
 
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/estimation/estimator.h"
+#include "deblur_sr_mvs/core/estimation/exposure_estimation.h"
 #include "deblur_sr_mvs/core/estimation/stream.h"
 #include "deblur_sr_mvs/core/geometry/pose_prior.h"
 #include "deblur_sr_mvs/core/imaging/image_ops.h"
@@ -43,6 +44,7 @@ struct Flags {
   std::string pose_prior;  // TUM file of T_prior_cam, empty = none
   std::string mode = "joint";
   std::string structure_matching = "both";
+  std::string exposure;  // "auto": estimated from the blur; empty: frames.csv's
   bool fixed_poses = false;
   bool gain_compensation = false;
   bool quiet = false;
@@ -78,6 +80,10 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
                "estimate and divide out a per-frame gain (auto-gain), restore each image at its gain");
   cli.add_option("--structure-matching", flags->structure_matching, "both, restored or blurred")
       ->check(CLI::IsMember({"both", "restored", "blurred"}));
+  cli.add_option("--exposure", flags->exposure,
+                 "auto: estimate the exposure from the blur (a fraction of the frame interval), "
+                 "overriding frames.csv's")
+      ->check(CLI::IsMember({"auto"}));
   cli.add_option("--output-scale", flags->output_scale, "bicubic up-sampling of the outputs, 1-4")
       ->check(dsm::FlagInt(1, 4));
   cli.add_option("--pose-prior", flags->pose_prior,
@@ -133,6 +139,36 @@ dsm::EstimatorResult Estimate(const dsm::EstimatorOptions& options, const dsm::E
   }
   if (draw) std::fprintf(stderr, "\n");
   return result;
+}
+
+// The exposure of every frame estimated from the blur (--exposure auto),
+// written into `input`'s frames.
+dsm::ExposureEstimate EstimateExposure(const dsm::EstimatorOptions& options, const std::string& input_folder,
+                                       dsm::EstimatorInput* input) {
+  try {
+    const dsm::ExposureEstimate estimate =
+        dsm::EstimateExposure(*input, options, dsm::ExposureEstimationOptions());
+    for (size_t t = 0; t < input->frames.size(); ++t) input->frames[t].exposure = estimate.frame_exposures[t];
+    return estimate;
+  } catch (const dsm::InitializationError& error) {
+    throw dsm::InputError(input_folder + ": exposure estimation: initialisation failed: " + error.what());
+  }
+}
+
+// report.json's "exposure_estimate" object (null without --exposure auto).
+dsm::Json ExposureEstimateJson(const dsm::ExposureEstimate& estimate) {
+  dsm::Json frames = dsm::Json::array();
+  for (double seconds : estimate.frame_exposures) frames.push_back(dsm::JsonNumber(seconds));
+  dsm::Json correlation = dsm::Json::array();
+  for (const auto& point : estimate.correlation)
+    correlation.push_back({dsm::JsonNumber(point.first), dsm::JsonNumber(point.second)});
+  return {{"measured", estimate.measured},
+          {"fraction", dsm::JsonNumber(estimate.fraction)},
+          {"seconds", dsm::JsonNumber(estimate.seconds)},
+          {"frame_exposures", frames},
+          {"correlation", correlation},
+          {"summary", estimate.summary},
+          {"elapsed_seconds", dsm::JsonNumber(estimate.elapsed_seconds)}};
 }
 
 // The result folder's images, depth maps and poses, up-sampled by output_scale.
@@ -252,10 +288,14 @@ int Run(int argc, char** argv) {
 
   const auto start = std::chrono::steady_clock::now();
   std::string camera_name;
-  const dsm::EstimatorInput input = ReadInput(flags.input, &camera_name);
+  dsm::EstimatorInput input = ReadInput(flags.input, &camera_name);
+  std::optional<dsm::ExposureEstimate> exposure;
+  if (flags.exposure == "auto") exposure = EstimateExposure(options, flags.input, &input);
   std::vector<std::optional<dsm::SE3>> prior;
   if (!flags.pose_prior.empty()) prior = ReadPriorAtFrames(flags.pose_prior, input.frames);
-  const dsm::EstimatorResult result = Estimate(options, input, flags.input, flags.quiet);
+  dsm::EstimatorResult result = Estimate(options, input, flags.input, flags.quiet);
+  if (exposure)
+    result.timings.insert(result.timings.begin(), {"exposure estimation", exposure->elapsed_seconds});
   const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
   dsm::SequenceResult out;
@@ -263,6 +303,7 @@ int Run(int argc, char** argv) {
       dsm::CameraCalibration::FromCamera(result.camera_hr.Upscaled(flags.output_scale), camera_name);
   FillOutputs(result, input.frames, flags.output_scale, &out);
   dsm::Json report = dsm::EstimateReportJson(options, flags.input, result, wall, PeakMemoryMiB());
+  report["exposure_estimate"] = exposure ? ExposureEstimateJson(*exposure) : dsm::Json();
   if (!flags.pose_prior.empty()) {
     const dsm::PriorAlignment alignment = ApplyPosePrior(prior, &out);
     report["pose_prior"] = PosePriorJson(flags.pose_prior, alignment);

@@ -270,6 +270,13 @@ TEST(NodeParameters, ChecksEveryValue) {
   EXPECT_EQ(CheckMessage(bad), "exposure_time must be > 0, got -1");
   bad.exposure_time = 20.0;
   EXPECT_EQ(CheckMessage(bad), "exposure_time must be in [0, 10], got 20");
+  // auto (estimated from the blur) needs no seconds; a number replaces it.
+  NodeParameters automatic;
+  automatic.exposure_time.automatic = true;
+  EXPECT_EQ(CheckMessage(automatic), "");
+  automatic.exposure_time = 0.0;
+  EXPECT_FALSE(automatic.exposure_time.automatic);
+  EXPECT_EQ(CheckMessage(automatic), "exposure_time must be > 0, got 0");
   bad = params;
   bad.max_frame_gap = std::numeric_limits<double>::infinity();
   EXPECT_EQ(CheckMessage(bad), "max_frame_gap must be > 0, got inf");

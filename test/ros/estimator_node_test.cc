@@ -420,32 +420,56 @@ TEST(EstimatorNodeletHostileInput, RejectsCountsRestartsAndPublishesAStillCamera
   EXPECT_EQ(diagnostics.level, diagnostic_msgs::DiagnosticStatus::OK) << diagnostics.message;
 }
 
-// A bad static parameter: the nodelet says which in one line, publishes that
-// on its latched status and stays idle (it never guesses an exposure).
-TEST(EstimatorNodeletHostileInput, BadParameterKeepsTheNodeIdleAndSaysWhy) {
-  ros::param::set("/badparam/estimator/exposure_time", -0.01);
-  nodelet::Loader loader(false);
-  ASSERT_TRUE(loader.load("/badparam/estimator", "deblur_sr_mvs/EstimatorNodelet", nodelet::M_string(), {}));
+// Loads the nodelet at `ns`/estimator with ~exposure_time `exposure_time`
+// (into `loader`, which keeps it) and returns its first status (null after 20 s).
+EstimatorStatusConstPtr StatusWithExposureTime(const std::string& ns,
+                                               const XmlRpc::XmlRpcValue& exposure_time,
+                                               nodelet::Loader* loader) {
+  XmlRpc::XmlRpcValue value = exposure_time;
+  ros::param::set(ns + "/estimator/exposure_time", value);
+  EXPECT_TRUE(loader->load(ns + "/estimator", "deblur_sr_mvs/EstimatorNodelet", nodelet::M_string(), {}));
   std::mutex mutex;
   EstimatorStatusConstPtr status;
   ros::NodeHandle node;
   ros::Subscriber sub =
-      node.subscribe<EstimatorStatus>("/badparam/status", 1, [&](const EstimatorStatusConstPtr& m) {
+      node.subscribe<EstimatorStatus>(ns + "/status", 1, [&](const EstimatorStatusConstPtr& m) {
         std::lock_guard<std::mutex> lock(mutex);
         status = m;
       });
-  ASSERT_TRUE(WaitFor(
+  WaitFor(
       [&] {
         std::lock_guard<std::mutex> lock(mutex);
         return status != nullptr;
       },
-      20.0));
+      20.0);
+  std::lock_guard<std::mutex> lock(mutex);
+  return status;
+}
+
+// A bad static parameter: the nodelet says which in one line, publishes that
+// on its latched status and stays idle (it never guesses an exposure).
+TEST(EstimatorNodeletHostileInput, BadParameterKeepsTheNodeIdleAndSaysWhy) {
+  nodelet::Loader loader(false);
+  const EstimatorStatusConstPtr status = StatusWithExposureTime("/badparam", -0.01, &loader);
+  ASSERT_NE(status, nullptr);
   EXPECT_FALSE(status->success);
   EXPECT_NE(status->message.find("exposure_time"), std::string::npos) << status->message;
   EXPECT_EQ(status->message.find('\n'), std::string::npos);
+  ros::NodeHandle node;
   ros::Publisher images = node.advertise<sensor_msgs::Image>("/badparam/image", 5);
   ros::WallDuration(1.0).sleep();
   EXPECT_EQ(images.getNumSubscribers(), 0u) << "an idle node subscribes to nothing";
+}
+
+// exposure_time takes seconds or the text auto; other text is a bad parameter.
+TEST(EstimatorNodeletHostileInput, ExposureTimeTextOtherThanAutoIsABadParameter) {
+  nodelet::Loader loader(false);
+  const EstimatorStatusConstPtr status = StatusWithExposureTime("/badtext", "fast", &loader);
+  ASSERT_NE(status, nullptr);
+  EXPECT_FALSE(status->success);
+  EXPECT_NE(status->message.find("exposure_time must be a number of seconds or auto, got 'fast'"),
+            std::string::npos)
+      << status->message;
 }
 
 // A camera that only rotates (docs/file_formats.md#no-parallax), to a
@@ -638,6 +662,39 @@ TEST(EstimatorNodeletExposure, FramesWithoutAMessageFallBackToTheParameter) {
   ASSERT_EQ(status.frame_exposures.size(), static_cast<size_t>(kWindow));
   for (int t = 0; t < 3; ++t) EXPECT_NEAR(status.frame_exposures[t], 0.5 * sequence.frames[t].exposure, 1e-9);
   EXPECT_DOUBLE_EQ(status.frame_exposures[3], parameter);
+}
+
+// exposure_time auto (docs/ros_interface.md#exposure): without the exposure
+// topic the node estimates the window's exposure from the blur, publishes
+// the window and says so in status: source "auto", the fraction, the
+// exposures it used (within 10 % of the truth) and the time it took.
+TEST(EstimatorNodeletExposure, AutoEstimatesTheExposureFromTheBlur) {
+  constexpr int kWindow = 4;
+  const Sequence& sequence = TestSequence();
+  test::LoadedNodelet node("/exposure_auto", {{"exposure_time", "auto"}, {"iterations", 1}});
+  ASSERT_TRUE(node.Connected()) << "the nodelet did not load or subscribe";
+  for (int t = 0; t < kWindow; ++t) {
+    node.Send(sequence.images[t], sequence.calibration.camera, FrameStamp(t));
+    ros::WallDuration(0.05).sleep();
+  }
+  ASSERT_TRUE(WaitFor([&] { return node.StatusCount() >= 1; }, 120.0));
+  std::lock_guard<std::mutex> lock(node.mutex);
+  const EstimatorStatus& status = *node.statuses[0];
+  std::printf("node, exposure_time auto (truth %.4f s): %s\n", sequence.frames[0].exposure,
+              status.message.c_str());
+  EXPECT_TRUE(status.success) << status.message;
+  EXPECT_EQ(status.exposure_source, "auto");
+  EXPECT_NE(status.message.find("exposure from auto (estimated: "), std::string::npos) << status.message;
+  EXPECT_GT(status.exposure_estimation_seconds, 0.0);
+  const double interval = sequence.frames[1].stamp - sequence.frames[0].stamp;
+  EXPECT_NEAR(status.exposure_fraction, sequence.frames[0].exposure / interval,
+              0.1 * sequence.frames[0].exposure / interval);
+  ASSERT_EQ(status.frame_exposures.size(), static_cast<size_t>(kWindow));
+  for (int t = 0; t < kWindow; ++t) {
+    EXPECT_NEAR(status.frame_exposures[t], sequence.frames[t].exposure, 0.1 * sequence.frames[t].exposure)
+        << "frame " << t;
+  }
+  EXPECT_GE(node.restored.size(), static_cast<size_t>(kWindow));
 }
 
 }  // namespace

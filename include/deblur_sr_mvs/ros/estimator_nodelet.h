@@ -94,10 +94,17 @@ class EstimatorNodelet : public nodelet::Nodelet {
   // since the last window); a new epoch resets the stream and the path.
   ros_glue::NodeParameters SyncWorker(const PendingWindow& window);
   // Each frame's exposure from the exposure topic (waiting briefly for the
-  // newest frame's), else exposure_time, clamped to the frame interval
-  // (true when any was); says which in `status`.
+  // newest frame's), else exposure_time (auto: EstimateExposures), clamped
+  // to the frame interval (true when any was); says which in `status`.
+  // Throws what the exposure estimation throws.
   bool ResolveExposures(const ros_glue::NodeParameters& params, PendingWindow* window,
                         EstimatorStatus* status);
+  // exposure_time auto: the exposure of the window's frames without one
+  // (0) estimated from the blur (EstimateExposure), their t_c moved with
+  // it; the fraction and the time spent go into `status`. Returns the
+  // source's name: "auto", or "auto (no blur to measure: assumed)".
+  std::string EstimateExposures(const ros_glue::NodeParameters& params, PendingWindow* window,
+                                EstimatorStatus* status);
   // A failed window: counted, warned and said in `status`; `restart` also
   // restarts the trajectory.
   void SkipWindow(const std::string& message, bool restart, EstimatorStatus* status);

@@ -26,9 +26,22 @@ const char* ToString(StampPosition position);               // "start" | "middle
 // (~max_window_seconds): a live node must not stall on one window.
 EstimatorOptions NodeEstimatorOptions();
 
+// ~exposure_time: seconds, or the text "auto" (estimated from the blur of
+// every window, EstimateExposure). The exposure topic wins over both.
+struct ExposureTime {
+  double seconds = 0.0;    // > 0 unless automatic
+  bool automatic = false;  // "auto"
+  // A number of seconds (not automatic).
+  ExposureTime& operator=(double value) {
+    seconds = value;
+    automatic = false;
+    return *this;
+  }
+};
+
 struct NodeParameters {
   // --- Shutter: exposure time and what the header stamp marks.
-  double exposure_time = 0.0;  // s, > 0 (required: the blur model needs it)
+  ExposureTime exposure_time;  // s, > 0, or auto (required: the blur model needs it)
   StampPosition stamp_position = StampPosition::kEnd;
   // Rolling shutter (docs/file_formats.md#rolling-shutter): each row opens
   // readout_time * y / H after the first, whose exposure the stamp marks
@@ -62,7 +75,7 @@ struct NodeParameters {
   void Check() const;  // throws InputError naming the bad parameter
   // Shutter close time t_c minus the header stamp (s), for exposure_time or
   // for a frame's own exposure (from the exposure topic).
-  double CloseOffset() const { return CloseOffset(exposure_time); }
+  double CloseOffset() const { return CloseOffset(exposure_time.seconds); }
   double CloseOffset(double exposure) const;
   // The exposure of a frame whose header stamp is `stamp_minus_open` seconds
   // after its shutter opened (sensor_msgs/TimeReference on ~exposure,
@@ -74,7 +87,8 @@ struct NodeParameters {
 // Calls visit(name, member) for every private parameter of the node, in the
 // order the node reads them: the one list of names. `Params` is NodeParameters
 // or const NodeParameters; the enums are StampPosition (~stamp_position),
-// EstimatorMode (~mode) and DistortionPolicy (~assume_rectified, a bool).
+// EstimatorMode (~mode) and DistortionPolicy (~assume_rectified, a bool);
+// ExposureTime (~exposure_time) is a number or "auto".
 template <typename Params, typename Visitor>
 void ForEachParameter(Params& params, Visitor&& visit) {
   visit("exposure_time", params.exposure_time);
