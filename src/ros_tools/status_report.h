@@ -37,6 +37,9 @@ inline Json StatusReportJson(const std::vector<EstimatorStatusConstPtr>& statuse
     Json exposures = Json::array();
     for (const double exposure : s.frame_exposures) exposures.push_back(JsonNumber(exposure));
     window["frame_exposures"] = exposures;
+    Json gains = Json::array();
+    for (const double gain : s.frame_gains) gains.push_back(JsonNumber(gain));
+    window["frame_gains"] = gains;
     windows.push_back(window);
   }
   report["windows"] = windows;
