@@ -44,7 +44,6 @@ struct Flags {
   std::string mode = "joint";
   std::string structure_matching = "both";
   bool fixed_poses = false;
-  bool gain_compensation = false;
   bool quiet = false;
   int output_scale = 1;  // bicubic up-sampling of the outputs ("w/o SR + Bic.")
 };
@@ -74,8 +73,9 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   cli.add_option("--pose-neighbours", options->pose_neighbour_radius, "pose update radius")
       ->check(dsm::FlagInt());
   cli.add_flag("--fixed-poses", flags->fixed_poses, "keep the initial poses");
-  cli.add_flag("--gain-compensation", flags->gain_compensation,
-               "estimate and divide out a per-frame gain (auto-gain), restore each image at its gain");
+  cli.add_flag("--gain-compensation,!--no-gain-compensation", options->gain_compensation,
+               "estimate and divide out a per-frame gain (auto-gain), restore each image at its gain "
+               "(default on)");
   cli.add_option("--structure-matching", flags->structure_matching, "both, restored or blurred")
       ->check(CLI::IsMember({"both", "restored", "blurred"}));
   cli.add_option("--output-scale", flags->output_scale, "bicubic up-sampling of the outputs, 1-4")
@@ -89,7 +89,6 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   options->mode = dsm::ParseEstimatorMode(flags->mode);
   options->structure_matching = dsm::ParseStructureMatching(flags->structure_matching);
   if (flags->fixed_poses) options->update_poses = false;
-  if (flags->gain_compensation) options->gain_compensation = true;
   options->Check();
   return true;
 }
