@@ -30,7 +30,7 @@ mkdir -p "$work"
 synthesize="$(dsm_tool synthesize_sequence)"
 estimate="$(dsm_tool estimate_sequence)"
 evaluate="$(dsm_tool evaluate_sequence)"
-echo "# $(date -u '+%Y-%m-%d %H:%M UTC'), $(nproc) cores, commit $(git -C "$DSM_REPO" rev-parse --short HEAD 2>/dev/null || echo '?')"
+echo "# $(date -u '+%Y-%m-%d %H:%M UTC'), $(nproc --all) cores, commit $(git -C "$DSM_REPO" rev-parse --short HEAD 2>/dev/null || echo '?')"
 echo "# synthesize_sequence $size --seed 1 --noise SIGMA; estimate_sequence --threads 1 (defaults otherwise)"
 
 # The mean of a key of evaluate_sequence's JSON ("mean" object).

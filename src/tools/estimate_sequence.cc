@@ -75,7 +75,7 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   cli.add_flag("--fixed-poses", flags->fixed_poses, "keep the initial poses");
   cli.add_flag("--gain-compensation,!--no-gain-compensation", options->gain_compensation,
                "estimate and divide out a per-frame gain (auto-gain), restore each image at its gain "
-               "(default on)");
+               "(default off)");
   cli.add_option("--structure-matching", flags->structure_matching, "both, restored or blurred")
       ->check(CLI::IsMember({"both", "restored", "blurred"}));
   cli.add_option("--output-scale", flags->output_scale, "bicubic up-sampling of the outputs, 1-4")
