@@ -739,6 +739,7 @@ void EstimatorNodelet::DescribeEstimate(const WindowEstimate& estimate, bool cla
     status->energy_iterations.push_back(energy.iteration);
     status->energies.push_back(energy.total);
   }
+  status->frame_gains = result.frame_gains;
   for (const StageTiming& timing : result.timings) {
     status->stage_names.push_back(timing.stage);
     status->stage_seconds.push_back(timing.seconds);

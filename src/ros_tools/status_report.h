@@ -38,6 +38,9 @@ inline Json StatusReportJson(const std::vector<EstimatorStatusConstPtr>& statuse
     for (const double exposure : s.frame_exposures) exposures.push_back(JsonNumber(exposure));
     window["frame_exposures"] = exposures;
     window["exposure_fraction"] = JsonNumber(s.exposure_fraction);
+    Json gains = Json::array();
+    for (const double gain : s.frame_gains) gains.push_back(JsonNumber(gain));
+    window["frame_gains"] = gains;
     windows.push_back(window);
   }
   report["windows"] = windows;

@@ -46,7 +46,6 @@ struct Flags {
   std::string structure_matching = "both";
   std::string exposure;  // "auto": estimated from the blur; empty: frames.csv's
   bool fixed_poses = false;
-  bool gain_compensation = false;
   bool quiet = false;
   int output_scale = 1;  // bicubic up-sampling of the outputs ("w/o SR + Bic.")
 };
@@ -76,8 +75,9 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   cli.add_option("--pose-neighbours", options->pose_neighbour_radius, "pose update radius")
       ->check(dsm::FlagInt());
   cli.add_flag("--fixed-poses", flags->fixed_poses, "keep the initial poses");
-  cli.add_flag("--gain-compensation", flags->gain_compensation,
-               "estimate and divide out a per-frame gain (auto-gain), restore each image at its gain");
+  cli.add_flag("--gain-compensation,!--no-gain-compensation", options->gain_compensation,
+               "estimate and divide out a per-frame gain (auto-gain), restore each image at its gain "
+               "(default off)");
   cli.add_option("--structure-matching", flags->structure_matching, "both, restored or blurred")
       ->check(CLI::IsMember({"both", "restored", "blurred"}));
   cli.add_option("--exposure", flags->exposure,
@@ -95,7 +95,6 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   options->mode = dsm::ParseEstimatorMode(flags->mode);
   options->structure_matching = dsm::ParseStructureMatching(flags->structure_matching);
   if (flags->fixed_poses) options->update_poses = false;
-  if (flags->gain_compensation) options->gain_compensation = true;
   options->Check();
   return true;
 }

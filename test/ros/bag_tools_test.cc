@@ -681,6 +681,7 @@ TEST(BagToResultReport, NanEnergyBecomesNullInStrictJson) {
   status->scale_note = "arbitrary";
   status->exposure_source = "topic for 2 of 3 frames, parameter for the rest";
   status->frame_exposures = {0.02, 0.021, 0.01};
+  status->frame_gains = {1.0, 1.05, 0.98};
   status->exposures_rejected = 4;
   const std::vector<EstimatorStatusConstPtr> statuses = {status};
   const std::string text = JsonText(StatusReportJson(statuses));
@@ -699,6 +700,8 @@ TEST(BagToResultReport, NanEnergyBecomesNullInStrictJson) {
   EXPECT_EQ(window["exposure_source"], status->exposure_source);
   ASSERT_EQ(window["frame_exposures"].size(), 3u);
   EXPECT_EQ(window["frame_exposures"][1].get<double>(), 0.021);
+  ASSERT_EQ(window["frame_gains"].size(), 3u);
+  EXPECT_EQ(window["frame_gains"][1].get<double>(), 1.05);
   EXPECT_EQ(report["exposures_rejected"], 4);
   EXPECT_EQ(nlohmann::json::parse(JsonText(StatusReportJson({})))["windows"].size(), 0u);
 }

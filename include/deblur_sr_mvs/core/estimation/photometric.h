@@ -17,7 +17,11 @@ struct GainEstimationOptions {
   // points near them give no ratio.
   double max_intensity = 0.98;
   int min_matches = 20;  // fewer matched points: the pair's gain is 1
-  void Check() const;    // throws InputError naming the bad value
+  // A corner tracked into the other frame and back must land within this
+  // many pixels of where it started (forward-backward check), else it gives
+  // no ratio.
+  double max_track_error_px = 0.5;
+  void Check() const;  // throws InputError naming the bad value
 };
 
 // Gain of every frame relative to the first (gains[0] = 1): frame t is about
