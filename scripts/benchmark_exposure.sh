@@ -21,7 +21,7 @@ work="${1:-/tmp/dsm_benchmark_exposure}"
 scenes="${DSM_EXPOSURE_SCENES:-Dolls Reindeer}"
 flags="${DSM_EXPOSURE_FLAGS:---frames 6 --hr-width 320 --hr-height 240}"
 mkdir -p "$work"
-echo "# $(date -u '+%Y-%m-%d %H:%M UTC'), $(nproc) cores, commit $(git -C "$DSM_REPO" rev-parse --short HEAD 2>/dev/null || echo '?')"
+dsm_benchmark_header
 echo "# synthesize_sequence $flags --exposure-ratio R; estimate_sequence with default parameters"
 echo
 echo "| Scene | Ratio | True exposure (s) | Estimate (s) | Error | PSNR known (dB) | PSNR auto (dB) | Delta (dB) | Estimation (s) | Whole run auto (s) |"

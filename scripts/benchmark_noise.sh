@@ -30,11 +30,10 @@ mkdir -p "$work"
 synthesize="$(dsm_tool synthesize_sequence)"
 estimate="$(dsm_tool estimate_sequence)"
 evaluate="$(dsm_tool evaluate_sequence)"
-echo "# $(date -u '+%Y-%m-%d %H:%M UTC'), $(nproc --all) cores, commit $(git -C "$DSM_REPO" rev-parse --short HEAD 2>/dev/null || echo '?')"
+dsm_benchmark_header
 echo "# synthesize_sequence $size --seed 1 --noise SIGMA; estimate_sequence --threads 1 (defaults otherwise)"
 
 # The mean of a key of evaluate_sequence's JSON ("mean" object).
-mean_of() { python3 -c "import json,sys; v=json.load(open(sys.argv[1]))['mean'][sys.argv[2]]; print('n/a' if v is None else '%.4f' % v)" "$1" "$2"; }
 # A - B with two decimals.
 minus() { python3 -c "import sys; print('%.2f' % (float(sys.argv[1]) - float(sys.argv[2])))" "$1" "$2"; }
 
@@ -52,9 +51,9 @@ for path in $paths; do
         $size --seed 1 --noise "$sigma" >/dev/null
       "$estimate" --input "$sequence" --output "$sequence.out" --threads 1 --quiet
       "$evaluate" --result "$sequence.out" --sequence "$sequence" --json "$sequence.json" >/dev/null
-      bicubic=$(mean_of "$sequence.json" bicubic_psnr_db)
-      restored=$(mean_of "$sequence.json" image_psnr_db)
-      echo "| $scene | $sigma | $bicubic | $restored | $(minus "$restored" "$bicubic") | $(mean_of "$sequence.json" depth_relative_error) |"
+      bicubic=$(dsm_evaluation_mean "$sequence.json" bicubic_psnr_db)
+      restored=$(dsm_evaluation_mean "$sequence.json" image_psnr_db)
+      echo "| $scene | $sigma | $bicubic | $restored | $(minus "$restored" "$bicubic") | $(dsm_evaluation_mean "$sequence.json" depth_relative_error) |"
     done
   done
 done
