@@ -490,9 +490,13 @@ TEST(EstimatorNodeletRotation, PublishesEveryFrameOfAPureRotation) {
   ASSERT_TRUE(WaitFor(
       [&] {
         std::lock_guard<std::mutex> lock(node.mutex);
-        return node.statuses.size() >= 2 && node.poses.size() >= static_cast<size_t>(kRotationFrames);
+        // Each output has its own subscription: wait for all of them.
+        const size_t frames = kRotationFrames;
+        return node.statuses.size() >= 2 && node.poses.size() >= frames && node.restored.size() >= frames &&
+               node.depths.size() >= frames;
       },
       180.0));
+  ros::WallDuration(0.5).sleep();  // a frame published twice would arrive by now
   std::lock_guard<std::mutex> lock(node.mutex);
   ASSERT_EQ(node.restored.size(), static_cast<size_t>(kRotationFrames)) << "every frame once";
   ASSERT_EQ(node.depths.size(), static_cast<size_t>(kRotationFrames));
