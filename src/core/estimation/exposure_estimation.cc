@@ -140,7 +140,8 @@ void InitialiseAtFraction(const EstimatorInput& input, const EstimatorOptions& e
   InitializerOptions init_options = estimator_options.initializer;
   init_options.num_threads = estimator_options.num_threads;
   try {
-    const InitialStructure initial = InitializeStructure(input.images, input.camera, frames, init_options);
+    const InitialStructure initial =
+        InitializeStructure(input.images, input.camera, frames, init_options, input.readout_time);
     *depth_lr = initial.depth_lr;
     *T_world_cam = initial.T_world_cam;
   } catch (const NoParallaxError&) {

@@ -1388,9 +1388,8 @@ std::vector<SE3> ReadoutIncrements(const std::vector<FrameRecord>& frames,
   const SE3 T_cam_world = T_world_cam[f].Inverse();
   std::vector<SE3> increments(rows);
   for (int y = 0; y < rows; ++y) {
-    const double alpha =
-        (frames[f].stamp + readout_time * y / rows - frames[n].stamp) / (frames[f].stamp - frames[n].stamp);
-    increments[y] = T_cam_world * InterpolatePose(T_world_cam[n], T_world_cam[f], alpha);
+    increments[y] = T_cam_world * PoseAtTime(T_world_cam[n], frames[n].stamp, T_world_cam[f], frames[f].stamp,
+                                             frames[f].stamp + readout_time * y / rows);
   }
   return increments;
 }
@@ -1784,8 +1783,7 @@ void CorrectRollingShutter(const PinholeCamera& camera, const InitializerOptions
         const double mid_f = frames[f].stamp - 0.5 * frames[f].exposure;
         const double mid_n = frames[n].stamp - 0.5 * frames[n].exposure;
         const double delay = readout_time * track.At(f).y / camera.height;
-        const SE3 T_world_row =
-            InterpolatePose(T_world_mid[n], T_world_mid[f], (mid_f + delay - mid_n) / (mid_f - mid_n));
+        const SE3 T_world_row = PoseAtTime(T_world_mid[n], mid_n, T_world_mid[f], mid_f, mid_f + delay);
         const Eigen::Vector3d p_row = T_world_row.Inverse() * point;
         const Eigen::Vector3d p_mid = structure->T_cam_world[f] * point;
         if (!(p_row.z() > 1e-9) || !(p_mid.z() > 1e-9)) continue;
@@ -1817,8 +1815,7 @@ std::vector<SE3> MidExposureToShutterClose(const std::vector<FrameRecord>& frame
     const int b = t > 0 ? t : 1;
     const double mid_a = frames[a].stamp - 0.5 * frames[a].exposure;
     const double mid_b = frames[b].stamp - 0.5 * frames[b].exposure;
-    const double alpha = (frames[t].stamp - mid_a) / (mid_b - mid_a);
-    T_world_cam[t] = InterpolatePose(T_world_mid[a], T_world_mid[b], alpha);
+    T_world_cam[t] = PoseAtTime(T_world_mid[a], mid_a, T_world_mid[b], mid_b, frames[t].stamp);
   }
   return T_world_cam;
 }

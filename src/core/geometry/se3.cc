@@ -188,6 +188,10 @@ SE3 InterpolatePose(const SE3& T_world_s, const SE3& T_world_t, double alpha) {
   return SE3::Exp(alpha * delta) * T_world_s;
 }
 
+SE3 PoseAtTime(const SE3& T_world_s, double s, const SE3& T_world_t, double t, double tau) {
+  return InterpolatePose(T_world_s, T_world_t, (tau - s) / (t - s));
+}
+
 Eigen::Matrix<double, 3, 6> DLeftPerturbedPointDEps(const Eigen::Vector3d& transformed_point) {
   Eigen::Matrix<double, 3, 6> jacobian;
   jacobian.leftCols<3>().setIdentity();

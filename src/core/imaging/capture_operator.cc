@@ -139,8 +139,8 @@ namespace {
 // frame of a sequence), and forwards past t (rows of a rolling shutter that
 // close after the stamp).
 SE3 PoseAtTime(const CaptureGeometry& geometry, double tau) {
-  const double alpha = (tau - geometry.neighbour_stamp) / (geometry.stamp - geometry.neighbour_stamp);
-  return InterpolatePose(geometry.T_world_neighbour, geometry.T_world_cam, alpha);
+  return PoseAtTime(geometry.T_world_neighbour, geometry.neighbour_stamp, geometry.T_world_cam,
+                    geometry.stamp, tau);
 }
 
 // tau_m of the rows that open `row_delay` after row 0.

@@ -58,6 +58,8 @@ Matrix6d SE3LeftJacobianInverse(const Vector6d& xi);
 // eq:interpolatingP: P_tau = exp(alpha log(P_t P_s^-1)) P_s, with
 // alpha = (tau - s) / (t - s). alpha outside [0, 1] extrapolates.
 SE3 InterpolatePose(const SE3& T_world_s, const SE3& T_world_t, double alpha);
+// The same at time `tau` for poses at times s and t (s != t).
+SE3 PoseAtTime(const SE3& T_world_s, double s, const SE3& T_world_t, double t, double tau);
 
 // Derivative of (Exp(eps) T) * p with respect to eps at eps = 0, for the
 // transformed point q = T p: [I, -Hat(q)] (3x6). Used by the structure update
