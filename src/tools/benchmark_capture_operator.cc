@@ -2,10 +2,12 @@
 // benchmark). Scene: 640x480 HR -> 320x240 LR, M = 50, a camera translating
 // sideways past a bumpy surface with a depth edge, ~15 HR px of blur.
 // Usage: benchmark_capture_operator [--repeats N] [--samples M] [--readout-ratio R]
+//        [--row-layout] [--shared-depths]
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -57,6 +59,147 @@ dsm::CaptureGeometry BenchmarkGeometry() {
   return geometry;
 }
 
+// A compact row layout measured against CSR: each row of Psi as runs of
+// consecutive columns (first column, first value), so a product reads x
+// contiguously instead of gathering one index per tap. Values stay in CSR
+// order. Measured only (BENCHMARKS.md), not used by the operator.
+struct RunLayout {
+  std::vector<int> row_runs;                   // runs of row r: [row_runs[r], row_runs[r + 1])
+  std::vector<int> first_column, first_value;  // per run, plus an end sentinel value offset
+};
+
+RunLayout MakeRunLayout(const dsm::SparseMatrixRM& a) {
+  RunLayout layout;
+  const int* outer = a.outerIndexPtr();
+  const int* inner = a.innerIndexPtr();
+  layout.row_runs.push_back(0);
+  for (int r = 0; r < a.rows(); ++r) {
+    for (int k = outer[r]; k < outer[r + 1]; ++k) {
+      if (k == outer[r] || inner[k] != inner[k - 1] + 1) {
+        layout.first_column.push_back(inner[k]);
+        layout.first_value.push_back(k);
+      }
+    }
+    layout.row_runs.push_back(static_cast<int>(layout.first_column.size()));
+  }
+  layout.first_value.push_back(outer[a.rows()]);
+  return layout;
+}
+
+// y = A x (one thread), gray or interleaved colour.
+template <int kChannels>
+void MultiplyRuns(const RunLayout& layout, const float* values, int rows, const float* x, float* y) {
+  for (int r = 0; r < rows; ++r) {
+    float acc[kChannels] = {};
+    for (int run = layout.row_runs[r]; run < layout.row_runs[r + 1]; ++run) {
+      const float* w = values + layout.first_value[run];
+      const int length = layout.first_value[run + 1] - layout.first_value[run];
+      const float* px = x + static_cast<std::ptrdiff_t>(layout.first_column[run]) * kChannels;
+      for (int i = 0; i < length; ++i) {
+        for (int c = 0; c < kChannels; ++c) acc[c] += w[i] * px[i * kChannels + c];
+      }
+    }
+    for (int c = 0; c < kChannels; ++c) y[r * kChannels + c] = acc[c];
+  }
+}
+
+// x += A^T y (one thread, scatter), gray or interleaved colour.
+template <int kChannels>
+void ScatterRuns(const RunLayout& layout, const float* values, int rows, const float* y, float* x) {
+  for (int r = 0; r < rows; ++r) {
+    const float* yr = y + r * kChannels;
+    for (int run = layout.row_runs[r]; run < layout.row_runs[r + 1]; ++run) {
+      const float* w = values + layout.first_value[run];
+      const int length = layout.first_value[run + 1] - layout.first_value[run];
+      float* px = x + static_cast<std::ptrdiff_t>(layout.first_column[run]) * kChannels;
+      for (int i = 0; i < length; ++i) {
+        for (int c = 0; c < kChannels; ++c) px[i * kChannels + c] += w[i] * yr[c];
+      }
+    }
+  }
+}
+
+// The estimator's configuration (one thread, no transposed copy): CSR
+// against runs, same results checked.
+void BenchmarkRunLayout(const dsm::CaptureGeometry& geometry, int samples, int repeats) {
+  dsm::CaptureOperatorOptions options;
+  options.samples = samples;
+  options.num_threads = 1;
+  options.transposed_copy = false;
+  const dsm::CaptureOperator op = dsm::BuildCaptureOperator(geometry, options);
+  const RunLayout layout = MakeRunLayout(op.matrix());
+  const float* values = op.matrix().valuePtr();
+  const int rows = static_cast<int>(op.matrix().rows());
+  const int runs = static_cast<int>(layout.first_column.size());
+  const cv::Size hr = op.hr_size();
+  const int apply_repeats = repeats * 5;
+  for (int channels : {1, 3}) {
+    cv::Mat x(hr, CV_32FC(channels)), y_csr, y_runs(op.lr_size(), CV_32FC(channels));
+    cv::randu(x, 0.0f, 1.0f);
+    cv::Mat back_csr, back_runs(hr, CV_32FC(channels));
+    const double apply_csr = MedianMs(apply_repeats, [&] { op.Apply(x, &y_csr); });
+    const double apply_runs = MedianMs(apply_repeats, [&] {
+      if (channels == 1)
+        MultiplyRuns<1>(layout, values, rows, x.ptr<float>(), y_runs.ptr<float>());
+      else
+        MultiplyRuns<3>(layout, values, rows, x.ptr<float>(), y_runs.ptr<float>());
+    });
+    const double adjoint_csr = MedianMs(apply_repeats, [&] { op.ApplyAdjoint(y_csr, &back_csr); });
+    const double adjoint_runs = MedianMs(apply_repeats, [&] {
+      back_runs.setTo(0.0);
+      if (channels == 1)
+        ScatterRuns<1>(layout, values, rows, y_csr.ptr<float>(), back_runs.ptr<float>());
+      else
+        ScatterRuns<3>(layout, values, rows, y_csr.ptr<float>(), back_runs.ptr<float>());
+    });
+    std::printf(
+        "row layout, 1 thread, %d channel(s): %.2f runs per row (%.1f columns per run) | apply CSR %.2f ms, "
+        "runs %.2f ms (x%.2f) | adjoint CSR %.2f ms, runs %.2f ms (x%.2f) | max difference %.1e, %.1e\n",
+        channels, double(runs) / rows, double(op.matrix().nonZeros()) / runs, apply_csr, apply_runs,
+        apply_csr / apply_runs, adjoint_csr, adjoint_runs, adjoint_csr / adjoint_runs,
+        cv::norm(y_csr, y_runs, cv::NORM_INF), cv::norm(back_csr, back_runs, cv::NORM_INF));
+  }
+}
+
+// The operators of one frame for its own and two neighbours' latent images
+// (the estimator's N(t) = 2), one thread: each build reprojecting D_t itself
+// against one set of virtual depths shared by the three; then adaptive M.
+void BenchmarkSharedDepths(const dsm::CaptureGeometry& geometry, int samples, int repeats) {
+  dsm::CaptureOperatorOptions options;
+  options.samples = samples;
+  options.num_threads = 1;
+  options.transposed_copy = false;
+  const std::vector<std::optional<dsm::SE3>> sources = {
+      std::nullopt, geometry.T_world_neighbour,
+      geometry.T_world_cam * (geometry.T_world_neighbour.Inverse() * geometry.T_world_cam)};
+  auto time_builds = [&](const dsm::CaptureOperatorOptions& build_options, bool shared) {
+    dsm::CaptureOperatorBuilder builder(build_options);
+    dsm::CaptureOperator op;
+    dsm::CaptureGeometry source_geometry = geometry;
+    return MedianMs(repeats, [&] {
+      dsm::VirtualDepths depths;
+      if (shared) depths.Compute(geometry, build_options);
+      for (const auto& source : sources) {
+        source_geometry.T_world_source = source;
+        if (shared)
+          builder.Build(source_geometry, depths, &op);
+        else
+          builder.Build(source_geometry, &op);
+      }
+    });
+  };
+  const double alone = time_builds(options, false);
+  const double shared = time_builds(options, true);
+  dsm::CaptureOperatorOptions adaptive = options;
+  adaptive.adaptive_samples = true;
+  const double adaptive_shared = time_builds(adaptive, true);
+  std::printf(
+      "3 operators of one frame, 1 thread: each reprojecting %.1f ms, shared virtual depths %.1f ms (x%.2f); "
+      "adaptive M = %d (blur %.1f HR px) with shared depths %.1f ms (x%.2f against the first)\n",
+      alone, shared, alone / shared, dsm::CaptureSamples(geometry, adaptive), dsm::BlurLengthHr(geometry, 2),
+      adaptive_shared, alone / adaptive_shared);
+}
+
 // Times the build, Psi_t and Psi_t^T with one thread count and prints them.
 void BenchmarkThreads(const dsm::CaptureGeometry& geometry, int threads, int samples, int repeats) {
   const int width = geometry.camera_hr.width, height = geometry.camera_hr.height;
@@ -106,6 +249,12 @@ int Run(int argc, char** argv) {
   cli.add_option("--readout-ratio", readout_ratio,
                  "rolling shutter: readout time = R x frame interval (default 0: global shutter)")
       ->check(dsm::FlagNumber(0.0, 1.0));
+  bool row_layout = false, shared_depths = false;
+  cli.add_flag("--row-layout", row_layout,
+               "also time Psi_t and Psi_t^T with rows stored as runs of consecutive columns against CSR");
+  cli.add_flag("--shared-depths", shared_depths,
+               "also time building the operators of 3 sources of one frame with and without shared virtual "
+               "depths, and adaptive M");
   if (!cli.Parse(argc, argv)) return 0;
   dsm::CaptureGeometry geometry = BenchmarkGeometry();
   geometry.readout_time = readout_ratio * (geometry.stamp - geometry.neighbour_stamp);
@@ -115,6 +264,8 @@ int Run(int argc, char** argv) {
       samples, readout_ratio, repeats);
   std::printf("machine threads available: %d\n", omp_get_max_threads());
   for (int threads : {1, 2}) BenchmarkThreads(geometry, threads, samples, repeats);
+  if (row_layout) BenchmarkRunLayout(geometry, samples, repeats);
+  if (shared_depths) BenchmarkSharedDepths(geometry, samples, repeats);
   return 0;
 }
 

@@ -46,6 +46,7 @@ struct Flags {
   std::string structure_matching = "both";
   std::string exposure;  // "auto": estimated from the blur; empty: frames.csv's
   bool fixed_poses = false;
+  bool fixed_samples = false;
   bool quiet = false;
   int output_scale = 1;  // bicubic up-sampling of the outputs ("w/o SR + Bic.")
 };
@@ -66,7 +67,12 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   cli.add_option("--mode", flags->mode, "joint or baseline")->check(CLI::IsMember({"joint", "baseline"}));
   cli.add_option("--scale", options->scale, "super-resolution factor")->check(dsm::FlagInt());
   cli.add_option("--iterations", options->max_iterations, "max_iter of Algorithm 1")->check(dsm::FlagInt());
-  cli.add_option("--samples", options->samples, "M, sub-exposure samples")->check(dsm::FlagInt());
+  cli.add_option("--samples", options->samples,
+                 "M, sub-exposure samples: the most a frame gets (each frame gets about one per HR pixel "
+                 "of its blur, at least 4) unless --fixed-samples")
+      ->check(dsm::FlagInt());
+  cli.add_flag("--fixed-samples,!--adaptive-samples", flags->fixed_samples,
+               "every frame gets M = --samples virtual cameras (default: adaptive M)");
   cli.add_option("--lambda-s", options->lambda_s, "self-consistency weight")->check(dsm::FlagNumber());
   cli.add_option("--lambda-d", options->structure.lambda_d, "depth TV weight")->check(dsm::FlagNumber());
   cli.add_option("--lambda-i", options->image.lambda_i, "image TV weight")->check(dsm::FlagNumber());
@@ -95,6 +101,7 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   options->mode = dsm::ParseEstimatorMode(flags->mode);
   options->structure_matching = dsm::ParseStructureMatching(flags->structure_matching);
   if (flags->fixed_poses) options->update_poses = false;
+  options->adaptive_samples = !flags->fixed_samples;
   options->Check();
   return true;
 }

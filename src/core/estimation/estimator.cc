@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <cstring>
 #include <exception>
 #include <limits>
 #include <list>
@@ -137,6 +138,12 @@ std::vector<cv::Mat> CloneAll(const std::vector<cv::Mat>& images) {
   return copies;
 }
 
+// Same size, type and bytes (NaN payloads included).
+bool SameBits(const cv::Mat& a, const cv::Mat& b) {
+  if (a.size() != b.size() || a.type() != b.type() || !a.isContinuous() || !b.isContinuous()) return false;
+  return std::memcmp(a.data, b.data, a.total() * a.elemSize()) == 0;
+}
+
 cv::Mat DepthFromInverse(const cv::Mat& rho) {
   cv::Mat depth(rho.size(), CV_32FC1);
   for (int y = 0; y < rho.rows; ++y) {
@@ -156,8 +163,10 @@ cv::Mat VisibleFromSource(const PinholeCamera& camera_hr, const std::vector<Fram
 }
 
 // Operators Psi_t[src] and their visibility masks, rebuilt only when the
-// structure they depend on (D_t, P_t, P_neighbour(t), P_src) changed. Memory
-// is bounded: the least recently used entries go first.
+// structure they depend on (D_t, P_t, P_neighbour(t), P_src) changed. The
+// virtual depths D_tau of frame t depend on D_t, P_t and P_neighbour(t) only:
+// they are computed once per structure and shared by the operators of every
+// source. Memory is bounded: the least recently used entries go first.
 class OperatorCache {
  public:
   struct Entry {
@@ -169,13 +178,16 @@ class OperatorCache {
   // One builder (scratch buffers) per thread: Get may be called from the
   // threads of a parallel loop over frames, each building its own operators.
   OperatorCache(const CaptureOperatorOptions& options, int threads, const PinholeCamera& camera_hr,
-                const VisibilityOptions& visibility, size_t max_bytes)
-      : camera_hr_(camera_hr), visibility_(visibility), max_bytes_(max_bytes) {
+                const VisibilityOptions& visibility, size_t max_bytes, size_t max_depth_bytes, int num_frames)
+      : options_(options),
+        camera_hr_(camera_hr),
+        visibility_(visibility),
+        max_bytes_(max_bytes),
+        max_depth_bytes_(max_depth_bytes),
+        frame_depths_(num_frames) {
     for (int i = 0; i < threads; ++i) builders_.emplace_back(options);
   }
 
-  // Callers hold the returned pointer while they use the operator: eviction
-  // only drops the cache's reference.
   std::shared_ptr<const Entry> Get(const std::vector<FrameStructure>& frames,
                                    const std::vector<long>& depth_version,
                                    const std::vector<long>& pose_version, int t, int source, Timer* timer) {
@@ -192,9 +204,11 @@ class OperatorCache {
       }
     }
     const double start = NowMs();
+    const std::shared_ptr<const VirtualDepths> depths =
+        SharedDepths(frames, t, {depth_version[t], pose_version[t], pose_version[neighbour]});
     auto entry = std::make_shared<Entry>();
     const size_t thread = std::min<size_t>(omp_get_thread_num(), builders_.size() - 1);
-    builders_[thread].Build(MakeCaptureGeometry(frames, camera_hr_, t, source), &entry->op);
+    builders_[thread].Build(MakeCaptureGeometry(frames, camera_hr_, t, source), *depths, &entry->op);
     entry->versions = versions;
     const cv::Size lr = entry->op.lr_size();
     entry->mask = cv::Mat(lr, CV_8UC1);
@@ -221,6 +235,47 @@ class OperatorCache {
   }
 
  private:
+  // The virtual depths of frame t at `versions` (D_t, P_t, P_neighbour(t)).
+  struct FrameDepths {
+    std::mutex compute;  // one computation per frame at a time
+    std::vector<long> versions;
+    std::shared_ptr<const VirtualDepths> depths;
+    long last_use = 0;
+  };
+
+  // The virtual depths of frame t, computed on the calling thread unless
+  // they are stored at `versions`; the least recently used frames' depths
+  // are dropped beyond max_depth_bytes_ (their holders keep them alive).
+  std::shared_ptr<const VirtualDepths> SharedDepths(const std::vector<FrameStructure>& frames, int t,
+                                                    const std::vector<long>& versions) {
+    FrameDepths& slot = frame_depths_[t];
+    std::lock_guard<std::mutex> compute_lock(slot.compute);
+    {
+      std::lock_guard<std::mutex> lock(depths_mutex_);
+      slot.last_use = ++depth_clock_;
+      if (slot.depths != nullptr && slot.versions == versions) return slot.depths;
+    }
+    auto depths = std::make_shared<VirtualDepths>();
+    depths->Compute(MakeCaptureGeometry(frames, camera_hr_, t, t), options_);
+    std::lock_guard<std::mutex> lock(depths_mutex_);
+    if (slot.depths != nullptr) depth_bytes_ -= slot.depths->Bytes();
+    slot.depths = depths;
+    slot.versions = versions;
+    depth_bytes_ += depths->Bytes();
+    while (depth_bytes_ > max_depth_bytes_) {
+      FrameDepths* oldest = nullptr;
+      for (FrameDepths& other : frame_depths_) {
+        if (&other != &slot && other.depths != nullptr &&
+            (oldest == nullptr || other.last_use < oldest->last_use))
+          oldest = &other;
+      }
+      if (oldest == nullptr) break;
+      depth_bytes_ -= oldest->depths->Bytes();
+      oldest->depths.reset();
+    }
+    return depths;
+  }
+
   static size_t Bytes(const Entry& e) {
     return static_cast<size_t>(e.op.matrix().nonZeros()) * 8 + e.mask.total();
   }
@@ -241,12 +296,18 @@ class OperatorCache {
     }
   }
 
+  CaptureOperatorOptions options_;
   std::vector<CaptureOperatorBuilder> builders_;
   std::mutex mutex_;
   PinholeCamera camera_hr_;
   VisibilityOptions visibility_;
   size_t max_bytes_;
   size_t bytes_ = 0;
+  size_t max_depth_bytes_;
+  size_t depth_bytes_ = 0;
+  long depth_clock_ = 0;
+  std::mutex depths_mutex_;  // guards the slots' versions, depths and last_use
+  std::vector<FrameDepths> frame_depths_;
   std::map<std::pair<int, int>, std::shared_ptr<Entry>> entries_;
   std::list<std::pair<int, int>> order_;
 };
@@ -255,6 +316,7 @@ class OperatorCache {
 CaptureOperatorOptions EstimatorOperatorOptions(const EstimatorOptions& options) {
   CaptureOperatorOptions op_options;
   op_options.samples = options.samples;
+  op_options.adaptive_samples = options.adaptive_samples;
   op_options.scale = options.scale;
   // The estimator parallelises over frames (no barriers inside a frame's
   // work, which matters when the cores are shared); every operator runs on
@@ -309,6 +371,7 @@ class WindowSolver {
   SelfConsistencyLinearization SelfConsistencyOf(int t);
   void SetInverseDepth(int t, const cv::Mat& inverse_depth);
   void SetPoses(const std::vector<SE3>& T_world_cam);
+  void SetPose(int t, const SE3& T_world_cam);
 
   // ---- Energy (eq:energyFunction).
   double FrameEnergy(int t, EnergyRecord* parts);
@@ -427,8 +490,11 @@ WindowSolver::WindowSolver(const EstimatorOptions& options, int threads, const E
   // Every operator of a 10-frame 640x480 window (30 operators of ~38 MiB)
   // fits; larger windows evict the least recently used ones and rebuild them,
   // which keeps the peak memory bounded.
-  cache_ = std::make_unique<OperatorCache>(EstimatorOperatorOptions(options_), threads_, camera_hr_,
-                                           options_.visibility, size_t(3) << 29);
+  // The virtual depths of 4 frames at M = 50 and 640x480 (a frame's
+  // operators are built close together in time, so sharing needs few).
+  cache_ =
+      std::make_unique<OperatorCache>(EstimatorOperatorOptions(options_), threads_, camera_hr_,
+                                      options_.visibility, size_t(3) << 29, size_t(1) << 28, num_frames_);
   for (int t = 0; t < num_frames_; ++t)
     neighbours_[t] = Neighbours(t, num_frames_, options_.neighbour_radius);
 }
@@ -642,18 +708,28 @@ SelfConsistencyLinearization WindowSolver::SelfConsistencyOf(int t) {
   return self;
 }
 
+// rho_t and D_t; the version (and D_t's buffer, which the shared virtual
+// depths identify) change only if D_t does.
 void WindowSolver::SetInverseDepth(int t, const cv::Mat& inverse_depth) {
   inverse_depth_[t] = inverse_depth;
-  frames_[t].depth_hr = DepthFromInverse(inverse_depth);
+  cv::Mat depth = DepthFromInverse(inverse_depth);
+  if (SameBits(depth, frames_[t].depth_hr)) return;
+  frames_[t].depth_hr = depth;
   ++depth_version_[t];
 }
 
-// P_t of every frame but the first (the gauge) from `T_world_cam`.
+// P_t of every frame but the first (the gauge) from `T_world_cam`; a version
+// changes only with its pose (held poses keep theirs and their operators).
 void WindowSolver::SetPoses(const std::vector<SE3>& T_world_cam) {
-  for (int t = 1; t < num_frames_; ++t) {
-    frames_[t].T_world_cam = T_world_cam[t];
-    ++pose_version_[t];
-  }
+  for (int t = 1; t < num_frames_; ++t) SetPose(t, T_world_cam[t]);
+}
+
+void WindowSolver::SetPose(int t, const SE3& T_world_cam) {
+  const SE3& current = frames_[t].T_world_cam;
+  if (current.rotation() == T_world_cam.rotation() && current.translation() == T_world_cam.translation())
+    return;
+  frames_[t].T_world_cam = T_world_cam;
+  ++pose_version_[t];
 }
 
 // E_t (eq:energyFunctiont) of one frame at the current state; `parts`
@@ -740,13 +816,10 @@ WindowSolver::Snapshot WindowSolver::TakeSnapshot() const {
 // records the restored energy and says so in the notes.
 void WindowSolver::Undo(int iteration, const Snapshot& snapshot) {
   latents_ = snapshot.latents;
-  inverse_depth_ = snapshot.inverse_depth;
   edge_weight_ = snapshot.edge_weight;
   for (int t = 0; t < num_frames_; ++t) {
-    frames_[t].T_world_cam = snapshot.T_world_cam[t];
-    frames_[t].depth_hr = DepthFromInverse(inverse_depth_[t]);
-    ++depth_version_[t];
-    ++pose_version_[t];
+    SetPose(t, snapshot.T_world_cam[t]);
+    SetInverseDepth(t, snapshot.inverse_depth[t]);
   }
   const double rejected = result_.energies.back().total;
   EnergyRecord restored = TotalEnergy(iteration, "restored");

@@ -171,6 +171,8 @@ double RowDelay(const CaptureGeometry& geometry, int lr_row, int lr_rows) {
 
 void CaptureOperatorOptions::Check() const {
   CheckInRange("capture operator: samples (M)", samples, 1, 10000);
+  CheckInRange("capture operator: samples_per_pixel", samples_per_pixel, 0.01, 100.0);
+  CheckInRange("capture operator: min_samples", min_samples, 1, 10000);
   CheckInRange("capture operator: scale", scale, 1, 8);
   CheckAtLeast("capture operator: num_threads", num_threads, 0);
 }
@@ -539,13 +541,52 @@ void ConcatenateBlocks(const std::vector<std::vector<int>>& block_columns,
   }
 }
 
+// The instants of the virtual cameras whose depth is reprojected from D_t.
+// A global shutter: tau_m itself. A rolling shutter has M * H virtual cameras
+// but only M reprojected depths, at instants evenly spread from the first
+// row's first sample to the last row's last; each virtual camera reads the
+// nearest (D_tau changes only where the motion between the two instants
+// crosses a depth edge).
+struct DepthInstants {
+  double first = 0.0;
+  double step = 1.0;
+  // The depth camera nearest to instant `tau`.
+  int Nearest(double tau, int samples) const {
+    return std::clamp(static_cast<int>(std::lround((tau - first) / step)), 0, samples - 1);
+  }
+};
+
+DepthInstants PlanDepthInstants(const CaptureGeometry& geometry, int scale, int samples) {
+  const int lr_rows = geometry.camera_hr.height / scale;
+  DepthInstants instants;
+  instants.first = SampleTime(geometry, samples, 0.0, 0);
+  const double last = SampleTime(geometry, samples, RowDelay(geometry, lr_rows - 1, lr_rows), samples - 1);
+  instants.step = samples > 1 ? (last - instants.first) / (samples - 1) : 1.0;
+  return instants;
+}
+
+// T_tau_t of the cameras whose depth D_tau is reprojected from D_t.
+std::vector<SE3> DepthCameras(const CaptureGeometry& geometry, int scale, int samples) {
+  std::vector<SE3> T_depth_t;
+  if (geometry.readout_time == 0.0) {
+    for (const SE3& T_world_tau : VirtualCameraPoses(geometry, samples))
+      T_depth_t.push_back(T_world_tau.Inverse() * geometry.T_world_cam);
+    return T_depth_t;
+  }
+  const DepthInstants instants = PlanDepthInstants(geometry, scale, samples);
+  for (int k = 0; k < samples; ++k) {
+    T_depth_t.push_back(PoseAtTime(geometry, instants.first + k * instants.step).Inverse() *
+                        geometry.T_world_cam);
+  }
+  return T_depth_t;
+}
+
 // The virtual cameras of one operator: their warps into the source camera
 // (one set of M for a global shutter, one per LR row for a rolling shutter)
-// and, for each, the depth map it reads.
+// and, for each, the depth camera (DepthCameras) it reads.
 struct VirtualCameras {
   std::vector<PixelTransferF> transfers;  // [set * samples + m]
-  std::vector<int> depth_index;           // the entry of T_depth_t each one reads
-  std::vector<SE3> T_depth_t;             // cameras whose depth is reprojected from D_t
+  std::vector<int> depth_index;           // the entry of DepthCameras each one reads
 };
 
 VirtualCameras PlanVirtualCameras(const CaptureGeometry& geometry, int scale, int samples) {
@@ -555,66 +596,150 @@ VirtualCameras PlanVirtualCameras(const CaptureGeometry& geometry, int scale, in
   VirtualCameras cameras;
   if (geometry.readout_time == 0.0) {
     for (const SE3& T_world_tau : VirtualCameraPoses(geometry, samples)) {
-      cameras.depth_index.push_back(static_cast<int>(cameras.T_depth_t.size()));
-      cameras.T_depth_t.push_back(T_world_tau.Inverse() * geometry.T_world_cam);
+      cameras.depth_index.push_back(static_cast<int>(cameras.transfers.size()));
       cameras.transfers.emplace_back(PixelTransfer(camera, T_source_world * T_world_tau));
     }
     return cameras;
   }
-  // Rolling shutter: M * H warps but only M reprojected depths, at instants
-  // evenly spread from the first row's first sample to the last row's last;
-  // each virtual camera reads the nearest (D_tau changes only where the
-  // motion between the two instants crosses a depth edge).
   const int lr_rows = camera.height / scale;
-  const double first = SampleTime(geometry, samples, 0.0, 0);
-  const double last = SampleTime(geometry, samples, RowDelay(geometry, lr_rows - 1, lr_rows), samples - 1);
-  const double step = samples > 1 ? (last - first) / (samples - 1) : 1.0;
-  for (int k = 0; k < samples; ++k) {
-    cameras.T_depth_t.push_back(PoseAtTime(geometry, first + k * step).Inverse() * geometry.T_world_cam);
-  }
+  const DepthInstants instants = PlanDepthInstants(geometry, scale, samples);
   for (int y = 0; y < lr_rows; ++y) {
     const double delay = RowDelay(geometry, y, lr_rows);
     for (int m = 0; m < samples; ++m) {
       const double tau = SampleTime(geometry, samples, delay, m);
       cameras.transfers.emplace_back(PixelTransfer(camera, T_source_world * PoseAtTime(geometry, tau)));
-      cameras.depth_index.push_back(
-          std::clamp(static_cast<int>(std::lround((tau - first) / step)), 0, samples - 1));
+      cameras.depth_index.push_back(instants.Nearest(tau, samples));
     }
   }
   return cameras;
 }
 
+bool SamePose(const SE3& a, const SE3& b) {
+  return a.rotation() == b.rotation() && a.translation() == b.translation();
+}
+
+// Every 8th HR pixel and the last one of [0, size).
+constexpr int kBlurGridStep = 8;
+int NextGridPoint(int i, int size) {
+  return i == size - 1 ? size : std::min(i + kBlurGridStep, size - 1);
+}
+
 }  // namespace
+
+double BlurLengthHr(const CaptureGeometry& geometry, int scale) {
+  CheckCaptureGeometry(geometry, scale);
+  const PinholeCamera& camera = geometry.camera_hr;
+  const int lr_rows = camera.height / scale;
+  double longest = 0.0;
+  double row_delay = -1.0;
+  SE3 T_open_t, T_close_t;
+  for (int y = 0; y < camera.height; y = NextGridPoint(y, camera.height)) {
+    const double delay = RowDelay(geometry, y / scale, lr_rows);
+    if (delay != row_delay) {  // once for a global shutter
+      row_delay = delay;
+      const double open = geometry.stamp - geometry.exposure + delay;
+      T_open_t = PoseAtTime(geometry, open).Inverse() * geometry.T_world_cam;
+      T_close_t = PoseAtTime(geometry, open + geometry.exposure).Inverse() * geometry.T_world_cam;
+    }
+    const float* depth = geometry.depth_hr.ptr<float>(y);
+    for (int x = 0; x < camera.width; x = NextGridPoint(x, camera.width)) {
+      const double d = depth[x];
+      if (!(d > 0.0 && d < 1e30)) continue;  // unknown depth: the operator samples x itself
+      const Eigen::Vector3d point_t = d * camera.Ray(x, y);
+      const Eigen::Vector3d at_open = T_open_t * point_t;
+      const Eigen::Vector3d at_close = T_close_t * point_t;
+      if (!(at_open.z() > 1e-9 && at_close.z() > 1e-9)) continue;
+      longest = std::max(longest, (camera.Project(at_open) - camera.Project(at_close)).norm());
+    }
+  }
+  return longest;
+}
+
+int CaptureSamples(const CaptureGeometry& geometry, const CaptureOperatorOptions& options) {
+  if (!options.adaptive_samples) return options.samples;
+  // A rolling shutter's M reprojected depths are spread over every row's
+  // window (the exposure plus the readout, DepthCameras): M follows the
+  // motion over that span, so that they too stay about a pixel apart.
+  const int lr_rows = geometry.camera_hr.height / options.scale;
+  const double span = geometry.exposure + RowDelay(geometry, lr_rows - 1, lr_rows);
+  const double motion = BlurLengthHr(geometry, options.scale) * span / geometry.exposure;
+  const double wanted = std::ceil(motion * options.samples_per_pixel);
+  const int floor = std::min(options.min_samples, options.samples);
+  return static_cast<int>(
+      std::clamp(wanted, static_cast<double>(floor), static_cast<double>(options.samples)));
+}
+
+void VirtualDepths::Compute(const CaptureGeometry& geometry, const CaptureOperatorOptions& options) {
+  options.Check();
+  CheckCaptureGeometry(geometry, options.scale);
+  const double start = NowMs();
+  samples_ = CaptureSamples(geometry, options);
+  scale_ = options.scale;
+  reprojected_ = options.reproject_depth;
+  depth_t_ = geometry.depth_hr;
+  T_depth_t_ = DepthCameras(geometry, options.scale, samples_);
+  if (reprojected_) {
+    // D_tau by reprojecting D_t into each depth camera (paper Sec. 3).
+    const int num_depths = static_cast<int>(T_depth_t_.size());
+    depths_.resize(num_depths);
+    const int threads = ResolveThreads(options.num_threads);
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
+    for (int k = 0; k < num_depths; ++k) {
+      ReprojectDepth(geometry.camera_hr, geometry.depth_hr, T_depth_t_[k], /*fill_from_source=*/true,
+                     &depths_[k]);
+    }
+  }
+  compute_ms_ = NowMs() - start;
+}
+
+size_t VirtualDepths::Bytes() const {
+  if (!reprojected_) return 0;
+  size_t bytes = 0;
+  for (size_t k = 0; k < T_depth_t_.size() && k < depths_.size(); ++k)
+    bytes += depths_[k].total() * sizeof(float);
+  return bytes;
+}
 
 CaptureOperatorBuilder::CaptureOperatorBuilder(const CaptureOperatorOptions& options) : options_(options) {
   options_.Check();
 }
 
 void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOperator* op) {
+  own_depths_.Compute(geometry, options_);
+  Assemble(geometry, own_depths_, op);
+  timings_.reprojection_ms = own_depths_.compute_ms();
+}
+
+void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, const VirtualDepths& shared,
+                                   CaptureOperator* op) {
+  CheckCaptureGeometry(geometry, options_.scale);
+  const int samples = CaptureSamples(geometry, options_);
+  bool same = shared.samples_ == samples && shared.scale_ == options_.scale &&
+              shared.reprojected_ == options_.reproject_depth &&
+              shared.depth_t_.data == geometry.depth_hr.data;
+  const std::vector<SE3> T_depth_t =
+      same ? DepthCameras(geometry, options_.scale, samples) : std::vector<SE3>();
+  for (size_t k = 0; same && k < T_depth_t.size(); ++k) same = SamePose(T_depth_t[k], shared.T_depth_t_[k]);
+  if (!same || T_depth_t.size() != shared.T_depth_t_.size()) {
+    throw InputError("capture operator: the shared virtual depths were computed for another frame structure");
+  }
+  Assemble(geometry, shared, op);
+  timings_.reprojection_ms = 0.0;
+}
+
+void CaptureOperatorBuilder::Assemble(const CaptureGeometry& geometry, const VirtualDepths& depths,
+                                      CaptureOperator* op) {
   const PinholeCamera& camera = geometry.camera_hr;
   const int scale = options_.scale;
-  const int samples = options_.samples;
+  const int samples = depths.samples_;
   const int threads = ResolveThreads(options_.num_threads);
-  CheckCaptureGeometry(geometry, scale);
-
   const VirtualCameras cameras = PlanVirtualCameras(geometry, scale, samples);
-  double stage_start = NowMs();
-  // D_tau by reprojecting D_t into each depth camera (paper Sec. 3).
   std::vector<const cv::Mat*> virtual_depth(cameras.depth_index.size(), &geometry.depth_hr);
-  if (options_.reproject_depth) {
-    const int num_depths = static_cast<int>(cameras.T_depth_t.size());
-    virtual_depths_.resize(num_depths);
-#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
-    for (int k = 0; k < num_depths; ++k) {
-      ReprojectDepth(camera, geometry.depth_hr, cameras.T_depth_t[k], /*fill_from_source=*/true,
-                     &virtual_depths_[k]);
-    }
+  if (depths.reprojected_) {
     for (size_t i = 0; i < virtual_depth.size(); ++i)
-      virtual_depth[i] = &virtual_depths_[cameras.depth_index[i]];
+      virtual_depth[i] = &depths.depths_[cameras.depth_index[i]];
   }
-  timings_.reprojection_ms = NowMs() - stage_start;
-  stage_start = NowMs();
-
+  const double stage_start = NowMs();
   const AssemblyContext context(camera, scale, samples, cameras.transfers, virtual_depth);
   const int lr_pixels = context.lr_width * context.lr_height;
   op->lr_size_ = cv::Size(context.lr_width, context.lr_height);
@@ -638,13 +763,13 @@ void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOpera
   ConcatenateBlocks(block_columns_, block_values_, row_nnz_, threads, context.hr_width * context.hr_height,
                     &op->forward_);
   timings_.assembly_ms = NowMs() - stage_start;
-  stage_start = NowMs();
+  const double adjoint_start = NowMs();
   if (options_.transposed_copy) {
     TransposeSparse(op->forward_, &op->adjoint_, threads);
   } else {
     op->adjoint_ = SparseMatrixRM();
   }
-  timings_.adjoint_ms = NowMs() - stage_start;
+  timings_.adjoint_ms = NowMs() - adjoint_start;
 }
 
 CaptureOperator BuildCaptureOperator(const CaptureGeometry& geometry, const CaptureOperatorOptions& options) {

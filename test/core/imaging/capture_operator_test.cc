@@ -2,7 +2,12 @@
 // visibility sets (eq:occUpdate).
 #include "deblur_sr_mvs/core/imaging/capture_operator.h"
 
+#include <algorithm>
+#include <cmath>
+#include <cstring>
 #include <functional>
+#include <limits>
+#include <optional>
 #include <random>
 #include <string>
 
@@ -316,6 +321,122 @@ TEST(CaptureOperator, AdjointWithoutTransposedCopyIsTheSame) {
   with_copy.ApplyAdjoint(y, &a);
   without_copy.ApplyAdjoint(y, &b);
   EXPECT_LT(cv::norm(a, b, cv::NORM_INF), 1e-5);
+}
+
+}  // namespace
+}  // namespace deblur_sr_mvs
+
+namespace deblur_sr_mvs {
+namespace {
+
+// The same matrix (structure and bits) and the same coverage.
+void ExpectSameOperator(const CaptureOperator& a, const CaptureOperator& b, const std::string& what) {
+  const SparseMatrixRM& ma = a.matrix();
+  const SparseMatrixRM& mb = b.matrix();
+  ASSERT_EQ(ma.rows(), mb.rows()) << what;
+  ASSERT_EQ(ma.cols(), mb.cols()) << what;
+  ASSERT_EQ(ma.nonZeros(), mb.nonZeros()) << what;
+  EXPECT_TRUE(std::equal(ma.outerIndexPtr(), ma.outerIndexPtr() + ma.rows() + 1, mb.outerIndexPtr())) << what;
+  EXPECT_TRUE(std::equal(ma.innerIndexPtr(), ma.innerIndexPtr() + ma.nonZeros(), mb.innerIndexPtr())) << what;
+  // Bitwise: memcmp, not ==, so that -0 and 0 would differ.
+  EXPECT_EQ(std::memcmp(ma.valuePtr(), mb.valuePtr(), sizeof(float) * ma.nonZeros()), 0) << what;
+  EXPECT_EQ(a.coverage(), b.coverage()) << what;
+}
+
+// The virtual depths of a frame, computed once, give the operators of every
+// source exactly what each build alone gives (global and rolling shutter,
+// fixed and adaptive M).
+TEST(CaptureOperator, SharedVirtualDepthsGiveTheSameOperator) {
+  for (const double readout_ratio : {0.0, 0.8}) {
+    for (const bool adaptive : {false, true}) {
+      CaptureOperatorOptions options;
+      options.samples = 17;
+      options.adaptive_samples = adaptive;
+      CaptureGeometry geometry = MovingGeometry(96, 72);
+      geometry.readout_time = readout_ratio * (geometry.stamp - geometry.neighbour_stamp);
+      VirtualDepths shared;
+      shared.Compute(geometry, options);
+      CaptureOperatorBuilder builder(options);
+      for (const std::optional<SE3>& source :
+           {std::optional<SE3>(), std::optional<SE3>(Translation(-0.03, 0.0, 0.01)),
+            std::optional<SE3>(SE3::Exp((Vector6d() << 0.05, -0.01, 0.02, 0.0, 0.02, -0.01).finished()))}) {
+        geometry.T_world_source = source;
+        const CaptureOperator alone = BuildCaptureOperator(geometry, options);
+        CaptureOperator with_shared;
+        builder.Build(geometry, shared, &with_shared);
+        ExpectSameOperator(alone, with_shared,
+                           "readout " + std::to_string(readout_ratio) + (adaptive ? " adaptive" : " fixed") +
+                               (source ? " neighbour source" : " own source"));
+      }
+    }
+  }
+}
+
+TEST(CaptureOperator, SharedVirtualDepthsOfAnotherStructureAreRejected) {
+  CaptureOperatorOptions options;
+  options.samples = 9;
+  const CaptureGeometry geometry = MovingGeometry(48, 36);
+  VirtualDepths shared;
+  shared.Compute(geometry, options);
+  CaptureOperatorBuilder builder(options);
+  CaptureOperator op;
+  const std::string message =
+      "capture operator: the shared virtual depths were computed for another frame structure";
+  CaptureGeometry moved = geometry;
+  moved.T_world_neighbour = Translation(0.001, 0.0, 0.0);
+  ExpectInputError([&] { builder.Build(moved, shared, &op); }, message);
+  CaptureGeometry other_depth = geometry;
+  other_depth.depth_hr = geometry.depth_hr.clone();  // same values, another buffer
+  ExpectInputError([&] { builder.Build(other_depth, shared, &op); }, message);
+  options.samples = 10;
+  CaptureOperatorBuilder other_samples(options);
+  ExpectInputError([&] { other_samples.Build(geometry, shared, &op); }, message);
+}
+
+// A camera translating parallel to a fronto-parallel plane at depth d moves
+// every image point by f b / d over the exposure (b: the baseline covered
+// while the shutter is open); adaptive M is that length, clamped.
+TEST(CaptureOperator, AdaptiveSamplesFollowTheBlurLength) {
+  CaptureGeometry geometry = MovingGeometry(96, 72);
+  geometry.depth_hr.setTo(2.0f);
+  geometry.T_world_neighbour = SE3();
+  geometry.T_world_cam = Translation(0.09, 0.0, 0.0);
+  const double baseline = 0.09 * geometry.exposure / (geometry.stamp - geometry.neighbour_stamp);
+  const double expected = geometry.camera_hr.fx * baseline / 2.0;  // ~3.1 px
+  EXPECT_NEAR(BlurLengthHr(geometry, 2), expected, 1e-6 * expected);
+  {
+    // A rolling shutter: every row's window is as long, at the same speed.
+    CaptureGeometry rolling = geometry;
+    rolling.readout_time = 0.8 * (geometry.stamp - geometry.neighbour_stamp);
+    EXPECT_NEAR(BlurLengthHr(rolling, 2), expected, 1e-6 * expected);
+  }
+  CaptureOperatorOptions options;
+  options.samples = 50;
+  EXPECT_EQ(CaptureSamples(geometry, options), 50);  // adaptive off: M itself
+  options.adaptive_samples = true;
+  EXPECT_EQ(CaptureSamples(geometry, options), static_cast<int>(std::ceil(expected)));
+  options.samples_per_pixel = 2.0;
+  EXPECT_EQ(CaptureSamples(geometry, options), static_cast<int>(std::ceil(2.0 * expected)));
+  {
+    // A rolling shutter's reprojected depths span the exposure plus the
+    // readout of all but the last LR row: M follows the motion over it.
+    CaptureGeometry rolling = geometry;
+    rolling.readout_time = 0.8 * (geometry.stamp - geometry.neighbour_stamp);
+    const int lr_rows = geometry.camera_hr.height / 2;
+    const double span = geometry.exposure + rolling.readout_time * (lr_rows - 1) / lr_rows;
+    EXPECT_EQ(CaptureSamples(rolling, options),
+              static_cast<int>(std::ceil(2.0 * expected * span / geometry.exposure)));
+  }
+  options.samples = 5;  // the cap
+  EXPECT_EQ(CaptureSamples(geometry, options), 5);
+  // No motion: the floor; unknown depth does not move either.
+  options.samples = 50;
+  geometry.T_world_cam = SE3();
+  EXPECT_EQ(BlurLengthHr(geometry, 2), 0.0);
+  EXPECT_EQ(CaptureSamples(geometry, options), options.min_samples);
+  geometry.T_world_cam = Translation(0.09, 0.0, 0.0);
+  geometry.depth_hr.setTo(std::numeric_limits<float>::quiet_NaN());
+  EXPECT_EQ(CaptureSamples(geometry, options), options.min_samples);
 }
 
 }  // namespace

@@ -58,8 +58,12 @@ EstimatorMode ParseEstimatorMode(const std::string& text);
 
 struct EstimatorOptions {
   EstimatorMode mode = EstimatorMode::kJoint;
-  int scale = 2;             // super-resolution factor (1: "w/o SR")
-  int samples = 50;          // M of eq:blurOperator
+  int scale = 2;     // super-resolution factor (1: "w/o SR")
+  int samples = 50;  // M of eq:blurOperator; with adaptive_samples, the cap
+  // Adaptive M: each frame's operators get about one virtual camera per HR
+  // pixel of that frame's blur, between 4 and `samples`
+  // (CaptureOperatorOptions::adaptive_samples).
+  bool adaptive_samples = true;
   int max_iterations = 3;    // max_iter of Algorithm 1
   int neighbour_radius = 1;  // N(t) = frames within this distance of t
   // The pose update matches frames up to this far apart (at least N(t)):

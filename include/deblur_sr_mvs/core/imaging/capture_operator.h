@@ -12,6 +12,7 @@
 // adjoint. Multi-channel images share the operator (interleaved channels).
 #pragma once
 
+#include <cstddef>
 #include <optional>
 #include <vector>
 
@@ -26,8 +27,18 @@ namespace deblur_sr_mvs {
 using SparseMatrixRM = Eigen::SparseMatrix<float, Eigen::RowMajor, int>;
 
 struct CaptureOperatorOptions {
-  // M, the number of virtual cameras over the exposure (paper: 50).
+  // M, the number of virtual cameras over the exposure (paper: 50); with
+  // adaptive_samples, the most a frame gets.
   int samples = 50;
+  // Adaptive M: each frame gets about `samples_per_pixel` virtual cameras per
+  // HR pixel of its blur (the largest image motion over the exposure, see
+  // BlurLengthHr; with a rolling shutter, over the exposure plus the
+  // readout, which its M reprojected depths span), at least `min_samples`
+  // and at most `samples`. Sampling the exposure finer than the bilinear taps
+  // resolve adds work, not accuracy.
+  bool adaptive_samples = false;
+  double samples_per_pixel = 1.0;
+  int min_samples = 4;
   // Integer super-resolution factor: HR = scale x LR (box filter).
   int scale = 2;
   // Depth of each virtual camera by z-buffered reprojection of D_t (paper,
@@ -78,6 +89,45 @@ std::vector<SE3> VirtualCameraPoses(const CaptureGeometry& geometry, int samples
 // The delay of LR row `lr_row` of `lr_rows` (y r / H; 0 for a global shutter).
 double RowDelay(const CaptureGeometry& geometry, int lr_row, int lr_rows);
 
+// The blur length of the frame: the largest displacement, in HR pixels, of an
+// image point between the opening and the closing of its row's exposure, over
+// a grid of points (every 8th HR pixel) at their own depth D_t (unknown depth
+// does not move, as in the operator). Independent of the source camera.
+double BlurLengthHr(const CaptureGeometry& geometry, int scale);
+// M for the frame of `geometry` under `options` (options.samples unless
+// options.adaptive_samples); the same for every source camera.
+int CaptureSamples(const CaptureGeometry& geometry, const CaptureOperatorOptions& options);
+
+// The depths D_tau the virtual cameras of one frame see, reprojected from D_t
+// (paper, Sec. 3). They depend on D_t, P_t, P_neighbour, the stamps, the
+// exposure and the shutter, not on the source camera: computed once, they
+// serve the operators of the frame for every source (the builder then skips
+// its own reprojections; the operator is bit-identical).
+class VirtualDepths {
+ public:
+  VirtualDepths() = default;
+  // Reprojects geometry.depth_hr into the frame's virtual cameras with
+  // options.num_threads threads (geometry.T_world_source is ignored). Keeps a
+  // reference to geometry.depth_hr: Build accepts these depths only for that
+  // same depth buffer (not modified in place since) and the same poses.
+  void Compute(const CaptureGeometry& geometry, const CaptureOperatorOptions& options);
+  // M of the frame (CaptureSamples); 0 before Compute.
+  int samples() const { return samples_; }
+  // Wall time of the last Compute.
+  double compute_ms() const { return compute_ms_; }
+  size_t Bytes() const;
+
+ private:
+  friend class CaptureOperatorBuilder;
+  int samples_ = 0;
+  int scale_ = 0;
+  bool reprojected_ = false;
+  double compute_ms_ = 0.0;
+  cv::Mat depth_t_;              // D_t (shallow: identifies the buffer)
+  std::vector<SE3> T_depth_t_;   // the depth cameras, T_tau_t
+  std::vector<cv::Mat> depths_;  // D_tau, one per depth camera
+};
+
 class CaptureOperator {
  public:
   CaptureOperator() = default;
@@ -114,20 +164,27 @@ class CaptureOperatorBuilder {
   explicit CaptureOperatorBuilder(const CaptureOperatorOptions& options);
   // Throws InputError on inconsistent geometry (sizes, stamps, exposure).
   void Build(const CaptureGeometry& geometry, CaptureOperator* op);
+  // The same with the frame's virtual depths computed beforehand (shared by
+  // the operators of every source of the frame); throws InputError when they
+  // were computed for another D_t, other poses or other options.
+  void Build(const CaptureGeometry& geometry, const VirtualDepths& shared, CaptureOperator* op);
   const CaptureOperatorOptions& options() const { return options_; }
 
   // Wall time of the stages of the last Build, for profiling and reports.
   struct Timings {
-    double reprojection_ms = 0.0;  // D_tau_m for every virtual camera
+    double reprojection_ms = 0.0;  // D_tau_m for every virtual camera (0 when shared)
     double assembly_ms = 0.0;      // warps, bilinear taps, merged rows
     double adjoint_ms = 0.0;       // the transposed copy
   };
   const Timings& last_timings() const { return timings_; }
 
  private:
+  // Plans the warps and assembles the rows from the frame's virtual depths.
+  void Assemble(const CaptureGeometry& geometry, const VirtualDepths& depths, CaptureOperator* op);
+
   Timings timings_;
   CaptureOperatorOptions options_;
-  std::vector<cv::Mat> virtual_depths_;          // D_tau_m, one per sample
+  VirtualDepths own_depths_;                     // D_tau_m when not shared
   std::vector<std::vector<int>> block_columns_;  // per-thread CSR pieces
   std::vector<std::vector<float>> block_values_;
   std::vector<int> row_nnz_;
