@@ -188,6 +188,8 @@ class OperatorCache {
     for (int i = 0; i < threads; ++i) builders_.emplace_back(options);
   }
 
+  // Callers hold the returned pointer while they use the operator: eviction
+  // only drops the cache's reference.
   std::shared_ptr<const Entry> Get(const std::vector<FrameStructure>& frames,
                                    const std::vector<long>& depth_version,
                                    const std::vector<long>& pose_version, int t, int source, Timer* timer) {
