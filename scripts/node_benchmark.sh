@@ -13,6 +13,8 @@
 #                to fill it, as scripts/benchmark.sh does for 320x240
 #   --out DIR    output folder (default /tmp/dsm_node_benchmark)
 #   --param      node parameter override, e.g. --param samples=16 (repeatable)
+#   --no-build   run the catkin workspace as it is (e.g. another commit's
+#                libraries copied into its devel/lib, for a before/after run)
 # Steady state: windows continued from the previous one (status.continued)
 # each publish window_size - window_overlap new frames; their mean processing
 # time gives the streaming throughput. Play the bag slower than the node
@@ -26,11 +28,13 @@ out=/tmp/dsm_node_benchmark
 overrides=()
 size=""
 zoom=1.8
+no_build=0
 while [ $# -gt 0 ]; do
   case "$1" in
     --frames) frames="$2"; shift 2 ;;
     --size) size="$2"; shift 2 ;;
     --scene-zoom) zoom="$2"; shift 2 ;;
+    --no-build) no_build=1; shift ;;
     --rate) rate="$2"; shift 2 ;;
     --out) out="$2"; shift 2 ;;
     --param) overrides+=("$2"); shift 2 ;;
@@ -40,7 +44,7 @@ done
 
 # The catkin build has the node and every tool this script runs.
 "$DSM_REPO/scripts/install_deps.sh" >/dev/null
-dsm_build_catkin
+[ "$no_build" = 1 ] || dsm_build_catkin
 dsm_source_workspace
 ros_bin="$DSM_WORKSPACE/devel/lib/deblur_sr_mvs"
 mkdir -p "$out"
