@@ -264,12 +264,6 @@ CaptureOperatorOptions EstimatorOperatorOptions(const EstimatorOptions& options)
   return op_options;
 }
 
-// Algorithm 1 (alg:optimization) on one window from a given structure. The
-// object holds the window's state: observations B_t, latent images I_t, the
-// frame structures (D_t, P_t), inverse depths, edge weights g_t, the
-// neighbour lists N(t) and the operator cache. Its phases are the image
-// update (eq:imgUpdate), the structure update (eq:taylorExpansion,
-// eq:updateVariables) and accept/undo of an iteration.
 // I_t where the image update starts: the warm start of `input`, else the
 // bicubic up-sampling of B_t.
 cv::Mat InitialLatent(const EstimatorInput& input, int t, const cv::Mat& bicubic) {
@@ -283,6 +277,12 @@ cv::Mat InitialLatent(const EstimatorInput& input, int t, const cv::Mat& bicubic
   return latent.clone();
 }
 
+// Algorithm 1 (alg:optimization) on one window from a given structure. The
+// object holds the window's state: observations B_t, latent images I_t, the
+// frame structures (D_t, P_t), inverse depths, edge weights g_t, the
+// neighbour lists N(t) and the operator cache. Its phases are the image
+// update (eq:imgUpdate), the structure update (eq:taylorExpansion,
+// eq:updateVariables) and accept/undo of an iteration.
 class WindowSolver {
  public:
   // Inputs must have been checked (CheckWindowCounts, CheckWindowValues);
@@ -1063,7 +1063,8 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input, const s
   CheckWindowCounts(input, depth_hr, T_world_cam);
   for (int t = 0; t < options_.held_leading_latents && t < static_cast<int>(input.images.size()); ++t) {
     if (static_cast<size_t>(t) >= input.initial_latents.size() || input.initial_latents[t].empty()) {
-      throw InputError("estimator: a held leading latent image needs an initial latent image");
+      throw InputError(
+          "estimator: every held leading latent image (held_leading_latents) needs an initial latent image");
     }
   }
   const int threads = ResolveThreads(options_.num_threads);
