@@ -328,6 +328,19 @@ CaptureOperatorOptions EstimatorOperatorOptions(const EstimatorOptions& options)
   return op_options;
 }
 
+// I_t where the image update starts: the warm start of `input`, else the
+// bicubic up-sampling of B_t.
+cv::Mat InitialLatent(const EstimatorInput& input, int t, const cv::Mat& bicubic) {
+  if (static_cast<size_t>(t) >= input.initial_latents.size() || input.initial_latents[t].empty()) {
+    return bicubic.clone();
+  }
+  const cv::Mat& latent = input.initial_latents[t];
+  if (latent.size() != bicubic.size() || latent.type() != bicubic.type()) {
+    throw InputError("estimator: an initial latent image differs from the HR frames in size or type");
+  }
+  return latent.clone();
+}
+
 // Algorithm 1 (alg:optimization) on one window from a given structure. The
 // object holds the window's state: observations B_t, latent images I_t, the
 // frame structures (D_t, P_t), inverse depths, edge weights g_t, the
@@ -475,7 +488,7 @@ WindowSolver::WindowSolver(const EstimatorOptions& options, int threads, const E
   for (int t = 0; t < num_frames_; ++t) {
     observations_[t] = input.images[t].isContinuous() ? input.images[t] : input.images[t].clone();
     bicubic_[t] = UpsampleBicubic(observations_[t], scale_);
-    latents_[t] = bicubic_[t].clone();
+    latents_[t] = InitialLatent(input, t, bicubic_[t]);
     frames_[t].stamp = input.frames[t].stamp;
     frames_[t].exposure = input.frames[t].exposure;
     frames_[t].readout_time = input.readout_time;
@@ -567,6 +580,7 @@ void WindowSolver::ImagePhase(int iteration) {
       Report(double(t) / num_frames_,
              "iteration " + std::to_string(iteration) + ": image " + std::to_string(t));
     }
+    if (t < options_.held_leading_latents) return;  // I_t stays as given
     UpdateLatent(t);
     UpdateEdgeWeight(t);
   });
@@ -898,6 +912,9 @@ void CheckWindowCounts(const EstimatorInput& input, const std::vector<cv::Mat>& 
   }
   const std::string problem = input.camera.Problem();
   if (!problem.empty()) throw InputError("estimator: camera: " + problem);
+  if (input.initial_latents.size() > input.images.size()) {
+    throw InputError("estimator: more initial latent images than frames");
+  }
   if (!std::isfinite(input.readout_time) || input.readout_time < 0.0) {
     throw InputError("estimator: readout_time must be finite and >= 0, got " +
                      std::to_string(input.readout_time));
@@ -947,6 +964,11 @@ EstimatorResult Estimator::RunGainCompensated(const EstimatorInput& input, const
   compensated.frames = input.frames;
   compensated.readout_time = input.readout_time;
   for (size_t t = 0; t < gains.size(); ++t) compensated.images.push_back(input.images[t] * (1.0 / gains[t]));
+  // A warm start has its frame's brightness, as the latent images given out.
+  for (size_t t = 0; t < input.initial_latents.size() && t < gains.size(); ++t) {
+    compensated.initial_latents.push_back(
+        input.initial_latents[t].empty() ? cv::Mat() : input.initial_latents[t] * (1.0 / gains[t]));
+  }
   const double gain_seconds = (NowMs() - start) / 1000.0;
   EstimatorResult result = run(&estimator, compensated);
   // The gt latent of a frame with gain g is g times the scene, clamped to 1.
@@ -998,6 +1020,7 @@ void EstimatorOptions::Check() const {
   CheckAtLeast("lambda_s", lambda_s, 0.0);
   CheckAtLeast("threads", num_threads, 0);
   CheckAtLeast("fixed_leading_poses", fixed_leading_poses, 1);
+  CheckAtLeast("held_leading_latents", held_leading_latents, 0);
   CheckAtLeast("max_seconds", max_seconds, 0.0);
   gain.Check();
   image.Check();
@@ -1113,6 +1136,12 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input, const s
     });
   }
   CheckWindowCounts(input, depth_hr, T_world_cam);
+  for (int t = 0; t < options_.held_leading_latents && t < static_cast<int>(input.images.size()); ++t) {
+    if (static_cast<size_t>(t) >= input.initial_latents.size() || input.initial_latents[t].empty()) {
+      throw InputError(
+          "estimator: every held leading latent image (held_leading_latents) needs an initial latent image");
+    }
+  }
   const int threads = ResolveThreads(options_.num_threads);
   omp_set_num_threads(threads);
   CheckWindowValues(input, T_world_cam);

@@ -127,6 +127,7 @@ void StreamEstimator::SetCancelFlag(const std::atomic<bool>* flag) {
 void StreamEstimator::Reset() {
   last_poses_.clear();
   last_depths_.clear();
+  last_latents_.clear();
   reference_median_depth_ = 0.0;
   has_returned_ = false;
 }
@@ -172,6 +173,8 @@ StreamEstimator::SharedFrames StreamEstimator::SharedWithPrevious(const StreamWi
     shared.poses.push_back(found->second);
     const auto depth = last_depths_.find(frame.id);
     shared.depths.push_back(depth == last_depths_.end() ? cv::Mat() : depth->second);
+    const auto latent = last_latents_.find(frame.id);
+    shared.latents.push_back(latent == last_latents_.end() ? cv::Mat() : latent->second);
   }
   return shared;
 }
@@ -201,6 +204,21 @@ double DepthRatio(const std::vector<cv::Mat>& previous_hr, const std::vector<cv:
   const auto middle = ratios.begin() + ratios.size() / 2;
   std::nth_element(ratios.begin(), middle, ratios.end());
   return *middle;
+}
+
+// What the window's note says of the shared frames' held latent images.
+std::string WarmStartNote(int held_frames) {
+  if (held_frames == 0) return "";
+  return "; " + std::to_string(held_frames) + " shared frames kept the previous window's restored images";
+}
+
+// True when every map is present and of `size` with `channels` channels
+// (an option change, e.g. of the scale, leaves maps of another size).
+bool AllOfSize(const std::vector<cv::Mat>& maps, const cv::Size& size, int channels) {
+  for (const cv::Mat& map : maps) {
+    if (map.empty() || map.size() != size || map.channels() != channels) return false;
+  }
+  return true;
 }
 
 }  // namespace
@@ -250,7 +268,7 @@ bool StreamEstimator::ContinueTrajectory(const EstimatorInput& input, const Shar
   try {
     initial = InitializeStructure(input.images, input.camera, input.frames, init_options, input.readout_time);
   } catch (const NoParallaxError& no_parallax) {
-    ContinueRotationOnly(input, shared_previous, no_parallax.what(), progress, estimate);
+    ContinueRotationOnly(input, shared, no_parallax.what(), progress, estimate);
     return true;
   }
   // Initial structure of this window in the stream's world and scale; the
@@ -264,28 +282,43 @@ bool StreamEstimator::ContinueTrajectory(const EstimatorInput& input, const Shar
   }
   std::vector<cv::Mat> depth_lr;
   for (const cv::Mat& depth : initial.depth_lr) depth_lr.push_back(depth * tie.initial_to_stream.scale);
-  const std::vector<cv::Mat> depth_hr = UpsampleInitialDepth(depth_lr, options.scale);
-  const double init_seconds = (NowMs() - start) / 1000.0;
+  std::vector<cv::Mat> depth_hr = UpsampleInitialDepth(depth_lr, options.scale);
   // The held cameras stay where the previous window put them; the result
   // stays in the stream's world and scale.
   EstimatorOptions held = options;
   held.fixed_leading_poses = num_shared;
   held.keep_input_gauge = true;
+  // Warm start: the shared frames keep the previous window's latent images
+  // (held) and start from its depth maps (already in the stream's world and
+  // scale, as their poses).
+  EstimatorInput warm_input = input;
+  const cv::Size hr_size(input.camera.width * options.scale, input.camera.height * options.scale);
+  if (AllOfSize(shared.latents, hr_size, input.images[0].channels())) {
+    warm_input.initial_latents = shared.latents;
+    held.held_leading_latents = num_shared;
+  }
+  if (AllOfSize(shared.depths, hr_size, 1)) {
+    for (int i = 0; i < num_shared; ++i) depth_hr[i] = shared.depths[i];
+  }
+  const double init_seconds = (NowMs() - start) / 1000.0;
   Estimator estimator(held);
   estimator.SetCancelFlag(cancel_);
   EstimatorResult& result = estimate->result;
-  result = estimator.RunFromStructure(input, depth_hr, poses, progress);
+  result = estimator.RunFromStructure(warm_input, depth_hr, poses, progress);
   result.timings.insert(result.timings.begin(), StageTiming{"initialization", init_seconds});
   result.initializer_summary = initial.summary;
   estimate->continued = true;
+  estimate->warm_started = held.held_leading_latents;
   estimate->note = "continued from the previous window " + tie.how + " (scale factor " +
-                   std::to_string(tie.initial_to_stream.scale) + ")";
+                   std::to_string(tie.initial_to_stream.scale) + ")" +
+                   WarmStartNote(held.held_leading_latents);
   return true;
 }
 
-void StreamEstimator::ContinueRotationOnly(const EstimatorInput& input,
-                                           const std::vector<SE3>& shared_previous, const std::string& why,
-                                           const ProgressCallback& progress, WindowEstimate* estimate) const {
+void StreamEstimator::ContinueRotationOnly(const EstimatorInput& input, const SharedFrames& shared,
+                                           const std::string& why, const ProgressCallback& progress,
+                                           WindowEstimate* estimate) const {
+  const std::vector<SE3>& shared_previous = shared.poses;
   const double start = NowMs();
   InitializerOptions init_options = estimator_.options().initializer;
   init_options.num_threads = estimator_.options().num_threads;
@@ -299,14 +332,24 @@ void StreamEstimator::ContinueRotationOnly(const EstimatorInput& input,
     poses.emplace_back(R_stream_motion * R_world_cam, shared_previous.back().translation());
   }
   const double init_seconds = (NowMs() - start) / 1000.0;
+  // The shared frames' latent images stay as the previous window left them.
+  EstimatorOptions options = estimator_.options();
+  EstimatorInput warm_input = input;
+  const cv::Size hr_size(input.camera.width * options.scale, input.camera.height * options.scale);
+  if (AllOfSize(shared.latents, hr_size, input.images[0].channels())) {
+    warm_input.initial_latents = shared.latents;
+    options.held_leading_latents = static_cast<int>(shared.latents.size());
+  }
   EstimatorResult& result = estimate->result;
-  Estimator estimator(estimator_.options());
+  Estimator estimator(options);
   estimator.SetCancelFlag(cancel_);
-  result = estimator.RunRotationOnly(input, poses, progress);
+  result = estimator.RunRotationOnly(warm_input, poses, progress);
   result.timings.insert(result.timings.begin(), StageTiming{"initialization", init_seconds});
   result.initializer_summary = why + "\n" + motion.summary;
   estimate->continued = true;
-  estimate->note = "rotation-only window, continued from the previous window's cameras";
+  estimate->warm_started = options.held_leading_latents;
+  estimate->note = "rotation-only window, continued from the previous window's cameras" +
+                   WarmStartNote(options.held_leading_latents);
 }
 
 void StreamEstimator::StartSegment(const EstimatorInput& input, const ProgressCallback& progress,
@@ -332,8 +375,10 @@ void StreamEstimator::Remember(const StreamWindow& window, WindowEstimate* estim
   }
   last_poses_.clear();
   last_depths_.clear();
+  last_latents_.clear();
   for (size_t i = 0; i < window.size(); ++i) {
     last_poses_[window[i].id] = estimate->result.T_world_cam[i];
+    last_latents_[window[i].id] = estimate->result.latent[i];
     if (estimate->result.depth_observable) last_depths_[window[i].id] = estimate->result.depth[i];
   }
   if (estimate->result.depth_observable) {

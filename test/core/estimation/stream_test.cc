@@ -241,6 +241,32 @@ TEST(StreamEstimator, WindowsFormOneContinuousTrajectory) {
     return values[values.size() / 2];
   };
   EXPECT_NEAR(median(depth_second) / median(depth_first), 1.0, 0.03);
+
+  // Each image is restored once: the shared frames keep the first window's
+  // latent images (they are not restarted from the bicubic up-sampling).
+  EXPECT_EQ(first.warm_started, 0);
+  EXPECT_EQ(second.warm_started, 2) << second.note;
+  for (int i = 0; i < 2; ++i) {
+    EXPECT_EQ(cv::norm(first.result.latent[3 + i], second.result.latent[i], cv::NORM_INF), 0.0)
+        << "shared frame " << i;
+  }
+
+  // The new frames of the continued window are restored from the warm
+  // start: sharper than their bicubic up-sampling, depth close to the truth.
+  const SequenceGroundTruth& gt = *sequence.ground_truth;
+  for (int i = second.first_new; i < 5; ++i) {
+    const int frame = 3 + i;
+    cv::Mat reference, input;
+    gt.latent[frame].convertTo(reference, CV_32F, 1.0 / 255.0);
+    sequence.images[frame].convertTo(input, CV_32F, 1.0 / 255.0);
+    const double restored = Psnr(second.result.latent[i], reference, 1.0);
+    const double bicubic = Psnr(UpsampleBicubic(input, 2), reference, 1.0);
+    const DepthErrors depth = EvaluateDepth(second.result.depth[i], gt.depth[frame], DepthMetricOptions());
+    std::cout << "frame " << frame << ": PSNR " << restored << " dB (bicubic " << bicubic
+              << "), depth rel. error " << depth.relative_error << "\n";
+    EXPECT_GT(restored, bicubic + 3.0) << "frame " << frame;
+    EXPECT_LT(depth.relative_error, 0.05) << "frame " << frame;
+  }
 }
 
 TEST(StreamEstimator, ResetStartsANewSegmentAndCancelStops) {

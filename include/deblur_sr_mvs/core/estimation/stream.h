@@ -148,6 +148,11 @@ struct WindowEstimate {
   // camera is then the world origin and its median scene depth 1 unit
   // (docs/file_formats.md#monocular-scale).
   bool continued = false;
+  // Leading frames (shared with the previous window) whose latent images
+  // were taken from the previous window and held, not restored again
+  // (EstimatorOptions::held_leading_latents); their depth maps started from
+  // the previous window's.
+  int warm_started = 0;
   std::string note;  // how the window was tied to the previous one
 };
 
@@ -177,10 +182,12 @@ class StreamEstimator {
 
  private:
   // What the previous window gave the leading frames of `window`, as many as
-  // the two windows share: poses, and depths (empty where not observable).
+  // the two windows share: poses, depths (empty where not observable) and
+  // latent images.
   struct SharedFrames {
     std::vector<SE3> poses;
     std::vector<cv::Mat> depths;
+    std::vector<cv::Mat> latents;
   };
   SharedFrames SharedWithPrevious(const StreamWindow& window) const;
   // How this window's initial structure is carried into the stream's world
@@ -198,17 +205,20 @@ class StreamEstimator {
   StreamTie TieToStream(const InitialStructure& initial, const SharedFrames& shared,
                         const PinholeCamera& camera_lr) const;
   // Estimates the window from the previous one: its initial structure is
-  // carried into the stream's world and scale (TieToStream). A window
-  // without parallax goes to ContinueRotationOnly. False (estimate
+  // carried into the stream's world and scale (TieToStream). The shared
+  // frames keep the previous window's latent images (held: each image is
+  // restored once) and start from its depth maps, where those have this
+  // window's HR size; only the new frames start from the initialisation. A
+  // window without parallax goes to ContinueRotationOnly. False (estimate
   // untouched) when no frame is shared.
   bool ContinueTrajectory(const EstimatorInput& input, const SharedFrames& shared,
                           const ProgressCallback& progress, WindowEstimate* estimate) const;
   // A window without parallax after a previous one: orientations from the
   // rotation-only motion anchored at the first shared camera, the last
-  // shared camera's translation held, depth NaN (Estimator::RunRotationOnly).
-  void ContinueRotationOnly(const EstimatorInput& input, const std::vector<SE3>& shared_previous,
-                            const std::string& why, const ProgressCallback& progress,
-                            WindowEstimate* estimate) const;
+  // shared camera's translation held, depth NaN (Estimator::RunRotationOnly);
+  // the shared frames' latent images are held as the previous window left them.
+  void ContinueRotationOnly(const EstimatorInput& input, const SharedFrames& shared, const std::string& why,
+                            const ProgressCallback& progress, WindowEstimate* estimate) const;
   // Estimates the window on its own: a new trajectory segment.
   void StartSegment(const EstimatorInput& input, const ProgressCallback& progress, WindowEstimate* estimate);
   // Marks the frames already returned and keeps this window's poses.
@@ -216,8 +226,9 @@ class StreamEstimator {
 
   Estimator estimator_;
   const std::atomic<bool>* cancel_ = nullptr;
-  std::map<uint64_t, SE3> last_poses_;       // the previous window's poses, by frame id
-  std::map<uint64_t, cv::Mat> last_depths_;  // its depths (HR), when observable
+  std::map<uint64_t, SE3> last_poses_;        // the previous window's poses, by frame id
+  std::map<uint64_t, cv::Mat> last_depths_;   // its depths (HR), when observable
+  std::map<uint64_t, cv::Mat> last_latents_;  // its latent images (HR)
   // Median depth of the last window with observable depth (stream units; 0
   // before the first).
   double reference_median_depth_ = 0.0;
