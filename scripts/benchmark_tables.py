@@ -93,7 +93,7 @@ def cells(get, method):
 
 
 def summary(results, out):
-    out.append("Mean over the scenes of each path (depth as estimated; \"published\": NaN where the "
+    out.append("Mean over the scenes run on each path (depth as estimated; \"published\": NaN where the "
                "confidence is below 0.5, the default output). Depth rel. error after per-frame median "
                "scaling on the 70 % centre crop and on the full frame; coverage = share of the ground "
                "truth's pixels with a published depth; ATE RMSE Sim(3)-aligned, ground-truth metres.\n")
@@ -106,12 +106,15 @@ def summary(results, out):
     out.append("")
     out.append("Joint against baseline per sequence (ratios < 1: joint better; depth as estimated, "
                "centre crop):\n")
-    out.append("| Path | " + " | ".join(f"{s} depth / ATE" for s in results.scenes[results.paths[0]]) +
-               " | mean depth / ATE |")
-    out.append("|---|" + "---:|" * (len(results.scenes[results.paths[0]]) + 1))
+    all_scenes = sorted({s for p in results.paths for s in results.scenes[p]})
+    out.append("| Path | " + " | ".join(f"{s} depth / ATE" for s in all_scenes) + " | mean depth / ATE |")
+    out.append("|---|" + "---:|" * (len(all_scenes) + 1))
     for path in results.paths:
-        cells, depth_ratios, ate_ratios = [], [], []
-        for scene in results.scenes[path]:
+        row, depth_ratios, ate_ratios = [], [], []
+        for scene in all_scenes:
+            if scene not in results.scenes[path]:
+                row.append("not run")
+                continue
             ratio = []
             for key, bucket in (("depth_relative_error", depth_ratios), ("ate_rmse", ate_ratios)):
                 j = results.metric(path, scene, "joint", key)
@@ -120,9 +123,9 @@ def summary(results, out):
                 if value is not None:
                     bucket.append(value)
                 ratio.append(fmt(value, 2))
-            cells.append(" / ".join(ratio))
+            row.append(" / ".join(ratio))
         mean = lambda v: sum(v) / len(v) if v else None
-        out.append(f"| {path} | " + " | ".join(cells) +
+        out.append(f"| {path} | " + " | ".join(row) +
                    f" | {fmt(mean(depth_ratios), 2)} / {fmt(mean(ate_ratios), 2)} |")
     out.append("")
 
