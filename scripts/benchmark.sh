@@ -23,7 +23,9 @@
 #        DSM_BENCH_FRAMES=10, DSM_BENCH_SKIP_BTV=1 (no BTV-L1: its runs take
 #        most of the time), DSM_BENCH_SPEED=1 (also the 640x480 speed run),
 #        DSM_BENCH_NO_UPDATE=1 (leave BENCHMARKS.md alone).
-# A full run (4 scenes x 6 paths) takes about 40 min on 2 idle cores.
+# A full run (4 scenes x 6 paths, 96 method runs) should take 30-40 min on 2
+# idle cores (estimated from the idle per-sequence times in BENCHMARKS.md:
+# BTV-L1 ~40 s, joint ~15 s, baseline ~4 s); not yet measured.
 set -eo pipefail
 source "$(dirname "$0")/common.sh"
 
