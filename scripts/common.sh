@@ -4,7 +4,7 @@
 DSM_REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 # Build folders live outside the source tree (one per clone, keyed by path).
 DSM_CACHE="${DSM_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/deblur_sr_mvs/$(printf '%s' "$DSM_REPO" | md5sum | cut -c1-10)}"
-DSM_PLAIN_BUILD="$DSM_CACHE/build-plain"   # plain CMake: core, tools, gtests
+DSM_PLAIN_BUILD="${DSM_PLAIN_BUILD:-$DSM_CACHE/build-plain}"   # plain CMake: core, tools, gtests
 DSM_WORKSPACE="$DSM_CACHE/catkin_ws"       # catkin workspace: everything + ROS
 DSM_JOBS="${DSM_JOBS:-$(nproc)}"
 # ccache (installed by install_deps.sh) makes rebuilds of unchanged files free,

@@ -10,6 +10,7 @@
 #include <pluginlib/class_list_macros.hpp>
 
 #include "deblur_sr_mvs/core/common/text.h"
+#include "deblur_sr_mvs/core/estimation/depth_confidence.h"
 #include "deblur_sr_mvs/core/estimation/exposure_estimation.h"
 #include "deblur_sr_mvs/core/estimation/initializer.h"
 
@@ -143,6 +144,7 @@ void EstimatorNodelet::onInit() {
                                                     ros_connect, ros_connect);
   depth_publisher_ = transport_->advertiseCamera("depth/image", kQueue, image_connect, image_connect,
                                                  ros_connect, ros_connect);
+  confidence_publisher_ = transport_->advertise("depth/confidence", kQueue, image_connect, image_connect);
   pose_publisher_ = node.advertise<geometry_msgs::PoseStamped>("pose", kQueue, ros_connect, ros_connect);
   path_publisher_ = node.advertise<nav_msgs::Path>("path", 1, ros_connect, ros_connect);
   points_publisher_ = node.advertise<sensor_msgs::PointCloud2>("points", 2, ros_connect, ros_connect);
@@ -184,9 +186,10 @@ void EstimatorNodelet::ConnectCallback() {
   std::lock_guard<std::mutex> lock(connect_mutex_);
   if (!configured_ || shutting_down_) return;
   const bool wanted = !lazy_subscription_ || restored_publisher_.getNumSubscribers() > 0 ||
-                      depth_publisher_.getNumSubscribers() > 0 || pose_publisher_.getNumSubscribers() > 0 ||
-                      path_publisher_.getNumSubscribers() > 0 || points_publisher_.getNumSubscribers() > 0 ||
-                      status_publisher_.getNumSubscribers() > 0;
+                      depth_publisher_.getNumSubscribers() > 0 ||
+                      confidence_publisher_.getNumSubscribers() > 0 ||
+                      pose_publisher_.getNumSubscribers() > 0 || path_publisher_.getNumSubscribers() > 0 ||
+                      points_publisher_.getNumSubscribers() > 0 || status_publisher_.getNumSubscribers() > 0;
   if (wanted && !subscribed_) {
     ros::NodeHandle& node = getNodeHandle();
     image_transport::TransportHints hints("raw", ros::TransportHints(), getPrivateNodeHandle());
@@ -471,9 +474,10 @@ void EstimatorNodelet::ProcessWindow(PendingWindow window) {
   const OutputGauge gauge = PlaceInPrior(window, estimate, params);
   // A path holds poses of one frame (the prior's once it is fitted).
   if (path_.header.frame_id != gauge.frame) path_.poses.clear();
+  const std::vector<cv::Mat> confidence = DepthConfidenceOf(estimate.result, params);
   for (size_t i = static_cast<size_t>(estimate.first_new); i < window.frames.size(); ++i) {
     if (shutting_down_ || !ros::ok()) return;
-    PublishFrame(window, estimate.result, i, estimate.stamps_ns[i], params, gauge);
+    PublishFrame(window, estimate.result, confidence[i], i, estimate.stamps_ns[i], params, gauge);
   }
   PublishPath(params, gauge.frame, status.header.stamp);
 
@@ -673,19 +677,31 @@ bool EstimatorNodelet::LookUpPrior(const std::string& prior_frame, const std::st
   return true;
 }
 
-void EstimatorNodelet::PublishFrame(const PendingWindow& window, const EstimatorResult& result, size_t i,
-                                    int64_t stamp_ns, const ros_glue::NodeParameters& params,
-                                    const OutputGauge& gauge) {
+std::vector<cv::Mat> EstimatorNodelet::DepthConfidenceOf(const EstimatorResult& result,
+                                                         const ros_glue::NodeParameters& params) {
+  DepthConfidenceOptions options;
+  options.neighbour_radius = params.estimator.neighbour_radius;
+  options.visibility = params.estimator.visibility;
+  options.threshold = params.depth_confidence_threshold;
+  return ComputeDepthConfidence(result.camera_hr, result.latent, result.depth, result.T_world_cam, options);
+}
+
+void EstimatorNodelet::PublishFrame(const PendingWindow& window, const EstimatorResult& result,
+                                    const cv::Mat& confidence, size_t i, int64_t stamp_ns,
+                                    const ros_glue::NodeParameters& params, const OutputGauge& gauge) {
   std_msgs::Header header;
   header.stamp = TimeFromNs(stamp_ns);
   header.frame_id = window.camera_frame;
   const sensor_msgs::CameraInfo info =
       ros_glue::ScaledCameraInfo(window.camera, params.estimator.scale, header);
   restored_publisher_.publish(ros_glue::Float01ToImage(result.latent[i], window.family, header), info);
-  // In the output gauge: depth scaled (metres with a prior), the pose moved.
+  // In the output gauge: depth scaled (metres with a prior), the pose moved;
+  // NaN where the confidence is below the threshold (what is not known).
   const double scale = gauge.estimate_to_output.scale;
-  const cv::Mat depth = scale == 1.0 ? result.depth[i] : cv::Mat(result.depth[i] * scale);
+  cv::Mat depth = MaskUnconfidentDepth(result.depth[i], confidence, params.depth_confidence_threshold);
+  if (scale != 1.0) depth *= scale;
   depth_publisher_.publish(ros_glue::DepthToImage(depth, header), info);
+  confidence_publisher_.publish(ros_glue::Float32ToImage(confidence, header));
   const SE3 T_output_cam =
       gauge.metric ? TransformPose(gauge.estimate_to_output, result.T_world_cam[i]) : result.T_world_cam[i];
 

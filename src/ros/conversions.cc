@@ -188,23 +188,28 @@ sensor_msgs::CameraInfo ScaledCameraInfo(const PinholeCamera& camera_lr, int sca
   return info;
 }
 
-sensor_msgs::Image DepthToImage(const cv::Mat& depth, const std_msgs::Header& header) {
-  CV_Assert(depth.type() == CV_32FC1);
+sensor_msgs::Image Float32ToImage(const cv::Mat& values, const std_msgs::Header& header) {
+  CV_Assert(values.type() == CV_32FC1);
   sensor_msgs::Image message;
   message.header = header;
-  message.height = depth.rows;
-  message.width = depth.cols;
+  message.height = values.rows;
+  message.width = values.cols;
   message.encoding = enc::TYPE_32FC1;
   message.is_bigendian = 0;
-  message.step = depth.cols * sizeof(float);
-  message.data.resize(static_cast<size_t>(message.step) * depth.rows);
-  for (int y = 0; y < depth.rows; ++y) {
-    float* out = reinterpret_cast<float*>(&message.data[static_cast<size_t>(y) * message.step]);
-    const float* in = depth.ptr<float>(y);
-    for (int x = 0; x < depth.cols; ++x) {
-      // REP 118: NaN for every invalid value (non-finite or not in front).
-      out[x] = std::isfinite(in[x]) && in[x] > 0.0f ? in[x] : std::numeric_limits<float>::quiet_NaN();
-    }
+  message.step = values.cols * sizeof(float);
+  message.data.resize(static_cast<size_t>(message.step) * values.rows);
+  for (int y = 0; y < values.rows; ++y) {
+    std::memcpy(&message.data[static_cast<size_t>(y) * message.step], values.ptr<float>(y), message.step);
+  }
+  return message;
+}
+
+sensor_msgs::Image DepthToImage(const cv::Mat& depth, const std_msgs::Header& header) {
+  sensor_msgs::Image message = Float32ToImage(depth, header);
+  float* values = reinterpret_cast<float*>(message.data.data());  // rows are contiguous
+  for (size_t i = 0; i < depth.total(); ++i) {
+    // REP 118: NaN for every invalid value (non-finite or not in front).
+    if (!(std::isfinite(values[i]) && values[i] > 0.0f)) values[i] = std::numeric_limits<float>::quiet_NaN();
   }
   return message;
 }

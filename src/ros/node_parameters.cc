@@ -54,6 +54,7 @@ void NodeParameters::Check() const {
     throw InputError("pose_prior_frame '" + pose_prior_frame +
                      "' must differ from world_frame and camera_frame");
   }
+  CheckInRange("depth_confidence_threshold", depth_confidence_threshold, 0.0, 1.0);
   CheckInRange("points_stride", points_stride, 1, 64);
   CheckAtLeast("max_path_length", max_path_length, 1);
 }

@@ -12,13 +12,18 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <iostream>
 #include <limits>
 #include <optional>
 #include <string>
 #include <vector>
 
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
 #include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/estimation/depth_confidence.h"
 #include "deblur_sr_mvs/core/estimation/estimator.h"
 #include "deblur_sr_mvs/core/estimation/exposure_estimation.h"
 #include "deblur_sr_mvs/core/estimation/stream.h"
@@ -49,6 +54,8 @@ struct Flags {
   bool fixed_samples = false;
   bool quiet = false;
   int output_scale = 1;  // bicubic up-sampling of the outputs ("w/o SR + Bic.")
+  // Depth whose confidence is below this is written as NaN (0: all depth).
+  double depth_confidence_threshold = dsm::DepthConfidenceOptions().threshold;
 };
 
 double PeakMemoryMiB() {
@@ -96,6 +103,10 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
                  "TUM trajectory (T_world_camera, metres) of the same camera: output poses in its frame, "
                  "depth in its units")
       ->check(CLI::ExistingFile);
+  cli.add_option("--depth-confidence-threshold", flags->depth_confidence_threshold,
+                 "depth whose confidence (depth_confidence/, in [0, 1]) is below this is written as NaN; "
+                 "0 writes every depth (default 0.5)")
+      ->check(dsm::FlagNumber(0.0, 1.0));
   cli.add_flag("--quiet", flags->quiet, "no progress bar, no summary line");
   if (!cli.Parse(argc, argv)) return false;
   options->mode = dsm::ParseEstimatorMode(flags->mode);
@@ -198,6 +209,39 @@ void FillOutputs(const dsm::EstimatorResult& result, const std::vector<dsm::Fram
       out->depth.push_back(result.depth[t]);
     }
     out->poses.push_back({frames[t].stamp, result.T_world_cam[t]});
+  }
+}
+
+// Confidence of every output depth pixel (ComputeDepthConfidence at the
+// estimate's size, bilinearly resized to the output's), and the depth below
+// `threshold` set to NaN. Returns the fraction of pixels left with depth.
+double ApplyDepthConfidence(const dsm::EstimatorResult& result, const dsm::EstimatorOptions& options,
+                            double threshold, std::vector<cv::Mat>* confidence, dsm::SequenceResult* out) {
+  dsm::DepthConfidenceOptions confidence_options;
+  confidence_options.neighbour_radius = options.neighbour_radius;
+  confidence_options.visibility = options.visibility;
+  confidence_options.threshold = threshold;
+  *confidence = dsm::ComputeDepthConfidence(result.camera_hr, result.latent, result.depth, result.T_world_cam,
+                                            confidence_options);
+  double covered = 0.0;
+  for (size_t t = 0; t < out->depth.size(); ++t) {
+    cv::Mat& map = (*confidence)[t];
+    if (map.size() != out->depth[t].size())
+      cv::resize(cv::Mat(map), map, out->depth[t].size(), 0, 0, cv::INTER_LINEAR);
+    out->depth[t] = dsm::MaskUnconfidentDepth(out->depth[t], map, threshold);
+    covered += static_cast<double>(cv::countNonZero(out->depth[t] == out->depth[t])) / out->depth[t].total();
+  }
+  return out->depth.empty() ? 0.0 : covered / out->depth.size();
+}
+
+// OUT/depth_confidence/000000.tiff (float32 in [0, 1]), named like the depth maps.
+void WriteConfidence(const std::string& output, const std::vector<dsm::FrameRecord>& frames,
+                     const std::vector<cv::Mat>& confidence) {
+  const std::string folder = output + "/depth_confidence";
+  std::filesystem::create_directories(folder);
+  for (size_t t = 0; t < confidence.size(); ++t) {
+    const std::string path = folder + "/" + dsm::FrameStem(frames[t].index) + ".tiff";
+    if (!cv::imwrite(path, confidence[t])) throw dsm::InputError(path + ": cannot write");
   }
 }
 
@@ -308,7 +352,12 @@ int Run(int argc, char** argv) {
   out.calibration =
       dsm::CameraCalibration::FromCamera(result.camera_hr.Upscaled(flags.output_scale), camera_name);
   FillOutputs(result, input.frames, flags.output_scale, &out);
+  std::vector<cv::Mat> confidence;
+  const double depth_coverage =
+      ApplyDepthConfidence(result, options, flags.depth_confidence_threshold, &confidence, &out);
   dsm::Json report = dsm::EstimateReportJson(options, flags.input, result, wall, PeakMemoryMiB());
+  report["depth_confidence"] = {{"threshold", dsm::JsonNumber(flags.depth_confidence_threshold)},
+                                {"coverage", dsm::JsonNumber(depth_coverage)}};
   report["exposure_estimate"] = exposure ? ExposureEstimateJson(*exposure) : dsm::Json();
   if (!flags.pose_prior.empty()) {
     const dsm::PriorAlignment alignment = ApplyPosePrior(prior, &out);
@@ -322,6 +371,7 @@ int Run(int argc, char** argv) {
   }
   out.report_json = dsm::JsonText(report);
   dsm::WriteResult(flags.output, out);
+  WriteConfidence(flags.output, input.frames, confidence);
   if (!flags.quiet) {
     std::printf("estimate_sequence: %zu frames, %s, %.1f s, peak %.0f MiB, energy %.4g -> %.4g; wrote %s\n",
                 result.latent.size(), dsm::ToString(options.mode), wall, PeakMemoryMiB(),

@@ -3,7 +3,7 @@
 // image PSNR beside bicubic (tab:quantBlur), depth PSNR / rel. and ATE RMSE
 // (tab:quant).
 // Usage: evaluate_sequence --result OUT --sequence SEQ [--crop F] [--json FILE]
-//                          [--method NAME]
+//                          [--method NAME] [--confidence-threshold X]
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -11,7 +11,10 @@
 #include <string>
 #include <system_error>
 
+#include <opencv2/imgcodecs.hpp>
+
 #include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/estimation/depth_confidence.h"
 #include "deblur_sr_mvs/core/evaluation/evaluation.h"
 #include "deblur_sr_mvs/core/io/result_io.h"
 #include "deblur_sr_mvs/core/io/sequence_io.h"
@@ -26,7 +29,8 @@ constexpr char kDescription[] =
     "Compares a result folder with the ground truth (gt/) of the sequence folder\n"
     "it was computed from and prints Markdown tables like the paper's:\n"
     "image PSNR (8-bit, whole image) beside bicubic up-sampling of the input;\n"
-    "depth PSNR and rel. error (per-frame median scale alignment, centre crop);\n"
+    "depth PSNR and rel. error (per-frame median scale alignment; centre crop\n"
+    "and full frame, with the coverage of finite estimated depth);\n"
     "ATE RMSE of the positions after Sim(3) alignment. Metrics the result has\n"
     "no data for (depth, poses) read n/a.";
 
@@ -40,6 +44,22 @@ void WriteTextFile(const std::string& path, const std::string& content) {
   out << content;
   out.close();
   if (!out) throw dsm::InputError(path + ": write error");
+}
+
+// The result's depth with NaN where RESULT/depth_confidence/<frame>.tiff
+// (written by estimate_sequence) is below `threshold`: what
+// estimate_sequence --depth-confidence-threshold would have written.
+void MaskByConfidence(const std::string& result_dir, double threshold, dsm::SequenceResult* result) {
+  if (!result->HasDepth()) throw dsm::InputError(result_dir + ": --confidence-threshold needs depth");
+  for (size_t t = 0; t < result->depth.size(); ++t) {
+    const std::string path =
+        result_dir + "/depth_confidence/" + dsm::FrameStem(result->frames[t].index) + ".tiff";
+    const cv::Mat confidence = cv::imread(path, cv::IMREAD_UNCHANGED);
+    if (confidence.type() != CV_32FC1 || confidence.size() != result->depth[t].size()) {
+      throw dsm::InputError(path + ": missing, or not a float32 map of the depth's size");
+    }
+    result->depth[t] = dsm::MaskUnconfidentDepth(result->depth[t], confidence, threshold);
+  }
 }
 
 int Run(int argc, char** argv) {
@@ -60,6 +80,11 @@ int Run(int argc, char** argv) {
       "--metric", metric,
       "the result is metric in the ground truth's frame (e.g. aligned to a pose prior): compare depth "
       "and positions as they are, without the per-frame depth scale or the Sim(3) alignment");
+  double confidence_threshold = 0.0;
+  cli.add_option("--confidence-threshold", confidence_threshold,
+                 "evaluate the result's depth with NaN where its depth_confidence/ map is below this "
+                 "(as estimate_sequence --depth-confidence-threshold writes it); 0 = as written")
+      ->check(dsm::FlagNumber(0.0, 1.0));
   cli.add_option("--json", json_path, "also write the numbers as JSON");
   cli.add_option("--method", method, "row label (default: the result folder's name)");
   if (!cli.Parse(argc, argv)) return 0;
@@ -70,7 +95,8 @@ int Run(int argc, char** argv) {
     method = name.filename().string();
   }
 
-  const dsm::SequenceResult result = dsm::ReadResult(result_dir);
+  dsm::SequenceResult result = dsm::ReadResult(result_dir);
+  if (confidence_threshold > 0.0) MaskByConfidence(result_dir, confidence_threshold, &result);
   const dsm::Sequence sequence = dsm::ReadSequence(sequence_dir, /*read_ground_truth=*/true);
   if (!sequence.ground_truth) {
     throw dsm::InputError(sequence_dir + ": no gt/ folder (ground truth) to evaluate against");

@@ -64,7 +64,7 @@ using test::WaitFor;
 
 struct Outputs {
   std::mutex mutex;
-  std::vector<sensor_msgs::ImageConstPtr> restored, depth;
+  std::vector<sensor_msgs::ImageConstPtr> restored, depth, confidence;
   std::vector<sensor_msgs::CameraInfoConstPtr> restored_info, depth_info;
   std::vector<geometry_msgs::PoseStampedConstPtr> poses;
   std::vector<EstimatorStatusConstPtr> statuses;
@@ -96,6 +96,8 @@ class EstimatorNodeTest : public testing::Test {
         node_.subscribe<sensor_msgs::Image>("depth/image", 20, keep(&out_.depth, &out_.mutex)));
     subscribers_.push_back(node_.subscribe<sensor_msgs::CameraInfo>("depth/camera_info", 20,
                                                                     keep(&out_.depth_info, &out_.mutex)));
+    subscribers_.push_back(
+        node_.subscribe<sensor_msgs::Image>("depth/confidence", 20, keep(&out_.confidence, &out_.mutex)));
     subscribers_.push_back(
         node_.subscribe<geometry_msgs::PoseStamped>("pose", 20, keep(&out_.poses, &out_.mutex)));
     subscribers_.push_back(node_.subscribe<EstimatorStatus>("status", 20, keep(&out_.statuses, &out_.mutex)));
@@ -165,7 +167,7 @@ TEST_F(EstimatorNodeTest, PublishesEveryFrameConsistentlyAndBeatsBicubic) {
       [&] {
         std::lock_guard<std::mutex> lock(out_.mutex);
         return out_.poses.size() >= kFrames && out_.restored.size() >= kFrames &&
-               out_.depth.size() >= kFrames && out_.statuses.size() >= 2;
+               out_.depth.size() >= kFrames && out_.confidence.size() >= kFrames && out_.statuses.size() >= 2;
       },
       120.0))
       << "outputs for all " << kFrames << " frames did not arrive: " << Summary();
@@ -174,6 +176,7 @@ TEST_F(EstimatorNodeTest, PublishesEveryFrameConsistentlyAndBeatsBicubic) {
   std::lock_guard<std::mutex> lock(out_.mutex);
   ASSERT_EQ(out_.restored.size(), static_cast<size_t>(kFrames)) << "each frame exactly once";
   ASSERT_EQ(out_.depth.size(), static_cast<size_t>(kFrames));
+  ASSERT_EQ(out_.confidence.size(), static_cast<size_t>(kFrames));
   ASSERT_EQ(out_.poses.size(), static_cast<size_t>(kFrames));
 
   const PinholeCamera hr = sequence.calibration.camera.Upscaled(2);
@@ -204,6 +207,21 @@ TEST_F(EstimatorNodeTest, PublishesEveryFrameConsistentlyAndBeatsBicubic) {
     int valid = 0;
     for (int i = 0; i < hr.width * hr.height; ++i) valid += std::isfinite(values[i]) && values[i] > 0;
     EXPECT_GT(valid, hr.width * hr.height / 2) << "frame " << t;
+    // The confidence beside it: same stamp and size, in [0, 1]; depth below
+    // the default threshold (0.5) is NaN.
+    const sensor_msgs::Image& confidence = *out_.confidence[t];
+    EXPECT_EQ(confidence.header.stamp, stamp);
+    EXPECT_EQ(confidence.encoding, "32FC1");
+    ASSERT_EQ(static_cast<int>(confidence.width), hr.width);
+    ASSERT_EQ(static_cast<int>(confidence.height), hr.height);
+    const float* support = reinterpret_cast<const float*>(confidence.data.data());
+    int out_of_range = 0, published_below = 0;
+    for (int i = 0; i < hr.width * hr.height; ++i) {
+      out_of_range += !(support[i] >= 0.0f && support[i] <= 1.0f);
+      published_below += support[i] < 0.5f && std::isfinite(values[i]);
+    }
+    EXPECT_EQ(out_of_range, 0) << "frame " << t;
+    EXPECT_EQ(published_below, 0) << "frame " << t << ": depth published below the confidence threshold";
 
     EXPECT_EQ(out_.poses[t]->header.stamp, stamp);
     EXPECT_EQ(out_.poses[t]->header.frame_id, "world");

@@ -54,6 +54,10 @@ sensor_msgs::CameraInfo ScaledCameraInfo(const PinholeCamera& camera_lr, int sca
 // CV_32FC1 depth (m, NaN invalid) -> 32FC1 image message (REP 118).
 sensor_msgs::Image DepthToImage(const cv::Mat& depth, const std_msgs::Header& header);
 
+// CV_32FC1 values -> 32FC1 image message, values as they are (the depth
+// confidence in [0, 1]).
+sensor_msgs::Image Float32ToImage(const cv::Mat& values, const std_msgs::Header& header);
+
 // Coloured point cloud (x, y, z, rgb) in the camera frame from every
 // `stride`-th pixel (in x and y) with a finite positive depth.
 sensor_msgs::PointCloud2 DepthToPoints(const cv::Mat& depth, const cv::Mat& image01,

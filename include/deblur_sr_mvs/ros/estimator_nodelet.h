@@ -116,9 +116,14 @@ class EstimatorNodelet : public nodelet::Nodelet {
   // none (waits up to `wait` seconds).
   bool LookUpPrior(const std::string& prior_frame, const std::string& input_frame, int64_t stamp_ns,
                    double wait, SE3* T_prior_cam, std::string* why);
-  // Image, depth, pose, tf and points of window frame i.
-  void PublishFrame(const PendingWindow& window, const EstimatorResult& result, size_t i, int64_t stamp_ns,
-                    const ros_glue::NodeParameters& params, const OutputGauge& gauge);
+  // The depth confidence of every frame of the window (ComputeDepthConfidence).
+  static std::vector<cv::Mat> DepthConfidenceOf(const EstimatorResult& result,
+                                                const ros_glue::NodeParameters& params);
+  // Image, depth (NaN below the confidence threshold), confidence, pose, tf
+  // and points of window frame i.
+  void PublishFrame(const PendingWindow& window, const EstimatorResult& result, const cv::Mat& confidence,
+                    size_t i, int64_t stamp_ns, const ros_glue::NodeParameters& params,
+                    const OutputGauge& gauge);
   void PublishPath(const ros_glue::NodeParameters& params, const std::string& frame, const ros::Time& stamp);
   // Success, energies, timings and notes of a published window.
   void DescribeEstimate(const WindowEstimate& estimate, bool clamped, EstimatorStatus* status);
@@ -130,6 +135,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
   std::string image_topic_, info_topic_, exposure_topic_;
   std::shared_ptr<image_transport::ImageTransport> transport_;
   image_transport::CameraPublisher restored_publisher_, depth_publisher_;
+  image_transport::Publisher confidence_publisher_;  // ~depth/confidence
   ros::Publisher pose_publisher_, path_publisher_, points_publisher_, status_publisher_;
   std::unique_ptr<tf2_ros::TransformBroadcaster> tf_broadcaster_;
   std::unique_ptr<tf2_ros::Buffer> tf_buffer_;  // with pose_prior_frame only

@@ -10,6 +10,7 @@
 #include <ros/node_handle.h>
 
 #include "deblur_sr_mvs/EstimatorConfig.h"
+#include "deblur_sr_mvs/core/estimation/depth_confidence.h"
 #include "deblur_sr_mvs/core/estimation/estimator.h"
 #include "deblur_sr_mvs/core/estimation/stream.h"
 #include "deblur_sr_mvs/ros/conversions.h"
@@ -63,6 +64,9 @@ struct NodeParameters {
   // (wheel odometry, VIO, motion capture): the metric pose prior
   // (docs/ros_interface.md#pose-prior). Empty: none (monocular units).
   std::string pose_prior_frame;
+  // Depth whose confidence (~depth/confidence, DepthConfidenceOptions) is
+  // below this is published as NaN, in ~depth/image and ~points; 0: all depth.
+  double depth_confidence_threshold = DepthConfidenceOptions().threshold;
   int points_stride = 4;        // every n-th pixel in x and y goes into ~points
   int max_path_length = 10000;  // poses kept in ~path (oldest dropped beyond)
   // A window whose largest camera step exceeds this many times its median
@@ -113,6 +117,7 @@ void ForEachParameter(Params& params, Visitor&& visit) {
   visit("camera_frame", params.camera_frame);
   visit("publish_tf", params.publish_tf);
   visit("pose_prior_frame", params.pose_prior_frame);
+  visit("depth_confidence_threshold", params.depth_confidence_threshold);
   visit("points_stride", params.points_stride);
   visit("max_path_length", params.max_path_length);
   visit("lazy_subscription", params.lazy_subscription);

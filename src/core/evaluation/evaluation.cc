@@ -216,35 +216,68 @@ void EvaluateImages(const SequenceResult& result, const Sequence& sequence, Eval
   report->mean_bicubic_psnr_db = sum_bicubic / count;
 }
 
-// Depth coverage, PSNR and relative error inside the centre crop, per frame
-// and mean over the frames with a valid estimate; depth_note says what is left out.
+// Coverage and errors of every frame's depth inside `crop_fraction` (1 = full
+// frame), written through the member pointers, and the means over the frames
+// with at least one pixel to compare. Returns that number of frames.
+struct DepthRegionMeans {
+  double psnr_db = 0.0, relative_error = 0.0, coverage = 0.0;
+  int num_frames = 0;
+};
+
+DepthRegionMeans EvaluateDepthRegion(const SequenceResult& result, const SequenceGroundTruth& gt,
+                                     double crop_fraction,
+                                     std::optional<DepthErrors> FrameEvaluation::*errors,
+                                     double FrameEvaluation::*coverage, EvaluationReport* report) {
+  const int count = report->num_frames;
+  const cv::Rect crop = CentreCrop(report->hr_size, crop_fraction);
+  DepthMetricOptions depth_options;
+  depth_options.crop_fraction = crop_fraction;
+  depth_options.align_scale = report->options.align_depth_scale;
+  DepthRegionMeans means;
+  for (int i = 0; i < count; ++i) {
+    FrameEvaluation& frame = report->frames[i];
+    const int gt_valid = CountValidDepth(gt.depth[i], crop);
+    const int joint_valid = CountJointValidDepth(result.depth[i], gt.depth[i], crop);
+    frame.*coverage = gt_valid > 0 ? static_cast<double>(joint_valid) / gt_valid : 0.0;
+    means.coverage += frame.*coverage;
+    if (joint_valid == 0) continue;  // nothing to compare; counted in num_frames
+    frame.*errors = EvaluateDepth(result.depth[i], gt.depth[i], depth_options);
+    means.psnr_db += (frame.*errors)->psnr_db;
+    means.relative_error += (frame.*errors)->relative_error;
+    ++means.num_frames;
+  }
+  means.coverage /= count;
+  if (means.num_frames > 0) {
+    means.psnr_db /= means.num_frames;
+    means.relative_error /= means.num_frames;
+  }
+  return means;
+}
+
+// Depth coverage, PSNR and relative error inside the centre crop and on the
+// full frame, per frame and mean over the frames with a valid estimate;
+// depth_note says what is left out.
 void EvaluateDepths(const SequenceResult& result, const SequenceGroundTruth& gt, EvaluationReport* report) {
   if (!result.HasDepth()) {
     report->depth_note = "the result has no depth";
     return;
   }
   const int count = report->num_frames;
-  const cv::Rect crop = CentreCrop(report->hr_size, report->options.crop_fraction);
-  DepthMetricOptions depth_options;
-  depth_options.crop_fraction = report->options.crop_fraction;
-  depth_options.align_scale = report->options.align_depth_scale;
-  double sum_depth_psnr = 0.0, sum_relative = 0.0, sum_coverage = 0.0;
-  for (int i = 0; i < count; ++i) {
-    FrameEvaluation& frame = report->frames[i];
-    const int gt_valid = CountValidDepth(gt.depth[i], crop);
-    const int joint_valid = CountJointValidDepth(result.depth[i], gt.depth[i], crop);
-    frame.depth_coverage = gt_valid > 0 ? static_cast<double>(joint_valid) / gt_valid : 0.0;
-    sum_coverage += frame.depth_coverage;
-    if (joint_valid == 0) continue;  // nothing to compare; counted in num_depth_frames
-    frame.depth = EvaluateDepth(result.depth[i], gt.depth[i], depth_options);
-    sum_depth_psnr += frame.depth->psnr_db;
-    sum_relative += frame.depth->relative_error;
-    ++report->num_depth_frames;
+  const DepthRegionMeans crop =
+      EvaluateDepthRegion(result, gt, report->options.crop_fraction, &FrameEvaluation::depth,
+                          &FrameEvaluation::depth_coverage, report);
+  report->mean_depth_coverage = crop.coverage;
+  report->num_depth_frames = crop.num_frames;
+  if (crop.num_frames > 0) {
+    report->mean_depth_psnr_db = crop.psnr_db;
+    report->mean_depth_relative_error = crop.relative_error;
   }
-  report->mean_depth_coverage = sum_coverage / count;
-  if (report->num_depth_frames > 0) {
-    report->mean_depth_psnr_db = sum_depth_psnr / report->num_depth_frames;
-    report->mean_depth_relative_error = sum_relative / report->num_depth_frames;
+  const DepthRegionMeans full = EvaluateDepthRegion(result, gt, 1.0, &FrameEvaluation::depth_full_frame,
+                                                    &FrameEvaluation::depth_coverage_full_frame, report);
+  report->mean_depth_coverage_full_frame = full.coverage;
+  if (full.num_frames > 0) {
+    report->mean_depth_psnr_db_full_frame = full.psnr_db;
+    report->mean_depth_relative_error_full_frame = full.relative_error;
   }
   if (report->num_depth_frames < count) {
     report->depth_note = std::to_string(count - report->num_depth_frames) + " of " + std::to_string(count) +
@@ -340,11 +373,16 @@ std::string ToMarkdown(const EvaluationReport& report, const std::string& method
          Cell(report.mean_image_psnr_db - report.mean_bicubic_psnr_db, 2) + " |\n\n";
 
   out += "### Depth and pose (cf. paper table tab:quant)\n\n";
-  out += "| Method | Depth PSNR (dB) | rel. | ATE RMSE | Rotation error (deg, mean / max) |\n";
-  out += "|---|---:|---:|---:|---:|\n";
+  out +=
+      "| Method | Depth PSNR (dB) | rel. | ATE RMSE | Rotation error (deg, mean / max) | "
+      "Full frame: depth PSNR (dB) | rel. | coverage |\n";
+  out += "|---|---:|---:|---:|---:|---:|---:|---:|\n";
   out += "| " + method + " | " + Cell(report.mean_depth_psnr_db, 2) + " | " +
          Cell(report.mean_depth_relative_error, 4) + " | " + Cell(report.ate_rmse, 4) + " | " +
-         Cell(report.mean_rotation_error_deg, 3) + " / " + Cell(report.max_rotation_error_deg, 3) + " |\n\n";
+         Cell(report.mean_rotation_error_deg, 3) + " / " + Cell(report.max_rotation_error_deg, 3) + " | " +
+         Cell(report.mean_depth_psnr_db_full_frame, 2) + " | " +
+         Cell(report.mean_depth_relative_error_full_frame, 4) + " | " +
+         Printf("%.1f%%", 100.0 * report.mean_depth_coverage_full_frame) + " |\n\n";
 
   out += std::to_string(report.num_frames) + " frames, x" + std::to_string(report.scale) + " (" +
          SizeText(report.hr_size) + "), image PSNR in " + (report.colour ? "colour" : "gray") +
@@ -391,6 +429,7 @@ Json AlignmentJson(const std::optional<Sim3>& alignment) {
 
 Json FrameJson(const FrameEvaluation& frame) {
   const std::optional<DepthErrors>& depth = frame.depth;
+  const std::optional<DepthErrors>& full = frame.depth_full_frame;
   return Json{{"index", frame.index},
               {"stamp", JsonNumber(frame.stamp)},
               {"image_psnr_db", JsonNumber(frame.image_psnr_db)},
@@ -400,6 +439,11 @@ Json FrameJson(const FrameEvaluation& frame) {
               {"depth_scale", depth ? JsonNumber(depth->scale) : Json(nullptr)},
               {"depth_pixels", depth ? depth->num_pixels : 0},
               {"depth_coverage", JsonNumber(frame.depth_coverage)},
+              {"depth_psnr_db_full_frame", full ? JsonNumber(full->psnr_db) : Json(nullptr)},
+              {"depth_relative_error_full_frame", full ? JsonNumber(full->relative_error) : Json(nullptr)},
+              {"depth_scale_full_frame", full ? JsonNumber(full->scale) : Json(nullptr)},
+              {"depth_pixels_full_frame", full ? full->num_pixels : 0},
+              {"depth_coverage_full_frame", JsonNumber(frame.depth_coverage_full_frame)},
               {"position_error", JsonNumber(frame.position_error)},
               {"rotation_error_deg", JsonNumber(frame.rotation_error_deg)}};
 }
@@ -417,14 +461,18 @@ std::string ToJson(const EvaluationReport& report, const std::string& method_nam
   json["crop_fraction"] = JsonNumber(report.options.crop_fraction);
   json["align_depth_scale"] = report.options.align_depth_scale;
   json["align_trajectory"] = report.options.align_trajectory;
-  json["mean"] = Json{{"image_psnr_db", JsonNumber(report.mean_image_psnr_db)},
-                      {"bicubic_psnr_db", JsonNumber(report.mean_bicubic_psnr_db)},
-                      {"depth_psnr_db", JsonNumber(report.mean_depth_psnr_db)},
-                      {"depth_relative_error", JsonNumber(report.mean_depth_relative_error)},
-                      {"depth_coverage", JsonNumber(report.mean_depth_coverage)},
-                      {"ate_rmse", JsonNumber(report.ate_rmse)},
-                      {"rotation_error_deg", JsonNumber(report.mean_rotation_error_deg)},
-                      {"max_rotation_error_deg", JsonNumber(report.max_rotation_error_deg)}};
+  json["mean"] =
+      Json{{"image_psnr_db", JsonNumber(report.mean_image_psnr_db)},
+           {"bicubic_psnr_db", JsonNumber(report.mean_bicubic_psnr_db)},
+           {"depth_psnr_db", JsonNumber(report.mean_depth_psnr_db)},
+           {"depth_relative_error", JsonNumber(report.mean_depth_relative_error)},
+           {"depth_coverage", JsonNumber(report.mean_depth_coverage)},
+           {"depth_psnr_db_full_frame", JsonNumber(report.mean_depth_psnr_db_full_frame)},
+           {"depth_relative_error_full_frame", JsonNumber(report.mean_depth_relative_error_full_frame)},
+           {"depth_coverage_full_frame", JsonNumber(report.mean_depth_coverage_full_frame)},
+           {"ate_rmse", JsonNumber(report.ate_rmse)},
+           {"rotation_error_deg", JsonNumber(report.mean_rotation_error_deg)},
+           {"max_rotation_error_deg", JsonNumber(report.max_rotation_error_deg)}};
   json["num_depth_frames"] = report.num_depth_frames;
   json["depth_note"] = report.depth_note;
   json["ate_note"] = report.ate_note;

@@ -452,6 +452,34 @@ TEST_F(EvaluationTest, FramesWithoutValidDepthAreLeftOut) {
   EXPECT_FALSE(report.depth_note.empty());
 }
 
+// A wrong border strip outside the centre crop: invisible in the crop's
+// error, seen on the full frame; marked NaN, it is left out of the full-frame
+// error and lowers the full-frame coverage instead.
+TEST_F(EvaluationTest, FullFrameDepthSeesTheBorderAndCountsNanAsUncovered) {
+  const Sequence sequence = MakeSequence(3);
+  SequenceResult result = PerfectResult(sequence);
+  const int strip_width = result.depth[0].cols / 10;  // inside the 15 % the 70 % crop leaves out
+  const cv::Rect strip(result.depth[0].cols - strip_width, 0, strip_width, result.depth[0].rows);
+  // The ground truth has one unknown pixel per frame (outside the strip).
+  const double strip_share = static_cast<double>(strip.area()) / (result.depth[0].total() - 1);
+  for (cv::Mat& depth : result.depth) depth(strip) *= 2.0;
+  const EvaluationReport wrong = EvaluateResult(result, sequence);
+  EXPECT_EQ(*wrong.mean_depth_relative_error, 0.0);
+  ASSERT_TRUE(wrong.mean_depth_relative_error_full_frame.has_value());
+  EXPECT_NEAR(*wrong.mean_depth_relative_error_full_frame, strip_share, 1e-9);  // the strip is off by 100 %
+  EXPECT_DOUBLE_EQ(wrong.mean_depth_coverage_full_frame, 1.0);
+
+  for (cv::Mat& depth : result.depth) depth(strip).setTo(std::numeric_limits<float>::quiet_NaN());
+  const EvaluationReport masked = EvaluateResult(result, sequence);
+  EXPECT_EQ(*masked.mean_depth_relative_error_full_frame, 0.0);
+  EXPECT_DOUBLE_EQ(masked.mean_depth_coverage, 1.0);
+  EXPECT_NEAR(masked.mean_depth_coverage_full_frame, 1.0 - strip_share, 1e-9);
+  ASSERT_TRUE(masked.frames[0].depth_full_frame.has_value());
+  const std::string json = ToJson(masked, "masked");
+  EXPECT_NE(json.find("\"depth_coverage_full_frame\": 0.9"), std::string::npos) << json;  // 0.916...
+  EXPECT_NE(json.find("\"depth_relative_error_full_frame\": 0.0"), std::string::npos) << json;
+}
+
 TEST_F(EvaluationTest, MismatchedResultsAreInputErrors) {
   const Sequence sequence = MakeSequence(3);
   SequenceResult result = PerfectResult(sequence);

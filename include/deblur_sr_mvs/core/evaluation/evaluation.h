@@ -3,7 +3,8 @@
 //   - image PSNR (dB, 8-bit, peak 255, whole image) of the restored latent
 //     images, beside the PSNR of the bicubic up-sampled input;
 //   - depth PSNR and relative error after per-frame median scale alignment,
-//     inside a centre crop (70% in the paper);
+//     inside a centre crop (70% in the paper) and on the full frame, each with
+//     its coverage (NaN or 0 estimated depth = unknown, left out of the errors);
 //   - ATE RMSE of the camera positions after Sim(3) alignment.
 // All per-frame values are averaged over the frames, as in the paper.
 #pragma once
@@ -46,6 +47,10 @@ struct FrameEvaluation {
   // Fraction of the ground truth's valid pixels in the crop that the estimate
   // also covers (0 when the result has no depth).
   double depth_coverage = 0.0;
+  // The same on the full frame (no crop; its own median scale): an estimator
+  // that marks unobserved pixels NaN trades coverage for error here.
+  std::optional<DepthErrors> depth_full_frame;
+  double depth_coverage_full_frame = 0.0;
   // Distance (gt units) of the Sim(3)-aligned position to the gt position;
   // absent when the ATE is.
   std::optional<double> position_error;
@@ -70,6 +75,10 @@ struct EvaluationReport {
   std::optional<double> mean_depth_relative_error;
   double mean_depth_coverage = 0.0;
   int num_depth_frames = 0;
+  // The full-frame counterparts (over the frames evaluated on the full frame).
+  std::optional<double> mean_depth_psnr_db_full_frame;
+  std::optional<double> mean_depth_relative_error_full_frame;
+  double mean_depth_coverage_full_frame = 0.0;
   // Absent when the result has no poses, fewer than 3 frames, or a degenerate
   // trajectory; `ate_note` then says why.
   std::optional<double> ate_rmse;
