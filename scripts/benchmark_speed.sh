@@ -99,7 +99,7 @@ estimate() {
   "$work/bin/new/evaluate_sequence" --result "$3" --sequence "$2" --json "$3.eval.json" >/dev/null
   if [ -n "$DSM_SPEED_PERF" ]; then
     perf report -i "$3.perf.data" --no-children --sort symbol --stdio 2>/dev/null |
-      grep -v '^#' | grep -v '^$' | head -n 15 >"$3.perf.txt"
+      awk '!/^#/ && NF && n++ < 15' >"$3.perf.txt"
   fi
 }
 
