@@ -24,29 +24,34 @@ SparseRows RowsOf(const SparseMatrixRM& a) {
   return {a.outerIndexPtr(), a.innerIndexPtr(), a.valuePtr()};
 }
 
+// The output never aliases the operator or the inputs (__restrict): the
+// scatter then need not reload the taps after each store.
 template <int kChannels>
-void NormalProductRows(const SparseRows& a, const float* weight, const float* x, int first, int last,
-                       float* out) {
+void NormalProductRows(const SparseRows& a, const float* __restrict weight, const float* __restrict x,
+                       int first, int last, float* __restrict out) {
+  const int* __restrict inner = a.inner;
+  const float* __restrict values = a.values;
   for (int r = first; r < last; ++r) {
     const float* w = weight + static_cast<std::ptrdiff_t>(r) * kChannels;
     bool used = false;
     for (int c = 0; c < kChannels; ++c) used = used || w[c] != 0.0f;
     if (!used) continue;
+    const int begin = a.outer[r], end = a.outer[r + 1];
     float acc[kChannels] = {};
-    for (int k = a.outer[r]; k < a.outer[r + 1]; ++k) {
-      const float* px = x + static_cast<std::ptrdiff_t>(a.inner[k]) * kChannels;
-      for (int c = 0; c < kChannels; ++c) acc[c] += a.values[k] * px[c];
+    for (int k = begin; k < end; ++k) {
+      const float* px = x + static_cast<std::ptrdiff_t>(inner[k]) * kChannels;
+      for (int c = 0; c < kChannels; ++c) acc[c] += values[k] * px[c];
     }
     for (int c = 0; c < kChannels; ++c) acc[c] *= w[c];
-    for (int k = a.outer[r]; k < a.outer[r + 1]; ++k) {
-      float* po = out + static_cast<std::ptrdiff_t>(a.inner[k]) * kChannels;
-      for (int c = 0; c < kChannels; ++c) po[c] += a.values[k] * acc[c];
+    for (int k = begin; k < end; ++k) {
+      float* po = out + static_cast<std::ptrdiff_t>(inner[k]) * kChannels;
+      for (int c = 0; c < kChannels; ++c) po[c] += values[k] * acc[c];
     }
   }
 }
 
 template <int kChannels>
-void AdjointRows(const SparseRows& a, const float* y, int first, int last, float* out) {
+void AdjointRows(const SparseRows& a, const float* __restrict y, int first, int last, float* __restrict out) {
   for (int r = first; r < last; ++r) {
     const float* py = y + static_cast<std::ptrdiff_t>(r) * kChannels;
     for (int k = a.outer[r]; k < a.outer[r + 1]; ++k) {
@@ -57,7 +62,8 @@ void AdjointRows(const SparseRows& a, const float* y, int first, int last, float
 }
 
 template <int kChannels>
-void NormalDiagonalRows(const SparseRows& a, const float* weight, int first, int last, float* out) {
+void NormalDiagonalRows(const SparseRows& a, const float* __restrict weight, int first, int last,
+                        float* __restrict out) {
   for (int r = first; r < last; ++r) {
     const float* w = weight + static_cast<std::ptrdiff_t>(r) * kChannels;
     for (int k = a.outer[r]; k < a.outer[r + 1]; ++k) {
