@@ -602,7 +602,9 @@ void WindowSolver::UpdateLatent(int t) {
   terms.push_back({&held.back()->op, &observations_[t], cv::Mat(), options_.lambda_s});
   ImageUpdateOptions image_options = options_.image;
   image_options.num_threads = 1;
+  const double solve_begin = NowMs();
   UpdateImage(terms, image_options, &latents_[t]);
+  timer_.AddSince("image solves (thread seconds)", solve_begin);
 }
 
 // g_t of eq:regularizingTerm follows the edges of the current I_t.

@@ -8,6 +8,7 @@
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/common/runtime.h"
+#include "deblur_sr_mvs/core/imaging/normal_product.h"
 
 namespace deblur_sr_mvs {
 namespace {
@@ -68,6 +69,7 @@ void ImageUpdateOptions::Check() const {
   CheckAtLeast("image update: lambda_i", lambda_i, 0.0);
   CheckAtLeast("image update: irls_iterations", irls_iterations, 1);
   CheckAtLeast("image update: cg_iterations", cg_iterations, 1);
+  CheckInRange("image update: cg_tolerance", cg_tolerance, 0.0, 1.0);
   CheckAbove("image update: residual_epsilon", residual_epsilon, 0.0);
   CheckAbove("image update: tv_epsilon", tv_epsilon, 0.0);
 }
@@ -91,6 +93,28 @@ void AddWeightedLaplacian(const cv::Mat& x, const cv::Mat& v, double scale, cv::
         if (xx > 0) acc += pv[i - channels] * (px[i] - px[i - channels]);
         if (y + 1 < height) acc += pv[i] * (px[i] - px[i + stride]);
         if (y > 0) acc += pv[i - stride] * (px[i] - px[i - stride]);
+        po[i] += s * acc;
+      }
+    }
+  }
+}
+
+void AddWeightedLaplacianDiagonal(const cv::Mat& v, double scale, cv::Mat* out) {
+  const int channels = v.channels();
+  const int width = v.cols, height = v.rows;
+  const int stride = width * channels;
+  const float s = static_cast<float>(scale);
+  const float* pv = v.ptr<float>();
+  float* po = out->ptr<float>();
+  for (int y = 0; y < height; ++y) {
+    for (int xx = 0; xx < width; ++xx) {
+      for (int c = 0; c < channels; ++c) {
+        const long i = static_cast<long>(y) * stride + xx * channels + c;
+        float acc = 0.0f;
+        if (xx + 1 < width) acc += pv[i];
+        if (xx > 0) acc += pv[i - channels];
+        if (y + 1 < height) acc += pv[i];
+        if (y > 0) acc += pv[i - stride];
         po[i] += s * acc;
       }
     }
@@ -142,38 +166,37 @@ namespace {
 // the current image x: with W_k = weight_k * mask_k / max(|A_k x - b_k|, eps)
 // and V = 1 / max(|grad x|, eps), the normal operator is
 //   N y = sum_k A_k^T W_k A_k y + lambda_i D^T V D y
-// and the right-hand side sum_k A_k^T W_k b_k.
+// and the right-hand side sum_k A_k^T W_k b_k. Every product streams the
+// rows of A_k once (normal_product.h): no transposed copies.
 class ReweightedImageSystem {
  public:
   ReweightedImageSystem(const std::vector<LinearL1Term>& terms, const ImageUpdateOptions& options,
-                        int threads, int hr_rows)
-      : terms_(terms),
-        options_(options),
-        threads_(threads),
-        hr_rows_(hr_rows),
-        states_(terms.size()),
-        adjoints_(terms.size()) {
-    // Psi^T as row-major copies made here, once per update: a gather is much
-    // faster than scattering through Psi, and the copies live only as long as
-    // this update (the operators' owners need not keep them).
-    for (size_t k = 0; k < terms.size(); ++k) TransposeSparse(terms[k].op->matrix(), &adjoints_[k], threads);
-  }
+                        int threads)
+      : terms_(terms), options_(options), threads_(threads), states_(terms.size()) {}
 
-  // W_k and V at `image`.
+  // W_k, V and the Jacobi diagonal diag(N) at `image`; keeps A_k x - b_k.
   void Reweight(const cv::Mat& image) {
     for (size_t k = 0; k < terms_.size(); ++k) ReweightTerm(terms_[k], image, &states_[k]);
     TvWeights(image, options_.tv_epsilon, &tv_weights_);
+    diagonal_.create(image.size(), image.type());
+    diagonal_.setTo(0.0);
+    for (size_t k = 0; k < terms_.size(); ++k) {
+      AddWeightedNormalDiagonal(terms_[k].op->matrix(), states_[k].weight, &diagonal_, threads_);
+    }
+    if (options_.lambda_i > 0.0) AddWeightedLaplacianDiagonal(tv_weights_, options_.lambda_i, &diagonal_);
   }
 
-  // rhs = sum_k A_k^T W_k b_k (HR, as `image`).
-  void RightHandSide(const cv::Mat& image, cv::Mat* rhs) {
-    rhs->create(image.size(), image.type());
-    rhs->setTo(0.0);
+  // rhs - N x at the image x of the last Reweight, from the residuals
+  // A_k x - b_k it kept: sum_k A_k^T W_k (b_k - A_k x) - lambda_i D^T V D x.
+  void InitialResidual(const cv::Mat& image, cv::Mat* residual) {
+    residual->create(image.size(), image.type());
+    residual->setTo(0.0);
     for (size_t k = 0; k < terms_.size(); ++k) {
-      cv::multiply(*terms_[k].observation, states_[k].weight, temp_lr_);
-      ApplyAdjoint(k, temp_lr_, &temp_hr_);
-      Axpy(1.0, temp_hr_, rhs, threads_);
+      cv::multiply(states_[k].residual, states_[k].weight, temp_lr_, -1.0);
+      AddAdjointProduct(terms_[k].op->matrix(), temp_lr_, residual, threads_);
     }
+    if (options_.lambda_i > 0.0)
+      AddWeightedLaplacian(image, tv_weights_, -options_.lambda_i, residual, threads_);
   }
 
   // out = N x.
@@ -181,13 +204,12 @@ class ReweightedImageSystem {
     out->create(x.size(), x.type());
     out->setTo(0.0);
     for (size_t k = 0; k < terms_.size(); ++k) {
-      terms_[k].op->Apply(x, &temp_lr_);
-      cv::multiply(temp_lr_, states_[k].weight, temp_lr_);
-      ApplyAdjoint(k, temp_lr_, &temp_hr_);
-      Axpy(1.0, temp_hr_, out, threads_);
+      AddWeightedNormalProduct(terms_[k].op->matrix(), states_[k].weight, x, out, threads_);
     }
     if (options_.lambda_i > 0.0) AddWeightedLaplacian(x, tv_weights_, options_.lambda_i, out, threads_);
   }
+
+  const cv::Mat& diagonal() const { return diagonal_; }
 
  private:
   // W = weight * mask / max(|A x - b|, eps) of one term at `image`.
@@ -212,44 +234,51 @@ class ReweightedImageSystem {
     }
   }
 
-  void ApplyAdjoint(size_t k, const cv::Mat& lr, cv::Mat* hr) const {
-    MultiplySparse(adjoints_[k], lr, hr, threads_);
-    *hr = hr->reshape(lr.channels(), hr_rows_);
-  }
-
   const std::vector<LinearL1Term>& terms_;
   const ImageUpdateOptions& options_;
   const int threads_;
-  const int hr_rows_;
   std::vector<TermState> states_;
-  std::vector<SparseMatrixRM> adjoints_;
-  cv::Mat tv_weights_, temp_lr_, temp_hr_;
+  cv::Mat tv_weights_, diagonal_, temp_lr_;
 };
 
-// At most `iterations` CG steps on N x = rhs, warm-started from *image.
-void SolveByConjugateGradients(ReweightedImageSystem* system, const cv::Mat& rhs, int iterations, int threads,
-                               cv::Mat* image) {
-  cv::Mat residual, direction, normal_direction;
-  system->ApplyNormal(*image, &residual);
-  residual = rhs - residual;  // r = b - N x
-  direction = residual.clone();
+}  // namespace
+
+int SolveJacobiPcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_normal, const cv::Mat& diagonal,
+                   cv::Mat residual, int max_iterations, double relative_tolerance, int threads, cv::Mat* x) {
+  // M^-1 = 1 / diag(N) where positive.
+  cv::Mat inverse_diagonal(diagonal.size(), diagonal.type());
+  const float* pd = diagonal.ptr<float>();
+  float* pi = inverse_diagonal.ptr<float>();
+  const size_t n = NumValues(diagonal);
+  for (size_t i = 0; i < n; ++i) pi[i] = pd[i] > 0.0f ? 1.0f / pd[i] : 1.0f;
+  cv::Mat preconditioned, direction, normal_direction;
+  cv::multiply(residual, inverse_diagonal, preconditioned);
+  direction = preconditioned.clone();
+  double rz = Dot(residual, preconditioned, threads);
   double rr = Dot(residual, residual, threads);
   const double rr0 = rr;
-  for (int it = 0; it < iterations && rr > 1e-12 * rr0 && rr > 0.0; ++it) {
-    system->ApplyNormal(direction, &normal_direction);
+  const double stop = relative_tolerance * relative_tolerance * rr0;
+  int steps = 0;
+  for (; steps < max_iterations && rr > stop && rr > 0.0; ++steps) {
+    apply_normal(direction, &normal_direction);
     const double dnd = Dot(direction, normal_direction, threads);
-    if (!(dnd > 0.0)) break;
-    const double alpha = rr / dnd;
-    Axpy(alpha, direction, image, threads);
+    if (!(dnd > 0.0) || !(rz > 0.0)) break;
+    const double alpha = rz / dnd;
+    Axpy(alpha, direction, x, threads);
     Axpy(-alpha, normal_direction, &residual, threads);
-    const double rr_next = Dot(residual, residual, threads);
-    const double beta = rr_next / rr;
-    rr = rr_next;
-    // d = r + beta d
+    rr = Dot(residual, residual, threads);
+    cv::multiply(residual, inverse_diagonal, preconditioned);
+    const double rz_next = Dot(residual, preconditioned, threads);
+    const double beta = rz_next / rz;
+    rz = rz_next;
+    // d = z + beta d
     direction *= beta;
-    Axpy(1.0, residual, &direction, threads);
+    Axpy(1.0, preconditioned, &direction, threads);
   }
+  return steps;
 }
+
+namespace {
 
 void CheckTermsMatchImage(const std::vector<LinearL1Term>& terms, const cv::Mat& image) {
   if (image.depth() != CV_32F || !image.isContinuous()) {
@@ -268,19 +297,19 @@ void CheckTermsMatchImage(const std::vector<LinearL1Term>& terms, const cv::Mat&
 
 // IRLS on eq:imgUpdate: reweight at the current image, then CG on the
 // reweighted system from it.
-double UpdateImage(const std::vector<LinearL1Term>& terms, const ImageUpdateOptions& options,
-                   cv::Mat* image) {
+void UpdateImage(const std::vector<LinearL1Term>& terms, const ImageUpdateOptions& options, cv::Mat* image) {
   options.Check();
   const int threads = ResolveThreads(options.num_threads);
   CheckTermsMatchImage(terms, *image);
-  ReweightedImageSystem system(terms, options, threads, image->rows);
-  cv::Mat rhs;
+  ReweightedImageSystem system(terms, options, threads);
+  const auto apply_normal = [&system](const cv::Mat& x, cv::Mat* out) { system.ApplyNormal(x, out); };
+  cv::Mat residual;
   for (int irls = 0; irls < options.irls_iterations; ++irls) {
     system.Reweight(*image);
-    system.RightHandSide(*image, &rhs);
-    SolveByConjugateGradients(&system, rhs, options.cg_iterations, threads, image);
+    system.InitialResidual(*image, &residual);
+    SolveJacobiPcg(apply_normal, system.diagonal(), residual, options.cg_iterations, options.cg_tolerance,
+                   threads, image);
   }
-  return ImageEnergy(terms, options.lambda_i, *image);
 }
 
 }  // namespace deblur_sr_mvs

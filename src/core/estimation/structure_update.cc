@@ -11,6 +11,7 @@
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/estimation/image_update.h"
+#include "deblur_sr_mvs/core/imaging/normal_product.h"
 
 namespace deblur_sr_mvs {
 namespace {
@@ -258,6 +259,7 @@ void StructureUpdateOptions::Check() const {
   CheckInRange("structure update: pose_pixel_stride", pose_pixel_stride, 1, 8);
   CheckAtLeast("structure update: depth_irls_iterations", depth_irls_iterations, 0);
   CheckAtLeast("structure update: depth_cg_iterations", depth_cg_iterations, 1);
+  CheckInRange("structure update: depth_cg_tolerance", depth_cg_tolerance, 0.0, 1.0);
   CheckAtLeast("structure update: pose_iterations", pose_iterations, 0);
   CheckAbove("structure update: residual_epsilon", residual_epsilon, 0.0);
   CheckAbove("structure update: tv_epsilon", tv_epsilon, 0.0);
@@ -360,7 +362,11 @@ class DepthNormalEquations {
       ContractChannels(states_[p].lin.d_inverse_depth, squared_, &hr_diagonal_, true);
     }
     ReweightTv(inverse_depth);
+    FormDiagonal();
   }
+
+  // diag(N), the Jacobi preconditioner (after Linearize).
+  const cv::Mat& diagonal() const { return diagonal_; }
 
   // rhs at `inverse_depth` (the linearisation point), without damping.
   void RightHandSide(const cv::Mat& inverse_depth, cv::Mat* rhs) {
@@ -385,9 +391,8 @@ class DepthNormalEquations {
     for (size_t p = 0; p < pairs_.size(); ++p) {
       if (pairs_[p].blur == nullptr) continue;
       ExpandChannels(states_[p].lin.d_inverse_depth, in, &expanded_);
-      Predict(pairs_[p], expanded_, &predicted_);
-      cv::multiply(predicted_, states_[p].weight, predicted_);
-      PredictAdjoint(pairs_[p], predicted_, &back_);
+      back_ = cv::Mat::zeros(expanded_.size(), expanded_.type());
+      AddWeightedNormalProduct(pairs_[p].blur->matrix(), states_[p].weight, expanded_, &back_, 1);
       ContractChannels(states_[p].lin.d_inverse_depth, back_, out, true);
     }
     if (self_ != nullptr) {
@@ -453,6 +458,30 @@ class DepthNormalEquations {
            (self_->scale * self_->scale);
   }
 
+  // diag(N): the HR pairs' diagonal, sum_c g_c^2 diag(Psi^T W Psi)_c per
+  // pair with a capture operator, the self term's box (weights 1/s^2 per
+  // tap), the TV stencil and the damping.
+  void FormDiagonal() {
+    hr_diagonal_.copyTo(diagonal_);
+    for (size_t p = 0; p < pairs_.size(); ++p) {
+      if (pairs_[p].blur == nullptr) continue;
+      const cv::Mat& g = states_[p].lin.d_inverse_depth;
+      back_ = cv::Mat::zeros(g.size(), g.type());
+      AddWeightedNormalDiagonal(pairs_[p].blur->matrix(), states_[p].weight, &back_, 1);
+      cv::multiply(g, g, squared_);
+      ContractChannels(squared_, back_, &diagonal_, true);
+    }
+    if (self_ != nullptr) {
+      const double box = 1.0 / (self_->scale * self_->scale);
+      BoxAdjoint(self_weight_, self_->scale, &back_);  // w / s^2 on each HR pixel of its LR pixel
+      cv::multiply(self_->derivative, self_->derivative, squared_, box);
+      ContractChannels(squared_, back_, &nd_self_, false);
+      cv::scaleAdd(nd_self_, self_->weight, diagonal_, diagonal_);
+    }
+    AddWeightedLaplacianDiagonal(tv_weight_, options_.lambda_d * c2_, &diagonal_);
+    diagonal_ += damping_;
+  }
+
   // TV weights v = g / max(|grad (c rho)|, eps) (eq:regularizingTerm with g_t).
   void ReweightTv(const cv::Mat& inverse_depth) {
     const float* rho = inverse_depth.ptr<float>();
@@ -482,30 +511,18 @@ class DepthNormalEquations {
   cv::Mat tv_weight_, nd_self_;
   cv::Mat self_weight_, self_residual_;  // self term: IRLS weights and residual
   cv::Mat moved_;                        // inverse-depth change since the self term's linearisation
-  cv::Mat hr_diagonal_, squared_;
+  cv::Mat hr_diagonal_, squared_, diagonal_;
   cv::Mat expanded_, predicted_, back_;  // scratch
   double damping_ = 0.0;
 };
 
-// At most `iterations` CG steps on N step = rhs from a zero step.
-void SolveDepthStep(DepthNormalEquations* system, const cv::Mat& rhs, int iterations, cv::Mat* step) {
-  cv::Mat r(rhs.size(), CV_32FC1), d(rhs.size(), CV_32FC1), nd(rhs.size(), CV_32FC1);
+// Jacobi-preconditioned CG on N step = rhs from a zero step.
+void SolveDepthStep(DepthNormalEquations* system, const cv::Mat& rhs, const StructureUpdateOptions& options,
+                    cv::Mat* step) {
   step->setTo(0.0);
-  rhs.copyTo(r);
-  r.copyTo(d);
-  double rr = Dot1(r, r);
-  const double rr0 = rr;
-  for (int it = 0; it < iterations && rr > 1e-14 * rr0 && rr > 0.0; ++it) {
-    system->ApplyNormal(d, &nd);
-    const double dnd = Dot1(d, nd);
-    if (!(dnd > 0.0)) break;
-    const double alpha = rr / dnd;
-    cv::scaleAdd(d, alpha, *step, *step);
-    cv::scaleAdd(nd, -alpha, r, r);
-    const double rr_next = Dot1(r, r);
-    cv::scaleAdd(d, rr_next / rr, r, d);
-    rr = rr_next;
-  }
+  SolveJacobiPcg([system](const cv::Mat& x, cv::Mat* out) { system->ApplyNormal(x, out); },
+                 system->diagonal(), rhs.clone(), options.depth_cg_iterations, options.depth_cg_tolerance, 1,
+                 step);
 }
 
 }  // namespace
@@ -523,7 +540,7 @@ void UpdateDepth(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world
   for (int irls = 0; irls < options.depth_irls_iterations; ++irls) {
     system.Linearize(*inverse_depth);
     system.RightHandSide(*inverse_depth, &rhs);
-    SolveDepthStep(&system, rhs, options.depth_cg_iterations, &step);
+    SolveDepthStep(&system, rhs, options, &step);
     system.ApplyStep(step, inverse_depth);
   }
 }

@@ -10,6 +10,7 @@
 // needs hundreds of operator applications and step sizes tied to ||Psi||.
 #pragma once
 
+#include <functional>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -19,9 +20,13 @@
 namespace deblur_sr_mvs {
 
 struct ImageUpdateOptions {
-  double lambda_i = 0.45;          // weight of the image TV (paper: 0.3 - 0.6)
-  int irls_iterations = 4;         // reweightings per update
-  int cg_iterations = 10;          // CG steps per reweighted system
+  double lambda_i = 0.45;   // weight of the image TV (paper: 0.3 - 0.6)
+  int irls_iterations = 4;  // reweightings per update
+  // Jacobi-preconditioned CG per reweighted system: at most cg_iterations
+  // steps, fewer once the residual of the normal equations is below
+  // cg_tolerance x its value at the warm start (0: always cg_iterations).
+  int cg_iterations = 10;
+  double cg_tolerance = 0.05;
   double residual_epsilon = 1e-3;  // L1 smoothing: weights 1 / max(|r|, eps) (intensity in [0, 1])
   double tv_epsilon = 1e-3;        // TV smoothing: 1 / max(|grad I|, eps)
   int num_threads = 0;             // 0: OpenMP default
@@ -36,7 +41,8 @@ struct LinearL1Term {
   double weight = 1.0;
 };
 
-// Value of sum(terms) + lambda_i * TV(image) (isotropic TV per channel).
+// Value of sum(terms) + lambda_i * TV(image) (isotropic TV per channel);
+// for reports and tests (the update does not need it).
 double ImageEnergy(const std::vector<LinearL1Term>& terms, double lambda_i, const cv::Mat& image);
 
 // Isotropic total variation sum_x |grad I(x)|_2 with forward differences
@@ -47,9 +53,18 @@ double TotalVariation(const cv::Mat& image);
 // forward differences with Neumann boundary, the IRLS form of a TV term with
 // weights v (same size and channels as x).
 void AddWeightedLaplacian(const cv::Mat& x, const cv::Mat& v, double scale, cv::Mat* out, int threads);
+// out += scale * diag(D^T diag(v) D): the diagonal of the operator above.
+void AddWeightedLaplacianDiagonal(const cv::Mat& v, double scale, cv::Mat* out);
+
+// Jacobi-preconditioned conjugate gradients on N x = b from the current *x,
+// given residual = b - N x there (consumed): at most max_iterations steps,
+// stopping once ||r||_2 <= relative_tolerance * ||r_0||_2. `diagonal` is
+// diag(N) (entries <= 0 are left unscaled). Returns the steps taken.
+int SolveJacobiPcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_normal, const cv::Mat& diagonal,
+                   cv::Mat residual, int max_iterations, double relative_tolerance, int threads, cv::Mat* x);
 
 // Minimises the energy over `image` (HR, CV_32FC(C), updated in place from
-// its current value). Returns the energy after the update.
-double UpdateImage(const std::vector<LinearL1Term>& terms, const ImageUpdateOptions& options, cv::Mat* image);
+// its current value); ImageEnergy gives the energy reached.
+void UpdateImage(const std::vector<LinearL1Term>& terms, const ImageUpdateOptions& options, cv::Mat* image);
 
 }  // namespace deblur_sr_mvs

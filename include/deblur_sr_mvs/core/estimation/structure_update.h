@@ -24,9 +24,13 @@ struct StructureUpdateOptions {
   // Reindeer sequences (depth rel. error 0.0106 / 0.0285 against 0.0142 /
   // 0.0319 with 1.0).
   double lambda_d = 0.1;
-  EdgeWeightOptions edge_weight;   // g_t
-  int depth_irls_iterations = 3;   // re-linearisations (warps) per update
-  int depth_cg_iterations = 15;    // CG steps per reweighted system
+  EdgeWeightOptions edge_weight;  // g_t
+  int depth_irls_iterations = 3;  // re-linearisations (warps) per update
+  // Jacobi-preconditioned CG per reweighted system: at most
+  // depth_cg_iterations steps, fewer once the residual is below
+  // depth_cg_tolerance x the right-hand side's norm (0: always all steps).
+  int depth_cg_iterations = 15;
+  double depth_cg_tolerance = 0.05;
   int pose_iterations = 6;         // Gauss-Newton steps of the joint pose update
   double residual_epsilon = 1e-3;  // L1 smoothing (intensity in [0, 1])
   double tv_epsilon = 0.05;        // TV smoothing, parallax px

@@ -1,0 +1,191 @@
+#include "deblur_sr_mvs/core/imaging/normal_product.h"
+
+#include <omp.h>
+
+#include <cstddef>
+#include <string>
+#include <vector>
+
+#include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/common/runtime.h"
+
+namespace deblur_sr_mvs {
+namespace {
+
+// The three row kernels over rows [first, last) of A, scattering into `out`
+// (interleaved kChannels values per column).
+struct SparseRows {
+  const int* outer;
+  const int* inner;
+  const float* values;
+};
+
+SparseRows RowsOf(const SparseMatrixRM& a) {
+  return {a.outerIndexPtr(), a.innerIndexPtr(), a.valuePtr()};
+}
+
+// The output never aliases the operator or the inputs (__restrict): the
+// scatter then need not reload the taps after each store.
+template <int kChannels>
+void NormalProductRows(const SparseRows& a, const float* __restrict weight, const float* __restrict x,
+                       int first, int last, float* __restrict out) {
+  const int* __restrict inner = a.inner;
+  const float* __restrict values = a.values;
+  for (int r = first; r < last; ++r) {
+    const float* w = weight + static_cast<std::ptrdiff_t>(r) * kChannels;
+    bool used = false;
+    for (int c = 0; c < kChannels; ++c) used = used || w[c] != 0.0f;
+    if (!used) continue;
+    const int begin = a.outer[r], end = a.outer[r + 1];
+    float acc[kChannels] = {};
+    for (int k = begin; k < end; ++k) {
+      const float* px = x + static_cast<std::ptrdiff_t>(inner[k]) * kChannels;
+      for (int c = 0; c < kChannels; ++c) acc[c] += values[k] * px[c];
+    }
+    for (int c = 0; c < kChannels; ++c) acc[c] *= w[c];
+    for (int k = begin; k < end; ++k) {
+      float* po = out + static_cast<std::ptrdiff_t>(inner[k]) * kChannels;
+      for (int c = 0; c < kChannels; ++c) po[c] += values[k] * acc[c];
+    }
+  }
+}
+
+template <int kChannels>
+void AdjointRows(const SparseRows& a, const float* __restrict y, int first, int last, float* __restrict out) {
+  for (int r = first; r < last; ++r) {
+    const float* py = y + static_cast<std::ptrdiff_t>(r) * kChannels;
+    for (int k = a.outer[r]; k < a.outer[r + 1]; ++k) {
+      float* po = out + static_cast<std::ptrdiff_t>(a.inner[k]) * kChannels;
+      for (int c = 0; c < kChannels; ++c) po[c] += a.values[k] * py[c];
+    }
+  }
+}
+
+template <int kChannels>
+void NormalDiagonalRows(const SparseRows& a, const float* __restrict weight, int first, int last,
+                        float* __restrict out) {
+  for (int r = first; r < last; ++r) {
+    const float* w = weight + static_cast<std::ptrdiff_t>(r) * kChannels;
+    for (int k = a.outer[r]; k < a.outer[r + 1]; ++k) {
+      const float squared = a.values[k] * a.values[k];
+      float* po = out + static_cast<std::ptrdiff_t>(a.inner[k]) * kChannels;
+      for (int c = 0; c < kChannels; ++c) po[c] += squared * w[c];
+    }
+  }
+}
+
+// Runs kernel(first, last, target) over contiguous row blocks, one per
+// thread: block 0 scatters into `out`, the others into zeroed private
+// buffers that are then added to `out`.
+template <typename Kernel>
+void ScatterRowBlocks(int rows, size_t out_values, int threads, float* out, const Kernel& kernel) {
+  if (threads <= 1) {
+    kernel(0, rows, out);
+    return;
+  }
+  std::vector<std::vector<float>> partial(threads - 1);
+#pragma omp parallel num_threads(threads)
+  {
+    const int thread = omp_get_thread_num();
+    const int used = omp_get_num_threads();
+    const int first = static_cast<int>(static_cast<long long>(rows) * thread / used);
+    const int last = static_cast<int>(static_cast<long long>(rows) * (thread + 1) / used);
+    float* target = out;
+    if (thread > 0) {
+      partial[thread - 1].assign(out_values, 0.0f);
+      target = partial[thread - 1].data();
+    }
+    kernel(first, last, target);
+  }
+  const long n = static_cast<long>(out_values);
+#pragma omp parallel for num_threads(threads) schedule(static)
+  for (long i = 0; i < n; ++i) {
+    for (const std::vector<float>& block : partial) {
+      if (!block.empty()) out[i] += block[i];
+    }
+  }
+}
+
+// Checks the shapes and dispatches on the channel count.
+template <template <int> class Pass, typename... Args>
+void Dispatch(int channels, Args&&... args) {
+  switch (channels) {
+    case 1:
+      return Pass<1>::Run(args...);
+    case 2:
+      return Pass<2>::Run(args...);
+    case 3:
+      return Pass<3>::Run(args...);
+    case 4:
+      return Pass<4>::Run(args...);
+    default:
+      throw InputError("normal product: images must have 1 to 4 channels");
+  }
+}
+
+void CheckGrid(const cv::Mat& image, long pixels, int channels, const char* what) {
+  if (image.depth() != CV_32F || !image.isContinuous() || static_cast<long>(image.total()) != pixels ||
+      image.channels() != channels) {
+    throw InputError(std::string("normal product: ") + what + " does not match the operator");
+  }
+}
+
+template <int kChannels>
+struct NormalProductPass {
+  static void Run(const SparseMatrixRM& a, const float* weight, const float* x, float* out, int threads) {
+    const SparseRows rows = RowsOf(a);
+    ScatterRowBlocks(static_cast<int>(a.rows()), static_cast<size_t>(a.cols()) * kChannels, threads, out,
+                     [&](int first, int last, float* target) {
+                       NormalProductRows<kChannels>(rows, weight, x, first, last, target);
+                     });
+  }
+};
+
+template <int kChannels>
+struct AdjointPass {
+  static void Run(const SparseMatrixRM& a, const float* y, float* out, int threads) {
+    const SparseRows rows = RowsOf(a);
+    ScatterRowBlocks(
+        static_cast<int>(a.rows()), static_cast<size_t>(a.cols()) * kChannels, threads, out,
+        [&](int first, int last, float* target) { AdjointRows<kChannels>(rows, y, first, last, target); });
+  }
+};
+
+template <int kChannels>
+struct NormalDiagonalPass {
+  static void Run(const SparseMatrixRM& a, const float* weight, float* out, int threads) {
+    const SparseRows rows = RowsOf(a);
+    ScatterRowBlocks(static_cast<int>(a.rows()), static_cast<size_t>(a.cols()) * kChannels, threads, out,
+                     [&](int first, int last, float* target) {
+                       NormalDiagonalRows<kChannels>(rows, weight, first, last, target);
+                     });
+  }
+};
+
+}  // namespace
+
+void AddWeightedNormalProduct(const SparseMatrixRM& a, const cv::Mat& weight, const cv::Mat& x, cv::Mat* out,
+                              int threads) {
+  const int channels = x.channels();
+  CheckGrid(x, a.cols(), channels, "the input");
+  CheckGrid(*out, a.cols(), channels, "the output");
+  CheckGrid(weight, a.rows(), channels, "the weight");
+  Dispatch<NormalProductPass>(channels, a, weight.ptr<float>(), x.ptr<float>(), out->ptr<float>(),
+                              ResolveThreads(threads));
+}
+
+void AddAdjointProduct(const SparseMatrixRM& a, const cv::Mat& y, cv::Mat* out, int threads) {
+  const int channels = y.channels();
+  CheckGrid(y, a.rows(), channels, "the input");
+  CheckGrid(*out, a.cols(), channels, "the output");
+  Dispatch<AdjointPass>(channels, a, y.ptr<float>(), out->ptr<float>(), ResolveThreads(threads));
+}
+
+void AddWeightedNormalDiagonal(const SparseMatrixRM& a, const cv::Mat& weight, cv::Mat* out, int threads) {
+  const int channels = weight.channels();
+  CheckGrid(weight, a.rows(), channels, "the weight");
+  CheckGrid(*out, a.cols(), channels, "the output");
+  Dispatch<NormalDiagonalPass>(channels, a, weight.ptr<float>(), out->ptr<float>(), ResolveThreads(threads));
+}
+
+}  // namespace deblur_sr_mvs

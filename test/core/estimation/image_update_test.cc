@@ -1,0 +1,205 @@
+// The linear algebra of the image update (eq:imgUpdate): the one-pass
+// products with A^T W A against the two-pass form through a transposed
+// copy, the Jacobi-preconditioned CG against plain CG and a direct solve.
+#include "deblur_sr_mvs/core/estimation/image_update.h"
+
+#include <random>
+#include <vector>
+
+#include <gtest/gtest.h>
+#include <Eigen/Dense>
+
+#include "deblur_sr_mvs/core/imaging/capture_operator.h"
+#include "deblur_sr_mvs/core/imaging/normal_product.h"
+
+namespace deblur_sr_mvs {
+namespace {
+
+// A random rows x cols operator with up to `per_row` taps per row (merged),
+// positive like a capture operator's taps.
+SparseMatrixRM RandomOperator(int rows, int cols, int per_row, std::mt19937* rng) {
+  std::uniform_int_distribution<int> column(0, cols - 1);
+  std::uniform_real_distribution<float> value(0.01f, 1.0f);
+  std::vector<Eigen::Triplet<float>> taps;
+  for (int r = 0; r < rows; ++r) {
+    for (int k = 0; k < per_row; ++k) taps.emplace_back(r, column(*rng), value(*rng));
+  }
+  SparseMatrixRM a(rows, cols);
+  a.setFromTriplets(taps.begin(), taps.end());
+  a.makeCompressed();
+  return a;
+}
+
+cv::Mat RandomImage(int pixels, int channels, float low, float high, std::mt19937* rng) {
+  cv::Mat image(pixels, 1, CV_32FC(channels));
+  std::uniform_real_distribution<float> value(low, high);
+  float* p = image.ptr<float>();
+  for (size_t i = 0; i < image.total() * channels; ++i) p[i] = value(*rng);
+  return image;
+}
+
+// Largest |a - b| relative to the largest |b|.
+double RelativeMaxDifference(const cv::Mat& a, const cv::Mat& b) {
+  return cv::norm(a, b, cv::NORM_INF) / cv::norm(b, cv::NORM_INF);
+}
+
+// A^T (W (A x)) in two passes through a transposed copy (the former form).
+cv::Mat TwoPassNormalProduct(const SparseMatrixRM& a, const cv::Mat& weight, const cv::Mat& x) {
+  SparseMatrixRM at;
+  TransposeSparse(a, &at, 1);
+  cv::Mat ax, back;
+  MultiplySparse(a, x, &ax, 1);
+  cv::multiply(ax, weight, ax);
+  MultiplySparse(at, ax, &back, 1);
+  return back;
+}
+
+class NormalProduct : public ::testing::TestWithParam<std::tuple<int, int>> {};
+
+TEST_P(NormalProduct, OnePassEqualsTwoPassesToFloatRounding) {
+  const auto [channels, threads] = GetParam();
+  std::mt19937 rng(7 + channels);
+  const int rows = 300, cols = 1200;
+  const SparseMatrixRM a = RandomOperator(rows, cols, 40, &rng);
+  const cv::Mat x = RandomImage(cols, channels, -1.0f, 1.0f, &rng);
+  cv::Mat weight = RandomImage(rows, channels, 0.0f, 10.0f, &rng);
+  weight.rowRange(0, 30).setTo(0.0);  // masked rows are skipped: still exact
+  cv::Mat out = cv::Mat::zeros(cols, 1, CV_32FC(channels));
+  AddWeightedNormalProduct(a, weight, x, &out, threads);
+  const cv::Mat expected = TwoPassNormalProduct(a, weight, x);
+  EXPECT_LT(RelativeMaxDifference(out, expected), 1e-5);
+
+  // It adds to the output: a second call doubles it.
+  cv::Mat twice = out.clone();
+  AddWeightedNormalProduct(a, weight, x, &twice, threads);
+  EXPECT_LT(RelativeMaxDifference(twice, 2.0 * expected), 1e-5);
+}
+
+TEST_P(NormalProduct, AdjointAndDiagonalMatchTheDenseMatrix) {
+  const auto [channels, threads] = GetParam();
+  std::mt19937 rng(11 + channels);
+  const int rows = 80, cols = 200;
+  const SparseMatrixRM a = RandomOperator(rows, cols, 12, &rng);
+  const Eigen::MatrixXd dense = Eigen::MatrixXd(a.cast<double>());
+  const cv::Mat y = RandomImage(rows, channels, -1.0f, 1.0f, &rng);
+  const cv::Mat weight = RandomImage(rows, channels, 0.0f, 5.0f, &rng);
+  cv::Mat adjoint = cv::Mat::zeros(cols, 1, CV_32FC(channels));
+  cv::Mat diagonal = cv::Mat::zeros(cols, 1, CV_32FC(channels));
+  AddAdjointProduct(a, y, &adjoint, threads);
+  AddWeightedNormalDiagonal(a, weight, &diagonal, threads);
+  for (int c = 0; c < channels; ++c) {
+    Eigen::VectorXd yc(rows), wc(rows);
+    for (int r = 0; r < rows; ++r) {
+      yc[r] = y.ptr<float>()[r * channels + c];
+      wc[r] = weight.ptr<float>()[r * channels + c];
+    }
+    const Eigen::VectorXd expected_adjoint = dense.transpose() * yc;
+    const Eigen::MatrixXd normal = dense.transpose() * wc.asDiagonal() * dense;
+    for (int j = 0; j < cols; ++j) {
+      EXPECT_NEAR(adjoint.ptr<float>()[j * channels + c], expected_adjoint[j], 1e-4);
+      EXPECT_NEAR(diagonal.ptr<float>()[j * channels + c], normal(j, j), 1e-4 * (1.0 + normal(j, j)));
+    }
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(ChannelsAndThreads, NormalProduct,
+                         ::testing::Combine(::testing::Values(1, 3), ::testing::Values(1, 3)));
+
+// A small SPD system N = B^T B + I with badly scaled unknowns (D N D).
+struct SmallSystem {
+  Eigen::MatrixXd normal;
+  Eigen::VectorXd rhs;
+};
+
+SmallSystem BadlyScaledSystem(int n) {
+  std::mt19937 rng(3);
+  std::normal_distribution<double> gaussian;
+  Eigen::MatrixXd b(2 * n, n);
+  for (int i = 0; i < b.size(); ++i) b.data()[i] = gaussian(rng);
+  Eigen::VectorXd scale(n);
+  for (int i = 0; i < n; ++i) scale[i] = std::pow(10.0, 2.0 * i / (n - 1));  // 1 .. 100
+  SmallSystem system;
+  system.normal =
+      scale.asDiagonal() * (b.transpose() * b + Eigen::MatrixXd::Identity(n, n)) * scale.asDiagonal();
+  system.rhs = Eigen::VectorXd(n);
+  for (int i = 0; i < n; ++i) system.rhs[i] = gaussian(rng);
+  return system;
+}
+
+// Runs SolveJacobiPcg from x = 0 with the given diagonal; returns x and the steps.
+std::pair<Eigen::VectorXd, int> SolveSmall(const SmallSystem& system, const cv::Mat& diagonal, int max_steps,
+                                           double tolerance) {
+  const int n = static_cast<int>(system.rhs.size());
+  const Eigen::MatrixXf normal = system.normal.cast<float>();
+  const auto apply = [&normal, n](const cv::Mat& x, cv::Mat* out) {
+    out->create(n, 1, CV_32FC1);
+    Eigen::Map<const Eigen::VectorXf> in(x.ptr<float>(), n);
+    Eigen::Map<Eigen::VectorXf>(out->ptr<float>(), n) = normal * in;
+  };
+  cv::Mat x = cv::Mat::zeros(n, 1, CV_32FC1);
+  cv::Mat residual(n, 1, CV_32FC1);
+  for (int i = 0; i < n; ++i) residual.at<float>(i) = static_cast<float>(system.rhs[i]);
+  const int steps = SolveJacobiPcg(apply, diagonal, residual, max_steps, tolerance, 1, &x);
+  Eigen::VectorXd solution(n);
+  for (int i = 0; i < n; ++i) solution[i] = x.at<float>(i);
+  return {solution, steps};
+}
+
+TEST(JacobiPcg, ConvergesToTheSameSolutionAsPlainCgInFewerSteps) {
+  const int n = 40;
+  const SmallSystem system = BadlyScaledSystem(n);
+  const Eigen::VectorXd exact = system.normal.ldlt().solve(system.rhs);
+  cv::Mat jacobi(n, 1, CV_32FC1), ones(n, 1, CV_32FC1, cv::Scalar(1.0));
+  for (int i = 0; i < n; ++i) jacobi.at<float>(i) = static_cast<float>(system.normal(i, i));
+  const auto [preconditioned, pcg_steps] = SolveSmall(system, jacobi, 2000, 1e-5);
+  const auto [plain, cg_steps] = SolveSmall(system, ones, 2000, 1e-5);  // M = I: plain CG
+  EXPECT_LT((preconditioned - exact).norm() / exact.norm(), 1e-3);
+  EXPECT_LT((plain - exact).norm() / exact.norm(), 1e-3);
+  EXPECT_LT((preconditioned - plain).norm() / exact.norm(), 1e-3);
+  EXPECT_LT(pcg_steps, cg_steps);
+}
+
+TEST(JacobiPcg, StopsAtTheRelativeResidualOrTheCap) {
+  const int n = 40;
+  const SmallSystem system = BadlyScaledSystem(n);
+  cv::Mat jacobi(n, 1, CV_32FC1);
+  for (int i = 0; i < n; ++i) jacobi.at<float>(i) = static_cast<float>(system.normal(i, i));
+  const auto [loose, loose_steps] = SolveSmall(system, jacobi, 2000, 0.1);
+  EXPECT_LE((system.rhs - system.normal * loose).norm(), 0.1 * system.rhs.norm() * (1.0 + 1e-4));
+  EXPECT_EQ(SolveSmall(system, jacobi, 3, 0.0).second, 3);
+  EXPECT_LT(loose_steps, SolveSmall(system, jacobi, 2000, 1e-5).second);
+}
+
+// The update lowers the energy of a small deblurring problem (a capture
+// operator with motion blur and 2x down-sampling) from a flat start.
+TEST(ImageUpdate, LowersTheEnergyOfARandomProblem) {
+  std::mt19937 rng(5);
+  const int lr_rows = 12, lr_cols = 16, hr_rows = 24, hr_cols = 32;
+  CaptureGeometry geometry;
+  geometry.camera_hr = PinholeCamera(hr_cols, hr_rows, 30.0, 30.0, hr_cols / 2.0, hr_rows / 2.0);
+  geometry.depth_hr = cv::Mat(hr_rows, hr_cols, CV_32FC1, cv::Scalar(2.0));
+  geometry.T_world_cam = SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0.0, 0.0, 0.0));
+  geometry.T_world_neighbour = SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(-0.05, 0.0, 0.0));
+  geometry.stamp = 1.0;
+  geometry.neighbour_stamp = 0.9;
+  geometry.exposure = 0.08;
+  CaptureOperatorOptions op_options;
+  op_options.samples = 10;
+  const CaptureOperator op = BuildCaptureOperator(geometry, op_options);
+  const cv::Mat truth = RandomImage(hr_rows * hr_cols, 1, 0.0f, 1.0f, &rng).reshape(1, hr_rows);
+  cv::Mat observation;
+  op.Apply(truth, &observation);
+  std::vector<LinearL1Term> terms{{&op, &observation, cv::Mat(), 1.0}};
+  ImageUpdateOptions options;
+  options.lambda_i = 0.01;
+  cv::Mat image(hr_rows, hr_cols, CV_32FC1, cv::Scalar(0.5));
+  const double before = ImageEnergy(terms, options.lambda_i, image);
+  UpdateImage(terms, options, &image);
+  const double after = ImageEnergy(terms, options.lambda_i, image);
+  EXPECT_LT(after, 0.5 * before);
+  ASSERT_EQ(lr_rows, observation.rows);
+  ASSERT_EQ(lr_cols, observation.cols);
+}
+
+}  // namespace
+}  // namespace deblur_sr_mvs
