@@ -58,6 +58,11 @@ inline Json EstimateReportJson(const EstimatorOptions& options, const std::strin
   Json gains = Json::array();
   for (double gain : result.frame_gains) gains.push_back(JsonNumber(gain));
   report["frame_gains"] = gains;
+  // The noise level used (given, or estimated from the window's frames) in
+  // 8-bit gray levels, and the image TV weight it gave.
+  report["noise"] = {{"sigma_gray_levels", JsonNumber(result.noise_sigma * 255.0)},
+                     {"estimated", options.noise_sigma < 0.0},
+                     {"lambda_i", JsonNumber(result.image_lambda_i)}};
   return report;
 }
 

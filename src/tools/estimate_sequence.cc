@@ -49,7 +49,8 @@ struct Flags {
   std::string pose_prior;  // TUM file of T_prior_cam, empty = none
   std::string mode = "joint";
   std::string structure_matching = "both";
-  std::string exposure;  // "auto": estimated from the blur; empty: frames.csv's
+  std::string exposure;              // "auto": estimated from the blur; empty: frames.csv's
+  std::string noise_sigma = "auto";  // "auto" or 8-bit gray levels
   bool fixed_poses = false;
   bool fixed_samples = false;
   bool quiet = false;
@@ -62,6 +63,16 @@ double PeakMemoryMiB() {
   rusage usage{};
   getrusage(RUSAGE_SELF, &usage);
   return usage.ru_maxrss / 1024.0;  // Linux: KiB
+}
+
+// --noise-sigma: "auto" (negative: estimated) or gray levels of 8-bit frames.
+double ParseNoiseSigma(const std::string& text) {
+  if (text == "auto") return -1.0;
+  char* end = nullptr;
+  const double gray_levels = std::strtod(text.c_str(), &end);
+  if (end == text.c_str() || *end != '\0' || !(gray_levels >= 0.0 && gray_levels <= 255.0))
+    throw dsm::InputError("--noise-sigma: expected auto or gray levels in [0, 255], got '" + text + "'");
+  return gray_levels / 255.0;
 }
 
 // Parses the command line into flags and options; false after --help.
@@ -97,6 +108,9 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
                  "auto: estimate the exposure from the blur (a fraction of the frame interval), "
                  "overriding frames.csv's")
       ->check(CLI::IsMember({"auto"}));
+  cli.add_option("--noise-sigma", flags->noise_sigma,
+                 "sensor noise of the frames, standard deviation in 8-bit gray levels, or auto: estimated "
+                 "per window; sets the image TV weight (default auto)");
   cli.add_option("--output-scale", flags->output_scale, "bicubic up-sampling of the outputs, 1-4")
       ->check(dsm::FlagInt(1, 4));
   cli.add_option("--pose-prior", flags->pose_prior,
@@ -113,6 +127,7 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   options->structure_matching = dsm::ParseStructureMatching(flags->structure_matching);
   if (flags->fixed_poses) options->update_poses = false;
   options->adaptive_samples = !flags->fixed_samples;
+  options->noise_sigma = ParseNoiseSigma(flags->noise_sigma);
   options->Check();
   return true;
 }

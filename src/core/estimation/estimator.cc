@@ -20,6 +20,7 @@
 #include "deblur_sr_mvs/core/common/runtime.h"
 #include "deblur_sr_mvs/core/estimation/frame_structure.h"
 #include "deblur_sr_mvs/core/imaging/image_ops.h"
+#include "deblur_sr_mvs/core/imaging/noise_estimation.h"
 
 namespace deblur_sr_mvs {
 namespace {
@@ -1024,6 +1025,8 @@ void EstimatorOptions::Check() const {
   CheckAtLeast("fixed_leading_poses", fixed_leading_poses, 1);
   CheckAtLeast("held_leading_latents", held_leading_latents, 0);
   CheckAtLeast("max_seconds", max_seconds, 0.0);
+  CheckInRange("model_error_sigma", model_error_sigma, 1e-6, 1.0);
+  if (noise_sigma > 1.0) throw InputError("noise_sigma must be <= 1 (intensity units; negative: auto)");
   gain.Check();
   image.Check();
   structure.Check();
@@ -1147,8 +1150,22 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input, const s
   const int threads = ResolveThreads(options_.num_threads);
   omp_set_num_threads(threads);
   CheckWindowValues(input, T_world_cam);
-  WindowSolver solver(options_, threads, input, depth_hr, T_world_cam, cancel_, progress);
-  return solver.Solve();
+  EstimatorOptions noise_aware = options_;
+  const double noise_sigma =
+      options_.noise_sigma >= 0.0 ? options_.noise_sigma : EstimateNoiseSigma(input.images);
+  noise_aware.image = NoiseAwareImageOptions(options_, noise_sigma);
+  WindowSolver solver(noise_aware, threads, input, depth_hr, T_world_cam, cancel_, progress);
+  EstimatorResult result = solver.Solve();
+  result.noise_sigma = noise_sigma;
+  result.image_lambda_i = noise_aware.image.lambda_i;
+  return result;
+}
+
+ImageUpdateOptions NoiseAwareImageOptions(const EstimatorOptions& options, double noise_sigma) {
+  ImageUpdateOptions image = options.image;
+  const double relative = std::max(noise_sigma, 0.0) / options.model_error_sigma;
+  image.lambda_i *= std::sqrt(1.0 + relative * relative);
+  return image;
 }
 
 }  // namespace deblur_sr_mvs

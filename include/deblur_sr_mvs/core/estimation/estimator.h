@@ -56,6 +56,10 @@ StructureMatching ParseStructureMatching(const std::string& text);
 // "joint" | "baseline"; throws InputError otherwise.
 EstimatorMode ParseEstimatorMode(const std::string& text);
 
+// EstimatorOptions::model_error_sigma's default, fitted on the benchmark
+// scenes (BENCHMARKS.md "Noise").
+constexpr double kModelErrorSigma = 1.0 / 255.0;
+
 struct EstimatorOptions {
   EstimatorMode mode = EstimatorMode::kJoint;
   int scale = 2;     // super-resolution factor (1: "w/o SR")
@@ -70,8 +74,17 @@ struct EstimatorOptions {
   // longer baselines constrain the translations better, and the pose
   // update is cheap next to the image update. kBlurred uses N(t) only.
   int pose_neighbour_radius = 2;
-  double lambda_s = 30.0;            // self-consistency weight (eq:IPterm)
-  ImageUpdateOptions image;          // lambda_i and the IRLS/CG budget
+  double lambda_s = 30.0;    // self-consistency weight (eq:IPterm)
+  ImageUpdateOptions image;  // lambda_i and the IRLS/CG budget
+  // Sensor noise of the LR frames: its standard deviation in intensity
+  // units (frames in [0, 1]); negative: estimated per window from the frames
+  // (EstimateNoiseSigma). The image update's weights follow it
+  // (NoiseAwareImageOptions), so that it does not amplify the noise.
+  double noise_sigma = -1.0;
+  // The residual that the data terms see on noise-free frames (model error:
+  // warps, blur model, quantisation), in intensity units: image.lambda_i is
+  // the weight for it, and the noise adds to it (NoiseAwareImageOptions).
+  double model_error_sigma = kModelErrorSigma;
   StructureUpdateOptions structure;  // lambda_d and the IRLS/GN budget
   VisibilityOptions visibility;
   InitializerOptions initializer;
@@ -164,7 +177,23 @@ struct EstimatorResult {
   // Per frame the gain relative to the first that the input was divided by
   // (EstimatorOptions::gain_compensation); empty when compensation is off.
   std::vector<double> frame_gains;
+  // The noise level the window was estimated with (EstimatorOptions::
+  // noise_sigma, or its estimate; intensity units) and the image TV weight
+  // it gave (NoiseAwareImageOptions).
+  double noise_sigma = 0.0;
+  double image_lambda_i = 0.0;
 };
+
+// The image update's options for frames with noise of `noise_sigma`
+// (intensity units). eq:imgUpdate's L1 data terms are the MAP data term of
+// Laplacian residuals, |r| / b with b proportional to their standard
+// deviation; relative to them the TV prior's weight is lambda_i * b. The
+// residual is the model error (options.model_error_sigma, for which
+// options.image.lambda_i was chosen) plus the independent sensor noise, so
+// b grows as sqrt(model_error_sigma^2 + noise_sigma^2), and so does lambda_i:
+//   lambda_i(noise) = lambda_i * sqrt(1 + (noise_sigma / model_error_sigma)^2).
+// Noise-free frames (noise_sigma well below model_error_sigma) keep lambda_i.
+ImageUpdateOptions NoiseAwareImageOptions(const EstimatorOptions& options, double noise_sigma);
 
 // Progress: (fraction done in [0, 1], what is running).
 using ProgressCallback = std::function<void(double, const std::string&)>;
