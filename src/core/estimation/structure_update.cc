@@ -516,13 +516,17 @@ class DepthNormalEquations {
   double damping_ = 0.0;
 };
 
-// Jacobi-preconditioned CG on N step = rhs from a zero step.
+// CG on N step = rhs from a zero step, Jacobi-preconditioned when asked
+// (a zero diagonal leaves SolveJacobiPcg unpreconditioned).
 void SolveDepthStep(DepthNormalEquations* system, const cv::Mat& rhs, const StructureUpdateOptions& options,
                     cv::Mat* step) {
   step->setTo(0.0);
-  SolveJacobiPcg([system](const cv::Mat& x, cv::Mat* out) { system->ApplyNormal(x, out); },
-                 system->diagonal(), rhs.clone(), options.depth_cg_iterations, options.depth_cg_tolerance, 1,
-                 step);
+  const cv::Mat diagonal =
+      options.depth_cg_preconditioned
+          ? system->diagonal()
+          : cv::Mat(cv::Mat::zeros(system->diagonal().size(), system->diagonal().type()));
+  SolveJacobiPcg([system](const cv::Mat& x, cv::Mat* out) { system->ApplyNormal(x, out); }, diagonal,
+                 rhs.clone(), options.depth_cg_iterations, options.depth_cg_tolerance, 1, step);
 }
 
 }  // namespace

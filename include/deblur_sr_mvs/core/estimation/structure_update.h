@@ -26,11 +26,15 @@ struct StructureUpdateOptions {
   double lambda_d = 0.1;
   EdgeWeightOptions edge_weight;  // g_t
   int depth_irls_iterations = 3;  // re-linearisations (warps) per update
-  // Jacobi-preconditioned CG per reweighted system: at most
+  // CG per reweighted system: at most
   // depth_cg_iterations steps, fewer once the residual is below
   // depth_cg_tolerance x the right-hand side's norm (0: always all steps).
   int depth_cg_iterations = 15;
   double depth_cg_tolerance = 0.05;
+  // Jacobi preconditioning of the depth CG. Off: with it, 15 steps reach a
+  // different (not better) step; on the exact-prior test sequence the depth
+  // in metres came out 0.0102 rel. error against 0.0090 without it.
+  bool depth_cg_preconditioned = false;
   int pose_iterations = 6;         // Gauss-Newton steps of the joint pose update
   double residual_epsilon = 1e-3;  // L1 smoothing (intensity in [0, 1])
   double tv_epsilon = 0.05;        // TV smoothing, parallax px
