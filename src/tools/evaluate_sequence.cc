@@ -3,7 +3,7 @@
 // image PSNR beside bicubic (tab:quantBlur), depth PSNR / rel. and ATE RMSE
 // (tab:quant).
 // Usage: evaluate_sequence --result OUT --sequence SEQ [--crop F] [--json FILE]
-//                          [--method NAME] [--confidence-threshold X]
+//                          [--method NAME] [--confidence-threshold X [--recompute-confidence]]
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -62,6 +62,26 @@ void MaskByConfidence(const std::string& result_dir, double threshold, dsm::Sequ
   }
 }
 
+// The result's depth with NaN where a depth confidence recomputed now, with
+// the default DepthConfidenceOptions, from the result's latent/ (8-bit),
+// depth/ and poses.txt is below `threshold`: how the current code would mask
+// a result written by an older build.
+void MaskByRecomputedConfidence(const std::string& result_dir, double threshold,
+                                dsm::SequenceResult* result) {
+  if (!result->HasDepth() || !result->HasPoses()) {
+    throw dsm::InputError(result_dir + ": --recompute-confidence needs depth and poses");
+  }
+  std::vector<cv::Mat> latent(result->latent.size());
+  for (size_t t = 0; t < latent.size(); ++t) result->latent[t].convertTo(latent[t], CV_32F, 1.0 / 255.0);
+  std::vector<dsm::SE3> T_world_cam;
+  for (const dsm::StampedPose& pose : result->poses) T_world_cam.push_back(pose.T_world_cam);
+  const std::vector<cv::Mat> confidence = dsm::ComputeDepthConfidence(
+      result->calibration.camera, latent, result->depth, T_world_cam, dsm::DepthConfidenceOptions());
+  for (size_t t = 0; t < result->depth.size(); ++t) {
+    result->depth[t] = dsm::MaskUnconfidentDepth(result->depth[t], confidence[t], threshold);
+  }
+}
+
 int Run(int argc, char** argv) {
   std::string result_dir, sequence_dir, json_path, method;
   dsm::EvaluationOptions options;
@@ -85,6 +105,11 @@ int Run(int argc, char** argv) {
                  "evaluate the result's depth with NaN where its depth_confidence/ map is below this "
                  "(as estimate_sequence --depth-confidence-threshold writes it); 0 = as written")
       ->check(dsm::FlagNumber(0.0, 1.0));
+  bool recompute_confidence = false;
+  cli.add_flag(
+      "--recompute-confidence", recompute_confidence,
+      "with --confidence-threshold: recompute the confidence from the result's latent/, depth/ and "
+      "poses.txt with this build's defaults instead of reading depth_confidence/ (to compare builds)");
   cli.add_option("--json", json_path, "also write the numbers as JSON");
   cli.add_option("--method", method, "row label (default: the result folder's name)");
   if (!cli.Parse(argc, argv)) return 0;
@@ -96,7 +121,14 @@ int Run(int argc, char** argv) {
   }
 
   dsm::SequenceResult result = dsm::ReadResult(result_dir);
-  if (confidence_threshold > 0.0) MaskByConfidence(result_dir, confidence_threshold, &result);
+  if (recompute_confidence && confidence_threshold <= 0.0) {
+    throw dsm::InputError("--recompute-confidence needs --confidence-threshold above 0");
+  }
+  if (recompute_confidence) {
+    MaskByRecomputedConfidence(result_dir, confidence_threshold, &result);
+  } else if (confidence_threshold > 0.0) {
+    MaskByConfidence(result_dir, confidence_threshold, &result);
+  }
   const dsm::Sequence sequence = dsm::ReadSequence(sequence_dir, /*read_ground_truth=*/true);
   if (!sequence.ground_truth) {
     throw dsm::InputError(sequence_dir + ": no gt/ folder (ground truth) to evaluate against");

@@ -20,6 +20,7 @@ void DepthConfidenceOptions::Check() const {
   CheckAbove("depth confidence: min_contrast", min_contrast, 0.0);
   CheckInInterval("depth confidence: min_visible_share", min_visible_share, 0.0, 1.0, Interval::kRightClosed);
   CheckInRange("depth confidence: threshold", threshold, 0.0, 1.0);
+  CheckAtLeast("depth confidence: max_depth_disagreement", max_depth_disagreement, 0.0);
   visibility.Check();
 }
 
@@ -62,14 +63,19 @@ cv::Mat TextureFactor(const cv::Mat& gray, const DepthConfidenceOptions& options
   return factor;
 }
 
-// I_s warped into t (bilinear) where Omega_ts holds, 0 elsewhere; `weight`
-// receives 1 where it holds, 0 elsewhere.
-cv::Mat WarpVisible(const PinholeCamera& camera, const cv::Mat& depth_t, const SE3& T_s_t,
-                    const cv::Mat& visible, const cv::Mat& gray_s, cv::Mat* weight) {
+// I_s warped into t (bilinear) where Omega_ts holds, 0 elsewhere. `weight`
+// receives, per pixel, how far the depth maps of t and s agree there: 1 where
+// the depth D_t gives to the point in camera s is within
+// `max_depth_disagreement` (relative) of D_s at the pixel it lands on,
+// falling linearly to 0 at twice that; 0 where Omega_ts does not hold.
+cv::Mat WarpVisible(const PinholeCamera& camera, const cv::Mat& depth_t, const cv::Mat& depth_s,
+                    const SE3& T_s_t, const cv::Mat& visible, const cv::Mat& gray_s,
+                    const DepthConfidenceOptions& options, cv::Mat* weight) {
   const PixelTransfer transfer(camera, T_s_t);
   cv::Mat map_x(depth_t.size(), CV_32FC1, cv::Scalar(-1.0f));
   cv::Mat map_y(depth_t.size(), CV_32FC1, cv::Scalar(-1.0f));
   weight->create(depth_t.size(), CV_32FC1);
+  const double tolerance = options.max_depth_disagreement;
   for (int y = 0; y < depth_t.rows; ++y) {
     const float* d = depth_t.ptr<float>(y);
     const uchar* v = visible.ptr<uchar>(y);
@@ -78,26 +84,40 @@ cv::Mat WarpVisible(const PinholeCamera& camera, const cv::Mat& depth_t, const S
     float* w = weight->ptr<float>(y);
     for (int x = 0; x < depth_t.cols; ++x) {
       Eigen::Vector2d p;
+      double depth_in_s = 0.0;
       w[x] = 0.0f;
-      if (v[x] == 0 || !transfer.Warp(x, y, d[x], &p)) continue;
+      if (v[x] == 0 || !transfer.Warp(x, y, d[x], &p, &depth_in_s)) continue;
       mx[x] = static_cast<float>(p.x());
       my[x] = static_cast<float>(p.y());
       w[x] = 1.0f;
+      if (tolerance <= 0.0) continue;
+      const int u_s = static_cast<int>(std::lround(p.x()));
+      const int v_s = static_cast<int>(std::lround(p.y()));
+      if (u_s < 0 || v_s < 0 || u_s >= depth_s.cols || v_s >= depth_s.rows) continue;
+      const float measured = depth_s.at<float>(v_s, u_s);
+      if (!(measured > 0.0f)) continue;  // unknown in s: no evidence against
+      const double disagreement = std::abs(depth_in_s - measured) / measured;
+      w[x] = static_cast<float>(std::clamp(2.0 - disagreement / tolerance, 0.0, 1.0));
     }
   }
   cv::Mat warped;
   cv::remap(gray_s, warped, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_REPLICATE);
-  return warped.mul(*weight);
+  cv::Mat in_view = *weight > 0.0f;
+  warped.setTo(0.0f, ~in_view);
+  return warped;
 }
 
-// max(best, max(0, ZNCC)) of gray_t against `warped` over the pixels of each
-// patch that `weight` marks, where x itself is visible and enough of the
-// patch is.
+// max(best, geometric agreement x max(0, ZNCC)) of gray_t against `warped`
+// over the visible pixels of each patch (`weight` > 0), where x itself is
+// visible and enough of the patch is; the geometric agreement is `weight`
+// at x (see WarpVisible).
 void AccumulateAgreement(const cv::Mat& gray_t, const cv::Mat& warped, const cv::Mat& weight,
                          const DepthConfidenceOptions& options, cv::Mat* best) {
   const int r = options.patch_radius;
-  const cv::Mat a = gray_t.mul(weight);  // warped is 0 where weight is
-  const cv::Mat count = PatchSum(weight, r);
+  cv::Mat in_view;
+  cv::threshold(weight, in_view, 0.0, 1.0, cv::THRESH_BINARY);
+  const cv::Mat a = gray_t.mul(in_view);  // warped is 0 where in_view is
+  const cv::Mat count = PatchSum(in_view, r);
   const cv::Mat sum_a = PatchSum(a, r);
   const cv::Mat sum_b = PatchSum(warped, r);
   const cv::Mat sum_aa = PatchSum(a.mul(a), r);
@@ -122,7 +142,7 @@ void AccumulateAgreement(const cv::Mat& gray_t, const cv::Mat& warped, const cv:
       const float var_b = sbb[x] / n[x] - mean_b * mean_b;
       if (var_a <= kTinyVariance || var_b <= kTinyVariance) continue;
       const float zncc = (sab[x] / n[x] - mean_a * mean_b) / std::sqrt(var_a * var_b);
-      out[x] = std::max(out[x], std::min(1.0f, zncc));
+      out[x] = std::max(out[x], w[x] * std::min(1.0f, zncc));
     }
   }
 }
@@ -170,7 +190,8 @@ std::vector<cv::Mat> ComputeDepthConfidence(const PinholeCamera& camera, const s
       const SE3 T_s_t = T_world_cam[s].Inverse() * T_world_cam[t];
       const cv::Mat visible = ComputeVisibility(camera, depth[t], T_s_t, options.visibility);
       cv::Mat weight;
-      const cv::Mat warped = WarpVisible(camera, depth[t], T_s_t, visible, gray[s], &weight);
+      const cv::Mat warped =
+          WarpVisible(camera, depth[t], depth[s], T_s_t, visible, gray[s], options, &weight);
       AccumulateAgreement(gray[t], warped, weight, options, &best);
     }
     confidence[t] = best.mul(TextureFactor(gray[t], options));

@@ -119,6 +119,37 @@ TEST(DepthConfidence, MaskSetsNanBelowTheThresholdOnly) {
   EXPECT_EQ(depth.at<float>(0, 0), 2.0f);  // the input is not changed
 }
 
+// Two frames at one pose see the same textured image, so the images agree
+// at any depth; only the depth maps can disagree. D_s 3 % off D_t keeps full
+// confidence, 20 % off removes it, and with the geometric test off the
+// images alone decide.
+TEST(DepthConfidence, DepthMapsThatDisagreeLoseTheirConfidence) {
+  PinholeCamera camera;
+  camera.width = 40;
+  camera.height = 30;
+  camera.fx = camera.fy = 40.0;
+  camera.cx = 19.5;
+  camera.cy = 14.5;
+  cv::Mat texture(30, 40, CV_32FC1);
+  cv::RNG rng(7);
+  rng.fill(texture, cv::RNG::UNIFORM, 0.0f, 1.0f);
+  const std::vector<cv::Mat> latent{texture, texture};
+  const std::vector<SE3> poses{SE3(), SE3()};
+  const cv::Mat depth_t(30, 40, CV_32FC1, cv::Scalar(1.0f));
+  const cv::Rect inner(4, 4, 32, 22);  // away from the patches' border handling
+  auto mean_confidence = [&](float depth_s, double tolerance) {
+    DepthConfidenceOptions options;
+    options.max_depth_disagreement = tolerance;
+    const std::vector<cv::Mat> depth{depth_t, cv::Mat(30, 40, CV_32FC1, cv::Scalar(depth_s))};
+    return cv::mean(ComputeDepthConfidence(camera, latent, depth, poses, options)[0](inner))[0];
+  };
+  EXPECT_GT(mean_confidence(1.03f, 0.05), 0.99);
+  EXPECT_LT(mean_confidence(1.2f, 0.05), 0.01);
+  EXPECT_GT(mean_confidence(1.2f, 0.0), 0.99);
+  // Half way between the tolerance and twice it: half the agreement.
+  EXPECT_NEAR(mean_confidence(1.0f / (1.0f - 0.075f), 0.05), 0.5, 0.02);
+}
+
 TEST(DepthConfidence, BadOptionsAndInputAreRejected) {
   DepthConfidenceOptions options;
   options.threshold = 1.5;
@@ -128,6 +159,9 @@ TEST(DepthConfidence, BadOptionsAndInputAreRejected) {
   EXPECT_THROW(options.Check(), InputError);
   options = DepthConfidenceOptions();
   options.min_contrast = 0.0;
+  EXPECT_THROW(options.Check(), InputError);
+  options = DepthConfidenceOptions();
+  options.max_depth_disagreement = -0.1;
   EXPECT_THROW(options.Check(), InputError);
   PinholeCamera camera;
   camera.width = 4;

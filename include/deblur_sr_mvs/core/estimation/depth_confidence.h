@@ -8,18 +8,24 @@
 // projects into camera s and is not occluded there) and the restored latent
 // images must agree around it: the zero-mean normalised cross-correlation
 // (ZNCC) of I_t and I_s warped into t (eq:warpingFunction) over a small
-// patch. The best agreement over the frames s is multiplied by a texture
-// factor, min(1, patch standard deviation of I_t / min_contrast): a
-// textureless patch matches anywhere, so it gives no evidence of depth.
+// patch, and the depth maps must agree: the depth D_t gives to x in camera s
+// must match D_s where x lands (g_ts(x) = 1 within max_depth_disagreement,
+// falling to 0 at twice it). The best agreement over the frames s is
+// multiplied by a texture factor, min(1, patch standard deviation of I_t /
+// min_contrast): a textureless patch matches anywhere, so it gives no
+// evidence of depth.
 //
-//   confidence(x) = min(1, std_t(x) / min_contrast) * max_s max(0, ZNCC_ts(x))
+//   confidence(x) = min(1, std_t(x) / min_contrast)
+//                   * max_s g_ts(x) max(0, ZNCC_ts(x))
 //
 // in [0, 1]; 0 where no frame sees x (borders leaving the view,
 // disocclusions) or where the depth is unknown. The latent images were
 // restored with the same depth and poses (the self-consistency term pulls
 // I_t towards I_s warped with them), so the agreement is a necessary, not a
-// sufficient, condition: it catches what no frame sees and what the images
-// contradict, not every error of a smooth surface.
+// sufficient, condition. The depth maps of neighbouring frames were each
+// fitted to their own frame's data, so where D_t was extrapolated (a strip
+// leaving the view, a disocclusion) it rarely lands on the depth s measured
+// there: that test catches much of what the images alone let through.
 #pragma once
 
 #include <vector>
@@ -40,9 +46,17 @@ struct DepthConfidenceOptions {
   // The ZNCC and the contrast use (2 patch_radius + 1)^2 pixels.
   int patch_radius = 2;
   // Patch standard deviation (intensity in [0, 1]) from which a patch counts
-  // as fully textured; below it the confidence falls linearly to 0. 0.02 is
-  // about 5 gray levels, twice the sensor noise the benchmark renders.
-  double min_contrast = 0.02;
+  // as fully textured; below it the confidence falls linearly to 0. 0.005
+  // is about 1.3 gray levels: flatter patches carry no more than 8-bit
+  // rounding and sensor noise, so their correlation says nothing. Measured
+  // (BENCHMARKS.md, "Depth confidence"): 0.02 masked a third of a smooth
+  // scene whose depth was as good as the rest.
+  double min_contrast = 0.005;
+  // Geometric consistency of the depth maps of t and s: where the depth D_t
+  // gives to a pixel in camera s differs from D_s at the pixel it lands on by
+  // more than this (relative), the agreement with s is scaled down linearly,
+  // to 0 at twice this. 0 turns the test off.
+  double max_depth_disagreement = 0.05;
   // A ZNCC needs at least this share of the patch visible from s.
   double min_visible_share = 0.5;
   // Depth whose confidence is below this becomes NaN (MaskUnconfidentDepth);
