@@ -175,6 +175,8 @@ class StreamEstimator {
   // window_overlap): a continued window hands the capture operators among
   // them to the next one, which uses those whose structure did not change
   // instead of building them (EstimatorOptions::carried_frames). 0: none.
+  // Default: StreamOptions' default (2), the least overlap a stream has, so
+  // those frames are shared whatever the overlap.
   void SetWindowOverlap(int frames);
 
   // Estimates `window` (frames of `camera_lr`'s size, increasing stamps).
