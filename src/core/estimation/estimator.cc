@@ -164,28 +164,31 @@ cv::Mat VisibleFromSource(const PinholeCamera& camera_hr, const std::vector<Fram
 }
 
 // Operators Psi_t[src] and their visibility masks, rebuilt only when the
-// structure they depend on (D_t, P_t, P_neighbour(t), P_src) changed. The
-// virtual depths D_tau of frame t depend on D_t, P_t and P_neighbour(t) only:
-// they are computed once per structure and shared by the operators of every
-// source. Memory is bounded: the least recently used entries go first.
+// structure they depend on (D_t, P_t, P_neighbour(t), P_src) changed, or
+// taken from the previous window of a stream when they were built there from
+// the same structure. The virtual depths D_tau of frame t depend on D_t, P_t
+// and P_neighbour(t) only: they are computed once per structure, shared by
+// the operators of every source, and dropped once each source's operator at
+// that structure is there. Memory is bounded: the least recently used
+// operators go first.
 class OperatorCache {
  public:
-  struct Entry {
-    CaptureOperator op;
-    cv::Mat mask;  // LR CV_8UC1: Omega_{t,src} and full coverage
-    std::vector<long> versions;
-  };
+  using Entry = MaskedOperator;
 
   // One builder (scratch buffers) per thread: Get may be called from the
   // threads of a parallel loop over frames, each building its own operators.
+  // sources_per_frame[t]: how many sources frame t's operators sample.
   OperatorCache(const CaptureOperatorOptions& options, int threads, const PinholeCamera& camera_hr,
-                const VisibilityOptions& visibility, size_t max_bytes, size_t max_depth_bytes, int num_frames)
+                const VisibilityOptions& visibility, size_t max_bytes, size_t max_depth_bytes,
+                const std::vector<int>& sources_per_frame, const CarriedOperators& carried)
       : options_(options),
         camera_hr_(camera_hr),
         visibility_(visibility),
         max_bytes_(max_bytes),
         max_depth_bytes_(max_depth_bytes),
-        frame_depths_(num_frames) {
+        sources_per_frame_(sources_per_frame),
+        frame_depths_(sources_per_frame.size()),
+        carried_(carried) {
     for (int i = 0; i < threads; ++i) builders_.emplace_back(options);
   }
 
@@ -195,24 +198,80 @@ class OperatorCache {
                                    const std::vector<long>& depth_version,
                                    const std::vector<long>& pose_version, int t, int source, Timer* timer) {
     const int neighbour = t > 0 ? t - 1 : t + 1;
+    const std::vector<long> depth_versions = {depth_version[t], pose_version[t], pose_version[neighbour]};
     const std::vector<long> versions = {depth_version[t], pose_version[t], pose_version[neighbour],
                                         pose_version[source]};
     const auto key = std::make_pair(t, source);
     {
       std::lock_guard<std::mutex> lock(mutex_);
       auto it = entries_.find(key);
-      if (it != entries_.end() && it->second->versions == versions) {
+      if (it != entries_.end() && it->second.versions == versions) {
         Touch(key);
-        return it->second;
+        return it->second.entry;
       }
     }
     const double start = NowMs();
-    const std::shared_ptr<const VirtualDepths> depths =
-        SharedDepths(frames, t, {depth_version[t], pose_version[t], pose_version[neighbour]});
+    const CaptureGeometry geometry = MakeCaptureGeometry(frames, camera_hr_, t, source);
+    std::shared_ptr<const Entry> entry = TakeCarried(geometry);
+    if (entry == nullptr) {
+      entry = Build(frames, geometry, t, source, depth_versions);
+      timer->AddSince("operator builds (thread seconds)", start);
+    }
+    CountSource(t, source, depth_versions);
+    std::lock_guard<std::mutex> lock(mutex_);
+    auto it = entries_.find(key);
+    if (it != entries_.end()) {
+      bytes_ -= Bytes(*it->second.entry);
+      it->second = Slot{entry, versions};
+    } else {
+      entries_[key] = Slot{entry, versions};
+    }
+    bytes_ += Bytes(*entry);
+    Touch(key);
+    Evict(key);
+    return entry;
+  }
+
+  // The operators at the current structure of frames t >= first + 1 sampling
+  // sources >= first (t's path neighbour t - 1 is then >= first too).
+  CarriedOperators Carry(const std::vector<FrameStructure>& frames, const std::vector<long>& depth_version,
+                         const std::vector<long>& pose_version, int first) {
+    CarriedOperators carried;
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (const auto& [key, slot] : entries_) {
+      const auto [t, source] = key;
+      if (t < first + 1 || source < first) continue;
+      if (slot.versions !=
+          std::vector<long>{depth_version[t], pose_version[t], pose_version[t - 1], pose_version[source]})
+        continue;
+      carried.push_back(
+          {MakeCaptureGeometry(frames, camera_hr_, t, source), options_, visibility_, slot.entry});
+    }
+    return carried;
+  }
+
+  // Drops the operators offered by the previous window that were not used
+  // (once the window's first structure has all its operators).
+  void ForgetCarried() {
+    std::lock_guard<std::mutex> lock(mutex_);
+    carried_.clear();
+  }
+  int reused() const { return reused_; }
+
+ private:
+  struct Slot {
+    std::shared_ptr<const Entry> entry;
+    std::vector<long> versions;
+  };
+
+  // Psi_t[source] and its mask, built on the calling thread.
+  std::shared_ptr<const Entry> Build(const std::vector<FrameStructure>& frames,
+                                     const CaptureGeometry& geometry, int t, int source,
+                                     const std::vector<long>& depth_versions) {
+    const std::shared_ptr<const VirtualDepths> depths = SharedDepths(frames, t, depth_versions);
     auto entry = std::make_shared<Entry>();
     const size_t thread = std::min<size_t>(omp_get_thread_num(), builders_.size() - 1);
-    builders_[thread].Build(MakeCaptureGeometry(frames, camera_hr_, t, source), *depths, &entry->op);
-    entry->versions = versions;
+    builders_[thread].Build(geometry, *depths, &entry->op);
     const cv::Size lr = entry->op.lr_size();
     entry->mask = cv::Mat(lr, CV_8UC1);
     const std::vector<float>& coverage = entry->op.coverage();
@@ -222,29 +281,56 @@ class OperatorCache {
                                                camera_hr_.width / lr.width);
       cv::bitwise_and(entry->mask, visible, entry->mask);
     }
-    timer->AddSince("operator builds (thread seconds)", start);
-    std::lock_guard<std::mutex> lock(mutex_);
-    auto it = entries_.find(key);
-    if (it != entries_.end()) {
-      bytes_ -= Bytes(*it->second);
-      it->second = entry;
-    } else {
-      entries_[key] = entry;
-    }
-    bytes_ += Bytes(*entry);
-    Touch(key);
-    Evict(key);
     return entry;
   }
 
- private:
+  // The previous window's operator built from `geometry` with these options,
+  // if it handed one on (each is taken once: the cache keeps it then).
+  std::shared_ptr<const Entry> TakeCarried(const CaptureGeometry& geometry) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (auto it = carried_.begin(); it != carried_.end(); ++it) {
+      if (SameOperatorModel(it->options, options_) &&
+          it->visibility.depth_tolerance == visibility_.depth_tolerance &&
+          SameCaptureGeometry(it->geometry, geometry)) {
+        std::shared_ptr<const Entry> entry = it->entry;
+        carried_.erase(it);
+        ++reused_;
+        return entry;
+      }
+    }
+    return nullptr;
+  }
+
   // The virtual depths of frame t at `versions` (D_t, P_t, P_neighbour(t)).
   struct FrameDepths {
     std::mutex compute;  // one computation per frame at a time
     std::vector<long> versions;
     std::shared_ptr<const VirtualDepths> depths;
+    std::vector<int> sources;  // whose operators are there at `versions`
     long last_use = 0;
   };
+
+  // Notes that frame t's operator of `source` at `versions` is there; once
+  // every source's is, the frame's virtual depths are no longer needed (an
+  // operator evicted later recomputes them).
+  void CountSource(int t, int source, const std::vector<long>& versions) {
+    FrameDepths& slot = frame_depths_[t];
+    std::lock_guard<std::mutex> lock(depths_mutex_);
+    if (slot.versions != versions) {
+      slot.versions = versions;
+      slot.sources.clear();
+      if (slot.depths != nullptr) ReleaseDepths(&slot);
+    }
+    if (std::find(slot.sources.begin(), slot.sources.end(), source) == slot.sources.end())
+      slot.sources.push_back(source);
+    if (static_cast<int>(slot.sources.size()) >= sources_per_frame_[t] && slot.depths != nullptr)
+      ReleaseDepths(&slot);
+  }
+
+  void ReleaseDepths(FrameDepths* slot) {
+    depth_bytes_ -= slot->depths->Bytes();
+    slot->depths.reset();
+  }
 
   // The virtual depths of frame t, computed on the calling thread unless
   // they are stored at `versions`; the least recently used frames' depths
@@ -261,9 +347,12 @@ class OperatorCache {
     auto depths = std::make_shared<VirtualDepths>();
     depths->Compute(MakeCaptureGeometry(frames, camera_hr_, t, t), options_);
     std::lock_guard<std::mutex> lock(depths_mutex_);
-    if (slot.depths != nullptr) depth_bytes_ -= slot.depths->Bytes();
+    if (slot.depths != nullptr) ReleaseDepths(&slot);
+    if (slot.versions != versions) {
+      slot.versions = versions;
+      slot.sources.clear();
+    }
     slot.depths = depths;
-    slot.versions = versions;
     depth_bytes_ += depths->Bytes();
     while (depth_bytes_ > max_depth_bytes_) {
       FrameDepths* oldest = nullptr;
@@ -273,14 +362,18 @@ class OperatorCache {
           oldest = &other;
       }
       if (oldest == nullptr) break;
-      depth_bytes_ -= oldest->depths->Bytes();
-      oldest->depths.reset();
+      ReleaseDepths(oldest);
     }
     return depths;
   }
 
+  // What an entry holds: the CSR arrays (float values, int column indices,
+  // int row offsets), the coverage and the mask.
   static size_t Bytes(const Entry& e) {
-    return static_cast<size_t>(e.op.matrix().nonZeros()) * 8 + e.mask.total();
+    const SparseMatrixRM& matrix = e.op.matrix();
+    return static_cast<size_t>(matrix.nonZeros()) * (sizeof(float) + sizeof(int)) +
+           static_cast<size_t>(matrix.rows() + 1) * sizeof(int) + e.op.coverage().size() * sizeof(float) +
+           e.mask.total();
   }
   void Touch(const std::pair<int, int>& key) {
     order_.remove(key);
@@ -293,7 +386,7 @@ class OperatorCache {
       order_.pop_front();
       auto it = entries_.find(victim);
       if (it != entries_.end()) {
-        bytes_ -= Bytes(*it->second);
+        bytes_ -= Bytes(*it->second.entry);
         entries_.erase(it);
       }
     }
@@ -301,7 +394,7 @@ class OperatorCache {
 
   CaptureOperatorOptions options_;
   std::vector<CaptureOperatorBuilder> builders_;
-  std::mutex mutex_;
+  std::mutex mutex_;  // guards entries_, order_, bytes_, carried_, reused_
   PinholeCamera camera_hr_;
   VisibilityOptions visibility_;
   size_t max_bytes_;
@@ -309,10 +402,13 @@ class OperatorCache {
   size_t max_depth_bytes_;
   size_t depth_bytes_ = 0;
   long depth_clock_ = 0;
-  std::mutex depths_mutex_;  // guards the slots' versions, depths and last_use
+  std::vector<int> sources_per_frame_;
+  std::mutex depths_mutex_;  // guards the slots' versions, sources, depths and last_use
   std::vector<FrameDepths> frame_depths_;
-  std::map<std::pair<int, int>, std::shared_ptr<Entry>> entries_;
+  std::map<std::pair<int, int>, Slot> entries_;
   std::list<std::pair<int, int>> order_;
+  CarriedOperators carried_;
+  int reused_ = 0;
 };
 
 // Operator options of the estimator's capture operators (eq:blurOperator).
@@ -503,16 +599,19 @@ WindowSolver::WindowSolver(const EstimatorOptions& options, int threads, const E
     UpdateEdgeWeight(t);
   }
   omp_set_max_active_levels(1);
+  std::vector<int> sources_per_frame(num_frames_);
+  for (int t = 0; t < num_frames_; ++t) {
+    neighbours_[t] = Neighbours(t, num_frames_, options_.neighbour_radius);
+    sources_per_frame[t] = static_cast<int>(neighbours_[t].size()) + 1;  // N(t) and t itself
+  }
   // Every operator of a 10-frame 640x480 window (30 operators of ~38 MiB)
   // fits; larger windows evict the least recently used ones and rebuild them,
   // which keeps the peak memory bounded.
   // The virtual depths of 4 frames at M = 50 and 640x480 (a frame's
   // operators are built close together in time, so sharing needs few).
-  cache_ =
-      std::make_unique<OperatorCache>(EstimatorOperatorOptions(options_), threads_, camera_hr_,
-                                      options_.visibility, size_t(3) << 29, size_t(1) << 28, num_frames_);
-  for (int t = 0; t < num_frames_; ++t)
-    neighbours_[t] = Neighbours(t, num_frames_, options_.neighbour_radius);
+  cache_ = std::make_unique<OperatorCache>(EstimatorOperatorOptions(options_), threads_, camera_hr_,
+                                           options_.visibility, size_t(3) << 29, size_t(1) << 28,
+                                           sources_per_frame, input.carried_operators);
 }
 
 // The main loop of Algorithm 1 (alg:optimization) after the initialisation
@@ -521,6 +620,7 @@ WindowSolver::WindowSolver(const EstimatorOptions& options, int threads, const E
 EstimatorResult WindowSolver::Solve() {
   run_start_ms_ = NowMs();
   result_.energies.push_back(TotalEnergy(0, "initialization"));
+  cache_->ForgetCarried();  // every operator of the initial structure is there
   RequireFiniteEnergy("at the initial structure");
   if (!joint_) {
     RunBaseline();
@@ -893,8 +993,14 @@ EstimatorResult WindowSolver::GaugedResult() {
     if (median > 0.0) rescale = 1.0 / median;
   }
   for (int t = 0; t < num_frames_; ++t) {
-    const SE3 pose = T_first_world * frames_[t].T_world_cam;
-    result_.T_world_cam.emplace_back(pose.rotation(), pose.translation() * rescale);
+    if (options_.keep_input_gauge) {
+      // Bit for bit (no re-orthonormalisation): the next window of a stream
+      // holds these poses, and its operators match the ones built with them.
+      result_.T_world_cam.push_back(frames_[t].T_world_cam);
+    } else {
+      const SE3 pose = T_first_world * frames_[t].T_world_cam;
+      result_.T_world_cam.emplace_back(pose.rotation(), pose.translation() * rescale);
+    }
     cv::Mat depth = frames_[t].depth_hr * rescale;
     result_.depth.push_back(depth);
     cv::Mat clamped;
@@ -902,6 +1008,11 @@ EstimatorResult WindowSolver::GaugedResult() {
     result_.latent.push_back(clamped);
   }
   result_.timings = timer_.timings();
+  result_.operators_reused = cache_->reused();
+  if (options_.carried_frames > 0 && options_.keep_input_gauge) {
+    result_.carried_operators = cache_->Carry(frames_, depth_version_, pose_version_,
+                                              std::max(0, num_frames_ - options_.carried_frames));
+  }
   return std::move(result_);
 }
 
@@ -966,6 +1077,7 @@ EstimatorResult Estimator::RunGainCompensated(const EstimatorInput& input, const
   compensated.camera = input.camera;
   compensated.frames = input.frames;
   compensated.readout_time = input.readout_time;
+  compensated.carried_operators = input.carried_operators;
   for (size_t t = 0; t < gains.size(); ++t) compensated.images.push_back(input.images[t] * (1.0 / gains[t]));
   // A warm start has its frame's brightness, as the latent images given out.
   for (size_t t = 0; t < input.initial_latents.size() && t < gains.size(); ++t) {
@@ -1024,6 +1136,7 @@ void EstimatorOptions::Check() const {
   CheckAtLeast("threads", num_threads, 0);
   CheckAtLeast("fixed_leading_poses", fixed_leading_poses, 1);
   CheckAtLeast("held_leading_latents", held_leading_latents, 0);
+  CheckAtLeast("carried_frames", carried_frames, 0);
   CheckAtLeast("max_seconds", max_seconds, 0.0);
   CheckInRange("model_error_sigma", model_error_sigma, 1e-6, 1.0);
   if (noise_sigma > 1.0) throw InputError("noise_sigma must be <= 1 (intensity units; negative: auto)");

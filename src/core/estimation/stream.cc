@@ -117,6 +117,12 @@ StreamEstimator::StreamEstimator(const EstimatorOptions& options) : estimator_(o
 void StreamEstimator::SetOptions(const EstimatorOptions& options) {
   estimator_ = Estimator(options);
   estimator_.SetCancelFlag(cancel_);
+  last_operators_.clear();
+}
+
+void StreamEstimator::SetWindowOverlap(int frames) {
+  if (frames < 0) throw InputError("stream: the window overlap must be >= 0, got " + std::to_string(frames));
+  window_overlap_ = frames;
 }
 
 void StreamEstimator::SetCancelFlag(const std::atomic<bool>* flag) {
@@ -128,6 +134,7 @@ void StreamEstimator::Reset() {
   last_poses_.clear();
   last_depths_.clear();
   last_latents_.clear();
+  last_operators_.clear();
   reference_median_depth_ = 0.0;
   has_returned_ = false;
 }
@@ -288,10 +295,14 @@ bool StreamEstimator::ContinueTrajectory(const EstimatorInput& input, const Shar
   EstimatorOptions held = options;
   held.fixed_leading_poses = num_shared;
   held.keep_input_gauge = true;
+  // Operators of the previous window whose structure did not change are
+  // used as they are; this window's are handed to the next.
+  held.carried_frames = window_overlap_;
   // Warm start: the shared frames keep the previous window's latent images
   // (held) and start from its depth maps (already in the stream's world and
   // scale, as their poses).
   EstimatorInput warm_input = input;
+  warm_input.carried_operators = last_operators_;
   const cv::Size hr_size(input.camera.width * options.scale, input.camera.height * options.scale);
   if (AllOfSize(shared.latents, hr_size, input.images[0].channels())) {
     warm_input.initial_latents = shared.latents;
@@ -376,6 +387,8 @@ void StreamEstimator::Remember(const StreamWindow& window, WindowEstimate* estim
   last_poses_.clear();
   last_depths_.clear();
   last_latents_.clear();
+  last_operators_ = std::move(estimate->result.carried_operators);
+  estimate->result.carried_operators.clear();
   for (size_t i = 0; i < window.size(); ++i) {
     last_poses_[window[i].id] = estimate->result.T_world_cam[i];
     last_latents_[window[i].id] = estimate->result.latent[i];

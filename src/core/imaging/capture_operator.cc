@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <sstream>
 
 #include "deblur_sr_mvs/core/common/errors.h"
@@ -777,6 +778,41 @@ CaptureOperator BuildCaptureOperator(const CaptureGeometry& geometry, const Capt
   CaptureOperator op;
   builder.Build(geometry, &op);
   return op;
+}
+
+namespace {
+
+bool SameCamera(const PinholeCamera& a, const PinholeCamera& b) {
+  return a.width == b.width && a.height == b.height && a.fx == b.fx && a.fy == b.fy && a.cx == b.cx &&
+         a.cy == b.cy;
+}
+
+bool SameBytes(const cv::Mat& a, const cv::Mat& b) {
+  if (a.size() != b.size() || a.type() != b.type()) return false;
+  const size_t row_bytes = a.cols * a.elemSize();
+  for (int y = 0; y < a.rows; ++y) {
+    if (std::memcmp(a.ptr(y), b.ptr(y), row_bytes) != 0) return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+bool SameCaptureGeometry(const CaptureGeometry& a, const CaptureGeometry& b) {
+  if (!SameCamera(a.camera_hr, b.camera_hr) || a.stamp != b.stamp || a.neighbour_stamp != b.neighbour_stamp ||
+      a.exposure != b.exposure || a.readout_time != b.readout_time ||
+      !SamePose(a.T_world_cam, b.T_world_cam) || !SamePose(a.T_world_neighbour, b.T_world_neighbour) ||
+      a.T_world_source.has_value() != b.T_world_source.has_value()) {
+    return false;
+  }
+  if (a.T_world_source.has_value() && !SamePose(*a.T_world_source, *b.T_world_source)) return false;
+  return SameBytes(a.depth_hr, b.depth_hr);
+}
+
+bool SameOperatorModel(const CaptureOperatorOptions& a, const CaptureOperatorOptions& b) {
+  return a.samples == b.samples && a.adaptive_samples == b.adaptive_samples &&
+         a.samples_per_pixel == b.samples_per_pixel && a.min_samples == b.min_samples && a.scale == b.scale &&
+         a.reproject_depth == b.reproject_depth;
 }
 
 }  // namespace deblur_sr_mvs

@@ -5,6 +5,7 @@
 
 #include <atomic>
 #include <functional>
+#include <memory>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -60,6 +61,26 @@ EstimatorMode ParseEstimatorMode(const std::string& text);
 // scenes (BENCHMARKS.md "Noise").
 constexpr double kModelErrorSigma = 1.0 / 255.0;
 
+// A capture operator Psi_t sampling I_src (eq:blurOperator) and the LR
+// mask of its term: full coverage and, for src != t, Omega_{t,src}.
+struct MaskedOperator {
+  CaptureOperator op;
+  cv::Mat mask;  // LR CV_8UC1, 255 where the term counts
+};
+
+// An operator handed from one window of a stream to the next, with what it
+// was built from: the next window uses it instead of building one only when
+// its frame structure and options are the same bit for bit
+// (SameCaptureGeometry, SameOperatorModel), so that the build would give the
+// same operator.
+struct CarriedOperator {
+  CaptureGeometry geometry;  // depth_hr shallow: the estimator replaces depth maps, never writes into them
+  CaptureOperatorOptions options;
+  VisibilityOptions visibility;  // of the mask
+  std::shared_ptr<const MaskedOperator> entry;
+};
+using CarriedOperators = std::vector<CarriedOperator>;
+
 struct EstimatorOptions {
   EstimatorMode mode = EstimatorMode::kJoint;
   int scale = 2;     // super-resolution factor (1: "w/o SR")
@@ -102,6 +123,14 @@ struct EstimatorOptions {
   // at its end with neighbours on one side) doubled the stitched ATE in
   // test/core/estimation/stream_test.cc (0.00117 against 0.00066 m).
   int held_leading_latents = 0;
+  // Stream: the result keeps (EstimatorResult::carried_operators) the
+  // capture operators that the next window, which shares this window's last
+  // `carried_frames` frames, can use as they are: Psi_t sampling I_src with
+  // t, src and t's pose-path neighbour t - 1 all among those frames (the
+  // first of them is the next window's frame 0, whose path runs to its next
+  // frame instead). Kept only with keep_input_gauge, in whose world the next
+  // window receives the structure. 0: none.
+  int carried_frames = 0;
   // Output gauge (docs/file_formats.md#monocular-scale). false: world = the
   // first camera, monocular scale such that the median scene depth of the
   // window is 1 unit. true: the world and scale of the structure given to
@@ -142,6 +171,10 @@ struct EstimatorInput {
   // update starts from, of the HR size and the frames' channel count; an
   // empty entry (or a shorter vector) starts from the bicubic up-sampling.
   std::vector<cv::Mat> initial_latents;
+  // Operators of the previous window of a stream (its
+  // EstimatorResult::carried_operators): one is used instead of a build
+  // only where it was built from the same structure and options.
+  CarriedOperators carried_operators;
 };
 
 // Energy of eq:energyFunction at one point of the algorithm.
@@ -182,6 +215,11 @@ struct EstimatorResult {
   // it gave (NoiseAwareImageOptions).
   double noise_sigma = 0.0;
   double image_lambda_i = 0.0;
+  // Operators for the next window (EstimatorOptions::carried_frames), and
+  // how many of the input's carried operators this run used instead of
+  // building them.
+  CarriedOperators carried_operators;
+  int operators_reused = 0;
 };
 
 // The image update's options for frames with noise of `noise_sigma`

@@ -171,6 +171,13 @@ class StreamEstimator {
   void SetOptions(const EstimatorOptions& options);
   const EstimatorOptions& options() const { return estimator_.options(); }
   void SetCancelFlag(const std::atomic<bool>* flag);
+  // Frames the next window shares with this one (StreamOptions::
+  // window_overlap): a continued window hands the capture operators among
+  // them to the next one, which uses those whose structure did not change
+  // instead of building them (EstimatorOptions::carried_frames). 0: none.
+  // Default: StreamOptions' default (2), the least overlap a stream has, so
+  // those frames are shared whatever the overlap.
+  void SetWindowOverlap(int frames);
 
   // Estimates `window` (frames of `camera_lr`'s size, increasing stamps).
   // Throws InputError / InitializationError / EstimationCancelled as the
@@ -229,6 +236,8 @@ class StreamEstimator {
   std::map<uint64_t, SE3> last_poses_;        // the previous window's poses, by frame id
   std::map<uint64_t, cv::Mat> last_depths_;   // its depths (HR), when observable
   std::map<uint64_t, cv::Mat> last_latents_;  // its latent images (HR)
+  CarriedOperators last_operators_;           // its operators among the frames the next window shares
+  int window_overlap_ = StreamOptions().window_overlap;
   // Median depth of the last window with observable depth (stream units; 0
   // before the first).
   double reference_median_depth_ = 0.0;

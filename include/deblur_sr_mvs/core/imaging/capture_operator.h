@@ -77,6 +77,15 @@ struct CaptureGeometry {
   std::optional<SE3> T_world_source;
 };
 
+// True when `a` and `b` fix the same operator bit for bit: the same camera,
+// D_t of the same size and bytes (NaN payloads included), the same poses
+// (P_t, P_neighbour, P_source or its absence), stamps, exposure and readout.
+// Building from either gives the same operator (the builder is deterministic).
+bool SameCaptureGeometry(const CaptureGeometry& a, const CaptureGeometry& b);
+// True when the options give the same operator from the same geometry
+// (num_threads and transposed_copy do not change its matrix).
+bool SameOperatorModel(const CaptureOperatorOptions& a, const CaptureOperatorOptions& b);
+
 // at = a^T for compressed row-major matrices, on `threads` threads (0: all).
 void TransposeSparse(const SparseMatrixRM& a, SparseMatrixRM* at, int threads);
 // out = a * in for an interleaved C-channel float image `in` with one pixel per

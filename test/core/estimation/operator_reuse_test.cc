@@ -1,0 +1,193 @@
+// Capture operators carried from one window of a stream to the next
+// (EstimatorOptions::carried_frames, EstimatorInput::carried_operators): a
+// carried operator is the one a build gives, and a window that uses them
+// gives the same result, bit for bit, as one that builds everything.
+#include <cstring>
+#include <iostream>
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "../support/test_sequences.h"
+#include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/estimation/estimator.h"
+#include "deblur_sr_mvs/core/estimation/stream.h"
+
+namespace deblur_sr_mvs {
+namespace {
+
+const Sequence& SmallSequence() {
+  static const Sequence sequence =
+      SynthesizedSequence("reuse_seq", "Dolls", "--frames 8 --subframes 100 --hr-width 240 --hr-height 180");
+  return sequence;
+}
+
+bool SameBits(const cv::Mat& a, const cv::Mat& b) {
+  if (a.size() != b.size() || a.type() != b.type()) return false;
+  const cv::Mat ca = a.isContinuous() ? a : a.clone(), cb = b.isContinuous() ? b : b.clone();
+  return std::memcmp(ca.data, cb.data, ca.total() * ca.elemSize()) == 0;
+}
+
+template <typename T>
+bool SameArray(const T* a, const T* b, size_t count) {
+  return std::memcmp(a, b, count * sizeof(T)) == 0;
+}
+
+// The CSR arrays and the coverage, compared as bytes.
+void ExpectSameOperator(const CaptureOperator& a, const CaptureOperator& b) {
+  const SparseMatrixRM& ma = a.matrix();
+  const SparseMatrixRM& mb = b.matrix();
+  ASSERT_EQ(ma.rows(), mb.rows());
+  ASSERT_EQ(ma.cols(), mb.cols());
+  ASSERT_EQ(ma.nonZeros(), mb.nonZeros());
+  EXPECT_TRUE(SameArray(ma.outerIndexPtr(), mb.outerIndexPtr(), ma.rows() + 1));
+  EXPECT_TRUE(SameArray(ma.innerIndexPtr(), mb.innerIndexPtr(), ma.nonZeros()));
+  EXPECT_TRUE(SameArray(ma.valuePtr(), mb.valuePtr(), ma.nonZeros()));
+  ASSERT_EQ(a.coverage().size(), b.coverage().size());
+  EXPECT_TRUE(SameArray(a.coverage().data(), b.coverage().data(), a.coverage().size()));
+}
+
+void ExpectSameResult(const EstimatorResult& a, const EstimatorResult& b) {
+  ASSERT_EQ(a.latent.size(), b.latent.size());
+  for (size_t t = 0; t < a.latent.size(); ++t) {
+    EXPECT_TRUE(SameBits(a.latent[t], b.latent[t])) << "latent " << t;
+    EXPECT_TRUE(SameBits(a.depth[t], b.depth[t])) << "depth " << t;
+    EXPECT_TRUE(a.T_world_cam[t].rotation() == b.T_world_cam[t].rotation()) << "pose " << t;
+    EXPECT_TRUE(a.T_world_cam[t].translation() == b.T_world_cam[t].translation()) << "pose " << t;
+  }
+  ASSERT_EQ(a.energies.size(), b.energies.size());
+  for (size_t i = 0; i < a.energies.size(); ++i) EXPECT_EQ(a.energies[i].total, b.energies[i].total) << i;
+}
+
+const char kBuildStage[] = "operator builds (thread seconds)";
+
+double StageSeconds(const EstimatorResult& result, const std::string& stage) {
+  for (const StageTiming& timing : result.timings) {
+    if (timing.stage == stage) return timing.seconds;
+  }
+  return 0.0;
+}
+
+// The first `count` frames from `first` on, as the estimator's input.
+EstimatorInput InputOfFrames(const Sequence& sequence, int first, int count) {
+  const EstimatorInput all = InputOf(sequence);
+  EstimatorInput input;
+  input.camera = all.camera;
+  input.readout_time = all.readout_time;
+  for (int t = first; t < first + count; ++t) {
+    input.images.push_back(all.images[t]);
+    input.frames.push_back(all.frames[t]);
+  }
+  return input;
+}
+
+TEST(OperatorReuse, OptionsRejectANegativeCount) {
+  EstimatorOptions options;
+  options.carried_frames = -1;
+  try {
+    options.Check();
+    ADD_FAILURE() << "carried_frames -1 passed";
+  } catch (const InputError& error) {
+    EXPECT_NE(std::string(error.what()).find("carried_frames"), std::string::npos) << error.what();
+  }
+  options.carried_frames = 3;
+  EXPECT_NO_THROW(options.Check());
+  StreamEstimator stream(FastEstimatorOptions());
+  EXPECT_THROW(stream.SetWindowOverlap(-1), InputError);
+  EXPECT_NO_THROW(stream.SetWindowOverlap(0));
+}
+
+// Two windows of 4 frames sharing 2, as the stream runs them (the second
+// holds the shared poses and latent images and starts from their depths):
+// the first hands on the operators of its last frame sampling itself and its
+// predecessor, each equal to a fresh build from the structure it carries,
+// and the second window gives the same result with them as without.
+TEST(OperatorReuse, CarriedOperatorsEqualRebuiltOnesAndChangeNothing) {
+  const Sequence& sequence = SmallSequence();
+  ASSERT_TRUE(sequence.ground_truth.has_value());
+  const SequenceGroundTruth& gt = *sequence.ground_truth;
+  EstimatorOptions options = FastEstimatorOptions();
+  options.keep_input_gauge = true;
+  options.carried_frames = 2;
+  std::vector<cv::Mat> depth;
+  std::vector<SE3> poses;
+  for (int t = 0; t < 4; ++t) {
+    depth.push_back(gt.depth[t].clone());
+    poses.push_back(gt.poses[t].T_world_cam);
+  }
+  const EstimatorResult first =
+      Estimator(options).RunFromStructure(InputOfFrames(sequence, 0, 4), depth, poses);
+  EXPECT_EQ(first.operators_reused, 0);
+  ASSERT_EQ(first.carried_operators.size(), 2u);  // Psi_3 sampling I_2 and I_3
+  CaptureOperatorOptions build_options = first.carried_operators[0].options;
+  build_options.num_threads = 1;
+  build_options.transposed_copy = false;
+  for (const CarriedOperator& carried : first.carried_operators) {
+    ExpectSameOperator(carried.entry->op, BuildCaptureOperator(carried.geometry, build_options));
+    EXPECT_TRUE(SameBits(carried.geometry.depth_hr, first.depth[3]));
+  }
+
+  EstimatorOptions second_options = options;
+  second_options.fixed_leading_poses = 2;
+  second_options.held_leading_latents = 2;
+  EstimatorInput input = InputOfFrames(sequence, 2, 4);
+  input.initial_latents = {first.latent[2], first.latent[3]};
+  const std::vector<cv::Mat> second_depth = {first.depth[2], first.depth[3], gt.depth[4].clone(),
+                                             gt.depth[5].clone()};
+  const std::vector<SE3> second_poses = {first.T_world_cam[2], first.T_world_cam[3], gt.poses[4].T_world_cam,
+                                         gt.poses[5].T_world_cam};
+  const EstimatorResult rebuilt =
+      Estimator(second_options).RunFromStructure(input, second_depth, second_poses);
+  input.carried_operators = first.carried_operators;
+  const EstimatorResult reused =
+      Estimator(second_options).RunFromStructure(input, second_depth, second_poses);
+  EXPECT_EQ(rebuilt.operators_reused, 0);
+  EXPECT_EQ(reused.operators_reused, 2);
+  ExpectSameResult(reused, rebuilt);
+
+  // A structure that differs in one pixel is not reused.
+  std::vector<cv::Mat> nudged = second_depth;
+  nudged[1] = second_depth[1].clone();
+  nudged[1].at<float>(90, 120) *= 1.01f;
+  EXPECT_EQ(Estimator(second_options).RunFromStructure(input, nudged, second_poses).operators_reused, 0);
+}
+
+// The stream: windows of 4 sharing 2 on 8 frames. The third window uses the
+// second's operators of the held frames; with the hand-over switched off
+// (overlap 0) every window is the same bit for bit.
+TEST(OperatorReuse, StreamWindowsAreTheSameWithAndWithoutReuse) {
+  const Sequence& sequence = SmallSequence();
+  StreamOptions stream_options;
+  stream_options.window_size = 4;
+  stream_options.window_overlap = 2;
+  const std::vector<StreamWindow> windows =
+      StreamWindowsOf(sequence.images, sequence.frames, stream_options, 100);
+  ASSERT_EQ(windows.size(), 3u);
+  // One thread: the pose update's sums then run in one order, and two runs
+  // of a window are the same bit for bit.
+  EstimatorOptions options = FastEstimatorOptions();
+  options.num_threads = 1;
+  StreamEstimator reusing(options);
+  reusing.SetWindowOverlap(stream_options.window_overlap);
+  StreamEstimator building(options);
+  building.SetWindowOverlap(0);
+  int reused = 0;
+  for (const StreamWindow& window : windows) {
+    const WindowEstimate a = reusing.Process(window, sequence.calibration.camera);
+    const WindowEstimate b = building.Process(window, sequence.calibration.camera);
+    EXPECT_EQ(b.result.operators_reused, 0);
+    EXPECT_TRUE(a.result.carried_operators.empty());  // kept by the stream
+    reused += a.result.operators_reused;
+    ExpectSameResult(a.result, b.result);
+    std::cout << "window " << a.ids.front() << "-" << a.ids.back() << ": " << a.result.operators_reused
+              << " operators reused; operator builds " << StageSeconds(a.result, kBuildStage)
+              << " thread-s against " << StageSeconds(b.result, kBuildStage) << " thread-s building all\n";
+  }
+  // The first window starts a segment (output gauge): nothing is carried
+  // from it; the second hands 2 operators to the third.
+  EXPECT_EQ(reused, 2);
+}
+
+}  // namespace
+}  // namespace deblur_sr_mvs
