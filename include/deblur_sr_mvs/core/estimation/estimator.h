@@ -109,6 +109,14 @@ struct EstimatorOptions {
   bool keep_input_gauge = false;
   bool update_structure = true;  // false: images only (depth and poses fixed)
   StructureMatching structure_matching = StructureMatching::kRestoredAndInput;
+  // With kRestoredAndInput in joint mode: the input pairs of the structure
+  // update become cross-blurred (B_t through s's blur against B_s through
+  // t's blur, CrossBlurGeometry, rebuilt at every structure update from the
+  // current depth and poses), so that both images of a pair carry the same
+  // blur on paths whose frames move differently (hand-held, arc); the plain
+  // bicubic inputs assume equal blur. It needs the capture model: the
+  // baseline keeps the plain inputs.
+  bool cross_blurred_inputs = false;
   int num_threads = 0;  // OpenMP threads for every stage; 0 = default
   // Wall-time cap of one run (s): no outer iteration starts after it, the
   // last accepted state is returned and the cap is noted (0: no cap). Every
