@@ -115,7 +115,10 @@ struct EstimatorOptions {
   // current depth and poses), so that both images of a pair carry the same
   // blur on paths whose frames move differently (hand-held, arc); the plain
   // bicubic inputs assume equal blur. It needs the capture model: the
-  // baseline keeps the plain inputs.
+  // baseline keeps the plain inputs. Off: it lowers the hand-held depth
+  // error but raises the depth error on lateral and forward paths (the
+  // second blur removes detail) and the ATE on every path measured
+  // (BENCHMARKS.md "Method ablation").
   bool cross_blurred_inputs = false;
   int num_threads = 0;  // OpenMP threads for every stage; 0 = default
   // Wall-time cap of one run (s): no outer iteration starts after it, the
