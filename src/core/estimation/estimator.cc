@@ -382,7 +382,7 @@ class WindowSolver {
                         const StructureUpdateOptions& structure_options);
   void UpdateAllPoses(int iteration, bool isolated, const std::vector<SE3>& poses,
                       const StructureUpdateOptions& structure_options);
-  void AppendPairs(int t, const std::vector<int>& sources, std::vector<PairMatching>* pairs,
+  void AppendPairs(int t, const std::vector<int>& sources, bool with_inputs, std::vector<PairMatching>* pairs,
                    HeldOperators* held);
   SelfConsistencyLinearization SelfConsistencyOf(int t);
   void SetInverseDepth(int t, const cv::Mat& inverse_depth);
@@ -657,7 +657,7 @@ void WindowSolver::UpdateFrameDepth(int t, int iteration, bool isolated, const s
   const cv::Mat saved = inverse_depth_[t].clone();
   std::vector<PairMatching> pairs;
   HeldOperators held;
-  AppendPairs(t, neighbours_[t], &pairs, &held);
+  AppendPairs(t, neighbours_[t], options_.depth_input_pairs, &pairs, &held);
   SelfConsistencyLinearization self;
   if (blurred_matching()) self = SelfConsistencyOf(t);
   const double depth_begin = NowMs();
@@ -681,7 +681,7 @@ void WindowSolver::UpdateAllPoses(int iteration, bool isolated, const std::vecto
   std::vector<PairMatching> pairs;
   HeldOperators held;
   for (int t = 0; t < num_frames_; ++t)
-    AppendPairs(t, Neighbours(t, num_frames_, pose_radius), &pairs, &held);
+    AppendPairs(t, Neighbours(t, num_frames_, pose_radius), /*with_inputs=*/true, &pairs, &held);
   std::vector<SE3> updated = poses;
   const double pose_begin = NowMs();
   UpdatePoses(camera_hr_, inverse_depth_, latents_, pairs, structure_options, &updated,
@@ -691,10 +691,11 @@ void WindowSolver::UpdateAllPoses(int iteration, bool isolated, const std::vecto
   if (isolated && !(TotalEnergy(iteration, "structure").total <= before)) SetPoses(poses);
 }
 
-// The pairs (t <- s) of frame t with s in `sources` (eq:matchingTerm);
-// `held` keeps their operators alive.
-void WindowSolver::AppendPairs(int t, const std::vector<int>& sources, std::vector<PairMatching>* pairs,
-                               HeldOperators* held) {
+// The pairs (t <- s) of frame t with s in `sources` (eq:matchingTerm), with
+// the input pairs where the matching uses them and `with_inputs`; `held`
+// keeps their operators alive.
+void WindowSolver::AppendPairs(int t, const std::vector<int>& sources, bool with_inputs,
+                               std::vector<PairMatching>* pairs, HeldOperators* held) {
   for (int s : sources) {
     PairMatching pair;
     pair.t = t;
@@ -712,7 +713,7 @@ void WindowSolver::AppendPairs(int t, const std::vector<int>& sources, std::vect
     pair.observation = &latents_[t];
     pair.mask = VisibleFromSource(camera_hr_, frames_, t, s, options_.visibility);
     pairs->push_back(pair);
-    if (input_matching()) {
+    if (input_matching() && with_inputs) {
       // The same pair on the up-sampled inputs, which do not depend on
       // the current structure (see StructureMatching), plain or each
       // blurred by the other frame's blur.
