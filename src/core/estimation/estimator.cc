@@ -478,7 +478,7 @@ class WindowSolver {
                         const StructureUpdateOptions& structure_options);
   void UpdateAllPoses(int iteration, bool isolated, const std::vector<SE3>& poses,
                       const StructureUpdateOptions& structure_options);
-  void AppendPairs(int t, const std::vector<int>& sources, std::vector<PairMatching>* pairs,
+  void AppendPairs(int t, const std::vector<int>& sources, bool with_inputs, std::vector<PairMatching>* pairs,
                    HeldOperators* held);
   SelfConsistencyLinearization SelfConsistencyOf(int t);
   void SetInverseDepth(int t, const cv::Mat& inverse_depth);
@@ -511,6 +511,12 @@ class WindowSolver {
   bool input_matching() const {
     return joint_ && options_.structure_matching == StructureMatching::kRestoredAndInput;
   }
+  bool cross_blurred_inputs() const { return input_matching() && options_.cross_blurred_inputs; }
+  int PoseRadius() const {
+    return blurred_matching() ? options_.neighbour_radius
+                              : std::max(options_.neighbour_radius, options_.pose_neighbour_radius);
+  }
+  void BuildCrossBlurredInputs();
 
   const EstimatorOptions& options_;
   const std::atomic<bool>* cancel_;
@@ -526,8 +532,12 @@ class WindowSolver {
   Timer timer_;
   EstimatorResult result_;
 
-  std::vector<cv::Mat> observations_;   // B_t (LR, continuous)
-  std::vector<cv::Mat> bicubic_;        // B_t up-sampled (HR)
+  std::vector<cv::Mat> observations_;  // B_t (LR, continuous)
+  std::vector<cv::Mat> bicubic_;       // B_t up-sampled (HR)
+  // cross_blurred_[a][b - a + PoseRadius()]: B_a up-sampled and blurred by
+  // b's blur (EstimatorOptions::cross_blurred_inputs), for |a - b| within
+  // the pose radius; rebuilt at every structure update.
+  std::vector<std::vector<cv::Mat>> cross_blurred_;
   std::vector<cv::Mat> latents_;        // I_t (HR)
   std::vector<FrameStructure> frames_;  // D_t, P_t, stamps, exposures
   std::vector<cv::Mat> inverse_depth_;  // rho_t = 1 / D_t (HR, holes filled)
@@ -723,6 +733,7 @@ void WindowSolver::StructurePhase(int iteration, bool isolated) {
   const double begin = NowMs();
   StructureUpdateOptions structure_options = options_.structure;
   structure_options.num_threads = threads_;
+  if (cross_blurred_inputs()) BuildCrossBlurredInputs();
   std::vector<SE3> poses(num_frames_);
   for (int t = 0; t < num_frames_; ++t) poses[t] = frames_[t].T_world_cam;
   ForEachFrame([this, iteration, isolated, &poses, &structure_options](int t) {
@@ -746,7 +757,7 @@ void WindowSolver::UpdateFrameDepth(int t, int iteration, bool isolated, const s
   const cv::Mat saved = inverse_depth_[t].clone();
   std::vector<PairMatching> pairs;
   HeldOperators held;
-  AppendPairs(t, neighbours_[t], &pairs, &held);
+  AppendPairs(t, neighbours_[t], options_.depth_input_pairs, &pairs, &held);
   SelfConsistencyLinearization self;
   if (blurred_matching()) self = SelfConsistencyOf(t);
   const double depth_begin = NowMs();
@@ -764,15 +775,13 @@ void WindowSolver::UpdateFrameDepth(int t, int iteration, bool isolated, const s
 // operators of N(t) only).
 void WindowSolver::UpdateAllPoses(int iteration, bool isolated, const std::vector<SE3>& poses,
                                   const StructureUpdateOptions& structure_options) {
-  const int pose_radius = blurred_matching()
-                              ? options_.neighbour_radius
-                              : std::max(options_.neighbour_radius, options_.pose_neighbour_radius);
+  const int pose_radius = PoseRadius();
   Report(double(num_frames_) / (num_frames_ + 1), "iteration " + std::to_string(iteration) + ": poses");
   const double before = isolated ? TotalEnergy(iteration, "structure").total : 0.0;
   std::vector<PairMatching> pairs;
   HeldOperators held;
   for (int t = 0; t < num_frames_; ++t)
-    AppendPairs(t, Neighbours(t, num_frames_, pose_radius), &pairs, &held);
+    AppendPairs(t, Neighbours(t, num_frames_, pose_radius), /*with_inputs=*/true, &pairs, &held);
   std::vector<SE3> updated = poses;
   const double pose_begin = NowMs();
   UpdatePoses(camera_hr_, inverse_depth_, latents_, pairs, structure_options, &updated,
@@ -782,10 +791,11 @@ void WindowSolver::UpdateAllPoses(int iteration, bool isolated, const std::vecto
   if (isolated && !(TotalEnergy(iteration, "structure").total <= before)) SetPoses(poses);
 }
 
-// The pairs (t <- s) of frame t with s in `sources` (eq:matchingTerm);
-// `held` keeps their operators alive.
-void WindowSolver::AppendPairs(int t, const std::vector<int>& sources, std::vector<PairMatching>* pairs,
-                               HeldOperators* held) {
+// The pairs (t <- s) of frame t with s in `sources` (eq:matchingTerm), with
+// the input pairs where the matching uses them and `with_inputs`; `held`
+// keeps their operators alive.
+void WindowSolver::AppendPairs(int t, const std::vector<int>& sources, bool with_inputs,
+                               std::vector<PairMatching>* pairs, HeldOperators* held) {
   for (int s : sources) {
     PairMatching pair;
     pair.t = t;
@@ -803,14 +813,37 @@ void WindowSolver::AppendPairs(int t, const std::vector<int>& sources, std::vect
     pair.observation = &latents_[t];
     pair.mask = VisibleFromSource(camera_hr_, frames_, t, s, options_.visibility);
     pairs->push_back(pair);
-    if (input_matching()) {
+    if (input_matching() && with_inputs) {
       // The same pair on the up-sampled inputs, which do not depend on
-      // the current structure (see StructureMatching).
-      pair.observation = &bicubic_[t];
-      pair.source = &bicubic_[s];
+      // the current structure (see StructureMatching), plain or each
+      // blurred by the other frame's blur.
+      const int radius = PoseRadius();
+      pair.observation = cross_blurred_inputs() ? &cross_blurred_[t][s - t + radius] : &bicubic_[t];
+      pair.source = cross_blurred_inputs() ? &cross_blurred_[s][t - s + radius] : &bicubic_[s];
       pairs->push_back(pair);
     }
   }
+}
+
+// Psi_b o B_a and Psi_a o B_b for every pair of frames within the pose
+// radius, at HR (scale-1 operators on the up-sampled inputs) from the current
+// depth and poses (CrossBlurGeometry).
+void WindowSolver::BuildCrossBlurredInputs() {
+  const double begin = NowMs();
+  const int radius = PoseRadius();
+  cross_blurred_.assign(num_frames_, std::vector<cv::Mat>(2 * radius + 1));
+  CaptureOperatorOptions op_options = EstimatorOperatorOptions(options_);
+  op_options.scale = 1;
+  ForEachFrame([this, radius, &op_options](int a) {
+    CaptureOperatorBuilder builder(op_options);
+    CaptureOperator op;
+    for (int b = std::max(0, a - radius); b <= std::min(num_frames_ - 1, a + radius); ++b) {
+      if (b == a) continue;
+      builder.Build(CrossBlurGeometry(frames_, camera_hr_, a, b), &op);
+      op.Apply(bicubic_[a], &cross_blurred_[a][b - a + radius]);
+    }
+  });
+  timer_.AddSince("cross-blurred inputs", begin);
 }
 
 // lambda_s |B_t - Psi_t I_t| (eq:IPterm) linearised in the inverse depth of t.

@@ -24,6 +24,22 @@ CaptureGeometry MakeCaptureGeometry(const std::vector<FrameStructure>& frames, c
   return geometry;
 }
 
+CaptureGeometry CrossBlurGeometry(const std::vector<FrameStructure>& frames, const PinholeCamera& camera_hr,
+                                  int frame, int kernel_frame) {
+  CaptureGeometry geometry = MakeCaptureGeometry(frames, camera_hr, kernel_frame, frame);
+  // kernel_frame's path, moved rigidly (and in time) onto `frame`.
+  const FrameStructure& target = frames[frame];
+  const FrameStructure& kernel = frames[kernel_frame];
+  geometry.T_world_neighbour = target.T_world_cam * kernel.T_world_cam.Inverse() * geometry.T_world_neighbour;
+  geometry.T_world_cam = target.T_world_cam;
+  geometry.neighbour_stamp += target.stamp - kernel.stamp;
+  geometry.stamp = target.stamp;
+  geometry.depth_hr = target.depth_hr;
+  geometry.readout_time = 0.0;
+  geometry.T_world_source.reset();
+  return geometry;
+}
+
 std::vector<int> Neighbours(int t, int num_frames, int radius) {
   std::vector<int> result;
   for (int s = t - radius; s <= t + radius; ++s) {

@@ -47,7 +47,8 @@ enum class StructureMatching {
   kRestored,
   // Default: every pair twice, on the restored images (precise) and on the
   // bicubic up-sampled inputs (blurry, but independent of the current
-  // structure), as one IRLS problem. On the four benchmark scenes this
+  // structure), as one IRLS problem; by default the depth update uses the
+  // restored pairs only (EstimatorOptions::depth_input_pairs). On the four benchmark scenes this
   // lowers the mean ATE from 0.00067 to 0.00056 m and the mean depth rel.
   // error from 0.0174 to 0.0170 against kRestored (BENCHMARKS.md).
   kRestoredAndInput,
@@ -138,6 +139,25 @@ struct EstimatorOptions {
   bool keep_input_gauge = false;
   bool update_structure = true;  // false: images only (depth and poses fixed)
   StructureMatching structure_matching = StructureMatching::kRestoredAndInput;
+  // With kRestoredAndInput in joint mode: the input pairs of the structure
+  // update become cross-blurred (B_t through s's blur against B_s through
+  // t's blur, CrossBlurGeometry, rebuilt at every structure update from the
+  // current depth and poses), so that both images of a pair carry the same
+  // blur on paths whose frames move differently (hand-held, arc); the plain
+  // bicubic inputs assume equal blur. It needs the capture model: the
+  // baseline keeps the plain inputs. Off: it lowers the hand-held depth
+  // error but raises the depth error on lateral and forward paths (the
+  // second blur removes detail) and the ATE on every path measured
+  // (BENCHMARKS.md "Method ablation").
+  bool cross_blurred_inputs = false;
+  // kRestoredAndInput only: whether the depth update matches the input pairs
+  // too (true), or the restored pairs alone while the pose update keeps both
+  // (false, default: the sharp restored images place depth precisely; the
+  // structure-independent inputs still anchor the poses). Off lowers joint's
+  // depth error against the baseline from 0.92x to 0.87x on average over 8
+  // sequences of 4 path types, below the baseline on all 8 (BENCHMARKS.md
+  // "Method ablation").
+  bool depth_input_pairs = false;
   int num_threads = 0;  // OpenMP threads for every stage; 0 = default
   // Wall-time cap of one run (s): no outer iteration starts after it, the
   // last accepted state is returned and the cap is noted (0: no cap). Every

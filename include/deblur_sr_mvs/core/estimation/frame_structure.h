@@ -26,6 +26,18 @@ struct FrameStructure {
 CaptureGeometry MakeCaptureGeometry(const std::vector<FrameStructure>& frames, const PinholeCamera& camera_hr,
                                     int t, int source);
 
+// Geometry of `frame` swept by the exposure of `kernel_frame` (at scale 1
+// applied to frame's up-sampled input: B_frame blurred by kernel_frame's
+// blur). kernel_frame's pose path is moved rigidly onto frame (the same
+// motion in the camera frame: neighbour pose P_f P_k^-1 P_n(k), stamps
+// shifted likewise, k's exposure), global shutter. The cross-blurred pair
+// (B_t through s's blur against B_s through t's blur) carries equal blur in
+// both images whatever the two frames' motions, which the plain inputs do
+// only when t and s move alike (the Psi_s o B_t and Psi_t o B_s of
+// eq:initializationScene). frame == kernel_frame gives Psi_t's own path.
+CaptureGeometry CrossBlurGeometry(const std::vector<FrameStructure>& frames, const PinholeCamera& camera_hr,
+                                  int frame, int kernel_frame);
+
 // N(t): the neighbouring frames of t used by the matching terms, `radius`
 // frames on each side inside [0, num_frames).
 std::vector<int> Neighbours(int t, int num_frames, int radius);
