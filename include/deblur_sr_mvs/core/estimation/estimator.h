@@ -182,6 +182,9 @@ struct EstimatorResult {
   // it gave (NoiseAwareImageOptions).
   double noise_sigma = 0.0;
   double image_lambda_i = 0.0;
+  // The work of the image solves, summed over the updates of the window
+  // (ImageUpdateStats).
+  ImageUpdateStats image_work;
 };
 
 // The image update's options for frames with noise of `noise_sigma`
