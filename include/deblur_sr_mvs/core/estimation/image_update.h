@@ -29,11 +29,12 @@ struct ImageUpdateOptions {
   double cg_tolerance = 0.05;
   // The estimator's image phases after the first start from the latent the
   // previous phase restored (only the structure moved): they use these
-  // counts instead of irls_iterations and cg_iterations (2 x 5 instead of
-  // 4 x 10: 2.2x fewer operator passes over a run at the same accuracy,
-  // BENCHMARKS.md "Fewer operator applies in the image update").
-  int refine_irls_iterations = 2;
-  int refine_cg_iterations = 5;
+  // counts instead of irls_iterations and cg_iterations. Lower counts trade
+  // accuracy for speed (2 x 5: 2.2x fewer operator passes over a run, but
+  // up to 0.55 dB lower PSNR on a lateral path; BENCHMARKS.md "Fewer
+  // operator applies in the image update"), so the default keeps 4 x 10.
+  int refine_irls_iterations = 4;
+  int refine_cg_iterations = 10;
   double residual_epsilon = 1e-3;  // L1 smoothing: weights 1 / max(|r|, eps) (intensity in [0, 1])
   double tv_epsilon = 1e-3;        // TV smoothing: 1 / max(|grad I|, eps)
   int num_threads = 0;             // 0: OpenMP default
