@@ -63,6 +63,11 @@ inline Json EstimateReportJson(const EstimatorOptions& options, const std::strin
   report["noise"] = {{"sigma_gray_levels", JsonNumber(result.noise_sigma * 255.0)},
                      {"estimated", options.noise_sigma < 0.0},
                      {"lambda_i", JsonNumber(result.image_lambda_i)}};
+  // The work of the image solves (ImageUpdateStats, summed over the window's
+  // updates): operator passes count streams over one operator's rows.
+  report["image_work"] = {{"reweightings", result.image_work.reweightings},
+                          {"cg_steps", result.image_work.cg_steps},
+                          {"operator_passes", static_cast<double>(result.image_work.operator_passes)}};
   return report;
 }
 

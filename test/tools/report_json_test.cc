@@ -67,13 +67,13 @@ TEST(ReportJson, UndoneIterationWithNanEnergiesIsStrictJson) {
   ASSERT_EQ(report["solver_notes"].size(), 1u);
   EXPECT_NE(report["solver_notes"][0].get<std::string>().find("undone"), std::string::npos);
   // The keys, in the order report.json has always had them (frame_gains
-  // and noise appended for issue 12).
+  // and noise appended for issue 12, image_work for the image-solve counts).
   const nlohmann::ordered_json ordered = nlohmann::ordered_json::parse(text);
   std::vector<std::string> keys;
   for (auto it = ordered.begin(); it != ordered.end(); ++it) keys.push_back(it.key());
   const std::vector<std::string> expected = {
       "input",       "parameters",   "energies",        "stage_seconds", "wall_seconds", "peak_memory_mib",
-      "initializer", "solver_notes", "monocular_scale", "frame_gains",   "noise"};
+      "initializer", "solver_notes", "monocular_scale", "frame_gains",   "noise",        "image_work"};
   EXPECT_EQ(keys, expected);
   EXPECT_EQ(report["parameters"]["mode"], "joint");
   EXPECT_EQ(report["parameters"]["update_poses"], true);

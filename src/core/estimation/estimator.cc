@@ -472,7 +472,7 @@ class WindowSolver {
   // ---- Phases.
   void ImagePhase(int iteration);
   void StructurePhase(int iteration, bool isolated);
-  void UpdateLatent(int t);
+  void UpdateLatent(int t, bool refine);
   void UpdateEdgeWeight(int t);
   void UpdateFrameDepth(int t, int iteration, bool isolated, const std::vector<SE3>& poses,
                         const StructureUpdateOptions& structure_options);
@@ -547,6 +547,7 @@ class WindowSolver {
   std::vector<long> depth_version_, pose_version_;
   std::vector<std::vector<int>> neighbours_;  // N(t)
   std::unique_ptr<OperatorCache> cache_;
+  std::mutex work_mutex_;  // result_.image_work, summed by the frames' threads
 };
 
 // Runs body(t) for every frame on `threads_` threads; the first exception
@@ -692,7 +693,7 @@ void WindowSolver::ImagePhase(int iteration) {
              "iteration " + std::to_string(iteration) + ": image " + std::to_string(t));
     }
     if (t < options_.held_leading_latents) return;  // I_t stays as given
-    UpdateLatent(t);
+    UpdateLatent(t, /*refine=*/iteration > 1);
     UpdateEdgeWeight(t);
   });
   ++steps_done_;
@@ -701,8 +702,10 @@ void WindowSolver::ImagePhase(int iteration) {
 }
 
 // I_t from the matching terms of its neighbours (Psi_s applied to I_t
-// against B_s) and its own self-consistency term (eq:IPterm).
-void WindowSolver::UpdateLatent(int t) {
+// against B_s) and its own self-consistency term (eq:IPterm). With
+// `refine`, I_t is already restored (an image phase after the first): the
+// update uses the refinement counts.
+void WindowSolver::UpdateLatent(int t, bool refine) {
   std::vector<LinearL1Term> terms;
   HeldOperators held;
   for (int s : neighbours_[t]) {
@@ -713,9 +716,17 @@ void WindowSolver::UpdateLatent(int t) {
   terms.push_back({&held.back()->op, &observations_[t], cv::Mat(), options_.lambda_s});
   ImageUpdateOptions image_options = options_.image;
   image_options.num_threads = 1;
+  if (refine) {
+    image_options.irls_iterations = image_options.refine_irls_iterations;
+    image_options.cg_iterations = image_options.refine_cg_iterations;
+  }
   const double solve_begin = NowMs();
-  UpdateImage(terms, image_options, &latents_[t]);
+  const ImageUpdateStats stats = UpdateImage(terms, image_options, &latents_[t]);
   timer_.AddSince("image solves (thread seconds)", solve_begin);
+  std::lock_guard<std::mutex> lock(work_mutex_);
+  result_.image_work.reweightings += stats.reweightings;
+  result_.image_work.cg_steps += stats.cg_steps;
+  result_.image_work.operator_passes += stats.operator_passes;
 }
 
 // g_t of eq:regularizingTerm follows the edges of the current I_t.

@@ -69,6 +69,8 @@ void ImageUpdateOptions::Check() const {
   CheckAtLeast("image update: lambda_i", lambda_i, 0.0);
   CheckAtLeast("image update: irls_iterations", irls_iterations, 1);
   CheckAtLeast("image update: cg_iterations", cg_iterations, 1);
+  CheckAtLeast("image update: refine_irls_iterations", refine_irls_iterations, 1);
+  CheckAtLeast("image update: refine_cg_iterations", refine_cg_iterations, 1);
   CheckInRange("image update: cg_tolerance", cg_tolerance, 0.0, 1.0);
   CheckAbove("image update: residual_epsilon", residual_epsilon, 0.0);
   CheckAbove("image update: tv_epsilon", tv_epsilon, 0.0);
@@ -296,20 +298,29 @@ void CheckTermsMatchImage(const std::vector<LinearL1Term>& terms, const cv::Mat&
 }  // namespace
 
 // IRLS on eq:imgUpdate: reweight at the current image, then CG on the
-// reweighted system from it.
-void UpdateImage(const std::vector<LinearL1Term>& terms, const ImageUpdateOptions& options, cv::Mat* image) {
+// reweighted system from it (each solve warm starts from the last).
+ImageUpdateStats UpdateImage(const std::vector<LinearL1Term>& terms, const ImageUpdateOptions& options,
+                             cv::Mat* image) {
   options.Check();
   const int threads = ResolveThreads(options.num_threads);
   CheckTermsMatchImage(terms, *image);
   ReweightedImageSystem system(terms, options, threads);
   const auto apply_normal = [&system](const cv::Mat& x, cv::Mat* out) { system.ApplyNormal(x, out); };
+  ImageUpdateStats stats;
+  const long terms_count = static_cast<long>(terms.size());
   cv::Mat residual;
   for (int irls = 0; irls < options.irls_iterations; ++irls) {
     system.Reweight(*image);
     system.InitialResidual(*image, &residual);
-    SolveJacobiPcg(apply_normal, system.diagonal(), residual, options.cg_iterations, options.cg_tolerance,
-                   threads, image);
+    const int steps = SolveJacobiPcg(apply_normal, system.diagonal(), residual, options.cg_iterations,
+                                     options.cg_tolerance, threads, image);
+    ++stats.reweightings;
+    stats.cg_steps += steps;
+    // Reweight: 1 apply + 1 diagonal pass; initial residual: 1 adjoint;
+    // each CG step: 1 normal product (2).
+    stats.operator_passes += terms_count * (3 + 2L * steps);
   }
+  return stats;
 }
 
 }  // namespace deblur_sr_mvs

@@ -2,6 +2,8 @@
 
 #include <omp.h>
 
+#include <algorithm>
+#include <array>
 #include <cstddef>
 #include <string>
 #include <vector>
@@ -74,16 +76,27 @@ void NormalDiagonalRows(const SparseRows& a, const float* __restrict weight, int
   }
 }
 
+// Per-thread latent accumulators of ScatterRowBlocks, kept between calls
+// (the OpenMP threads persist): a call zeroes them but allocates only when
+// the latent grid grew.
+std::vector<float>& ThreadScratch() {
+  thread_local std::vector<float> scratch;
+  return scratch;
+}
+
 // Runs kernel(first, last, target) over contiguous row blocks, one per
-// thread: block 0 scatters into `out`, the others into zeroed private
-// buffers that are then added to `out`.
+// thread: block 0 scatters into `out`, the others into their thread's
+// zeroed scratch, which is then added to `out`.
 template <typename Kernel>
 void ScatterRowBlocks(int rows, size_t out_values, int threads, float* out, const Kernel& kernel) {
   if (threads <= 1) {
     kernel(0, rows, out);
     return;
   }
-  std::vector<std::vector<float>> partial(threads - 1);
+  constexpr int kMaxThreads = 256;
+  threads = std::min(threads, kMaxThreads);
+  std::array<float*, kMaxThreads> partial{};
+  int used_threads = 1;
 #pragma omp parallel num_threads(threads)
   {
     const int thread = omp_get_thread_num();
@@ -92,17 +105,20 @@ void ScatterRowBlocks(int rows, size_t out_values, int threads, float* out, cons
     const int last = static_cast<int>(static_cast<long long>(rows) * (thread + 1) / used);
     float* target = out;
     if (thread > 0) {
-      partial[thread - 1].assign(out_values, 0.0f);
-      target = partial[thread - 1].data();
+      std::vector<float>& scratch = ThreadScratch();
+      if (scratch.size() < out_values) scratch.resize(out_values);
+      std::fill(scratch.begin(), scratch.begin() + static_cast<std::ptrdiff_t>(out_values), 0.0f);
+      target = scratch.data();
+      partial[thread] = target;
+    } else {
+      used_threads = used;
     }
     kernel(first, last, target);
   }
   const long n = static_cast<long>(out_values);
 #pragma omp parallel for num_threads(threads) schedule(static)
   for (long i = 0; i < n; ++i) {
-    for (const std::vector<float>& block : partial) {
-      if (!block.empty()) out[i] += block[i];
-    }
+    for (int thread = 1; thread < used_threads; ++thread) out[i] += partial[thread][i];
   }
 }
 

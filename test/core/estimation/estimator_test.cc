@@ -117,6 +117,14 @@ TEST(Estimator, StructureUpdateImprovesDegradedStructure) {
   // substantially (measured: to 0.53 after two iterations, 0.66 after one).
   EXPECT_LT(result.energies.back().matching, 0.75 * result.energies[1].matching);
   EXPECT_LT(rel_after, 0.05);
+  // The first image phase restores from the input latents with the full
+  // counts, the one after the structure update refines with its own.
+  const int frames = static_cast<int>(sequence.frames.size());
+  EXPECT_EQ(result.image_work.reweightings,
+            frames * (options.image.irls_iterations + options.image.refine_irls_iterations));
+  EXPECT_LE(result.image_work.cg_steps,
+            frames * (options.image.irls_iterations * options.image.cg_iterations +
+                      options.image.refine_irls_iterations * options.image.refine_cg_iterations));
   for (const StageTiming& s : result.timings) std::printf("  %s: %.2f s\n", s.stage.c_str(), s.seconds);
 }
 
@@ -262,6 +270,12 @@ TEST(EstimatorSafety, BadOptionsNameTheRangeAndTheValue) {
   options = EstimatorOptions();
   options.image.cg_iterations = 0;
   EXPECT_EQ(message(options), "image update: cg_iterations must be >= 1, got 0");
+  options = EstimatorOptions();
+  options.image.refine_irls_iterations = 0;
+  EXPECT_EQ(message(options), "image update: refine_irls_iterations must be >= 1, got 0");
+  options = EstimatorOptions();
+  options.image.refine_cg_iterations = 0;
+  EXPECT_EQ(message(options), "image update: refine_cg_iterations must be >= 1, got 0");
   options = EstimatorOptions();
   options.structure.tv_epsilon = 0.0;
   EXPECT_EQ(message(options), "structure update: tv_epsilon must be > 0, got 0");

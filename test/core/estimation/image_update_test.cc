@@ -170,11 +170,16 @@ TEST(JacobiPcg, StopsAtTheRelativeResidualOrTheCap) {
   EXPECT_LT(loose_steps, SolveSmall(system, jacobi, 2000, 1e-5).second);
 }
 
-// The update lowers the energy of a small deblurring problem (a capture
-// operator with motion blur and 2x down-sampling) from a flat start.
-TEST(ImageUpdate, LowersTheEnergyOfARandomProblem) {
+// A small deblurring problem: a capture operator with motion blur and 2x
+// down-sampling, observing a random image.
+struct SmallDeblurProblem {
+  CaptureOperator op;
+  cv::Mat truth, observation;
+};
+
+SmallDeblurProblem MakeSmallDeblurProblem() {
   std::mt19937 rng(5);
-  const int lr_rows = 12, lr_cols = 16, hr_rows = 24, hr_cols = 32;
+  const int hr_rows = 24, hr_cols = 32;
   CaptureGeometry geometry;
   geometry.camera_hr = PinholeCamera(hr_cols, hr_rows, 30.0, 30.0, hr_cols / 2.0, hr_rows / 2.0);
   geometry.depth_hr = cv::Mat(hr_rows, hr_cols, CV_32FC1, cv::Scalar(2.0));
@@ -185,20 +190,31 @@ TEST(ImageUpdate, LowersTheEnergyOfARandomProblem) {
   geometry.exposure = 0.08;
   CaptureOperatorOptions op_options;
   op_options.samples = 10;
-  const CaptureOperator op = BuildCaptureOperator(geometry, op_options);
-  const cv::Mat truth = RandomImage(hr_rows * hr_cols, 1, 0.0f, 1.0f, &rng).reshape(1, hr_rows);
-  cv::Mat observation;
-  op.Apply(truth, &observation);
-  std::vector<LinearL1Term> terms{{&op, &observation, cv::Mat(), 1.0}};
+  SmallDeblurProblem problem;
+  problem.op = BuildCaptureOperator(geometry, op_options);
+  problem.truth = RandomImage(hr_rows * hr_cols, 1, 0.0f, 1.0f, &rng).reshape(1, hr_rows);
+  problem.op.Apply(problem.truth, &problem.observation);
+  return problem;
+}
+
+// The update lowers the energy of the small deblurring problem from a flat
+// start, and reports the work it did.
+TEST(ImageUpdate, LowersTheEnergyOfARandomProblem) {
+  const SmallDeblurProblem problem = MakeSmallDeblurProblem();
+  std::vector<LinearL1Term> terms{{&problem.op, &problem.observation, cv::Mat(), 1.0}};
   ImageUpdateOptions options;
   options.lambda_i = 0.01;
-  cv::Mat image(hr_rows, hr_cols, CV_32FC1, cv::Scalar(0.5));
+  cv::Mat image(problem.truth.size(), CV_32FC1, cv::Scalar(0.5));
   const double before = ImageEnergy(terms, options.lambda_i, image);
-  UpdateImage(terms, options, &image);
+  const ImageUpdateStats stats = UpdateImage(terms, options, &image);
   const double after = ImageEnergy(terms, options.lambda_i, image);
   EXPECT_LT(after, 0.5 * before);
-  ASSERT_EQ(lr_rows, observation.rows);
-  ASSERT_EQ(lr_cols, observation.cols);
+  ASSERT_EQ(12, problem.observation.rows);
+  ASSERT_EQ(16, problem.observation.cols);
+  EXPECT_EQ(stats.reweightings, options.irls_iterations);
+  EXPECT_GE(stats.cg_steps, options.irls_iterations);
+  EXPECT_LE(stats.cg_steps, options.irls_iterations * options.cg_iterations);
+  EXPECT_EQ(stats.operator_passes, 3L * stats.reweightings + 2L * stats.cg_steps);  // one term
 }
 
 }  // namespace

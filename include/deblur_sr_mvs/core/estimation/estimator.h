@@ -240,6 +240,9 @@ struct EstimatorResult {
   // building them.
   CarriedOperators carried_operators;
   int operators_reused = 0;
+  // The work of the image solves, summed over the updates of the window
+  // (ImageUpdateStats).
+  ImageUpdateStats image_work;
 };
 
 // The image update's options for frames with noise of `noise_sigma`

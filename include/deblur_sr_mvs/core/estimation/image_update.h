@@ -27,6 +27,14 @@ struct ImageUpdateOptions {
   // cg_tolerance x its value at the warm start (0: always cg_iterations).
   int cg_iterations = 10;
   double cg_tolerance = 0.05;
+  // The estimator's image phases after the first start from the latent the
+  // previous phase restored (only the structure moved): they use these
+  // counts instead of irls_iterations and cg_iterations. Lower counts trade
+  // accuracy for speed (2 x 5: 2.2x fewer operator passes over a run, but
+  // up to 0.55 dB lower PSNR on a lateral path; BENCHMARKS.md "Fewer
+  // operator applies in the image update"), so the default keeps 4 x 10.
+  int refine_irls_iterations = 4;
+  int refine_cg_iterations = 10;
   double residual_epsilon = 1e-3;  // L1 smoothing: weights 1 / max(|r|, eps) (intensity in [0, 1])
   double tv_epsilon = 1e-3;        // TV smoothing: 1 / max(|grad I|, eps)
   int num_threads = 0;             // 0: OpenMP default
@@ -63,8 +71,19 @@ void AddWeightedLaplacianDiagonal(const cv::Mat& v, double scale, cv::Mat* out);
 int SolveJacobiPcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_normal, const cv::Mat& diagonal,
                    cv::Mat residual, int max_iterations, double relative_tolerance, int threads, cv::Mat* x);
 
+// The work an update did. Operator passes count the streams over the rows
+// of one data term's operator: an apply, an adjoint or a diagonal pass is 1,
+// a one-pass normal product A^T W A x is 2 (it does the multiply-adds of an
+// apply and an adjoint).
+struct ImageUpdateStats {
+  int reweightings = 0;
+  int cg_steps = 0;
+  long operator_passes = 0;
+};
+
 // Minimises the energy over `image` (HR, CV_32FC(C), updated in place from
 // its current value); ImageEnergy gives the energy reached.
-void UpdateImage(const std::vector<LinearL1Term>& terms, const ImageUpdateOptions& options, cv::Mat* image);
+ImageUpdateStats UpdateImage(const std::vector<LinearL1Term>& terms, const ImageUpdateOptions& options,
+                             cv::Mat* image);
 
 }  // namespace deblur_sr_mvs
