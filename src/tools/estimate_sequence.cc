@@ -106,7 +106,7 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
                "joint, --structure-matching both: input pairs each blurred by the other frame's blur");
   cli.add_flag("--depth-input-pairs,!--no-depth-input-pairs", options->depth_input_pairs,
                "joint, --structure-matching both: the depth update matches the input pairs too (default "
-               "off: restored pairs for depth, both kinds for poses)");
+               "on; off: restored pairs for depth, both kinds for poses)");
   cli.add_option("--structure-matching", flags->structure_matching, "both, restored or blurred")
       ->check(CLI::IsMember({"both", "restored", "blurred"}));
   cli.add_option("--exposure", flags->exposure,

@@ -47,8 +47,8 @@ enum class StructureMatching {
   kRestored,
   // Default: every pair twice, on the restored images (precise) and on the
   // bicubic up-sampled inputs (blurry, but independent of the current
-  // structure), as one IRLS problem; by default the depth update uses the
-  // restored pairs only (EstimatorOptions::depth_input_pairs). On the four benchmark scenes this
+  // structure), as one IRLS problem (EstimatorOptions::depth_input_pairs
+  // can keep the input pairs out of the depth update). On the four benchmark scenes this
   // lowers the mean ATE from 0.00067 to 0.00056 m and the mean depth rel.
   // error from 0.0174 to 0.0170 against kRestored (BENCHMARKS.md).
   kRestoredAndInput,
@@ -151,13 +151,15 @@ struct EstimatorOptions {
   // (BENCHMARKS.md "Method ablation").
   bool cross_blurred_inputs = false;
   // kRestoredAndInput only: whether the depth update matches the input pairs
-  // too (true), or the restored pairs alone while the pose update keeps both
-  // (false, default: the sharp restored images place depth precisely; the
-  // structure-independent inputs still anchor the poses). Off lowers joint's
-  // depth error against the baseline from 0.92x to 0.87x on average over 8
-  // sequences of 4 path types, below the baseline on all 8 (BENCHMARKS.md
-  // "Method ablation").
-  bool depth_input_pairs = false;
+  // too (true, default), or the restored pairs alone while the pose update
+  // keeps both (false). Off lowers joint's per-frame median-scaled depth
+  // error against the baseline from 0.92x to 0.87x on average over 8
+  // sequences of 4 path types, but the depth maps lose their common scale:
+  // with an exact pose prior the depth in metres is 1.46x the scale-aligned
+  // figure instead of 1.07x, and a rotate-then-translate stream's worst
+  // orientation error rises from 0.15 to 0.66 deg (BENCHMARKS.md "Method
+  // ablation"). So it stays on.
+  bool depth_input_pairs = true;
   int num_threads = 0;  // OpenMP threads for every stage; 0 = default
   // Wall-time cap of one run (s): no outer iteration starts after it, the
   // last accepted state is returned and the cap is noted (0: no cap). Every
