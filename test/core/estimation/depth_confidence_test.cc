@@ -119,17 +119,24 @@ TEST(DepthConfidence, MaskSetsNanBelowTheThresholdOnly) {
   EXPECT_EQ(depth.at<float>(0, 0), 2.0f);  // the input is not changed
 }
 
+// A pinhole camera of width x height pixels, focal length = width, principal
+// point at the centre.
+PinholeCamera CentredCamera(int width, int height) {
+  PinholeCamera camera;
+  camera.width = width;
+  camera.height = height;
+  camera.fx = camera.fy = width;
+  camera.cx = 0.5 * (width - 1);
+  camera.cy = 0.5 * (height - 1);
+  return camera;
+}
+
 // Two frames at one pose see the same textured image, so the images agree
 // at any depth; only the depth maps can disagree. D_s 3 % off D_t keeps full
 // confidence, 20 % off removes it, and with the geometric test off the
 // images alone decide.
 TEST(DepthConfidence, DepthMapsThatDisagreeLoseTheirConfidence) {
-  PinholeCamera camera;
-  camera.width = 40;
-  camera.height = 30;
-  camera.fx = camera.fy = 40.0;
-  camera.cx = 19.5;
-  camera.cy = 14.5;
+  const PinholeCamera camera = CentredCamera(40, 30);
   cv::Mat texture(30, 40, CV_32FC1);
   cv::RNG rng(7);
   rng.fill(texture, cv::RNG::UNIFORM, 0.0f, 1.0f);
@@ -163,12 +170,7 @@ TEST(DepthConfidence, BadOptionsAndInputAreRejected) {
   options = DepthConfidenceOptions();
   options.max_depth_disagreement = -0.1;
   EXPECT_THROW(options.Check(), InputError);
-  PinholeCamera camera;
-  camera.width = 4;
-  camera.height = 3;
-  camera.fx = camera.fy = 4.0;
-  camera.cx = 1.5;
-  camera.cy = 1.0;
+  const PinholeCamera camera = CentredCamera(4, 3);
   const std::vector<cv::Mat> latent{cv::Mat(3, 4, CV_32FC1, cv::Scalar(0.5f))};
   const std::vector<cv::Mat> wrong_size{cv::Mat(4, 4, CV_32FC1, cv::Scalar(1.0f))};
   EXPECT_THROW(ComputeDepthConfidence(camera, latent, wrong_size, {SE3()}, DepthConfidenceOptions()),
