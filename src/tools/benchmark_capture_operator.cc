@@ -14,6 +14,7 @@
 #include <omp.h>
 
 #include "deblur_sr_mvs/core/imaging/capture_operator.h"
+#include "deblur_sr_mvs/core/imaging/normal_product.h"
 #include "tool_main.h"
 
 namespace dsm = deblur_sr_mvs;
@@ -200,6 +201,46 @@ void BenchmarkSharedDepths(const dsm::CaptureGeometry& geometry, int samples, in
       adaptive_shared, alone / adaptive_shared);
 }
 
+// One product with the weighted normal operator A^T W A, as a CG step of
+// the image update makes it (one thread, colour): streaming the rows of A
+// once (gather, weigh, scatter: AddWeightedNormalProduct) against two
+// gathers, A x through the rows of A and A^T (W A x) through the rows of a
+// transposed copy. Also the time to make that copy.
+void BenchmarkNormalProduct(const dsm::CaptureGeometry& geometry, int samples, int repeats) {
+  dsm::CaptureOperatorOptions options;
+  options.samples = samples;
+  options.num_threads = 1;
+  options.transposed_copy = true;
+  const dsm::CaptureOperator op = dsm::BuildCaptureOperator(geometry, options);
+  const dsm::SparseMatrixRM& a = op.matrix();
+  const int apply_repeats = repeats * 5;
+  const double transpose_ms = MedianMs(repeats, [&] {
+    dsm::SparseMatrixRM copy = a.transpose();
+    copy.makeCompressed();
+  });
+  for (int channels : {1, 3}) {
+    cv::Mat x(op.hr_size(), CV_32FC(channels)), weight(op.lr_size(), CV_32FC(channels));
+    cv::randu(x, 0.0f, 1.0f);
+    cv::randu(weight, 0.5f, 2.0f);
+    cv::Mat one_pass(op.hr_size(), CV_32FC(channels)), lr, two_gathers;
+    const double one_pass_ms = MedianMs(apply_repeats, [&] {
+      one_pass.setTo(0.0);
+      dsm::AddWeightedNormalProduct(a, weight, x, &one_pass, 1);
+    });
+    const double two_gathers_ms = MedianMs(apply_repeats, [&] {
+      op.Apply(x, &lr);
+      lr = lr.mul(weight);
+      op.ApplyAdjoint(lr, &two_gathers);
+    });
+    std::printf(
+        "normal product A^T W A x, 1 thread, %d channel(s): one pass (gather + scatter) %.2f ms, two gathers "
+        "through a transposed copy %.2f ms (one pass / two gathers x%.2f); the copy %.1f ms; max "
+        "difference %.1e\n",
+        channels, one_pass_ms, two_gathers_ms, one_pass_ms / two_gathers_ms, transpose_ms,
+        cv::norm(one_pass, two_gathers, cv::NORM_INF));
+  }
+}
+
 // Times the build, Psi_t and Psi_t^T with one thread count and prints them.
 void BenchmarkThreads(const dsm::CaptureGeometry& geometry, int threads, int samples, int repeats) {
   const int width = geometry.camera_hr.width, height = geometry.camera_hr.height;
@@ -249,12 +290,14 @@ int Run(int argc, char** argv) {
   cli.add_option("--readout-ratio", readout_ratio,
                  "rolling shutter: readout time = R x frame interval (default 0: global shutter)")
       ->check(dsm::FlagNumber(0.0, 1.0));
-  bool row_layout = false, shared_depths = false;
+  bool row_layout = false, shared_depths = false, normal_product = false;
   cli.add_flag("--row-layout", row_layout,
                "also time Psi_t and Psi_t^T with rows stored as runs of consecutive columns against CSR");
   cli.add_flag("--shared-depths", shared_depths,
                "also time building the operators of 3 sources of one frame with and without shared virtual "
                "depths, and adaptive M");
+  cli.add_flag("--normal-product", normal_product,
+               "also time A^T W A x in one pass over the rows against two gathers through a transposed copy");
   if (!cli.Parse(argc, argv)) return 0;
   dsm::CaptureGeometry geometry = BenchmarkGeometry();
   geometry.readout_time = readout_ratio * (geometry.stamp - geometry.neighbour_stamp);
@@ -266,6 +309,7 @@ int Run(int argc, char** argv) {
   for (int threads : {1, 2}) BenchmarkThreads(geometry, threads, samples, repeats);
   if (row_layout) BenchmarkRunLayout(geometry, samples, repeats);
   if (shared_depths) BenchmarkSharedDepths(geometry, samples, repeats);
+  if (normal_product) BenchmarkNormalProduct(geometry, samples, repeats);
   return 0;
 }
 
