@@ -107,6 +107,10 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   cli.add_flag("--depth-input-pairs,!--no-depth-input-pairs", options->depth_input_pairs,
                "joint, --structure-matching both: the depth update matches the input pairs too (default "
                "on; off: restored pairs for depth, both kinds for poses)");
+  cli.add_flag("--joint-depth-pose-step,!--no-joint-depth-pose-step",
+               options->structure.joint_depth_pose_step,
+               "the structure update moves all depths and the free poses in one Gauss-Newton step "
+               "(default off)");
   cli.add_option("--structure-matching", flags->structure_matching, "both, restored or blurred")
       ->check(CLI::IsMember({"both", "restored", "blurred"}));
   cli.add_option("--exposure", flags->exposure,

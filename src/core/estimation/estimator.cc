@@ -478,6 +478,8 @@ class WindowSolver {
                         const StructureUpdateOptions& structure_options);
   void UpdateAllPoses(int iteration, bool isolated, const std::vector<SE3>& poses,
                       const StructureUpdateOptions& structure_options);
+  void UpdateDepthsAndPosesJointly(int iteration, bool isolated,
+                                   const StructureUpdateOptions& structure_options);
   void AppendPairs(int t, const std::vector<int>& sources, bool with_inputs, std::vector<PairMatching>* pairs,
                    HeldOperators* held);
   SelfConsistencyLinearization SelfConsistencyOf(int t);
@@ -745,11 +747,17 @@ void WindowSolver::StructurePhase(int iteration, bool isolated) {
   StructureUpdateOptions structure_options = options_.structure;
   structure_options.num_threads = threads_;
   if (cross_blurred_inputs()) BuildCrossBlurredInputs();
+  if (structure_options.joint_depth_pose_step && options_.update_poses) {
+    UpdateDepthsAndPosesJointly(iteration, isolated, structure_options);
+  } else {
+    std::vector<SE3> poses(num_frames_);
+    for (int t = 0; t < num_frames_; ++t) poses[t] = frames_[t].T_world_cam;
+    ForEachFrame([this, iteration, isolated, &poses, &structure_options](int t) {
+      UpdateFrameDepth(t, iteration, isolated, poses, structure_options);
+    });
+  }
   std::vector<SE3> poses(num_frames_);
   for (int t = 0; t < num_frames_; ++t) poses[t] = frames_[t].T_world_cam;
-  ForEachFrame([this, iteration, isolated, &poses, &structure_options](int t) {
-    UpdateFrameDepth(t, iteration, isolated, poses, structure_options);
-  });
   if (options_.update_poses) UpdateAllPoses(iteration, isolated, poses, structure_options);
   ++steps_done_;
   timer_.AddSince("structure update", begin);
@@ -778,6 +786,42 @@ void WindowSolver::UpdateFrameDepth(int t, int iteration, bool isolated, const s
   SetInverseDepth(t, inverse_depth_[t]);
   if (isolated && !(FrameEnergy(t, nullptr) <= before)) {
     SetInverseDepth(t, saved);  // the surrogate step did not pay: keep D_t
+  }
+}
+
+// Every D_t and the free poses in one Gauss-Newton/IRLS step from the depth
+// updates' terms (UpdateDepthAndPoses), in place of the per-frame depth
+// updates; the pose update with its longer baselines follows. With
+// `isolated` (baseline) the step is kept only if it lowers the energy.
+void WindowSolver::UpdateDepthsAndPosesJointly(int iteration, bool isolated,
+                                               const StructureUpdateOptions& structure_options) {
+  Report(0.0, "iteration " + std::to_string(iteration) + ": joint depth + pose step");
+  const double before = isolated ? TotalEnergy(iteration, "structure").total : 0.0;
+  std::vector<FrameDepthTerms> terms(num_frames_);
+  std::vector<SelfConsistencyLinearization> selves(num_frames_);
+  HeldOperators held;
+  std::vector<SE3> poses(num_frames_);
+  std::vector<cv::Mat> inverse_depths(num_frames_), saved_depths = inverse_depth_;
+  for (int t = 0; t < num_frames_; ++t) {
+    AppendPairs(t, neighbours_[t], options_.depth_input_pairs, &terms[t].pairs, &held);
+    if (blurred_matching()) {
+      selves[t] = SelfConsistencyOf(t);
+      terms[t].self = &selves[t];
+    }
+    terms[t].edge_weight = edge_weight_[t];
+    poses[t] = frames_[t].T_world_cam;
+    inverse_depths[t] = inverse_depth_[t].clone();
+  }
+  const std::vector<SE3> saved_poses = poses;
+  const double begin = NowMs();
+  UpdateDepthAndPoses(camera_hr_, latents_, terms, ParallaxScale(), structure_options,
+                      options_.fixed_leading_poses, &poses, &inverse_depths);
+  timer_.AddSince("joint depth + pose steps", begin);
+  for (int t = 0; t < num_frames_; ++t) SetInverseDepth(t, inverse_depths[t]);
+  SetPoses(poses);
+  if (isolated && !(TotalEnergy(iteration, "structure").total <= before)) {
+    for (int t = 0; t < num_frames_; ++t) SetInverseDepth(t, saved_depths[t]);
+    SetPoses(saved_poses);
   }
 }
 

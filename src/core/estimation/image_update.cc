@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <utility>
 
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/common/options_check.h"
@@ -245,16 +246,11 @@ class ReweightedImageSystem {
 
 }  // namespace
 
-int SolveJacobiPcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_normal, const cv::Mat& diagonal,
-                   cv::Mat residual, int max_iterations, double relative_tolerance, int threads, cv::Mat* x) {
-  // M^-1 = 1 / diag(N) where positive.
-  cv::Mat inverse_diagonal(diagonal.size(), diagonal.type());
-  const float* pd = diagonal.ptr<float>();
-  float* pi = inverse_diagonal.ptr<float>();
-  const size_t n = NumValues(diagonal);
-  for (size_t i = 0; i < n; ++i) pi[i] = pd[i] > 0.0f ? 1.0f / pd[i] : 1.0f;
+int SolvePcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_normal,
+             const std::function<void(const cv::Mat&, cv::Mat*)>& apply_preconditioner, cv::Mat residual,
+             int max_iterations, double relative_tolerance, int threads, cv::Mat* x) {
   cv::Mat preconditioned, direction, normal_direction;
-  cv::multiply(residual, inverse_diagonal, preconditioned);
+  apply_preconditioner(residual, &preconditioned);
   direction = preconditioned.clone();
   double rz = Dot(residual, preconditioned, threads);
   double rr = Dot(residual, residual, threads);
@@ -269,7 +265,7 @@ int SolveJacobiPcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_no
     Axpy(alpha, direction, x, threads);
     Axpy(-alpha, normal_direction, &residual, threads);
     rr = Dot(residual, residual, threads);
-    cv::multiply(residual, inverse_diagonal, preconditioned);
+    apply_preconditioner(residual, &preconditioned);
     const double rz_next = Dot(residual, preconditioned, threads);
     const double beta = rz_next / rz;
     rz = rz_next;
@@ -278,6 +274,20 @@ int SolveJacobiPcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_no
     Axpy(1.0, preconditioned, &direction, threads);
   }
   return steps;
+}
+
+int SolveJacobiPcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_normal, const cv::Mat& diagonal,
+                   cv::Mat residual, int max_iterations, double relative_tolerance, int threads, cv::Mat* x) {
+  // M^-1 = 1 / diag(N) where positive.
+  cv::Mat inverse_diagonal(diagonal.size(), diagonal.type());
+  const float* pd = diagonal.ptr<float>();
+  float* pi = inverse_diagonal.ptr<float>();
+  const size_t n = NumValues(diagonal);
+  for (size_t i = 0; i < n; ++i) pi[i] = pd[i] > 0.0f ? 1.0f / pd[i] : 1.0f;
+  return SolvePcg(
+      apply_normal,
+      [&inverse_diagonal](const cv::Mat& r, cv::Mat* z) { cv::multiply(r, inverse_diagonal, *z); },
+      std::move(residual), max_iterations, relative_tolerance, threads, x);
 }
 
 namespace {

@@ -3,13 +3,16 @@
 #include <omp.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <memory>
 
 #include <Eigen/Dense>
 #include <opencv2/imgproc.hpp>
 
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/common/options_check.h"
+#include "deblur_sr_mvs/core/common/runtime.h"
 #include "deblur_sr_mvs/core/estimation/image_update.h"
 #include "deblur_sr_mvs/core/imaging/normal_product.h"
 
@@ -265,6 +268,7 @@ void StructureUpdateOptions::Check() const {
   CheckAbove("structure update: tv_epsilon", tv_epsilon, 0.0);
   CheckAtLeast("structure update: depth_damping", depth_damping, 0.0);
   CheckAtLeast("structure update: pose_damping", pose_damping, 0.0);
+  CheckAtLeast("structure update: joint_cg_iterations", joint_cg_iterations, 1);
   edge_weight.Check();
 }
 
@@ -329,7 +333,8 @@ class DepthNormalEquations {
   DepthNormalEquations(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world_cam,
                        const std::vector<cv::Mat>& latents, const std::vector<PairMatching>& pairs,
                        const SelfConsistencyLinearization* self, const cv::Mat& edge_weight,
-                       double parallax_scale, const StructureUpdateOptions& options)
+                       double parallax_scale, const StructureUpdateOptions& options,
+                       bool pose_coupling = false)
       : camera_hr_(camera_hr),
         T_world_cam_(T_world_cam),
         latents_(latents),
@@ -338,6 +343,7 @@ class DepthNormalEquations {
         edge_weight_(edge_weight),
         parallax_scale_(parallax_scale),
         options_(options),
+        pose_coupling_(pose_coupling),
         width_(camera_hr.width),
         height_(camera_hr.height),
         c2_(parallax_scale * parallax_scale),
@@ -367,6 +373,16 @@ class DepthNormalEquations {
 
   // diag(N), the Jacobi preconditioner (after Linearize).
   const cv::Mat& diagonal() const { return diagonal_; }
+
+  // With pose_coupling, pair p's terms in the poses after Linearize: for
+  // r = r0 - Psi(g .* d + A (eps_t - eps_s)), coupling[j] = G^T Psi^T W Psi
+  // A_j (HR, one channel), block = A^T Psi^T W Psi A, rhs = A^T Psi^T W r0.
+  struct PoseCoupling {
+    std::array<cv::Mat, 6> coupling;
+    Eigen::Matrix<double, 6, 6> block = Eigen::Matrix<double, 6, 6>::Zero();
+    Vector6d rhs = Vector6d::Zero();
+  };
+  const PoseCoupling& pose_coupling(size_t p) const { return states_[p].pose; }
 
   // rhs at `inverse_depth` (the linearisation point), without damping.
   void RightHandSide(const cv::Mat& inverse_depth, cv::Mat* rhs) {
@@ -426,6 +442,7 @@ class DepthNormalEquations {
     WarpLinearization lin;
     cv::Mat weight;  // observation grid, C channels
     cv::Mat residual;
+    PoseCoupling pose;  // with pose_coupling_
   };
 
   // Every pair at the current depth (eq:taylorExpansion); returns its share
@@ -436,15 +453,36 @@ class DepthNormalEquations {
       const PairMatching& pair = pairs_[p];
       PairState& state = states_[p];
       state.lin = LinearizeWarp(camera_hr_, inverse_depth, T_world_cam_[pair.t], T_world_cam_[pair.s],
-                                SourceImage(pair, latents_), nullptr);
+                                SourceImage(pair, latents_), pose_coupling_ ? &pose_jacobians_ : nullptr);
       Predict(pair, state.lin.warped, &predicted_);
       state.residual = *pair.observation - predicted_;
       L1Weights(state.residual, ObservationMask(pair, state.lin.valid), options_.residual_epsilon,
                 &state.weight);
+      if (pose_coupling_) CouplePoses(pair, &state);
       diagonal_sum += Dot1(state.lin.d_inverse_depth, state.lin.d_inverse_depth) * cv::mean(state.weight)[0] /
                       std::max(1, state.weight.channels());
     }
     return diagonal_sum;
+  }
+
+  // PoseCoupling of a linearised pair from the pose Jacobians A_j of
+  // LinearizeWarp (eq:updateVariables): Psi A_j on the observation grid, its
+  // weighted products with Psi A_k and W r0, and G^T Psi^T W Psi A_j.
+  void CouplePoses(const PairMatching& pair, PairState* state) {
+    PoseCoupling& pose = state->pose;
+    std::array<cv::Mat, 6> projected, weighted;
+    cv::multiply(state->residual, state->weight, predicted_);
+    for (int j = 0; j < 6; ++j) {
+      Predict(pair, pose_jacobians_[j], &projected[j]);
+      cv::multiply(projected[j], state->weight, weighted[j]);
+      pose.rhs(j) = Dot1(projected[j], predicted_);
+      PredictAdjoint(pair, weighted[j], &back_);
+      pose.coupling[j].create(height_, width_, CV_32FC1);
+      ContractChannels(state->lin.d_inverse_depth, back_, &pose.coupling[j], false);
+    }
+    for (int j = 0; j < 6; ++j) {
+      for (int k = 0; k <= j; ++k) pose.block(j, k) = pose.block(k, j) = Dot1(weighted[j], projected[k]);
+    }
   }
 
   // The self term (eq:IPterm): r = (B - Psi I) - Box(h .* moved), the linear
@@ -505,6 +543,7 @@ class DepthNormalEquations {
   const cv::Mat& edge_weight_;
   const double parallax_scale_;
   const StructureUpdateOptions& options_;
+  const bool pose_coupling_;
   const int width_, height_;
   const double c2_;
   std::vector<PairState> states_;
@@ -513,6 +552,7 @@ class DepthNormalEquations {
   cv::Mat moved_;                        // inverse-depth change since the self term's linearisation
   cv::Mat hr_diagonal_, squared_, diagonal_;
   cv::Mat expanded_, predicted_, back_;  // scratch
+  std::vector<cv::Mat> pose_jacobians_;  // scratch: A_j of the pair being linearised
   double damping_ = 0.0;
 };
 
@@ -712,6 +752,346 @@ std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr, const std::vec
     }
   }
   return total;
+}
+
+// ---- The joint depth + pose step (eq:taylorExpansion, eq:updateVariables
+// with every frame's inverse depth and the free poses as one unknown).
+//
+// Unknowns are laid out in one float vector for the CG: the inverse-depth
+// increments of frame 0, 1, ... (HR images, row-major) and then 6 tangent
+// components per frame.
+//
+// The CG is preconditioned by the Schur complement of the depth diagonal:
+// with D_t = diag(N_t) (data, self term, TV stencil and damping of frame t's
+// depth system) in place of N_dd,
+//   M = [D     N_dp]      M^-1 [r_d] : z_p = S^-1 (r_p - N_pd D^-1 r_d),
+//       [N_pd  N_pp],          [r_p]   z_d = D^-1 (r_d - N_dp z_p),
+// S = N_pp - N_pd D^-1 N_dp the reduced camera system of the per-pixel
+// inverse-depth blocks. The TV couples neighbouring pixels, so M is not N:
+// the CG on N itself carries the coupling of the TV (and of the capture
+// operators) that the per-pixel elimination leaves out.
+class JointDepthPoseSystem::Impl {
+ public:
+  Impl(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world_cam,
+       const std::vector<cv::Mat>& latents, const std::vector<FrameDepthTerms>& frames, double parallax_scale,
+       const StructureUpdateOptions& options, int num_fixed)
+      : T_world_cam_(T_world_cam),
+        frames_(frames),
+        options_(options),
+        num_frames_(static_cast<int>(frames.size())),
+        num_fixed_(std::max(1, num_fixed)),
+        pixels_(camera_hr.width * camera_hr.height),
+        size_(camera_hr.width, camera_hr.height),
+        threads_(ResolveThreads(options.num_threads)),
+        systems_(frames.size()),
+        couplings_(frames.size()) {
+    if (T_world_cam.size() != frames.size()) {
+      throw InputError("joint depth + pose step: one pose and one set of depth terms per frame");
+    }
+    for (int t = 0; t < num_frames_; ++t) {
+      if (frames[t].pairs.empty() && frames[t].self == nullptr) continue;  // D_t stays
+      systems_[t] = std::make_unique<DepthNormalEquations>(camera_hr, T_world_cam, latents, frames[t].pairs,
+                                                           frames[t].self, frames[t].edge_weight,
+                                                           parallax_scale, options, /*pose_coupling=*/true);
+    }
+  }
+
+  int num_values() const { return num_frames_ * pixels_ + 6 * num_frames_; }
+
+  void Linearize(const std::vector<cv::Mat>& inverse_depths) {
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads_)
+    for (int t = 0; t < num_frames_; ++t) {
+      if (systems_[t]) systems_[t]->Linearize(inverse_depths[t]);
+    }
+    const int n = 6 * num_frames_;
+    pose_normal_ = Eigen::MatrixXd::Zero(n, n);
+    pose_rhs_ = Eigen::VectorXd::Zero(n);
+    for (int t = 0; t < num_frames_; ++t) {
+      couplings_[t].clear();
+      if (!systems_[t]) continue;
+      for (size_t p = 0; p < frames_[t].pairs.size(); ++p) {
+        const int s = frames_[t].pairs[p].s;
+        const auto& pose = systems_[t]->pose_coupling(p);
+        // As UpdatePoses assembles them: eps_t with +A, eps_s with -A.
+        pose_normal_.block<6, 6>(6 * t, 6 * t) += pose.block;
+        pose_normal_.block<6, 6>(6 * s, 6 * s) += pose.block;
+        pose_normal_.block<6, 6>(6 * t, 6 * s) -= pose.block;
+        pose_normal_.block<6, 6>(6 * s, 6 * t) -= pose.block;
+        pose_rhs_.segment<6>(6 * t) += pose.rhs;
+        pose_rhs_.segment<6>(6 * s) -= pose.rhs;
+        AddCoupling(t, t, pose.coupling, 1.0);
+        AddCoupling(t, s, pose.coupling, -1.0);
+      }
+    }
+    // Levenberg-Marquardt damping as in UpdatePoses.
+    for (int i = 0; i < n; ++i) pose_normal_(i, i) += options_.pose_damping * pose_normal_(i, i) + 1e-12;
+    SetGauge();
+    FormReducedCameraSystem();
+  }
+
+  void RightHandSide(const std::vector<cv::Mat>& inverse_depths, cv::Mat* flat) {
+    flat->create(1, num_values(), CV_32FC1);
+    flat->setTo(0.0);
+    for (int t = 0; t < num_frames_; ++t) {
+      cv::Mat view = DepthView(*flat, t);
+      if (systems_[t]) systems_[t]->RightHandSide(inverse_depths[t], &view);
+    }
+    Eigen::VectorXd poses = pose_rhs_;
+    ProjectGauge(&poses);
+    SetPoses(poses, flat);
+  }
+
+  // out = N in; `in` satisfies the gauge (held poses and the scale
+  // component zero), and so does out's pose part.
+  void ApplyNormal(const cv::Mat& in, cv::Mat* out) {
+    out->create(1, num_values(), CV_32FC1);
+    const Eigen::VectorXd in_poses = Poses(in);
+    Eigen::VectorXd out_poses = pose_normal_ * in_poses + PosesFromDepths(in, /*divided=*/false);
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads_)
+    for (int t = 0; t < num_frames_; ++t) {
+      const cv::Mat in_depth = DepthView(in, t);
+      cv::Mat out_depth = DepthView(*out, t);
+      if (!systems_[t]) {
+        in_depth.copyTo(out_depth);
+        continue;
+      }
+      systems_[t]->ApplyNormal(in_depth, &out_depth);
+      AddDepthsFromPoses(t, in_poses, 1.0, &out_depth);
+    }
+    ProjectGauge(&out_poses);
+    SetPoses(out_poses, out);
+  }
+
+  // z = M^-1 r (see the class comment).
+  void ApplyPreconditioner(const cv::Mat& residual, cv::Mat* z) {
+    z->create(1, num_values(), CV_32FC1);
+    Eigen::VectorXd reduced = Poses(residual) - PosesFromDepths(residual, /*divided=*/true);
+    ProjectGauge(&reduced);
+    Eigen::VectorXd z_poses = reduced_solver_.solve(reduced);
+    ProjectGauge(&z_poses);
+    SetPoses(z_poses, z);
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads_)
+    for (int t = 0; t < num_frames_; ++t) {
+      const cv::Mat r_depth = DepthView(residual, t);
+      cv::Mat z_depth = DepthView(*z, t);
+      r_depth.copyTo(z_depth);
+      if (!systems_[t]) continue;
+      AddDepthsFromPoses(t, z_poses, -1.0, &z_depth);
+      cv::divide(z_depth, systems_[t]->diagonal(), z_depth);
+    }
+  }
+
+  void ProjectGauge(Eigen::VectorXd* poses) const {
+    poses->head(6 * num_fixed_).setZero();
+    if (gauge_.size() > 0) *poses -= gauge_ * gauge_.dot(*poses);
+  }
+
+  void ApplyStep(const cv::Mat& flat, std::vector<cv::Mat>* inverse_depths, std::vector<SE3>* T_world_cam) {
+    for (int t = 0; t < num_frames_; ++t) {
+      if (systems_[t]) systems_[t]->ApplyStep(DepthView(flat, t), &(*inverse_depths)[t]);
+    }
+    const Eigen::VectorXd poses = Poses(flat);
+    for (int f = num_fixed_; f < num_frames_; ++f) {
+      (*T_world_cam)[f] = SE3::Exp(poses.segment<6>(6 * f)) * (*T_world_cam)[f];
+    }
+  }
+
+  // The flat vector's parts.
+  cv::Mat DepthView(const cv::Mat& flat, int t) const {
+    return cv::Mat(size_, CV_32FC1, const_cast<float*>(flat.ptr<float>()) + static_cast<size_t>(t) * pixels_);
+  }
+  Eigen::VectorXd Poses(const cv::Mat& flat) const {
+    const float* p = flat.ptr<float>() + static_cast<size_t>(num_frames_) * pixels_;
+    Eigen::VectorXd poses(6 * num_frames_);
+    for (int i = 0; i < poses.size(); ++i) poses(i) = p[i];
+    return poses;
+  }
+  void SetPoses(const Eigen::VectorXd& poses, cv::Mat* flat) const {
+    float* p = flat->ptr<float>() + static_cast<size_t>(num_frames_) * pixels_;
+    for (int i = 0; i < poses.size(); ++i) p[i] = static_cast<float>(poses(i));
+  }
+  cv::Mat Flatten(const JointStep& step) const {
+    cv::Mat flat(1, num_values(), CV_32FC1);
+    for (int t = 0; t < num_frames_; ++t) {
+      cv::Mat view = DepthView(flat, t);
+      step.inverse_depths[t].copyTo(view);
+    }
+    SetPoses(step.poses, &flat);
+    return flat;
+  }
+  JointStep Unflatten(const cv::Mat& flat) const {
+    JointStep step;
+    for (int t = 0; t < num_frames_; ++t) step.inverse_depths.push_back(DepthView(flat, t).clone());
+    step.poses = Poses(flat);
+    return step;
+  }
+  const StructureUpdateOptions& options() const {
+    return options_;
+  }
+  int threads() const {
+    return threads_;
+  }
+
+ private:
+  // Frame t's inverse depths coupled to the pose of `frame`: column j of
+  // N_dp restricted to t's pixels, and the same divided by D_t.
+  struct Coupling {
+    int frame = 0;
+    std::array<cv::Mat, 6> images, scaled;
+  };
+
+  // N_pd d for the depth part of `flat` (with `divided`: N_pd D^-1 d).
+  Eigen::VectorXd PosesFromDepths(const cv::Mat& flat, bool divided) const {
+    std::vector<Eigen::VectorXd> parts(num_frames_, Eigen::VectorXd::Zero(6 * num_frames_));
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads_)
+    for (int t = 0; t < num_frames_; ++t) {
+      const cv::Mat depth = DepthView(flat, t);
+      for (const Coupling& c : couplings_[t]) {
+        for (int j = 0; j < 6; ++j)
+          parts[t](6 * c.frame + j) = Dot1(divided ? c.scaled[j] : c.images[j], depth);
+      }
+    }
+    Eigen::VectorXd sum = Eigen::VectorXd::Zero(6 * num_frames_);
+    for (const Eigen::VectorXd& part : parts) sum += part;
+    return sum;
+  }
+  // depth += scale * (N_dp poses) on frame t's rows.
+  void AddDepthsFromPoses(int t, const Eigen::VectorXd& poses, double scale, cv::Mat* depth) const {
+    for (const Coupling& c : couplings_[t]) {
+      for (int j = 0; j < 6; ++j) cv::scaleAdd(c.images[j], scale * poses(6 * c.frame + j), *depth, *depth);
+    }
+  }
+
+  void AddCoupling(int t, int frame, const std::array<cv::Mat, 6>& images, double sign) {
+    auto it = std::find_if(couplings_[t].begin(), couplings_[t].end(),
+                           [frame](const Coupling& c) { return c.frame == frame; });
+    if (it == couplings_[t].end()) {
+      Coupling c;
+      c.frame = frame;
+      for (cv::Mat& image : c.images) image = cv::Mat::zeros(size_, CV_32FC1);
+      couplings_[t].push_back(std::move(c));
+      it = couplings_[t].end() - 1;
+    }
+    for (int j = 0; j < 6; ++j) cv::scaleAdd(images[j], sign, it->images[j], it->images[j]);
+  }
+
+  // The scale of a window with one held pose: the component of the first
+  // free pose's increment that stretches its baseline b = c_f - c_h from the
+  // held centre, b . (v + w x c_f) for eps = (v, w) (DLeftPerturbedPointDEps).
+  void SetGauge() {
+    gauge_.resize(0);
+    if (num_fixed_ != 1 || num_frames_ < 2) return;
+    const Eigen::Vector3d held = T_world_cam_[0].translation();
+    const Eigen::Vector3d centre = T_world_cam_[1].translation();
+    const Eigen::Vector3d baseline = centre - held;
+    if (!(baseline.norm() > 1e-9)) return;  // no baseline: no scale to hold
+    gauge_ = Eigen::VectorXd::Zero(6 * num_frames_);
+    gauge_.segment<3>(6) = baseline;
+    gauge_.segment<3>(9) = centre.cross(baseline);
+    gauge_.normalize();
+  }
+
+  // S = N_pp - N_pd D^-1 N_dp on the gauge's subspace (P S P + (I - P), P
+  // the gauge projection), factorised; N_pp alone if S is not positive.
+  void FormReducedCameraSystem() {
+    const int n = 6 * num_frames_;
+    Eigen::MatrixXd reduced = pose_normal_;
+    for (int t = 0; t < num_frames_; ++t) {
+      for (Coupling& c : couplings_[t]) {
+        for (int j = 0; j < 6; ++j) cv::divide(c.images[j], systems_[t]->diagonal(), c.scaled[j]);
+      }
+      for (const Coupling& a : couplings_[t]) {
+        for (const Coupling& b : couplings_[t]) {
+          for (int j = 0; j < 6; ++j) {
+            for (int k = 0; k < 6; ++k)
+              reduced(6 * a.frame + j, 6 * b.frame + k) -= Dot1(a.scaled[j], b.images[k]);
+          }
+        }
+      }
+    }
+    Eigen::MatrixXd projection = Eigen::MatrixXd::Identity(n, n);
+    for (int i = 0; i < n; ++i) ProjectColumn(&projection, i);
+    const Eigen::MatrixXd complement = Eigen::MatrixXd::Identity(n, n) - projection;
+    reduced_solver_.compute(projection * reduced * projection + complement);
+    if (reduced_solver_.info() != Eigen::Success || !reduced_solver_.isPositive()) {
+      reduced_solver_.compute(projection * pose_normal_ * projection + complement);
+    }
+  }
+  void ProjectColumn(Eigen::MatrixXd* matrix, int i) const {
+    Eigen::VectorXd column = matrix->col(i);
+    ProjectGauge(&column);
+    matrix->col(i) = column;
+  }
+
+  const std::vector<SE3>& T_world_cam_;
+  const std::vector<FrameDepthTerms>& frames_;
+  const StructureUpdateOptions& options_;
+  const int num_frames_, num_fixed_, pixels_;
+  const cv::Size size_;
+  const int threads_;
+  std::vector<std::unique_ptr<DepthNormalEquations>> systems_;  // nullptr: a frame without terms
+  std::vector<std::vector<Coupling>> couplings_;                // per frame t
+  Eigen::MatrixXd pose_normal_;                                 // N_pp (damped)
+  Eigen::VectorXd pose_rhs_, gauge_;                            // gauge_: unit, empty if none
+  Eigen::LDLT<Eigen::MatrixXd> reduced_solver_;
+};
+
+JointDepthPoseSystem::JointDepthPoseSystem(const PinholeCamera& camera_hr,
+                                           const std::vector<SE3>& T_world_cam,
+                                           const std::vector<cv::Mat>& latents,
+                                           const std::vector<FrameDepthTerms>& frames, double parallax_scale,
+                                           const StructureUpdateOptions& options, int num_fixed)
+    : impl_(std::make_unique<Impl>(camera_hr, T_world_cam, latents, frames, parallax_scale, options,
+                                   num_fixed)) {}
+JointDepthPoseSystem::~JointDepthPoseSystem() = default;
+
+void JointDepthPoseSystem::Linearize(const std::vector<cv::Mat>& inverse_depths) {
+  impl_->Linearize(inverse_depths);
+}
+
+JointStep JointDepthPoseSystem::RightHandSide(const std::vector<cv::Mat>& inverse_depths) {
+  cv::Mat flat;
+  impl_->RightHandSide(inverse_depths, &flat);
+  return impl_->Unflatten(flat);
+}
+
+JointStep JointDepthPoseSystem::ApplyNormal(const JointStep& in) {
+  cv::Mat out;
+  impl_->ApplyNormal(impl_->Flatten(in), &out);
+  return impl_->Unflatten(out);
+}
+
+void JointDepthPoseSystem::ProjectGauge(Eigen::VectorXd* poses) const {
+  impl_->ProjectGauge(poses);
+}
+
+JointStep JointDepthPoseSystem::Solve(const JointStep& rhs) {
+  cv::Mat step = cv::Mat::zeros(1, impl_->num_values(), CV_32FC1);
+  Impl* impl = impl_.get();
+  SolvePcg([impl](const cv::Mat& x, cv::Mat* out) { impl->ApplyNormal(x, out); },
+           [impl](const cv::Mat& r, cv::Mat* z) { impl->ApplyPreconditioner(r, z); }, impl_->Flatten(rhs),
+           impl_->options().joint_cg_iterations, impl_->options().depth_cg_tolerance, impl_->threads(),
+           &step);
+  return impl_->Unflatten(step);
+}
+
+void JointDepthPoseSystem::ApplyStep(const JointStep& step, std::vector<cv::Mat>* inverse_depths,
+                                     std::vector<SE3>* T_world_cam) {
+  impl_->ApplyStep(impl_->Flatten(step), inverse_depths, T_world_cam);
+}
+
+void UpdateDepthAndPoses(const PinholeCamera& camera_hr, const std::vector<cv::Mat>& latents,
+                         const std::vector<FrameDepthTerms>& frames, double parallax_scale,
+                         const StructureUpdateOptions& options, int num_fixed, std::vector<SE3>* T_world_cam,
+                         std::vector<cv::Mat>* inverse_depths) {
+  options.Check();
+  JointDepthPoseSystem system(camera_hr, *T_world_cam, latents, frames, parallax_scale, options, num_fixed);
+  for (int irls = 0; irls < options.depth_irls_iterations; ++irls) {
+    system.Linearize(*inverse_depths);
+    const JointStep step = system.Solve(system.RightHandSide(*inverse_depths));
+    if (!step.poses.allFinite()) break;
+    system.ApplyStep(step, inverse_depths, T_world_cam);
+  }
 }
 
 }  // namespace deblur_sr_mvs

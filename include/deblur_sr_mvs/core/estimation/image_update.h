@@ -64,6 +64,14 @@ void AddWeightedLaplacian(const cv::Mat& x, const cv::Mat& v, double scale, cv::
 // out += scale * diag(D^T diag(v) D): the diagonal of the operator above.
 void AddWeightedLaplacianDiagonal(const cv::Mat& v, double scale, cv::Mat* out);
 
+// Preconditioned conjugate gradients on N x = b from the current *x, given
+// residual = b - N x there (consumed); apply_preconditioner(r, z) sets
+// z = M^-1 r for a symmetric positive definite M. At most max_iterations
+// steps, stopping once ||r||_2 <= relative_tolerance * ||r_0||_2. Returns the
+// steps taken.
+int SolvePcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_normal,
+             const std::function<void(const cv::Mat&, cv::Mat*)>& apply_preconditioner, cv::Mat residual,
+             int max_iterations, double relative_tolerance, int threads, cv::Mat* x);
 // Jacobi-preconditioned conjugate gradients on N x = b from the current *x,
 // given residual = b - N x there (consumed): at most max_iterations steps,
 // stopping once ||r||_2 <= relative_tolerance * ||r_0||_2. `diagonal` is

@@ -4,7 +4,10 @@
 // the edge-weighted TV of eq:regularizingTerm.
 #pragma once
 
+#include <memory>
 #include <vector>
+
+#include <Eigen/Core>
 
 #include <opencv2/core.hpp>
 
@@ -44,6 +47,15 @@ struct StructureUpdateOptions {
   // stride-th row (shifted row to row): six unknowns per frame need far
   // fewer than every pixel, and the update costs 1/stride^2.
   int pose_pixel_stride = 2;
+  // Joint depth + pose step (UpdateDepthAndPoses): the estimator replaces the
+  // per-frame depth updates by one Gauss-Newton/IRLS step in which every
+  // frame's inverse depth and the free poses move together, so that depth
+  // cannot absorb a pose error; the pose update follows as before. Off
+  // until measured (BENCHMARKS.md "Joint depth + pose step (Schur)").
+  bool joint_depth_pose_step = false;
+  // CG steps per reweighted joint system (its tolerance is
+  // depth_cg_tolerance).
+  int joint_cg_iterations = 30;
   int num_threads = 0;
   void Check() const;
 };
@@ -108,5 +120,67 @@ std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr, const std::vec
                                   const std::vector<cv::Mat>& latents, const std::vector<PairMatching>& pairs,
                                   const StructureUpdateOptions& options, std::vector<SE3>* T_world_cam,
                                   int num_fixed = 1);
+
+// The terms of one frame's depth update (as UpdateDepth takes them).
+struct FrameDepthTerms {
+  std::vector<PairMatching> pairs;                     // all with pair.t == this frame
+  const SelfConsistencyLinearization* self = nullptr;  // optional
+  cv::Mat edge_weight;                                 // g_t (empty: 1)
+};
+
+// A vector of the joint system: one inverse-depth increment image per frame
+// and 6 tangent components per frame (zero for the held frames).
+struct JointStep {
+  std::vector<cv::Mat> inverse_depths;  // HR CV_32FC1 each
+  Eigen::VectorXd poses;                // 6 x frames
+};
+
+// The reweighted normal equations of all frames' depth terms (the systems
+// UpdateDepth solves one by one) linearised in the inverse depths and the
+// poses together (eq:taylorExpansion, eq:updateVariables): for a pair
+// (t <- s) with r = r0 - Psi(g .* d_t + A (eps_t - eps_s)) (A the pose
+// Jacobians of LinearizeWarp),
+//   [ N_dd  N_dp ] [d  ]   [G^T Psi^T W r0 - lambda_d c^2 L_v rho]
+//   [ N_pd  N_pp ] [eps] = [A^T Psi^T W r0 (t), minus it (s)      ]
+// with N_dd each frame's depth system (data, self term, TV, damping), N_dp
+// = G^T Psi^T W Psi A and N_pp the pose update's blocks (plus its damping).
+// The first `num_fixed` poses are held; with one held pose the scale is
+// fixed by holding the length of the first free frame's baseline to the
+// held frame (the pose update alone fixes it by holding the depth).
+class JointDepthPoseSystem {
+ public:
+  JointDepthPoseSystem(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world_cam,
+                       const std::vector<cv::Mat>& latents, const std::vector<FrameDepthTerms>& frames,
+                       double parallax_scale, const StructureUpdateOptions& options, int num_fixed);
+  ~JointDepthPoseSystem();
+  // Linearises and reweights every term at the given state (T_world_cam is
+  // the vector given to the constructor, read at each call).
+  void Linearize(const std::vector<cv::Mat>& inverse_depths);
+  // The right-hand side at the linearisation point (gauge-projected).
+  JointStep RightHandSide(const std::vector<cv::Mat>& inverse_depths);
+  // out = N in (`in` must satisfy the gauge: see ProjectGauge).
+  JointStep ApplyNormal(const JointStep& in);
+  // Zeroes the held poses' components and, with one held pose, the scale
+  // component of the first free pose.
+  void ProjectGauge(Eigen::VectorXd* poses) const;
+  // Solves N step = rhs by CG preconditioned with the Schur complement of
+  // N's depth diagonal (see the definition).
+  JointStep Solve(const JointStep& rhs);
+  // Applies a step: rho += d per frame (ApplyStep of the depth update: rho
+  // keeps at least a quarter of itself) and P_f = Exp(eps_f) P_f.
+  void ApplyStep(const JointStep& step, std::vector<cv::Mat>* inverse_depths, std::vector<SE3>* T_world_cam);
+
+ private:
+  class Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+// depth_irls_iterations joint steps (JointDepthPoseSystem) of all frames'
+// depths and the poses but the first `num_fixed` (>= 1). `frames[t]` holds
+// frame t's depth terms; latents as in UpdateDepth.
+void UpdateDepthAndPoses(const PinholeCamera& camera_hr, const std::vector<cv::Mat>& latents,
+                         const std::vector<FrameDepthTerms>& frames, double parallax_scale,
+                         const StructureUpdateOptions& options, int num_fixed, std::vector<SE3>* T_world_cam,
+                         std::vector<cv::Mat>* inverse_depths);
 
 }  // namespace deblur_sr_mvs
