@@ -372,6 +372,10 @@ struct SparseStructure {
   std::vector<SE3> T_cam_world;
   std::vector<Eigen::Vector3d> points_world;
   std::vector<char> point_inlier;
+  // The RotationPrior's turn rate kappa (inverse fixation distance, 1 / pair
+  // baselines): held at 0 (no turn expected) or fitted (SelectFixationTurn).
+  double turn_rate = 0.0;
+  bool fit_turn_rate = false;
   std::vector<std::string> log;
 };
 
@@ -546,17 +550,23 @@ struct TwoViewResidual {
   double u, v, fx, fy, cx, cy;
 };
 
-// Prior on the rotation between two consecutive cameras: f |log R| / sigma.
+// Prior on the rotation between two consecutive cameras a, b: f |log R_b R_a^T
+// + omega| / sigma, with omega = kappa (Delta x z) the turn of a camera that
+// moves by Delta (b's centre in camera a) while it keeps looking at the point
+// at distance 1 / kappa on its optical axis (kappa = 0: towards no rotation).
 // With a narrow field of view (the Middlebury views span ~13 degrees) a small
 // rotation and a sideways translation move the image almost identically; the
 // reconstructions along that valley fit the tracks to far below their noise
-// (bas-relief ambiguity) but bend the inverse depths affinely. The prior picks
-// the least-rotating member there and is negligible where the rotation is
-// observable (wide fields of view).
+// (bas-relief ambiguity) but bend the inverse depths affinely. The valley is
+// one turn per unit of sideways motion for the whole window, i.e. kappa: the
+// prior picks the member that turns as kappa says (SelectFixationTurn decides
+// kappa) and is negligible where the rotation is observable (wide fields of
+// view).
 struct RotationPrior {
   RotationPrior(double focal_px, double sigma_px) : scale(focal_px / sigma_px) {}
   template <typename T>
-  bool operator()(const T* rotation_a, const T* rotation_b, T* residual) const {
+  bool operator()(const T* rotation_a, const T* translation_a, const T* rotation_b, const T* translation_b,
+                  const T* turn_rate, T* residual) const {
     // R_b R_a^T as quaternions.
     T qa[4], qb[4], qa_inverse[4], q[4];
     ceres::AngleAxisToQuaternion(rotation_a, qa);
@@ -566,7 +576,17 @@ struct RotationPrior {
     ceres::QuaternionProduct(qb, qa_inverse, q);
     T angle_axis[3];
     ceres::QuaternionToAngleAxis(q, angle_axis);
-    for (int k = 0; k < 3; ++k) residual[k] = T(scale) * angle_axis[k];
+    // Delta = R_a c_b + t_a with c_b = -R_b^T t_b.
+    const T inverse_b[3] = {-rotation_b[0], -rotation_b[1], -rotation_b[2]};
+    const T minus_t_b[3] = {-translation_b[0], -translation_b[1], -translation_b[2]};
+    T centre_b[3], delta[3];
+    ceres::AngleAxisRotatePoint(inverse_b, minus_t_b, centre_b);
+    ceres::AngleAxisRotatePoint(rotation_a, centre_b, delta);
+    for (int k = 0; k < 3; ++k) delta[k] += translation_a[k];
+    // R_b R_a^T = exp(-omega): the turn to the left of a camera moving right.
+    residual[0] = T(scale) * (angle_axis[0] + turn_rate[0] * delta[1]);
+    residual[1] = T(scale) * (angle_axis[1] - turn_rate[0] * delta[0]);
+    residual[2] = T(scale) * angle_axis[2];
     return true;
   }
   double scale;
@@ -971,7 +991,8 @@ double InlierRms(const PinholeCamera& camera, const std::vector<Track>& tracks,
 }
 
 // All poses and points by reprojection error (Cauchy loss) plus the
-// frame-to-frame RotationPrior, in the two-view pair's gauge: camera a fixed
+// frame-to-frame RotationPrior (kappa: structure->turn_rate, fitted when
+// structure->fit_turn_rate), in the two-view pair's gauge: camera a fixed
 // (T_cam_world = identity) and |t_b| = |c_b - c_a| = 1 on a sphere (the
 // output gauge is set later, see NormaliseGauge). Two rounds, dropping observations
 // beyond the outlier threshold in between. Returns the RMS reprojection error
@@ -993,10 +1014,12 @@ double BundleAdjust(const PinholeCamera& camera, const InitializerOptions& optio
         AddReprojectionResiduals(camera, options, tracks, *structure, round, &poses, &points, &problem);
     if (problem.NumResidualBlocks() == 0) break;
     for (int t = 1; t < num_frames; ++t) {
-      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<RotationPrior, 3, 3, 3>(
+      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<RotationPrior, 3, 3, 3, 3, 3, 1>(
                                    new RotationPrior(camera.fx, options.rotation_prior_px)),
-                               nullptr, poses[t - 1].rotation, poses[t].rotation);
+                               nullptr, poses[t - 1].rotation, poses[t - 1].translation, poses[t].rotation,
+                               poses[t].translation, &structure->turn_rate);
     }
+    if (num_frames > 1 && !structure->fit_turn_rate) problem.SetParameterBlockConstant(&structure->turn_rate);
     PoseParameters& reference = poses[structure->reference];
     if (problem.HasParameterBlock(reference.rotation)) {
       problem.SetParameterBlockConstant(reference.rotation);
@@ -1024,6 +1047,102 @@ double BundleAdjust(const PinholeCamera& camera, const InitializerOptions& optio
     if (2 * bad > static_cast<int>(track.points.size())) structure->point_inlier[track.point_id] = 0;
   }
   return rms;
+}
+
+// Reprojection errors of the inlier points' observations under the
+// structure's poses and points: the sum of squares, each capped at
+// `outlier_px`^2 (a track that neither of two solutions fits counts the same
+// in both), and the sum of squares and count of those within `outlier_px`.
+// `inlier` selects the points (a solution's point_inlier).
+struct ReprojectionCost {
+  double capped_squares = 0.0;
+  double inlier_squares = 0.0;
+  int inlier_observations = 0;
+};
+
+ReprojectionCost MeasureReprojectionCost(const PinholeCamera& camera, const std::vector<Track>& tracks,
+                                         const SparseStructure& structure, const std::vector<char>& inlier,
+                                         double outlier_px) {
+  ReprojectionCost cost;
+  for (const Track& track : tracks) {
+    if (track.point_id < 0 || !inlier[track.point_id]) continue;
+    const Eigen::Vector3d& point = structure.points_world[track.point_id];
+    for (int f = track.first_frame; f <= track.LastFrame(); ++f) {
+      const double error = ReprojectionError(camera, structure.T_cam_world[f], point, track.At(f));
+      if (error <= outlier_px) {
+        cost.inlier_squares += error * error;
+        ++cost.inlier_observations;
+      }
+      cost.capped_squares += std::min(error, outlier_px) * std::min(error, outlier_px);
+    }
+  }
+  return cost;
+}
+
+// Upper `z`-sigma quantile of the chi-square distribution with k degrees of
+// freedom (Wilson-Hilferty: (chi2 / k)^(1/3) is nearly normal).
+double ChiSquareQuantile(int k, double z) {
+  const double v = 2.0 / (9.0 * k);
+  const double cube_root = 1.0 - v + z * std::sqrt(v);
+  return k * cube_root * cube_root * cube_root;
+}
+
+// Median depth (pair baselines) of the inlier points in the reference camera.
+double MedianPointDepth(const SparseStructure& structure) {
+  std::vector<double> depths;
+  for (size_t i = 0; i < structure.points_world.size(); ++i) {
+    if (!structure.point_inlier[i]) continue;
+    const double z = (structure.T_cam_world[structure.reference] * structure.points_world[i]).z();
+    if (z > 0.0) depths.push_back(z);
+  }
+  return depths.empty() ? 0.0 : Median(depths);
+}
+
+// Decides the turn rate kappa of the RotationPrior (model selection between
+// a camera that expects no turn and one that keeps a point in view): the
+// structure, adjusted with kappa = 0, is adjusted again from there with kappa
+// free. Where kappa = 0 is right, freeing it gains only what fitting the
+// tracking noise with one more parameter gains: a chi-square(1) amount in
+// units of the noise variance sigma^2 (estimated from the free solution's
+// residuals); a camera that turns (the arc path: kappa = 0 takes the turn for
+// sideways motion and bends the inverse depths, RotationPrior) gains far
+// more. The free solution is kept when the gain in reprojection cost exceeds
+// the chi-square quantile of fixation_test_z. Returns the RMS reprojection
+// error of the solution kept.
+double SelectFixationTurn(const PinholeCamera& camera, const InitializerOptions& options, int threads,
+                          const std::vector<Track>& tracks, double rms, SparseStructure* structure,
+                          int* num_observations, std::ostringstream* summary) {
+  if (!options.fixation_prior || structure->T_cam_world.size() < 3) return rms;
+  SparseStructure turning = *structure;
+  turning.fit_turn_rate = true;
+  int turning_observations = 0;
+  const double turning_rms = BundleAdjust(camera, options, threads, tracks, &turning, &turning_observations);
+  // Both solutions on the points the free one keeps (a subset: the
+  // adjustment only ever drops points).
+  const double outlier_px = options.pnp_threshold_px;
+  const ReprojectionCost still =
+      MeasureReprojectionCost(camera, tracks, *structure, turning.point_inlier, outlier_px);
+  const ReprojectionCost turned =
+      MeasureReprojectionCost(camera, tracks, turning, turning.point_inlier, outlier_px);
+  int points = 0;
+  for (char inlier : turning.point_inlier) points += inlier ? 1 : 0;
+  const int num_frames = static_cast<int>(structure->T_cam_world.size());
+  const int residuals = 2 * turned.inlier_observations;
+  const int parameters = 3 * points + 6 * num_frames - 6;  // 7 gauge freedoms, kappa
+  const double sigma2 = turned.inlier_squares / std::max(1, residuals - parameters);
+  const double gain = (still.capped_squares - turned.capped_squares) / std::max(sigma2, 1e-12);
+  const double bound = ChiSquareQuantile(1, options.fixation_test_z);
+  const bool turns = gain > bound && turning.turn_rate != 0.0;
+  const double median_depth = MedianPointDepth(turning);
+  *summary << Format(
+                  "rotation prior: a turn towards a point at %.3g median depths lowers the reprojection cost "
+                  "by %.1f sigma^2 (sigma %.3f px; chi-square(1) bound %.1f): ",
+                  1.0 / (turning.turn_rate * median_depth), gain, std::sqrt(sigma2), bound)
+           << (turns ? "kept\n" : "no turn\n");
+  if (!turns) return rms;
+  *structure = turning;
+  *num_observations = turning_observations;
+  return turning_rms;
 }
 
 // ---------------------------------------------------------------- depths
@@ -1540,6 +1659,7 @@ void InitializerOptions::Check() const {
   CheckAtLeast(prefix + "min_pnp_inliers", min_pnp_inliers, 6);
   CheckAbove(prefix + "ba_loss_px", ba_loss_px, 0.0);
   CheckAbove(prefix + "rotation_prior_px", rotation_prior_px, 0.0);
+  CheckAbove(prefix + "fixation_test_z", fixation_test_z, 0.0);
   CheckAtLeast(prefix + "ba_max_iterations", ba_max_iterations, 0);
   CheckInRange(prefix + "capture_samples", capture_samples, 1, 1000);
   CheckInRange(prefix + "neighbours_per_side", neighbours_per_side, 1, 5);
@@ -1746,7 +1866,8 @@ SparseStructure SparseStage(const PinholeCamera& camera_lr, const InitializerOpt
   *summary << Format("two-view + pnp: %.1f ms\n", NowMs() - stage_ms);
   stage_ms = NowMs();
   int observations = 0;
-  const double rms = BundleAdjust(camera_lr, options, threads, *tracks, &structure, &observations);
+  double rms = BundleAdjust(camera_lr, options, threads, *tracks, &structure, &observations);
+  rms = SelectFixationTurn(camera_lr, options, threads, *tracks, rms, &structure, &observations, summary);
   *summary << Format("bundle adjustment: %.0f points, %.0f observations, rms %.3f px; %.1f ms\n",
                      structure.points_world.size(), observations, rms, NowMs() - stage_ms);
   return structure;
