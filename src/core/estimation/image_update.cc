@@ -4,6 +4,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
+#include <utility>
 
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/common/options_check.h"
@@ -186,6 +188,12 @@ class ReweightedImageSystem {
       AddWeightedNormalDiagonal(terms_[k].op->matrix(), states_[k].weight, &diagonal_, threads_);
     }
     if (options_.lambda_i > 0.0) AddWeightedLaplacianDiagonal(tv_weights_, options_.lambda_i, &diagonal_);
+    // Jacobi: M^-1 = 1 / diag(N) where positive.
+    inverse_diagonal_.create(diagonal_.size(), diagonal_.type());
+    const float* pd = diagonal_.ptr<float>();
+    float* pi = inverse_diagonal_.ptr<float>();
+    const size_t n = NumValues(diagonal_);
+    for (size_t i = 0; i < n; ++i) pi[i] = pd[i] > 0.0f ? 1.0f / pd[i] : 1.0f;
   }
 
   // rhs - N x at the image x of the last Reweight, from the residuals
@@ -212,6 +220,15 @@ class ReweightedImageSystem {
   }
 
   const cv::Mat& diagonal() const { return diagonal_; }
+
+  // z = M^-1 r with the options' preconditioner.
+  void Precondition(const cv::Mat& r, cv::Mat* z) {
+    if (options_.preconditioner == ImagePreconditioner::kTvGaussSeidel && options_.lambda_i > 0.0) {
+      ApplyLaplacianGaussSeidel(diagonal_, tv_weights_, options_.lambda_i, r, z);
+      return;
+    }
+    cv::multiply(r, inverse_diagonal_, *z);
+  }
 
  private:
   // W = weight * mask / max(|A x - b|, eps) of one term at `image`.
@@ -240,21 +257,16 @@ class ReweightedImageSystem {
   const ImageUpdateOptions& options_;
   const int threads_;
   std::vector<TermState> states_;
-  cv::Mat tv_weights_, diagonal_, temp_lr_;
+  cv::Mat tv_weights_, diagonal_, inverse_diagonal_, temp_lr_;
 };
 
 }  // namespace
 
-int SolveJacobiPcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_normal, const cv::Mat& diagonal,
-                   cv::Mat residual, int max_iterations, double relative_tolerance, int threads, cv::Mat* x) {
-  // M^-1 = 1 / diag(N) where positive.
-  cv::Mat inverse_diagonal(diagonal.size(), diagonal.type());
-  const float* pd = diagonal.ptr<float>();
-  float* pi = inverse_diagonal.ptr<float>();
-  const size_t n = NumValues(diagonal);
-  for (size_t i = 0; i < n; ++i) pi[i] = pd[i] > 0.0f ? 1.0f / pd[i] : 1.0f;
+int SolvePcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_normal,
+             const std::function<void(const cv::Mat&, cv::Mat*)>& apply_preconditioner, cv::Mat residual,
+             int max_iterations, double relative_tolerance, int threads, cv::Mat* x) {
   cv::Mat preconditioned, direction, normal_direction;
-  cv::multiply(residual, inverse_diagonal, preconditioned);
+  apply_preconditioner(residual, &preconditioned);
   direction = preconditioned.clone();
   double rz = Dot(residual, preconditioned, threads);
   double rr = Dot(residual, residual, threads);
@@ -269,7 +281,7 @@ int SolveJacobiPcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_no
     Axpy(alpha, direction, x, threads);
     Axpy(-alpha, normal_direction, &residual, threads);
     rr = Dot(residual, residual, threads);
-    cv::multiply(residual, inverse_diagonal, preconditioned);
+    apply_preconditioner(residual, &preconditioned);
     const double rz_next = Dot(residual, preconditioned, threads);
     const double beta = rz_next / rz;
     rz = rz_next;
@@ -278,6 +290,59 @@ int SolveJacobiPcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_no
     Axpy(1.0, preconditioned, &direction, threads);
   }
   return steps;
+}
+
+int SolveJacobiPcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_normal, const cv::Mat& diagonal,
+                   cv::Mat residual, int max_iterations, double relative_tolerance, int threads, cv::Mat* x) {
+  // M^-1 = 1 / diag(N) where positive.
+  cv::Mat inverse_diagonal(diagonal.size(), diagonal.type());
+  const float* pd = diagonal.ptr<float>();
+  float* pi = inverse_diagonal.ptr<float>();
+  const size_t n = NumValues(diagonal);
+  for (size_t i = 0; i < n; ++i) pi[i] = pd[i] > 0.0f ? 1.0f / pd[i] : 1.0f;
+  const auto jacobi = [&inverse_diagonal](const cv::Mat& r, cv::Mat* z) {
+    cv::multiply(r, inverse_diagonal, *z);
+  };
+  return SolvePcg(apply_normal, jacobi, std::move(residual), max_iterations, relative_tolerance, threads, x);
+}
+
+void ApplyLaplacianGaussSeidel(const cv::Mat& diagonal, const cv::Mat& v, double scale, const cv::Mat& r,
+                               cv::Mat* z) {
+  const int channels = r.channels();
+  const int width = r.cols, height = r.rows;
+  const int stride = width * channels;
+  const float s = static_cast<float>(scale);
+  const float* pd = diagonal.ptr<float>();
+  const float* pv = v.ptr<float>();
+  const float* pr = r.ptr<float>();
+  z->create(r.size(), r.type());
+  float* pz = z->ptr<float>();
+  const auto inverse = [pd](long i) { return pd[i] > 0.0f ? 1.0f / pd[i] : 1.0f; };
+  // Forward sweep, raster order: (D + L) y = r; the earlier neighbours are
+  // the left one (edge weight v there) and the one above (v there).
+  for (int y = 0; y < height; ++y) {
+    for (int xx = 0; xx < width; ++xx) {
+      for (int c = 0; c < channels; ++c) {
+        const long i = static_cast<long>(y) * stride + xx * channels + c;
+        float acc = pr[i];
+        if (xx > 0) acc += s * pv[i - channels] * pz[i - channels];
+        if (y > 0) acc += s * pv[i - stride] * pz[i - stride];
+        pz[i] = acc * inverse(i);
+      }
+    }
+  }
+  // Backward sweep: (D + U) z = D y, i.e. z = y + D^-1 (lambda v (z_right + z_down)).
+  for (int y = height - 1; y >= 0; --y) {
+    for (int xx = width - 1; xx >= 0; --xx) {
+      for (int c = channels - 1; c >= 0; --c) {
+        const long i = static_cast<long>(y) * stride + xx * channels + c;
+        float acc = 0.0f;
+        if (xx + 1 < width) acc += pz[i + channels];
+        if (y + 1 < height) acc += pz[i + stride];
+        pz[i] += s * pv[i] * acc * inverse(i);
+      }
+    }
+  }
 }
 
 namespace {
@@ -306,14 +371,15 @@ ImageUpdateStats UpdateImage(const std::vector<LinearL1Term>& terms, const Image
   CheckTermsMatchImage(terms, *image);
   ReweightedImageSystem system(terms, options, threads);
   const auto apply_normal = [&system](const cv::Mat& x, cv::Mat* out) { system.ApplyNormal(x, out); };
+  const auto precondition = [&system](const cv::Mat& r, cv::Mat* z) { system.Precondition(r, z); };
   ImageUpdateStats stats;
   const long terms_count = static_cast<long>(terms.size());
   cv::Mat residual;
   for (int irls = 0; irls < options.irls_iterations; ++irls) {
     system.Reweight(*image);
     system.InitialResidual(*image, &residual);
-    const int steps = SolveJacobiPcg(apply_normal, system.diagonal(), residual, options.cg_iterations,
-                                     options.cg_tolerance, threads, image);
+    const int steps = SolvePcg(apply_normal, precondition, residual, options.cg_iterations,
+                               options.cg_tolerance, threads, image);
     ++stats.reweightings;
     stats.cg_steps += steps;
     // Reweight: 1 apply + 1 diagonal pass; initial residual: 1 adjoint;
