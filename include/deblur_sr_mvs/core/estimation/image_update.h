@@ -38,12 +38,13 @@ struct ImageUpdateOptions {
   int cg_iterations = 10;
   double cg_tolerance = 0.05;
   ImagePreconditioner preconditioner = ImagePreconditioner::kTvGaussSeidel;
-  // The estimator's image phases after the first start from the latent the
-  // previous phase restored (only the structure moved): they use these
-  // counts instead of irls_iterations and cg_iterations. With the
-  // Gauss-Seidel preconditioner 2 x 5 keep the accuracy of 4 x 10 at 2.2x
-  // fewer operator passes over a run; with Jacobi they lost up to 0.55 dB
-  // (BENCHMARKS.md "Fewer operator applies in the image update").
+  // The estimator's image phases between the first and the last (which
+  // gives the output images) start from the latent the previous phase
+  // restored (only the structure moved): they use these counts instead of
+  // irls_iterations and cg_iterations. With the Gauss-Seidel preconditioner
+  // 2 x 5 keep the accuracy of 4 x 10 (1.56x fewer operator passes over a
+  // 3-iteration run); with Jacobi they lost up to 0.55 dB (BENCHMARKS.md
+  // "A Gauss-Seidel preconditioner: the middle image phases at 2 x 5").
   int refine_irls_iterations = 2;
   int refine_cg_iterations = 5;
   double residual_epsilon = 1e-3;  // L1 smoothing: weights 1 / max(|r|, eps) (intensity in [0, 1])
