@@ -695,7 +695,10 @@ void WindowSolver::ImagePhase(int iteration) {
              "iteration " + std::to_string(iteration) + ": image " + std::to_string(t));
     }
     if (t < options_.held_leading_latents) return;  // I_t stays as given
-    UpdateLatent(t, /*refine=*/iteration > 1);
+    // The phases between the first and the last refine the restored images
+    // with fewer steps; the last gives the output images and runs in full.
+    const int last = options_.update_structure ? options_.max_iterations + 1 : options_.max_iterations;
+    UpdateLatent(t, /*refine=*/iteration > 1 && iteration < last);
     UpdateEdgeWeight(t);
   });
   ++steps_done_;

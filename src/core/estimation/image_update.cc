@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <utility>
 
 #include "deblur_sr_mvs/core/common/errors.h"
@@ -165,6 +166,16 @@ double ImageEnergy(const std::vector<LinearL1Term>& terms, double lambda_i, cons
 
 namespace {
 
+// The Jacobi preconditioner M^-1 = 1 / diag(N) where the diagonal is
+// positive (1 elsewhere).
+void InverseDiagonal(const cv::Mat& diagonal, cv::Mat* inverse) {
+  inverse->create(diagonal.size(), diagonal.type());
+  const float* pd = diagonal.ptr<float>();
+  float* pi = inverse->ptr<float>();
+  const size_t n = NumValues(diagonal);
+  for (size_t i = 0; i < n; ++i) pi[i] = pd[i] > 0.0f ? 1.0f / pd[i] : 1.0f;
+}
+
 // The reweighted least-squares problem of one IRLS step of eq:imgUpdate at
 // the current image x: with W_k = weight_k * mask_k / max(|A_k x - b_k|, eps)
 // and V = 1 / max(|grad x|, eps), the normal operator is
@@ -187,6 +198,7 @@ class ReweightedImageSystem {
       AddWeightedNormalDiagonal(terms_[k].op->matrix(), states_[k].weight, &diagonal_, threads_);
     }
     if (options_.lambda_i > 0.0) AddWeightedLaplacianDiagonal(tv_weights_, options_.lambda_i, &diagonal_);
+    InverseDiagonal(diagonal_, &inverse_diagonal_);
   }
 
   // rhs - N x at the image x of the last Reweight, from the residuals
@@ -213,6 +225,15 @@ class ReweightedImageSystem {
   }
 
   const cv::Mat& diagonal() const { return diagonal_; }
+
+  // z = M^-1 r with the options' preconditioner.
+  void Precondition(const cv::Mat& r, cv::Mat* z) {
+    if (options_.preconditioner == ImagePreconditioner::kTvGaussSeidel && options_.lambda_i > 0.0) {
+      ApplyLaplacianGaussSeidel(diagonal_, tv_weights_, options_.lambda_i, r, z);
+      return;
+    }
+    cv::multiply(r, inverse_diagonal_, *z);
+  }
 
  private:
   // W = weight * mask / max(|A x - b|, eps) of one term at `image`.
@@ -241,7 +262,7 @@ class ReweightedImageSystem {
   const ImageUpdateOptions& options_;
   const int threads_;
   std::vector<TermState> states_;
-  cv::Mat tv_weights_, diagonal_, temp_lr_;
+  cv::Mat tv_weights_, diagonal_, inverse_diagonal_, temp_lr_;
 };
 
 }  // namespace
@@ -278,16 +299,51 @@ int SolvePcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_normal,
 
 int SolveJacobiPcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_normal, const cv::Mat& diagonal,
                    cv::Mat residual, int max_iterations, double relative_tolerance, int threads, cv::Mat* x) {
-  // M^-1 = 1 / diag(N) where positive.
-  cv::Mat inverse_diagonal(diagonal.size(), diagonal.type());
+  cv::Mat inverse_diagonal;
+  InverseDiagonal(diagonal, &inverse_diagonal);
+  const auto jacobi = [&inverse_diagonal](const cv::Mat& r, cv::Mat* z) {
+    cv::multiply(r, inverse_diagonal, *z);
+  };
+  return SolvePcg(apply_normal, jacobi, std::move(residual), max_iterations, relative_tolerance, threads, x);
+}
+
+void ApplyLaplacianGaussSeidel(const cv::Mat& diagonal, const cv::Mat& v, double scale, const cv::Mat& r,
+                               cv::Mat* z) {
+  const int channels = r.channels();
+  const int width = r.cols, height = r.rows;
+  const int stride = width * channels;
+  const float s = static_cast<float>(scale);
   const float* pd = diagonal.ptr<float>();
-  float* pi = inverse_diagonal.ptr<float>();
-  const size_t n = NumValues(diagonal);
-  for (size_t i = 0; i < n; ++i) pi[i] = pd[i] > 0.0f ? 1.0f / pd[i] : 1.0f;
-  return SolvePcg(
-      apply_normal,
-      [&inverse_diagonal](const cv::Mat& r, cv::Mat* z) { cv::multiply(r, inverse_diagonal, *z); },
-      std::move(residual), max_iterations, relative_tolerance, threads, x);
+  const float* pv = v.ptr<float>();
+  const float* pr = r.ptr<float>();
+  z->create(r.size(), r.type());
+  float* pz = z->ptr<float>();
+  const auto inverse = [pd](long i) { return pd[i] > 0.0f ? 1.0f / pd[i] : 1.0f; };
+  // Forward sweep, raster order: (D + L) y = r; the earlier neighbours are
+  // the left one (edge weight v there) and the one above (v there).
+  for (int y = 0; y < height; ++y) {
+    for (int xx = 0; xx < width; ++xx) {
+      for (int c = 0; c < channels; ++c) {
+        const long i = static_cast<long>(y) * stride + xx * channels + c;
+        float acc = pr[i];
+        if (xx > 0) acc += s * pv[i - channels] * pz[i - channels];
+        if (y > 0) acc += s * pv[i - stride] * pz[i - stride];
+        pz[i] = acc * inverse(i);
+      }
+    }
+  }
+  // Backward sweep: (D + U) z = D y, i.e. z = y + D^-1 (lambda v (z_right + z_down)).
+  for (int y = height - 1; y >= 0; --y) {
+    for (int xx = width - 1; xx >= 0; --xx) {
+      for (int c = channels - 1; c >= 0; --c) {
+        const long i = static_cast<long>(y) * stride + xx * channels + c;
+        float acc = 0.0f;
+        if (xx + 1 < width) acc += pz[i + channels];
+        if (y + 1 < height) acc += pz[i + stride];
+        pz[i] += s * pv[i] * acc * inverse(i);
+      }
+    }
+  }
 }
 
 namespace {
@@ -316,14 +372,15 @@ ImageUpdateStats UpdateImage(const std::vector<LinearL1Term>& terms, const Image
   CheckTermsMatchImage(terms, *image);
   ReweightedImageSystem system(terms, options, threads);
   const auto apply_normal = [&system](const cv::Mat& x, cv::Mat* out) { system.ApplyNormal(x, out); };
+  const auto precondition = [&system](const cv::Mat& r, cv::Mat* z) { system.Precondition(r, z); };
   ImageUpdateStats stats;
   const long terms_count = static_cast<long>(terms.size());
   cv::Mat residual;
   for (int irls = 0; irls < options.irls_iterations; ++irls) {
     system.Reweight(*image);
     system.InitialResidual(*image, &residual);
-    const int steps = SolveJacobiPcg(apply_normal, system.diagonal(), residual, options.cg_iterations,
-                                     options.cg_tolerance, threads, image);
+    const int steps = SolvePcg(apply_normal, precondition, residual, options.cg_iterations,
+                               options.cg_tolerance, threads, image);
     ++stats.reweightings;
     stats.cg_steps += steps;
     // Reweight: 1 apply + 1 diagonal pass; initial residual: 1 adjoint;

@@ -19,22 +19,34 @@
 
 namespace deblur_sr_mvs {
 
+// The preconditioner of the image update's CG.
+enum class ImagePreconditioner {
+  kJacobi,  // 1 / diag(N)
+  // One symmetric Gauss-Seidel sweep on diag(N) + the off-diagonal TV
+  // stencil: the IRLS TV weights are large on flat areas, where Jacobi-CG
+  // moves information one pixel per step; the sweeps carry it across the
+  // image in one application.
+  kTvGaussSeidel,
+};
+
 struct ImageUpdateOptions {
   double lambda_i = 0.45;   // weight of the image TV (paper: 0.3 - 0.6)
   int irls_iterations = 4;  // reweightings per update
-  // Jacobi-preconditioned CG per reweighted system: at most cg_iterations
+  // Preconditioned CG per reweighted system: at most cg_iterations
   // steps, fewer once the residual of the normal equations is below
   // cg_tolerance x its value at the warm start (0: always cg_iterations).
   int cg_iterations = 10;
   double cg_tolerance = 0.05;
-  // The estimator's image phases after the first start from the latent the
-  // previous phase restored (only the structure moved): they use these
-  // counts instead of irls_iterations and cg_iterations. Lower counts trade
-  // accuracy for speed (2 x 5: 2.2x fewer operator passes over a run, but
-  // up to 0.55 dB lower PSNR on a lateral path; BENCHMARKS.md "Fewer
-  // operator applies in the image update"), so the default keeps 4 x 10.
-  int refine_irls_iterations = 4;
-  int refine_cg_iterations = 10;
+  ImagePreconditioner preconditioner = ImagePreconditioner::kTvGaussSeidel;
+  // The estimator's image phases between the first and the last (which
+  // gives the output images) start from the latent the previous phase
+  // restored (only the structure moved): they use these counts instead of
+  // irls_iterations and cg_iterations. With the Gauss-Seidel preconditioner
+  // 2 x 5 keep the accuracy of 4 x 10 (1.56x fewer operator passes over a
+  // 3-iteration run); with Jacobi they lost up to 0.55 dB (BENCHMARKS.md
+  // "A Gauss-Seidel preconditioner: the middle image phases at 2 x 5").
+  int refine_irls_iterations = 2;
+  int refine_cg_iterations = 5;
   double residual_epsilon = 1e-3;  // L1 smoothing: weights 1 / max(|r|, eps) (intensity in [0, 1])
   double tv_epsilon = 1e-3;        // TV smoothing: 1 / max(|grad I|, eps)
   int num_threads = 0;             // 0: OpenMP default
@@ -65,13 +77,21 @@ void AddWeightedLaplacian(const cv::Mat& x, const cv::Mat& v, double scale, cv::
 void AddWeightedLaplacianDiagonal(const cv::Mat& v, double scale, cv::Mat* out);
 
 // Preconditioned conjugate gradients on N x = b from the current *x, given
-// residual = b - N x there (consumed); apply_preconditioner(r, z) sets
-// z = M^-1 r for a symmetric positive definite M. At most max_iterations
-// steps, stopping once ||r||_2 <= relative_tolerance * ||r_0||_2. Returns the
-// steps taken.
+// residual = b - N x there (consumed): at most max_iterations steps, stopping
+// once ||r||_2 <= relative_tolerance * ||r_0||_2. apply_preconditioner(r, z)
+// sets z = M^-1 r for a symmetric positive definite M. Returns the steps taken.
 int SolvePcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_normal,
              const std::function<void(const cv::Mat&, cv::Mat*)>& apply_preconditioner, cv::Mat residual,
              int max_iterations, double relative_tolerance, int threads, cv::Mat* x);
+
+// z = M^-1 r for the symmetric Gauss-Seidel preconditioner
+// M = (D + L) D^-1 (D + L^T) of the matrix diag(diagonal) + the off-diagonal
+// part of scale * D^T diag(v) D (AddWeightedLaplacian): L its strictly
+// lower part in raster order. `diagonal` must include the stencil's own
+// diagonal (entries <= 0 count as 1).
+void ApplyLaplacianGaussSeidel(const cv::Mat& diagonal, const cv::Mat& v, double scale, const cv::Mat& r,
+                               cv::Mat* z);
+
 // Jacobi-preconditioned conjugate gradients on N x = b from the current *x,
 // given residual = b - N x there (consumed): at most max_iterations steps,
 // stopping once ||r||_2 <= relative_tolerance * ||r_0||_2. `diagonal` is
