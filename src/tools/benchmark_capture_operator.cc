@@ -60,6 +60,16 @@ dsm::CaptureGeometry BenchmarkGeometry() {
   return geometry;
 }
 
+// Operator options with M = `samples` on one thread (the estimator's
+// configuration has no transposed copy).
+dsm::CaptureOperatorOptions OneThreadOptions(int samples, bool transposed_copy) {
+  dsm::CaptureOperatorOptions options;
+  options.samples = samples;
+  options.num_threads = 1;
+  options.transposed_copy = transposed_copy;
+  return options;
+}
+
 // A compact row layout measured against CSR: each row of Psi as runs of
 // consecutive columns (first column, first value), so a product reads x
 // contiguously instead of gathering one index per tap. Values stay in CSR
@@ -123,10 +133,7 @@ void ScatterRuns(const RunLayout& layout, const float* values, int rows, const f
 // The estimator's configuration (one thread, no transposed copy): CSR
 // against runs, same results checked.
 void BenchmarkRunLayout(const dsm::CaptureGeometry& geometry, int samples, int repeats) {
-  dsm::CaptureOperatorOptions options;
-  options.samples = samples;
-  options.num_threads = 1;
-  options.transposed_copy = false;
+  const dsm::CaptureOperatorOptions options = OneThreadOptions(samples, /*transposed_copy=*/false);
   const dsm::CaptureOperator op = dsm::BuildCaptureOperator(geometry, options);
   const RunLayout layout = MakeRunLayout(op.matrix());
   const float* values = op.matrix().valuePtr();
@@ -166,10 +173,7 @@ void BenchmarkRunLayout(const dsm::CaptureGeometry& geometry, int samples, int r
 // (the estimator's N(t) = 2), one thread: each build reprojecting D_t itself
 // against one set of virtual depths shared by the three; then adaptive M.
 void BenchmarkSharedDepths(const dsm::CaptureGeometry& geometry, int samples, int repeats) {
-  dsm::CaptureOperatorOptions options;
-  options.samples = samples;
-  options.num_threads = 1;
-  options.transposed_copy = false;
+  const dsm::CaptureOperatorOptions options = OneThreadOptions(samples, /*transposed_copy=*/false);
   const std::vector<std::optional<dsm::SE3>> sources = {
       std::nullopt, geometry.T_world_neighbour,
       geometry.T_world_cam * (geometry.T_world_neighbour.Inverse() * geometry.T_world_cam)};
@@ -207,10 +211,7 @@ void BenchmarkSharedDepths(const dsm::CaptureGeometry& geometry, int samples, in
 // gathers, A x through the rows of A and A^T (W A x) through the rows of a
 // transposed copy. Also the time to make that copy.
 void BenchmarkNormalProduct(const dsm::CaptureGeometry& geometry, int samples, int repeats) {
-  dsm::CaptureOperatorOptions options;
-  options.samples = samples;
-  options.num_threads = 1;
-  options.transposed_copy = true;
+  const dsm::CaptureOperatorOptions options = OneThreadOptions(samples, /*transposed_copy=*/true);
   const dsm::CaptureOperator op = dsm::BuildCaptureOperator(geometry, options);
   const dsm::SparseMatrixRM& a = op.matrix();
   const int apply_repeats = repeats * 5;

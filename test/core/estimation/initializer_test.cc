@@ -299,18 +299,20 @@ TEST(InitializerTest, PureRotationGivesInitializationError) {
   ExpectNoParallaxError(images, camera, frames, "a purely rotating camera");
 }
 
-// A 6-frame Dolls sequence of a camera turning about its centre (synthesizer
-// path `rotate`, default blur: 14 HR px per exposure, scale 2), made with the
-// synthesizer API.
+// A 6-frame Dolls sequence on a synthesizer path (default blur: 14 HR px
+// per exposure, scale 2), made with the synthesizer API.
+Sequence SixFrameDollsSequence(CameraPathType path) {
+  SynthesisOptions options;
+  options.path = path;
+  options.num_frames = 6;
+  options.subframes = 60;
+  const StereoScene scene = LoadMiddleburyScene(std::string(DSM_SOURCE_DIR) + "/data/middlebury/Dolls");
+  return SynthesizeSequence(scene, options).sequence;
+}
+
+// A camera turning about its centre (path `rotate`).
 const Sequence& RotationSequence() {
-  static const Sequence sequence = [] {
-    SynthesisOptions options;
-    options.path = CameraPathType::kRotate;
-    options.num_frames = 6;
-    options.subframes = 60;
-    const StereoScene scene = LoadMiddleburyScene(std::string(DSM_SOURCE_DIR) + "/data/middlebury/Dolls");
-    return SynthesizeSequence(scene, options).sequence;
-  }();
+  static const Sequence sequence = SixFrameDollsSequence(CameraPathType::kRotate);
   return sequence;
 }
 
@@ -461,18 +463,10 @@ TEST(InitializerTest, StartsFromThePairWithParallax) {
   EXPECT_LT(worst_rotation, 1.5);
 }
 
-// A 6-frame Dolls sequence of a camera on an arc that keeps looking at a
-// point twice the median scene depth ahead (synthesizer path `arc`, default
-// blur), made with the synthesizer API.
+// A camera on an arc that keeps looking at a point twice the median scene
+// depth ahead (path `arc`).
 const Sequence& ArcSequence() {
-  static const Sequence sequence = [] {
-    SynthesisOptions options;
-    options.path = CameraPathType::kArc;
-    options.num_frames = 6;
-    options.subframes = 60;
-    const StereoScene scene = LoadMiddleburyScene(std::string(DSM_SOURCE_DIR) + "/data/middlebury/Dolls");
-    return SynthesizeSequence(scene, options).sequence;
-  }();
+  static const Sequence sequence = SixFrameDollsSequence(CameraPathType::kArc);
   return sequence;
 }
 
