@@ -2,13 +2,15 @@
 // benchmark). Scene: 640x480 HR -> 320x240 LR, M = 50, a camera translating
 // sideways past a bumpy surface with a depth edge, ~15 HR px of blur.
 // Usage: benchmark_capture_operator [--repeats N] [--samples M] [--readout-ratio R]
-//        [--row-layout] [--shared-depths]
+//        [--row-layout] [--shared-depths] [--normal-product]
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <omp.h>
@@ -70,102 +72,65 @@ dsm::CaptureOperatorOptions OneThreadOptions(int samples, bool transposed_copy) 
   return options;
 }
 
-// A compact row layout measured against CSR: each row of Psi as runs of
-// consecutive columns (first column, first value), so a product reads x
-// contiguously instead of gathering one index per tap. Values stay in CSR
-// order. Measured only (BENCHMARKS.md), not used by the operator.
-struct RunLayout {
-  std::vector<int> row_runs;                   // runs of row r: [row_runs[r], row_runs[r + 1])
-  std::vector<int> first_column, first_value;  // per run, plus an end sentinel value offset
-};
-
-RunLayout MakeRunLayout(const dsm::SparseMatrixRM& a) {
-  RunLayout layout;
-  const int* outer = a.outerIndexPtr();
-  const int* inner = a.innerIndexPtr();
-  layout.row_runs.push_back(0);
-  for (int r = 0; r < a.rows(); ++r) {
-    for (int k = outer[r]; k < outer[r + 1]; ++k) {
-      if (k == outer[r] || inner[k] != inner[k - 1] + 1) {
-        layout.first_column.push_back(inner[k]);
-        layout.first_value.push_back(k);
-      }
-    }
-    layout.row_runs.push_back(static_cast<int>(layout.first_column.size()));
+// Times two forms of one computation alternately (a, b, a, b, ...) so that a
+// change of the machine's load hits both; returns their median times (ms).
+template <typename A, typename B>
+std::pair<double, double> InterleavedMedianMs(int repeats, A&& a, B&& b) {
+  std::vector<double> times_a, times_b;
+  for (int i = 0; i < repeats; ++i) {
+    double start = Seconds();
+    a();
+    times_a.push_back((Seconds() - start) * 1e3);
+    start = Seconds();
+    b();
+    times_b.push_back((Seconds() - start) * 1e3);
   }
-  layout.first_value.push_back(outer[a.rows()]);
-  return layout;
+  std::sort(times_a.begin(), times_a.end());
+  std::sort(times_b.begin(), times_b.end());
+  return {times_a[times_a.size() / 2], times_b[times_b.size() / 2]};
 }
 
-// y = A x (one thread), gray or interleaved colour.
-template <int kChannels>
-void MultiplyRuns(const RunLayout& layout, const float* values, int rows, const float* x, float* y) {
-  for (int r = 0; r < rows; ++r) {
-    float acc[kChannels] = {};
-    for (int run = layout.row_runs[r]; run < layout.row_runs[r + 1]; ++run) {
-      const float* w = values + layout.first_value[run];
-      const int length = layout.first_value[run + 1] - layout.first_value[run];
-      const float* px = x + static_cast<std::ptrdiff_t>(layout.first_column[run]) * kChannels;
-      for (int i = 0; i < length; ++i) {
-        for (int c = 0; c < kChannels; ++c) acc[c] += w[i] * px[i * kChannels + c];
-      }
-    }
-    for (int c = 0; c < kChannels; ++c) y[r * kChannels + c] = acc[c];
-  }
+bool SameBits(const cv::Mat& a, const cv::Mat& b) {
+  return a.size() == b.size() && a.type() == b.type() &&
+         std::memcmp(a.data, b.data, a.total() * a.elemSize()) == 0;
 }
 
-// x += A^T y (one thread, scatter), gray or interleaved colour.
-template <int kChannels>
-void ScatterRuns(const RunLayout& layout, const float* values, int rows, const float* y, float* x) {
-  for (int r = 0; r < rows; ++r) {
-    const float* yr = y + r * kChannels;
-    for (int run = layout.row_runs[r]; run < layout.row_runs[r + 1]; ++run) {
-      const float* w = values + layout.first_value[run];
-      const int length = layout.first_value[run + 1] - layout.first_value[run];
-      float* px = x + static_cast<std::ptrdiff_t>(layout.first_column[run]) * kChannels;
-      for (int i = 0; i < length; ++i) {
-        for (int c = 0; c < kChannels; ++c) px[i * kChannels + c] += w[i] * yr[c];
-      }
-    }
-  }
-}
-
-// The estimator's configuration (one thread, no transposed copy): CSR
-// against runs, same results checked.
+// The estimator's configuration (one thread, no transposed copy): Psi_t x
+// and the scattered Psi_t^T y over the operator's row runs against the same
+// products over its CSR form, interleaved; the results are compared bit for
+// bit.
 void BenchmarkRunLayout(const dsm::CaptureGeometry& geometry, int samples, int repeats) {
   const dsm::CaptureOperatorOptions options = OneThreadOptions(samples, /*transposed_copy=*/false);
   const dsm::CaptureOperator op = dsm::BuildCaptureOperator(geometry, options);
-  const RunLayout layout = MakeRunLayout(op.matrix());
-  const float* values = op.matrix().valuePtr();
-  const int rows = static_cast<int>(op.matrix().rows());
-  const int runs = static_cast<int>(layout.first_column.size());
+  const dsm::RowRunMatrix& runs = op.matrix();
+  const dsm::SparseMatrixRM csr = runs.ToCsr();
   const cv::Size hr = op.hr_size();
   const int apply_repeats = repeats * 5;
   for (int channels : {1, 3}) {
-    cv::Mat x(hr, CV_32FC(channels)), y_csr, y_runs(op.lr_size(), CV_32FC(channels));
+    cv::Mat x(hr, CV_32FC(channels)), y_csr, y_runs;
     cv::randu(x, 0.0f, 1.0f);
-    cv::Mat back_csr, back_runs(hr, CV_32FC(channels));
-    const double apply_csr = MedianMs(apply_repeats, [&] { op.Apply(x, &y_csr); });
-    const double apply_runs = MedianMs(apply_repeats, [&] {
-      if (channels == 1)
-        MultiplyRuns<1>(layout, values, rows, x.ptr<float>(), y_runs.ptr<float>());
-      else
-        MultiplyRuns<3>(layout, values, rows, x.ptr<float>(), y_runs.ptr<float>());
-    });
-    const double adjoint_csr = MedianMs(apply_repeats, [&] { op.ApplyAdjoint(y_csr, &back_csr); });
-    const double adjoint_runs = MedianMs(apply_repeats, [&] {
-      back_runs.setTo(0.0);
-      if (channels == 1)
-        ScatterRuns<1>(layout, values, rows, y_csr.ptr<float>(), back_runs.ptr<float>());
-      else
-        ScatterRuns<3>(layout, values, rows, y_csr.ptr<float>(), back_runs.ptr<float>());
-    });
+    const auto [apply_csr, apply_runs] = InterleavedMedianMs(
+        apply_repeats, [&] { dsm::MultiplySparse(csr, x, &y_csr, 1); }, [&] { op.Apply(x, &y_runs); });
+    y_csr = y_csr.reshape(channels, op.lr_size().height);
+    cv::Mat back_csr(hr, CV_32FC(channels)), back_runs(hr, CV_32FC(channels));
+    const auto [adjoint_csr, adjoint_runs] = InterleavedMedianMs(
+        apply_repeats,
+        [&] {
+          back_csr.setTo(0.0);
+          dsm::AddAdjointProduct(csr, y_csr, &back_csr, 1);
+        },
+        [&] {
+          back_runs.setTo(0.0);
+          dsm::AddAdjointProduct(runs, y_csr, &back_runs, 1);
+        });
     std::printf(
-        "row layout, 1 thread, %d channel(s): %.2f runs per row (%.1f columns per run) | apply CSR %.2f ms, "
-        "runs %.2f ms (x%.2f) | adjoint CSR %.2f ms, runs %.2f ms (x%.2f) | max difference %.1e, %.1e\n",
-        channels, double(runs) / rows, double(op.matrix().nonZeros()) / runs, apply_csr, apply_runs,
-        apply_csr / apply_runs, adjoint_csr, adjoint_runs, adjoint_csr / adjoint_runs,
-        cv::norm(y_csr, y_runs, cv::NORM_INF), cv::norm(back_csr, back_runs, cv::NORM_INF));
+        "row layout, 1 thread, %d channel(s): %.2f runs per row (%.1f columns per run), %.1f MiB runs / %.1f "
+        "MiB CSR | apply CSR %.2f ms, runs %.2f ms (x%.2f) | adjoint (scatter) CSR %.2f ms, runs %.2f ms "
+        "(x%.2f) | bit-identical: %s, %s\n",
+        channels, double(runs.runs()) / runs.rows(), double(runs.nonZeros()) / runs.runs(),
+        runs.Bytes() / double(1 << 20), (csr.nonZeros() * 8.0 + (csr.rows() + 1) * 4.0) / (1 << 20),
+        apply_csr, apply_runs, apply_csr / apply_runs, adjoint_csr, adjoint_runs, adjoint_csr / adjoint_runs,
+        SameBits(y_csr, y_runs) ? "yes" : "no", SameBits(back_csr, back_runs) ? "yes" : "no");
   }
 }
 
@@ -206,39 +171,63 @@ void BenchmarkSharedDepths(const dsm::CaptureGeometry& geometry, int samples, in
 }
 
 // One product with the weighted normal operator A^T W A, as a CG step of
-// the image update makes it (one thread, colour): streaming the rows of A
-// once (gather, weigh, scatter: AddWeightedNormalProduct) against two
-// gathers, A x through the rows of A and A^T (W A x) through the rows of a
-// transposed copy. Also the time to make that copy.
+// the image update makes it, and the diagonal pass of its preconditioner
+// (one thread): streaming the operator's row runs once (gather, weigh,
+// scatter) against the same pass over its CSR form, interleaved; and the
+// CSR pass against two gathers, A x through the rows of A and A^T (W A x)
+// through the rows of a transposed copy (also the time to make that copy).
 void BenchmarkNormalProduct(const dsm::CaptureGeometry& geometry, int samples, int repeats) {
   const dsm::CaptureOperatorOptions options = OneThreadOptions(samples, /*transposed_copy=*/true);
   const dsm::CaptureOperator op = dsm::BuildCaptureOperator(geometry, options);
-  const dsm::SparseMatrixRM& a = op.matrix();
+  const dsm::RowRunMatrix& runs = op.matrix();
+  const dsm::SparseMatrixRM csr = runs.ToCsr();
   const int apply_repeats = repeats * 5;
   const double transpose_ms = MedianMs(repeats, [&] {
-    dsm::SparseMatrixRM copy = a.transpose();
+    dsm::SparseMatrixRM copy = csr.transpose();
     copy.makeCompressed();
   });
   for (int channels : {1, 3}) {
     cv::Mat x(op.hr_size(), CV_32FC(channels)), weight(op.lr_size(), CV_32FC(channels));
     cv::randu(x, 0.0f, 1.0f);
     cv::randu(weight, 0.5f, 2.0f);
-    cv::Mat one_pass(op.hr_size(), CV_32FC(channels)), lr, two_gathers;
-    const double one_pass_ms = MedianMs(apply_repeats, [&] {
-      one_pass.setTo(0.0);
-      dsm::AddWeightedNormalProduct(a, weight, x, &one_pass, 1);
-    });
+    cv::Mat one_pass_csr(op.hr_size(), CV_32FC(channels)), one_pass_runs(op.hr_size(), CV_32FC(channels));
+    const auto [csr_ms, runs_ms] = InterleavedMedianMs(
+        apply_repeats,
+        [&] {
+          one_pass_csr.setTo(0.0);
+          dsm::AddWeightedNormalProduct(csr, weight, x, &one_pass_csr, 1);
+        },
+        [&] {
+          one_pass_runs.setTo(0.0);
+          dsm::AddWeightedNormalProduct(runs, weight, x, &one_pass_runs, 1);
+        });
+    cv::Mat diagonal_csr(op.hr_size(), CV_32FC(channels)), diagonal_runs(op.hr_size(), CV_32FC(channels));
+    const auto [diagonal_csr_ms, diagonal_runs_ms] = InterleavedMedianMs(
+        apply_repeats,
+        [&] {
+          diagonal_csr.setTo(0.0);
+          dsm::AddWeightedNormalDiagonal(csr, weight, &diagonal_csr, 1);
+        },
+        [&] {
+          diagonal_runs.setTo(0.0);
+          dsm::AddWeightedNormalDiagonal(runs, weight, &diagonal_runs, 1);
+        });
+    cv::Mat lr, two_gathers;
     const double two_gathers_ms = MedianMs(apply_repeats, [&] {
-      op.Apply(x, &lr);
-      lr = lr.mul(weight);
+      dsm::MultiplySparse(csr, x, &lr, 1);
+      lr = lr.reshape(channels, op.lr_size().height).mul(weight);
       op.ApplyAdjoint(lr, &two_gathers);
     });
     std::printf(
-        "normal product A^T W A x, 1 thread, %d channel(s): one pass (gather + scatter) %.2f ms, two gathers "
-        "through a transposed copy %.2f ms (one pass / two gathers x%.2f); the copy %.1f ms; max "
-        "difference %.1e\n",
-        channels, one_pass_ms, two_gathers_ms, one_pass_ms / two_gathers_ms, transpose_ms,
-        cv::norm(one_pass, two_gathers, cv::NORM_INF));
+        "normal product A^T W A x, 1 thread, %d channel(s): one pass over the row runs %.2f ms, over CSR "
+        "%.2f "
+        "ms (CSR / runs x%.2f, bit-identical: %s) | diagonal pass runs %.2f ms, CSR %.2f ms (x%.2f, "
+        "bit-identical: %s) | CSR: two gathers through a transposed copy %.2f ms (one pass / two gathers "
+        "x%.2f; the copy %.1f ms; max difference %.1e)\n",
+        channels, runs_ms, csr_ms, csr_ms / runs_ms, SameBits(one_pass_runs, one_pass_csr) ? "yes" : "no",
+        diagonal_runs_ms, diagonal_csr_ms, diagonal_csr_ms / diagonal_runs_ms,
+        SameBits(diagonal_runs, diagonal_csr) ? "yes" : "no", two_gathers_ms, csr_ms / two_gathers_ms,
+        transpose_ms, cv::norm(one_pass_csr, two_gathers, cv::NORM_INF));
   }
 }
 
@@ -273,9 +262,9 @@ void BenchmarkThreads(const dsm::CaptureGeometry& geometry, int threads, int sam
   const double nnz = static_cast<double>(op.matrix().nonZeros());
   std::printf(
       "threads %d: build %.1f ms | apply %.2f ms (gray) %.2f ms (rgb) | adjoint %.2f ms "
-      "(gray) %.2f ms (rgb) | nnz %.2f M (%.1f per LR pixel), %.0f MiB for Psi and Psi^T\n",
+      "(gray) %.2f ms (rgb) | nnz %.2f M (%.1f per LR pixel), %.0f MiB for Psi (row runs) and Psi^T (CSR)\n",
       threads, build_ms, apply_gray, apply_color, adjoint_gray, adjoint_color, nnz / 1e6,
-      nnz / op.matrix().rows(), 2.0 * nnz * 8.0 / (1 << 20));
+      nnz / op.matrix().rows(), (op.matrix().Bytes() + nnz * 8.0) / (1 << 20));
 }
 
 int Run(int argc, char** argv) {
@@ -293,12 +282,14 @@ int Run(int argc, char** argv) {
       ->check(dsm::FlagNumber(0.0, 1.0));
   bool row_layout = false, shared_depths = false, normal_product = false;
   cli.add_flag("--row-layout", row_layout,
-               "also time Psi_t and Psi_t^T with rows stored as runs of consecutive columns against CSR");
+               "also time Psi_t and Psi_t^T over the operator's row runs against its CSR form");
   cli.add_flag("--shared-depths", shared_depths,
                "also time building the operators of 3 sources of one frame with and without shared virtual "
                "depths, and adaptive M");
-  cli.add_flag("--normal-product", normal_product,
-               "also time A^T W A x in one pass over the rows against two gathers through a transposed copy");
+  cli.add_flag(
+      "--normal-product", normal_product,
+      "also time A^T W A x and its diagonal in one pass over the row runs against CSR, and against two "
+      "gathers through a transposed copy");
   if (!cli.Parse(argc, argv)) return 0;
   dsm::CaptureGeometry geometry = BenchmarkGeometry();
   geometry.readout_time = readout_ratio * (geometry.stamp - geometry.neighbour_stamp);

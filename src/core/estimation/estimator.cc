@@ -367,13 +367,9 @@ class OperatorCache {
     return depths;
   }
 
-  // What an entry holds: the CSR arrays (float values, int column indices,
-  // int row offsets), the coverage and the mask.
+  // What an entry holds: the operator's row runs, the coverage and the mask.
   static size_t Bytes(const Entry& e) {
-    const SparseMatrixRM& matrix = e.op.matrix();
-    return static_cast<size_t>(matrix.nonZeros()) * (sizeof(float) + sizeof(int)) +
-           static_cast<size_t>(matrix.rows() + 1) * sizeof(int) + e.op.coverage().size() * sizeof(float) +
-           e.mask.total();
+    return e.op.matrix().Bytes() + e.op.coverage().size() * sizeof(float) + e.mask.total();
   }
   void Touch(const std::pair<int, int>& key) {
     order_.remove(key);
@@ -617,7 +613,7 @@ WindowSolver::WindowSolver(const EstimatorOptions& options, int threads, const E
     neighbours_[t] = Neighbours(t, num_frames_, options_.neighbour_radius);
     sources_per_frame[t] = static_cast<int>(neighbours_[t].size()) + 1;  // N(t) and t itself
   }
-  // Every operator of a 10-frame 640x480 window (30 operators of ~38 MiB)
+  // Every operator of a 10-frame 640x480 window (30 operators of ~21 MiB)
   // fits; larger windows evict the least recently used ones and rebuild them,
   // which keeps the peak memory bounded.
   // The virtual depths of 4 frames at M = 50 and 640x480 (a frame's

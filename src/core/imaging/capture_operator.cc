@@ -11,6 +11,7 @@
 #include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/common/runtime.h"
 #include "deblur_sr_mvs/core/geometry/warp.h"
+#include "deblur_sr_mvs/core/imaging/normal_product.h"
 
 namespace deblur_sr_mvs {
 namespace {
@@ -24,23 +25,21 @@ constexpr float kInsideTolerance = 1e-4f;
 // (extreme blur) a scatter array plus a sort is cheaper.
 constexpr int kMaxLocalGrid = 4096;
 
-// y = A x for a row-major sparse A and interleaved C-channel images. Not
-// auto-vectorised: gathers of scattered columns are slower than scalar loads.
-template <int kChannels>
-__attribute__((optimize("no-tree-vectorize"))) void MultiplyFixed(const SparseMatrixRM& a, const float* x,
+// y = A x for a row-major sparse A (CSR or row runs, see RowSpansOf) and
+// interleaved C-channel images. Not auto-vectorised: gathers of scattered
+// columns are slower than scalar loads.
+template <int kChannels, typename Rows>
+__attribute__((optimize("no-tree-vectorize"))) void MultiplyFixed(const Rows& a, int rows, const float* x,
                                                                   float* y, int threads) {
-  const int* outer = a.outerIndexPtr();
-  const int* inner = a.innerIndexPtr();
-  const float* values = a.valuePtr();
-  const int rows = static_cast<int>(a.rows());
 #pragma omp parallel for schedule(static) num_threads(threads)
   for (int r = 0; r < rows; ++r) {
     float acc[kChannels] = {};
-    for (int k = outer[r]; k < outer[r + 1]; ++k) {
-      const float w = values[k];
-      const float* px = x + static_cast<std::ptrdiff_t>(inner[k]) * kChannels;
-      for (int c = 0; c < kChannels; ++c) acc[c] += w * px[c];
-    }
+    a.ForEachSpan(r, [&](const float* v, int column, int length) {
+      const float* px = x + static_cast<std::ptrdiff_t>(column) * kChannels;
+      for (int i = 0; i < length; ++i) {
+        for (int c = 0; c < kChannels; ++c) acc[c] += v[i] * px[i * kChannels + c];
+      }
+    });
     float* py = y + static_cast<std::ptrdiff_t>(r) * kChannels;
     for (int c = 0; c < kChannels; ++c) py[c] = acc[c];
   }
@@ -97,19 +96,22 @@ void TransposeSparse(const SparseMatrixRM& a, SparseMatrixRM* at, int threads) {
 
 namespace {
 
-void MultiplyAnyChannels(const SparseMatrixRM& a, const float* x, float* y, int channels, int threads) {
+template <typename Matrix>
+void MultiplyAnyChannels(const Matrix& a, const float* x, float* y, int channels, int threads) {
+  const auto rows = RowSpansOf(a);
+  const int n = static_cast<int>(a.rows());
   switch (channels) {
     case 1:
-      MultiplyFixed<1>(a, x, y, threads);
+      MultiplyFixed<1>(rows, n, x, y, threads);
       return;
     case 2:
-      MultiplyFixed<2>(a, x, y, threads);
+      MultiplyFixed<2>(rows, n, x, y, threads);
       return;
     case 3:
-      MultiplyFixed<3>(a, x, y, threads);
+      MultiplyFixed<3>(rows, n, x, y, threads);
       return;
     case 4:
-      MultiplyFixed<4>(a, x, y, threads);
+      MultiplyFixed<4>(rows, n, x, y, threads);
       return;
     default:
       break;
@@ -117,7 +119,8 @@ void MultiplyAnyChannels(const SparseMatrixRM& a, const float* x, float* y, int 
   throw InputError("capture operator: images must have 1 to 4 channels");
 }
 
-void Multiply(const SparseMatrixRM& a, const cv::Size& in_size, const cv::Size& out_size, const cv::Mat& in,
+template <typename Matrix>
+void Multiply(const Matrix& a, const cv::Size& in_size, const cv::Size& out_size, const cv::Mat& in,
               cv::Mat* out, int threads, const char* what) {
   if (in.depth() != CV_32F || in.size() != in_size) {
     std::ostringstream message;
@@ -201,24 +204,10 @@ void CaptureOperator::ApplyAdjoint(const cv::Mat& lr, cv::Mat* hr) const {
   if (lr.depth() != CV_32F || lr.size() != lr_size_) {
     throw InputError("capture operator ApplyAdjoint: expected a float image of the LR size");
   }
-  const int channels = lr.channels();
-  if (channels < 1 || channels > 4) throw InputError("capture operator: images must have 1 to 4 channels");
   const cv::Mat source = lr.isContinuous() ? lr : lr.clone();
-  hr->create(hr_size_, CV_32FC(channels));
+  hr->create(hr_size_, CV_32FC(lr.channels()));
   hr->setTo(0.0);
-  const int* outer = forward_.outerIndexPtr();
-  const int* inner = forward_.innerIndexPtr();
-  const float* values = forward_.valuePtr();
-  const float* x = source.ptr<float>();
-  float* y = hr->ptr<float>();
-  const int rows = static_cast<int>(forward_.rows());
-  for (int r = 0; r < rows; ++r) {
-    const float* xr = x + static_cast<std::ptrdiff_t>(r) * channels;
-    for (int k = outer[r]; k < outer[r + 1]; ++k) {
-      float* yc = y + static_cast<std::ptrdiff_t>(inner[k]) * channels;
-      for (int c = 0; c < channels; ++c) yc[c] += values[k] * xr[c];
-    }
-  }
+  AddAdjointProduct(forward_, source, hr, 1);
 }
 
 namespace {
@@ -521,27 +510,6 @@ void AssembleRows(const AssemblyContext& context, int first_row, int last_row, s
   }
 }
 
-// Concatenates the per-thread blocks of rows into one compressed row-major
-// matrix.
-void ConcatenateBlocks(const std::vector<std::vector<int>>& block_columns,
-                       const std::vector<std::vector<float>>& block_values, const std::vector<int>& row_nnz,
-                       int threads, int cols, SparseMatrixRM* matrix) {
-  const int rows = static_cast<int>(row_nnz.size());
-  size_t nnz = 0;
-  for (const auto& block : block_columns) nnz += block.size();
-  matrix->resize(rows, cols);
-  matrix->resizeNonZeros(static_cast<Eigen::Index>(nnz));
-  int* outer = matrix->outerIndexPtr();
-  outer[0] = 0;
-  for (int r = 0; r < rows; ++r) outer[r + 1] = outer[r] + row_nnz[r];
-  size_t offset = 0;
-  for (int t = 0; t < threads; ++t) {
-    std::copy(block_columns[t].begin(), block_columns[t].end(), matrix->innerIndexPtr() + offset);
-    std::copy(block_values[t].begin(), block_values[t].end(), matrix->valuePtr() + offset);
-    offset += block_columns[t].size();
-  }
-}
-
 // The instants of the virtual cameras whose depth is reprojected from D_t.
 // A global shutter: tau_m itself. A rolling shutter has M * H virtual cameras
 // but only M reprojected depths, at instants evenly spread from the first
@@ -761,12 +729,20 @@ void CaptureOperatorBuilder::Assemble(const CaptureGeometry& geometry, const Vir
     AssembleRows(context, first_row, last_row, &op->coverage_, &row_nnz_, &block_columns_[thread],
                  &block_values_[thread]);
   }
-  ConcatenateBlocks(block_columns_, block_values_, row_nnz_, threads, context.hr_width * context.hr_height,
-                    &op->forward_);
+  std::vector<const int*> piece_columns;
+  std::vector<const float*> piece_values;
+  std::vector<size_t> piece_sizes;
+  for (int t = 0; t < threads; ++t) {
+    piece_columns.push_back(block_columns_[t].data());
+    piece_values.push_back(block_values_[t].data());
+    piece_sizes.push_back(block_columns_[t].size());
+  }
+  op->forward_ = RowRunMatrix::FromPieces(context.hr_width * context.hr_height, row_nnz_, piece_columns,
+                                          piece_values, piece_sizes);
   timings_.assembly_ms = NowMs() - stage_start;
   const double adjoint_start = NowMs();
   if (options_.transposed_copy) {
-    TransposeSparse(op->forward_, &op->adjoint_, threads);
+    TransposeSparse(op->forward_.ToCsr(), &op->adjoint_, threads);
   } else {
     op->adjoint_ = SparseMatrixRM();
   }

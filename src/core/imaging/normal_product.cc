@@ -15,64 +15,59 @@ namespace deblur_sr_mvs {
 namespace {
 
 // The three row kernels over rows [first, last) of A, scattering into `out`
-// (interleaved kChannels values per column).
-struct SparseRows {
-  const int* outer;
-  const int* inner;
-  const float* values;
-};
-
-SparseRows RowsOf(const SparseMatrixRM& a) {
-  return {a.outerIndexPtr(), a.innerIndexPtr(), a.valuePtr()};
-}
-
-// The output never aliases the operator or the inputs (__restrict): the
-// scatter then need not reload the taps after each store.
-template <int kChannels>
-void NormalProductRows(const SparseRows& a, const float* __restrict weight, const float* __restrict x,
-                       int first, int last, float* __restrict out) {
-  const int* __restrict inner = a.inner;
-  const float* __restrict values = a.values;
+// (interleaved kChannels values per column). The output never aliases the
+// operator or the inputs (__restrict): the scatter then need not reload the
+// taps after each store.
+template <int kChannels, typename Rows>
+void NormalProductRows(const Rows& a, const float* __restrict weight, const float* __restrict x, int first,
+                       int last, float* __restrict out) {
   for (int r = first; r < last; ++r) {
     const float* w = weight + static_cast<std::ptrdiff_t>(r) * kChannels;
     bool used = false;
     for (int c = 0; c < kChannels; ++c) used = used || w[c] != 0.0f;
     if (!used) continue;
-    const int begin = a.outer[r], end = a.outer[r + 1];
     float acc[kChannels] = {};
-    for (int k = begin; k < end; ++k) {
-      const float* px = x + static_cast<std::ptrdiff_t>(inner[k]) * kChannels;
-      for (int c = 0; c < kChannels; ++c) acc[c] += values[k] * px[c];
-    }
+    a.ForEachSpan(r, [&](const float* __restrict v, int column, int length) {
+      const float* __restrict px = x + static_cast<std::ptrdiff_t>(column) * kChannels;
+      for (int i = 0; i < length; ++i) {
+        for (int c = 0; c < kChannels; ++c) acc[c] += v[i] * px[i * kChannels + c];
+      }
+    });
     for (int c = 0; c < kChannels; ++c) acc[c] *= w[c];
-    for (int k = begin; k < end; ++k) {
-      float* po = out + static_cast<std::ptrdiff_t>(inner[k]) * kChannels;
-      for (int c = 0; c < kChannels; ++c) po[c] += values[k] * acc[c];
-    }
+    a.ForEachSpan(r, [&](const float* __restrict v, int column, int length) {
+      float* __restrict po = out + static_cast<std::ptrdiff_t>(column) * kChannels;
+      for (int i = 0; i < length; ++i) {
+        for (int c = 0; c < kChannels; ++c) po[i * kChannels + c] += v[i] * acc[c];
+      }
+    });
   }
 }
 
-template <int kChannels>
-void AdjointRows(const SparseRows& a, const float* __restrict y, int first, int last, float* __restrict out) {
+template <int kChannels, typename Rows>
+void AdjointRows(const Rows& a, const float* __restrict y, int first, int last, float* __restrict out) {
   for (int r = first; r < last; ++r) {
     const float* py = y + static_cast<std::ptrdiff_t>(r) * kChannels;
-    for (int k = a.outer[r]; k < a.outer[r + 1]; ++k) {
-      float* po = out + static_cast<std::ptrdiff_t>(a.inner[k]) * kChannels;
-      for (int c = 0; c < kChannels; ++c) po[c] += a.values[k] * py[c];
-    }
+    a.ForEachSpan(r, [&](const float* __restrict v, int column, int length) {
+      float* __restrict po = out + static_cast<std::ptrdiff_t>(column) * kChannels;
+      for (int i = 0; i < length; ++i) {
+        for (int c = 0; c < kChannels; ++c) po[i * kChannels + c] += v[i] * py[c];
+      }
+    });
   }
 }
 
-template <int kChannels>
-void NormalDiagonalRows(const SparseRows& a, const float* __restrict weight, int first, int last,
+template <int kChannels, typename Rows>
+void NormalDiagonalRows(const Rows& a, const float* __restrict weight, int first, int last,
                         float* __restrict out) {
   for (int r = first; r < last; ++r) {
     const float* w = weight + static_cast<std::ptrdiff_t>(r) * kChannels;
-    for (int k = a.outer[r]; k < a.outer[r + 1]; ++k) {
-      const float squared = a.values[k] * a.values[k];
-      float* po = out + static_cast<std::ptrdiff_t>(a.inner[k]) * kChannels;
-      for (int c = 0; c < kChannels; ++c) po[c] += squared * w[c];
-    }
+    a.ForEachSpan(r, [&](const float* __restrict v, int column, int length) {
+      float* __restrict po = out + static_cast<std::ptrdiff_t>(column) * kChannels;
+      for (int i = 0; i < length; ++i) {
+        const float squared = v[i] * v[i];
+        for (int c = 0; c < kChannels; ++c) po[i * kChannels + c] += squared * w[c];
+      }
+    });
   }
 }
 
@@ -148,8 +143,9 @@ void CheckGrid(const cv::Mat& image, long pixels, int channels, const char* what
 
 template <int kChannels>
 struct NormalProductPass {
-  static void Run(const SparseMatrixRM& a, const float* weight, const float* x, float* out, int threads) {
-    const SparseRows rows = RowsOf(a);
+  template <typename Matrix>
+  static void Run(const Matrix& a, const float* weight, const float* x, float* out, int threads) {
+    const auto rows = RowSpansOf(a);
     ScatterRowBlocks(static_cast<int>(a.rows()), static_cast<size_t>(a.cols()) * kChannels, threads, out,
                      [&](int first, int last, float* target) {
                        NormalProductRows<kChannels>(rows, weight, x, first, last, target);
@@ -159,8 +155,9 @@ struct NormalProductPass {
 
 template <int kChannels>
 struct AdjointPass {
-  static void Run(const SparseMatrixRM& a, const float* y, float* out, int threads) {
-    const SparseRows rows = RowsOf(a);
+  template <typename Matrix>
+  static void Run(const Matrix& a, const float* y, float* out, int threads) {
+    const auto rows = RowSpansOf(a);
     ScatterRowBlocks(
         static_cast<int>(a.rows()), static_cast<size_t>(a.cols()) * kChannels, threads, out,
         [&](int first, int last, float* target) { AdjointRows<kChannels>(rows, y, first, last, target); });
@@ -169,8 +166,9 @@ struct AdjointPass {
 
 template <int kChannels>
 struct NormalDiagonalPass {
-  static void Run(const SparseMatrixRM& a, const float* weight, float* out, int threads) {
-    const SparseRows rows = RowsOf(a);
+  template <typename Matrix>
+  static void Run(const Matrix& a, const float* weight, float* out, int threads) {
+    const auto rows = RowSpansOf(a);
     ScatterRowBlocks(static_cast<int>(a.rows()), static_cast<size_t>(a.cols()) * kChannels, threads, out,
                      [&](int first, int last, float* target) {
                        NormalDiagonalRows<kChannels>(rows, weight, first, last, target);
@@ -178,10 +176,9 @@ struct NormalDiagonalPass {
   }
 };
 
-}  // namespace
-
-void AddWeightedNormalProduct(const SparseMatrixRM& a, const cv::Mat& weight, const cv::Mat& x, cv::Mat* out,
-                              int threads) {
+template <typename Matrix>
+void WeightedNormalProduct(const Matrix& a, const cv::Mat& weight, const cv::Mat& x, cv::Mat* out,
+                           int threads) {
   const int channels = x.channels();
   CheckGrid(x, a.cols(), channels, "the input");
   CheckGrid(*out, a.cols(), channels, "the output");
@@ -190,18 +187,48 @@ void AddWeightedNormalProduct(const SparseMatrixRM& a, const cv::Mat& weight, co
                               ResolveThreads(threads));
 }
 
-void AddAdjointProduct(const SparseMatrixRM& a, const cv::Mat& y, cv::Mat* out, int threads) {
+template <typename Matrix>
+void AdjointProduct(const Matrix& a, const cv::Mat& y, cv::Mat* out, int threads) {
   const int channels = y.channels();
   CheckGrid(y, a.rows(), channels, "the input");
   CheckGrid(*out, a.cols(), channels, "the output");
   Dispatch<AdjointPass>(channels, a, y.ptr<float>(), out->ptr<float>(), ResolveThreads(threads));
 }
 
-void AddWeightedNormalDiagonal(const SparseMatrixRM& a, const cv::Mat& weight, cv::Mat* out, int threads) {
+template <typename Matrix>
+void WeightedNormalDiagonal(const Matrix& a, const cv::Mat& weight, cv::Mat* out, int threads) {
   const int channels = weight.channels();
   CheckGrid(weight, a.rows(), channels, "the weight");
   CheckGrid(*out, a.cols(), channels, "the output");
   Dispatch<NormalDiagonalPass>(channels, a, weight.ptr<float>(), out->ptr<float>(), ResolveThreads(threads));
+}
+
+}  // namespace
+
+void AddWeightedNormalProduct(const RowRunMatrix& a, const cv::Mat& weight, const cv::Mat& x, cv::Mat* out,
+                              int threads) {
+  WeightedNormalProduct(a, weight, x, out, threads);
+}
+
+void AddWeightedNormalProduct(const SparseMatrixRM& a, const cv::Mat& weight, const cv::Mat& x, cv::Mat* out,
+                              int threads) {
+  WeightedNormalProduct(a, weight, x, out, threads);
+}
+
+void AddAdjointProduct(const RowRunMatrix& a, const cv::Mat& y, cv::Mat* out, int threads) {
+  AdjointProduct(a, y, out, threads);
+}
+
+void AddAdjointProduct(const SparseMatrixRM& a, const cv::Mat& y, cv::Mat* out, int threads) {
+  AdjointProduct(a, y, out, threads);
+}
+
+void AddWeightedNormalDiagonal(const RowRunMatrix& a, const cv::Mat& weight, cv::Mat* out, int threads) {
+  WeightedNormalDiagonal(a, weight, out, threads);
+}
+
+void AddWeightedNormalDiagonal(const SparseMatrixRM& a, const cv::Mat& weight, cv::Mat* out, int threads) {
+  WeightedNormalDiagonal(a, weight, out, threads);
 }
 
 }  // namespace deblur_sr_mvs

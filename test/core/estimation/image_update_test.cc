@@ -11,6 +11,7 @@
 #include <gtest/gtest.h>
 #include <Eigen/Dense>
 
+#include "../support/random_values.h"
 #include "deblur_sr_mvs/core/imaging/capture_operator.h"
 #include "deblur_sr_mvs/core/imaging/normal_product.h"
 
@@ -30,14 +31,6 @@ SparseMatrixRM RandomOperator(int rows, int cols, int per_row, std::mt19937* rng
   a.setFromTriplets(taps.begin(), taps.end());
   a.makeCompressed();
   return a;
-}
-
-cv::Mat RandomImage(int pixels, int channels, float low, float high, std::mt19937* rng) {
-  cv::Mat image(pixels, 1, CV_32FC(channels));
-  std::uniform_real_distribution<float> value(low, high);
-  float* p = image.ptr<float>();
-  for (size_t i = 0; i < image.total() * channels; ++i) p[i] = value(*rng);
-  return image;
 }
 
 // Largest |a - b| relative to the largest |b|.
@@ -63,8 +56,8 @@ TEST_P(NormalProduct, OnePassEqualsTwoPassesToFloatRounding) {
   std::mt19937 rng(7 + channels);
   const int rows = 300, cols = 1200;
   const SparseMatrixRM a = RandomOperator(rows, cols, 40, &rng);
-  const cv::Mat x = RandomImage(cols, channels, -1.0f, 1.0f, &rng);
-  cv::Mat weight = RandomImage(rows, channels, 0.0f, 10.0f, &rng);
+  const cv::Mat x = RandomValues(cols, channels, -1.0f, 1.0f, &rng);
+  cv::Mat weight = RandomValues(rows, channels, 0.0f, 10.0f, &rng);
   weight.rowRange(0, 30).setTo(0.0);  // masked rows are skipped: still exact
   cv::Mat out = cv::Mat::zeros(cols, 1, CV_32FC(channels));
   AddWeightedNormalProduct(a, weight, x, &out, threads);
@@ -83,8 +76,8 @@ TEST_P(NormalProduct, AdjointAndDiagonalMatchTheDenseMatrix) {
   const int rows = 80, cols = 200;
   const SparseMatrixRM a = RandomOperator(rows, cols, 12, &rng);
   const Eigen::MatrixXd dense = Eigen::MatrixXd(a.cast<double>());
-  const cv::Mat y = RandomImage(rows, channels, -1.0f, 1.0f, &rng);
-  const cv::Mat weight = RandomImage(rows, channels, 0.0f, 5.0f, &rng);
+  const cv::Mat y = RandomValues(rows, channels, -1.0f, 1.0f, &rng);
+  const cv::Mat weight = RandomValues(rows, channels, 0.0f, 5.0f, &rng);
   cv::Mat adjoint = cv::Mat::zeros(cols, 1, CV_32FC(channels));
   cv::Mat diagonal = cv::Mat::zeros(cols, 1, CV_32FC(channels));
   AddAdjointProduct(a, y, &adjoint, threads);
@@ -201,8 +194,8 @@ TEST_P(LaplacianGaussSeidel, IsTheSymmetricGaussSeidelInverseOfTheDenseSystem) {
   const int channels = GetParam();
   std::mt19937 rng(13 + channels);
   const int rows = 5, cols = 6, n = rows * cols * channels;
-  const cv::Mat data = RandomImage(rows * cols, channels, 0.0f, 2.0f, &rng).reshape(channels, rows);
-  const cv::Mat v = RandomImage(rows * cols, channels, 0.1f, 20.0f, &rng).reshape(channels, rows);
+  const cv::Mat data = RandomValues(rows * cols, channels, 0.0f, 2.0f, &rng).reshape(channels, rows);
+  const cv::Mat v = RandomValues(rows * cols, channels, 0.1f, 20.0f, &rng).reshape(channels, rows);
   const double scale = 0.45;
   const Eigen::MatrixXd dense = DenseTvSystem(data, v, scale);
   cv::Mat diagonal = data.clone();
@@ -213,7 +206,7 @@ TEST_P(LaplacianGaussSeidel, IsTheSymmetricGaussSeidelInverseOfTheDenseSystem) {
   const Eigen::MatrixXd m = (Eigen::MatrixXd(d.asDiagonal()) + lower) * d.cwiseInverse().asDiagonal() *
                             (Eigen::MatrixXd(d.asDiagonal()) + lower.transpose());
   ASSERT_LT((m - m.transpose()).norm(), 1e-9 * m.norm());  // symmetric, as PCG needs
-  const cv::Mat r = RandomImage(rows * cols, channels, -1.0f, 1.0f, &rng).reshape(channels, rows);
+  const cv::Mat r = RandomValues(rows * cols, channels, -1.0f, 1.0f, &rng).reshape(channels, rows);
   cv::Mat z;
   ApplyLaplacianGaussSeidel(diagonal, v, scale, r, &z);
   Eigen::VectorXd rv(n);
@@ -229,8 +222,8 @@ TEST_P(LaplacianGaussSeidel, IsTheSymmetricGaussSeidelInverseOfTheDenseSystem) {
 TEST(LaplacianGaussSeidelPcg, ReachesTheJacobiSolutionInFewerSteps) {
   std::mt19937 rng(17);
   const int rows = 16, cols = 20, n = rows * cols;
-  const cv::Mat data = RandomImage(n, 1, 0.01f, 0.1f, &rng).reshape(1, rows);
-  const cv::Mat v = RandomImage(n, 1, 100.0f, 1000.0f, &rng).reshape(1, rows);
+  const cv::Mat data = RandomValues(n, 1, 0.01f, 0.1f, &rng).reshape(1, rows);
+  const cv::Mat v = RandomValues(n, 1, 100.0f, 1000.0f, &rng).reshape(1, rows);
   const double scale = 0.45;
   const Eigen::MatrixXd dense = DenseTvSystem(data, v, scale);
   Eigen::VectorXd rhs(n);
@@ -284,7 +277,7 @@ SmallDeblurProblem MakeSmallDeblurProblem() {
   op_options.samples = 10;
   SmallDeblurProblem problem;
   problem.op = BuildCaptureOperator(geometry, op_options);
-  problem.truth = RandomImage(hr_rows * hr_cols, 1, 0.0f, 1.0f, &rng).reshape(1, hr_rows);
+  problem.truth = RandomValues(hr_rows * hr_cols, 1, 0.0f, 1.0f, &rng).reshape(1, hr_rows);
   problem.op.Apply(problem.truth, &problem.observation);
   return problem;
 }

@@ -36,8 +36,8 @@ bool SameArray(const T* a, const T* b, size_t count) {
 
 // The CSR arrays and the coverage, compared as bytes.
 void ExpectSameOperator(const CaptureOperator& a, const CaptureOperator& b) {
-  const SparseMatrixRM& ma = a.matrix();
-  const SparseMatrixRM& mb = b.matrix();
+  const SparseMatrixRM ma = a.matrix().ToCsr();
+  const SparseMatrixRM mb = b.matrix().ToCsr();
   ASSERT_EQ(ma.rows(), mb.rows());
   ASSERT_EQ(ma.cols(), mb.cols());
   ASSERT_EQ(ma.nonZeros(), mb.nonZeros());

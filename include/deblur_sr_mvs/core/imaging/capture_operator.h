@@ -21,10 +21,9 @@
 
 #include "deblur_sr_mvs/core/geometry/camera.h"
 #include "deblur_sr_mvs/core/geometry/se3.h"
+#include "deblur_sr_mvs/core/imaging/row_run_matrix.h"
 
 namespace deblur_sr_mvs {
-
-using SparseMatrixRM = Eigen::SparseMatrix<float, Eigen::RowMajor, int>;
 
 struct CaptureOperatorOptions {
   // M, the number of virtual cameras over the exposure (paper: 50); with
@@ -144,7 +143,9 @@ class CaptureOperator {
   // LR size (rows of the matrix) and HR size (columns).
   cv::Size lr_size() const { return lr_size_; }
   cv::Size hr_size() const { return hr_size_; }
-  const SparseMatrixRM& matrix() const { return forward_; }
+  // Psi as runs of consecutive columns (RowRunMatrix: about half the bytes
+  // of CSR); matrix().ToCsr() gives the CSR form.
+  const RowRunMatrix& matrix() const { return forward_; }
   // Fraction of each LR pixel's M * scale^2 samples that landed inside the
   // source image in front of the camera (the rest were clamped to the
   // border); 1 everywhere for an interior pixel.
@@ -161,8 +162,8 @@ class CaptureOperator {
   cv::Size lr_size_;
   cv::Size hr_size_;
   int num_threads_ = 0;
-  SparseMatrixRM forward_;
-  SparseMatrixRM adjoint_;  // forward_ transposed (optional): a parallel gather
+  RowRunMatrix forward_;
+  SparseMatrixRM adjoint_;  // forward_ transposed, CSR (optional): a parallel gather
   std::vector<float> coverage_;
 };
 

@@ -11,22 +11,27 @@
 
 #include <opencv2/core.hpp>
 
-#include "deblur_sr_mvs/core/imaging/capture_operator.h"
+#include "deblur_sr_mvs/core/imaging/row_run_matrix.h"
 
 namespace deblur_sr_mvs {
 
 // out += A^T diag(weight) A x. `x` and `out`: CV_32FC(C) with one pixel per
 // column of A (any shape, continuous); `weight`: CV_32FC(C), one pixel per
-// row of A. Rows whose weights are all zero are skipped.
+// row of A. Rows whose weights are all zero are skipped. The row-run and the
+// CSR forms of one matrix give bit-identical results.
+void AddWeightedNormalProduct(const RowRunMatrix& a, const cv::Mat& weight, const cv::Mat& x, cv::Mat* out,
+                              int threads);
 void AddWeightedNormalProduct(const SparseMatrixRM& a, const cv::Mat& weight, const cv::Mat& x, cv::Mat* out,
                               int threads);
 
 // out += A^T y (the adjoint, by scattering the rows of A); `y` has one pixel
 // per row of A, `out` one per column.
+void AddAdjointProduct(const RowRunMatrix& a, const cv::Mat& y, cv::Mat* out, int threads);
 void AddAdjointProduct(const SparseMatrixRM& a, const cv::Mat& y, cv::Mat* out, int threads);
 
 // out += diag(A^T diag(weight) A) per channel: out_j += sum_r weight_r a_rj^2
 // (the Jacobi preconditioner of the normal equations).
+void AddWeightedNormalDiagonal(const RowRunMatrix& a, const cv::Mat& weight, cv::Mat* out, int threads);
 void AddWeightedNormalDiagonal(const SparseMatrixRM& a, const cv::Mat& weight, cv::Mat* out, int threads);
 
 }  // namespace deblur_sr_mvs

@@ -1,0 +1,106 @@
+// A row-major sparse float matrix stored as runs of consecutive columns.
+//
+// A capture operator's row (one LR pixel) holds the merged bilinear taps of
+// its M x scale^2 samples: a few short spans of neighbouring HR pixels (about
+// 5 runs of 13 columns at 640x480 HR). CSR stores one 32-bit column index per
+// tap; this layout stores one first column and one 16-bit length per run, so
+// a row costs about 4.5 bytes per tap instead of 8 and a product reads the
+// latent image contiguously along each run. The values are kept in the order
+// of the taps, so a product over the runs does the same multiply-adds in the
+// same order as one over the CSR arrays (bit-identical results).
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+#include <Eigen/SparseCore>
+
+namespace deblur_sr_mvs {
+
+using SparseMatrixRM = Eigen::SparseMatrix<float, Eigen::RowMajor, int>;
+
+class RowRunMatrix {
+ public:
+  // A run is at most this long; a longer span of consecutive columns is split.
+  static constexpr int kMaxRunLength = 65535;
+
+  RowRunMatrix() = default;
+
+  // From a compressed row-major matrix; the taps of a row keep their order
+  // (consecutive increasing columns form a run).
+  static RowRunMatrix FromCsr(const SparseMatrixRM& csr);
+  // From rows given in order as contiguous pieces of CSR arrays: piece p
+  // holds piece_sizes[p] taps (piece_columns[p], piece_values[p]) of the next
+  // rows; row r has row_taps[r] taps.
+  static RowRunMatrix FromPieces(int cols, const std::vector<int>& row_taps,
+                                 const std::vector<const int*>& piece_columns,
+                                 const std::vector<const float*>& piece_values,
+                                 const std::vector<size_t>& piece_sizes);
+  // The same matrix in CSR form (for callers that need Eigen or a transpose).
+  SparseMatrixRM ToCsr() const;
+
+  int rows() const { return rows_; }
+  int cols() const { return cols_; }
+  long nonZeros() const { return static_cast<long>(values_.size()); }
+  long runs() const { return static_cast<long>(run_first_column_.size()); }
+  // Heap bytes of the arrays.
+  size_t Bytes() const;
+
+  // Row r: taps [row_first_value()[r], row_first_value()[r + 1]) of values(),
+  // runs [row_first_run()[r], row_first_run()[r + 1]). Run k covers columns
+  // run_first_column()[k] .. + run_length()[k] - 1, its values following the
+  // previous run's.
+  const int* row_first_value() const { return row_first_value_.data(); }
+  const int* row_first_run() const { return row_first_run_.data(); }
+  const int* run_first_column() const { return run_first_column_.data(); }
+  const uint16_t* run_length() const { return run_length_.data(); }
+  const float* values() const { return values_.data(); }
+
+ private:
+  int rows_ = 0;
+  int cols_ = 0;
+  std::vector<int> row_first_value_;  // rows + 1
+  std::vector<int> row_first_run_;    // rows + 1
+  std::vector<int> run_first_column_;
+  std::vector<uint16_t> run_length_;
+  std::vector<float> values_;
+};
+
+// The rows of a matrix in either layout as spans of consecutive columns, for
+// product kernels written once for both: ForEachSpan(r, span) calls
+// span(values, first_column, length) for the taps of row r in their stored
+// order (a CSR tap is a span of one), so a kernel does the same
+// multiply-adds in the same order for both layouts.
+struct CsrRowSpans {
+  const int* outer;
+  const int* inner;
+  const float* values;
+  template <typename Span>
+  void ForEachSpan(int r, const Span& span) const {
+    for (int k = outer[r]; k < outer[r + 1]; ++k) span(values + k, inner[k], 1);
+  }
+};
+
+struct RunRowSpans {
+  const int* row_first_value;
+  const int* row_first_run;
+  const int* run_first_column;
+  const uint16_t* run_length;
+  const float* values;
+  template <typename Span>
+  void ForEachSpan(int r, const Span& span) const {
+    const float* v = values + row_first_value[r];
+    for (int run = row_first_run[r]; run < row_first_run[r + 1]; ++run) {
+      const int length = run_length[run];
+      span(v, run_first_column[run], length);
+      v += length;
+    }
+  }
+};
+
+// Throws InputError for an uncompressed CSR matrix.
+CsrRowSpans RowSpansOf(const SparseMatrixRM& a);
+RunRowSpans RowSpansOf(const RowRunMatrix& a);
+
+}  // namespace deblur_sr_mvs
