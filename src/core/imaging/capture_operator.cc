@@ -26,11 +26,9 @@ constexpr float kInsideTolerance = 1e-4f;
 constexpr int kMaxLocalGrid = 4096;
 
 // y = A x for a row-major sparse A (CSR or row runs, see RowSpansOf) and
-// interleaved C-channel images. Not auto-vectorised: gathers of scattered
-// columns are slower than scalar loads.
+// interleaved C-channel images.
 template <int kChannels, typename Rows>
-__attribute__((optimize("no-tree-vectorize"))) void MultiplyFixed(const Rows& a, int rows, const float* x,
-                                                                  float* y, int threads) {
+void MultiplyFixed(const Rows& a, int rows, const float* x, float* y, int threads) {
 #pragma omp parallel for schedule(static) num_threads(threads)
   for (int r = 0; r < rows; ++r) {
     float acc[kChannels] = {};
