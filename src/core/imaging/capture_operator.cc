@@ -202,8 +202,10 @@ void CaptureOperator::ApplyAdjoint(const cv::Mat& lr, cv::Mat* hr) const {
   if (lr.depth() != CV_32F || lr.size() != lr_size_) {
     throw InputError("capture operator ApplyAdjoint: expected a float image of the LR size");
   }
+  const int channels = lr.channels();
+  if (channels < 1 || channels > 4) throw InputError("capture operator: images must have 1 to 4 channels");
   const cv::Mat source = lr.isContinuous() ? lr : lr.clone();
-  hr->create(hr_size_, CV_32FC(lr.channels()));
+  hr->create(hr_size_, CV_32FC(channels));
   hr->setTo(0.0);
   AddAdjointProduct(forward_, source, hr, 1);
 }
