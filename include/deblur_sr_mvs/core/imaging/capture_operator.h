@@ -3,7 +3,9 @@
 // (Psi_t I)(x) = box-downsample( (1/M) sum_m I( W^{tau_m -> src}(x) ) ):
 // M virtual cameras at tau_m = t_o + ((m - 1/2)/M)(t_c - t_o), m = 1..M (the
 // midpoint of each slice of the exposure; eq:blurOperator has m/M), on the pose
-// path of eq:interpolatingP, each seeing depth D_tau_m reprojected from D_t;
+// path (PoseAtTime: eq:interpolatingP's geodesic, or the curve through the
+// frames on both sides that reduces to it at constant velocity), each seeing
+// depth D_tau_m reprojected from D_t;
 // their pixels are warped into the camera `src` whose latent image is sampled
 // (src = t for the self-consistency term eq:IPterm, a neighbour s for the
 // matching term eq:matchingTerm), read bilinearly and box-averaged by `scale`.
