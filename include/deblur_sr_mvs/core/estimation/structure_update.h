@@ -56,6 +56,21 @@ struct StructureUpdateOptions {
   // CG steps per reweighted joint system (its tolerance is
   // depth_cg_tolerance).
   int joint_cg_iterations = 30;
+  // Levenberg-Marquardt damping of the pose block inside the joint step,
+  // relative to the pose block's own diagonal (the pose update's matching
+  // terms, before the depth is eliminated). The depth can trade for a
+  // rotation (bas-relief): that direction of the reduced camera system is
+  // nearly singular, and the damping keeps the step from drifting along it.
+  double joint_pose_damping = 1e-4;
+  // Added to joint_pose_damping on the rotation components only (each
+  // frame's eps = (v, w): w): the bas-relief direction is mostly a rotation
+  // traded for a translation and a depth tilt, and the pose update that
+  // follows (longer baselines, depth held) sets the rotations.
+  double joint_rotation_damping = 0.0;
+  // The joint step matches every pair within the pose update's radius
+  // (EstimatorOptions::pose_neighbour_radius) instead of N(t): longer
+  // baselines tie each pose to more frames, in depth and pose alike.
+  bool joint_step_pose_pairs = false;
   int num_threads = 0;
   void Check() const;
 };
