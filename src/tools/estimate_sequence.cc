@@ -115,9 +115,6 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
                  "with --joint-depth-pose-step: Levenberg-Marquardt damping of the poses, relative to "
                  "their diagonal")
       ->check(dsm::FlagNumber());
-  cli.add_option("--joint-rotation-damping", options->structure.joint_rotation_damping,
-                 "with --joint-depth-pose-step: added to --joint-pose-damping on the rotations")
-      ->check(dsm::FlagNumber());
   cli.add_option("--joint-cg-iterations", options->structure.joint_cg_iterations,
                  "with --joint-depth-pose-step: CG steps per reweighting")
       ->check(dsm::FlagInt());

@@ -270,7 +270,6 @@ void StructureUpdateOptions::Check() const {
   CheckAtLeast("structure update: pose_damping", pose_damping, 0.0);
   CheckAtLeast("structure update: joint_cg_iterations", joint_cg_iterations, 1);
   CheckAtLeast("structure update: joint_pose_damping", joint_pose_damping, 0.0);
-  CheckAtLeast("structure update: joint_rotation_damping", joint_rotation_damping, 0.0);
   edge_weight.Check();
 }
 
@@ -825,12 +824,8 @@ class JointDepthPoseSystem::Impl {
         AddCoupling(t, s, pose.coupling, -1.0);
       }
     }
-    // Levenberg-Marquardt damping relative to the pose block's diagonal,
-    // stronger on the rotations (eps = (v, w)) where asked.
-    for (int i = 0; i < n; ++i) {
-      const double damping = options_.joint_pose_damping + (i % 6 >= 3 ? options_.joint_rotation_damping : 0.0);
-      pose_normal_(i, i) += damping * pose_normal_(i, i) + 1e-12;
-    }
+    // Levenberg-Marquardt damping relative to the pose block's diagonal.
+    for (int i = 0; i < n; ++i) pose_normal_(i, i) += options_.joint_pose_damping * pose_normal_(i, i) + 1e-12;
     SetGauge();
     FormReducedCameraSystem();
   }
