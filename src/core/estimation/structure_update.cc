@@ -471,19 +471,35 @@ class DepthNormalEquations {
   // weighted products with Psi A_k and W r0, and G^T Psi^T W Psi A_j.
   void CouplePoses(const PairMatching& pair, PairState* state) {
     PoseCoupling& pose = state->pose;
-    std::array<cv::Mat, 6> projected, weighted;
     cv::multiply(state->residual, state->weight, predicted_);
     for (int j = 0; j < 6; ++j) {
-      Predict(pair, pose_jacobians_[j], &projected[j]);
-      cv::multiply(projected[j], state->weight, weighted[j]);
-      pose.rhs(j) = Dot1(projected[j], predicted_);
-      PredictAdjoint(pair, weighted[j], &back_);
+      Predict(pair, pose_jacobians_[j], &projected_[j]);
+      cv::multiply(projected_[j], state->weight, weighted_[j]);
+      PredictAdjoint(pair, weighted_[j], &back_);
       pose.coupling[j].create(height_, width_, CV_32FC1);
       ContractChannels(state->lin.d_inverse_depth, back_, &pose.coupling[j], false);
     }
-    for (int j = 0; j < 6; ++j) {
-      for (int k = 0; k <= j; ++k) pose.block(j, k) = pose.block(k, j) = Dot1(weighted[j], projected[k]);
+    PoseProducts(projected_, weighted_, predicted_, &pose.block, &pose.rhs);
+  }
+
+  // block(j, k) = sum a_j (w a_k) and rhs(j) = sum a_j (w r0) over every
+  // value of the images (row by row: float within a row, double across
+  // rows, so that the six images' rows stay in cache for the 27 products).
+  static void PoseProducts(const std::array<cv::Mat, 6>& a, const std::array<cv::Mat, 6>& weighted_a,
+                           const cv::Mat& weighted_residual, Eigen::Matrix<double, 6, 6>* block, Vector6d* rhs) {
+    using Row = Eigen::Map<const Eigen::VectorXf>;
+    block->setZero();
+    rhs->setZero();
+    const int n = a[0].cols * a[0].channels();
+    for (int y = 0; y < a[0].rows; ++y) {
+      const Row r(weighted_residual.ptr<float>(y), n);
+      for (int j = 0; j < 6; ++j) {
+        const Row a_j(a[j].ptr<float>(y), n), weighted_j(weighted_a[j].ptr<float>(y), n);
+        (*rhs)(j) += a_j.dot(r);
+        for (int k = 0; k <= j; ++k) (*block)(j, k) += weighted_j.dot(Row(a[k].ptr<float>(y), n));
+      }
     }
+    *block = block->selfadjointView<Eigen::Lower>();
   }
 
   // The self term (eq:IPterm): r = (B - Psi I) - Box(h .* moved), the linear
@@ -554,6 +570,7 @@ class DepthNormalEquations {
   cv::Mat hr_diagonal_, squared_, diagonal_;
   cv::Mat expanded_, predicted_, back_;  // scratch
   std::vector<cv::Mat> pose_jacobians_;  // scratch: A_j of the pair being linearised
+  std::array<cv::Mat, 6> projected_, weighted_;  // scratch: Psi A_j and W Psi A_j
   double damping_ = 0.0;
 };
 

@@ -50,8 +50,10 @@ struct StructureUpdateOptions {
   // Joint depth + pose step (UpdateDepthAndPoses): the estimator replaces the
   // per-frame depth updates by one Gauss-Newton/IRLS step in which every
   // frame's inverse depth and the free poses move together, so that depth
-  // cannot absorb a pose error; the pose update follows as before. Off
-  // until measured (BENCHMARKS.md "Joint depth + pose step (Schur)").
+  // cannot absorb a pose error; the pose update follows as before. Off:
+  // measured better in depth and ATE than the per-frame depth updates on
+  // every path, but 57 % more CPU per run (BENCHMARKS.md "Joint depth + pose
+  // step (Schur)").
   bool joint_depth_pose_step = false;
   // CG steps per reweighted joint system (its tolerance is
   // depth_cg_tolerance).
@@ -67,7 +69,9 @@ struct StructureUpdateOptions {
   double joint_pose_damping = 0.01;
   // The joint step matches every pair within the pose update's radius
   // (EstimatorOptions::pose_neighbour_radius) instead of N(t): longer
-  // baselines tie each pose to more frames, in depth and pose alike.
+  // baselines tie each pose to more frames, in depth and pose alike. Off:
+  // measured, it holds the lateral poses but loses depth on the arc and
+  // hand-held paths and costs a fifth more.
   bool joint_step_pose_pairs = false;
   int num_threads = 0;
   void Check() const;
