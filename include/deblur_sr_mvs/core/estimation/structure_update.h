@@ -52,7 +52,7 @@ struct StructureUpdateOptions {
   // frame's inverse depth and the free poses move together, so that depth
   // cannot absorb a pose error; the pose update follows as before. Off:
   // measured better in depth and ATE than the per-frame depth updates on
-  // every path, but 57 % more CPU per run (BENCHMARKS.md "Joint depth + pose
+  // every path, but 42 % more CPU per run (BENCHMARKS.md "Joint depth + pose
   // step (Schur)").
   bool joint_depth_pose_step = false;
   // CG steps per reweighted joint system (its tolerance is
