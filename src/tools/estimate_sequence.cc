@@ -111,6 +111,15 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
                options->structure.joint_depth_pose_step,
                "the structure update moves all depths and the free poses in one Gauss-Newton step "
                "(default off)");
+  cli.add_option("--joint-pose-damping", options->structure.joint_pose_damping,
+                 "with --joint-depth-pose-step: Levenberg-Marquardt damping of the poses, relative to "
+                 "their diagonal")
+      ->check(dsm::FlagNumber());
+  cli.add_option("--joint-cg-iterations", options->structure.joint_cg_iterations,
+                 "with --joint-depth-pose-step: CG steps per reweighting")
+      ->check(dsm::FlagInt());
+  cli.add_flag("--joint-pose-pairs,!--no-joint-pose-pairs", options->structure.joint_step_pose_pairs,
+               "with --joint-depth-pose-step: match the pairs within the pose radius, not only N(t)");
   cli.add_option("--structure-matching", flags->structure_matching, "both, restored or blurred")
       ->check(CLI::IsMember({"both", "restored", "blurred"}));
   cli.add_option("--exposure", flags->exposure,

@@ -802,7 +802,8 @@ void WindowSolver::UpdateFrameDepth(int t, int iteration, bool isolated, const s
 
 // Every D_t and the free poses in one Gauss-Newton/IRLS step from the depth
 // updates' terms (UpdateDepthAndPoses), in place of the per-frame depth
-// updates; the pose update with its longer baselines follows. With
+// updates (with joint_step_pose_pairs, from the pairs within the pose
+// radius); the pose update with its longer baselines follows. With
 // `isolated` (baseline) the step is kept only if it lowers the energy.
 void WindowSolver::UpdateDepthsAndPosesJointly(int iteration, bool isolated,
                                                const StructureUpdateOptions& structure_options) {
@@ -814,7 +815,10 @@ void WindowSolver::UpdateDepthsAndPosesJointly(int iteration, bool isolated,
   std::vector<SE3> poses(num_frames_);
   std::vector<cv::Mat> inverse_depths(num_frames_), saved_depths = inverse_depth_;
   for (int t = 0; t < num_frames_; ++t) {
-    AppendPairs(t, neighbours_[t], options_.depth_input_pairs, &terms[t].pairs, &held);
+    const std::vector<int> sources = structure_options.joint_step_pose_pairs
+                                         ? Neighbours(t, num_frames_, PoseRadius())
+                                         : neighbours_[t];
+    AppendPairs(t, sources, options_.depth_input_pairs, &terms[t].pairs, &held);
     if (blurred_matching()) {
       selves[t] = SelfConsistencyOf(t);
       terms[t].self = &selves[t];

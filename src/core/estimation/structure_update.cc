@@ -269,6 +269,7 @@ void StructureUpdateOptions::Check() const {
   CheckAtLeast("structure update: depth_damping", depth_damping, 0.0);
   CheckAtLeast("structure update: pose_damping", pose_damping, 0.0);
   CheckAtLeast("structure update: joint_cg_iterations", joint_cg_iterations, 1);
+  CheckAtLeast("structure update: joint_pose_damping", joint_pose_damping, 0.0);
   edge_weight.Check();
 }
 
@@ -470,19 +471,35 @@ class DepthNormalEquations {
   // weighted products with Psi A_k and W r0, and G^T Psi^T W Psi A_j.
   void CouplePoses(const PairMatching& pair, PairState* state) {
     PoseCoupling& pose = state->pose;
-    std::array<cv::Mat, 6> projected, weighted;
     cv::multiply(state->residual, state->weight, predicted_);
     for (int j = 0; j < 6; ++j) {
-      Predict(pair, pose_jacobians_[j], &projected[j]);
-      cv::multiply(projected[j], state->weight, weighted[j]);
-      pose.rhs(j) = Dot1(projected[j], predicted_);
-      PredictAdjoint(pair, weighted[j], &back_);
+      Predict(pair, pose_jacobians_[j], &projected_[j]);
+      cv::multiply(projected_[j], state->weight, weighted_[j]);
+      PredictAdjoint(pair, weighted_[j], &back_);
       pose.coupling[j].create(height_, width_, CV_32FC1);
       ContractChannels(state->lin.d_inverse_depth, back_, &pose.coupling[j], false);
     }
-    for (int j = 0; j < 6; ++j) {
-      for (int k = 0; k <= j; ++k) pose.block(j, k) = pose.block(k, j) = Dot1(weighted[j], projected[k]);
+    PoseProducts(projected_, weighted_, predicted_, &pose.block, &pose.rhs);
+  }
+
+  // block(j, k) = sum a_j (w a_k) and rhs(j) = sum a_j (w r0) over every
+  // value of the images (row by row: float within a row, double across
+  // rows, so that the six images' rows stay in cache for the 27 products).
+  static void PoseProducts(const std::array<cv::Mat, 6>& a, const std::array<cv::Mat, 6>& weighted_a,
+                           const cv::Mat& weighted_residual, Eigen::Matrix<double, 6, 6>* block, Vector6d* rhs) {
+    using Row = Eigen::Map<const Eigen::VectorXf>;
+    block->setZero();
+    rhs->setZero();
+    const int n = a[0].cols * a[0].channels();
+    for (int y = 0; y < a[0].rows; ++y) {
+      const Row r(weighted_residual.ptr<float>(y), n);
+      for (int j = 0; j < 6; ++j) {
+        const Row a_j(a[j].ptr<float>(y), n), weighted_j(weighted_a[j].ptr<float>(y), n);
+        (*rhs)(j) += a_j.dot(r);
+        for (int k = 0; k <= j; ++k) (*block)(j, k) += weighted_j.dot(Row(a[k].ptr<float>(y), n));
+      }
     }
+    *block = block->selfadjointView<Eigen::Lower>();
   }
 
   // The self term (eq:IPterm): r = (B - Psi I) - Box(h .* moved), the linear
@@ -553,6 +570,7 @@ class DepthNormalEquations {
   cv::Mat hr_diagonal_, squared_, diagonal_;
   cv::Mat expanded_, predicted_, back_;  // scratch
   std::vector<cv::Mat> pose_jacobians_;  // scratch: A_j of the pair being linearised
+  std::array<cv::Mat, 6> projected_, weighted_;  // scratch: Psi A_j and W Psi A_j
   double damping_ = 0.0;
 };
 
@@ -823,8 +841,8 @@ class JointDepthPoseSystem::Impl {
         AddCoupling(t, s, pose.coupling, -1.0);
       }
     }
-    // Levenberg-Marquardt damping as in UpdatePoses.
-    for (int i = 0; i < n; ++i) pose_normal_(i, i) += options_.pose_damping * pose_normal_(i, i) + 1e-12;
+    // Levenberg-Marquardt damping relative to the pose block's diagonal.
+    for (int i = 0; i < n; ++i) pose_normal_(i, i) += options_.joint_pose_damping * pose_normal_(i, i) + 1e-12;
     SetGauge();
     FormReducedCameraSystem();
   }
@@ -933,11 +951,13 @@ class JointDepthPoseSystem::Impl {
   }
 
  private:
-  // Frame t's inverse depths coupled to the pose of `frame`: column j of
-  // N_dp restricted to t's pixels, and the same divided by D_t.
+  // Frame t's inverse depths coupled to the pose of `frame`: the 6 columns
+  // of N_dp restricted to t's pixels, interleaved pixel by pixel
+  // (CV_32FC(6): one pass over memory serves all six), and the same divided
+  // by D_t.
   struct Coupling {
     int frame = 0;
-    std::array<cv::Mat, 6> images, scaled;
+    cv::Mat images, scaled;
   };
 
   // N_pd d for the depth part of `flat` (with `divided`: N_pd D^-1 d).
@@ -947,18 +967,31 @@ class JointDepthPoseSystem::Impl {
     for (int t = 0; t < num_frames_; ++t) {
       const cv::Mat depth = DepthView(flat, t);
       for (const Coupling& c : couplings_[t]) {
-        for (int j = 0; j < 6; ++j)
-          parts[t](6 * c.frame + j) = Dot1(divided ? c.scaled[j] : c.images[j], depth);
+        parts[t].segment<6>(6 * c.frame) = CouplingTimesDepth(divided ? c.scaled : c.images, depth);
       }
     }
     Eigen::VectorXd sum = Eigen::VectorXd::Zero(6 * num_frames_);
     for (const Eigen::VectorXd& part : parts) sum += part;
     return sum;
   }
-  // depth += scale * (N_dp poses) on frame t's rows.
+  // depth += scale * (N_dp poses) on frame t's rows, in one pass.
   void AddDepthsFromPoses(int t, const Eigen::VectorXd& poses, double scale, cv::Mat* depth) const {
-    for (const Coupling& c : couplings_[t]) {
-      for (int j = 0; j < 6; ++j) cv::scaleAdd(c.images[j], scale * poses(6 * c.frame + j), *depth, *depth);
+    const int count = static_cast<int>(couplings_[t].size());
+    if (count == 0) return;
+    std::vector<float> factors(6 * count);
+    std::vector<const float*> columns(count);
+    for (int c = 0; c < count; ++c) {
+      columns[c] = couplings_[t][c].images.ptr<float>();
+      for (int j = 0; j < 6; ++j)
+        factors[6 * c + j] = static_cast<float>(scale * poses(6 * couplings_[t][c].frame + j));
+    }
+    float* out = depth->ptr<float>();
+    for (int i = 0; i < pixels_; ++i) {
+      float sum = 0.0f;
+      for (int c = 0; c < count; ++c) {
+        for (int j = 0; j < 6; ++j) sum += factors[6 * c + j] * columns[c][6 * i + j];
+      }
+      out[i] += sum;
     }
   }
 
@@ -968,11 +1001,15 @@ class JointDepthPoseSystem::Impl {
     if (it == couplings_[t].end()) {
       Coupling c;
       c.frame = frame;
-      for (cv::Mat& image : c.images) image = cv::Mat::zeros(size_, CV_32FC1);
+      c.images = cv::Mat::zeros(size_, CV_32FC(6));
       couplings_[t].push_back(std::move(c));
       it = couplings_[t].end() - 1;
     }
-    for (int j = 0; j < 6; ++j) cv::scaleAdd(images[j], sign, it->images[j], it->images[j]);
+    float* out = it->images.ptr<float>();
+    for (int j = 0; j < 6; ++j) {
+      const float* in = images[j].ptr<float>();
+      for (int i = 0; i < pixels_; ++i) out[6 * i + j] += static_cast<float>(sign) * in[i];
+    }
   }
 
   // The scale of a window with one held pose: the component of the first
@@ -998,14 +1035,17 @@ class JointDepthPoseSystem::Impl {
     Eigen::MatrixXd reduced = pose_normal_;
     for (int t = 0; t < num_frames_; ++t) {
       for (Coupling& c : couplings_[t]) {
-        for (int j = 0; j < 6; ++j) cv::divide(c.images[j], systems_[t]->diagonal(), c.scaled[j]);
+        c.scaled.create(size_, CV_32FC(6));
+        const float* diagonal = systems_[t]->diagonal().ptr<float>();
+        const float* in = c.images.ptr<float>();
+        float* out = c.scaled.ptr<float>();
+        for (int i = 0; i < pixels_; ++i) {
+          for (int j = 0; j < 6; ++j) out[6 * i + j] = in[6 * i + j] / diagonal[i];
+        }
       }
       for (const Coupling& a : couplings_[t]) {
         for (const Coupling& b : couplings_[t]) {
-          for (int j = 0; j < 6; ++j) {
-            for (int k = 0; k < 6; ++k)
-              reduced(6 * a.frame + j, 6 * b.frame + k) -= Dot1(a.scaled[j], b.images[k]);
-          }
+          reduced.block<6, 6>(6 * a.frame, 6 * b.frame) -= CouplingProduct(a.scaled, b.images);
         }
       }
     }
@@ -1016,6 +1056,28 @@ class JointDepthPoseSystem::Impl {
     if (reduced_solver_.info() != Eigen::Success || !reduced_solver_.isPositive()) {
       reduced_solver_.compute(projection * pose_normal_ * projection + complement);
     }
+  }
+  // sum_i a_i d_i over the pixels of an interleaved coupling image and a
+  // depth image (float within a row, double across rows).
+  Vector6d CouplingTimesDepth(const cv::Mat& a, const cv::Mat& depth) const {
+    Vector6d sum = Vector6d::Zero();
+    for (int y = 0; y < size_.height; ++y) {
+      const Eigen::Map<const Eigen::Matrix<float, 6, Eigen::Dynamic>> rows_a(a.ptr<float>(y), 6, size_.width);
+      const Eigen::Map<const Eigen::VectorXf> row_d(depth.ptr<float>(y), size_.width);
+      sum += (rows_a * row_d).cast<double>();
+    }
+    return sum;
+  }
+  // sum_i a_i b_i^T over the pixels of two interleaved coupling images
+  // (float within a row, double across rows).
+  Eigen::Matrix<double, 6, 6> CouplingProduct(const cv::Mat& a, const cv::Mat& b) const {
+    Eigen::Matrix<double, 6, 6> sum = Eigen::Matrix<double, 6, 6>::Zero();
+    for (int y = 0; y < size_.height; ++y) {
+      const Eigen::Map<const Eigen::Matrix<float, 6, Eigen::Dynamic>> rows_a(a.ptr<float>(y), 6, size_.width);
+      const Eigen::Map<const Eigen::Matrix<float, 6, Eigen::Dynamic>> rows_b(b.ptr<float>(y), 6, size_.width);
+      sum += (rows_a * rows_b.transpose()).cast<double>();
+    }
+    return sum;
   }
   void ProjectColumn(Eigen::MatrixXd* matrix, int i) const {
     Eigen::VectorXd column = matrix->col(i);

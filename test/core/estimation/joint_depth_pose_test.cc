@@ -24,7 +24,11 @@ struct PlaneScene {
                                   SE3::Exp((Vector6d() << 0.12, 0.01, 0.0, 0.01, -0.02, 0.005).finished())};
   std::vector<cv::Mat> images, inverse_depths;
 
-  PlaneScene() {
+  // `third`: a third camera twice as far along the baseline as the second.
+  explicit PlaneScene(bool third = false) {
+    if (third) {
+      T_world_cam.push_back(SE3::Exp((Vector6d() << 0.24, 0.015, 0.01, 0.015, -0.03, 0.01).finished()));
+    }
     for (const SE3& pose : T_world_cam) {
       cv::Mat image(camera.height, camera.width, CV_32FC3),
           inverse_depth(camera.height, camera.width, CV_32FC1);
@@ -46,21 +50,150 @@ struct PlaneScene {
     }
   }
 
-  // Both ordered pairs (0 <- 1, 1 <- 0) on the HR images, as the depth
-  // update of each frame sees them; `mask` (optional) limits the pixels.
+  // Every ordered pair (t <- s) on the HR images, as the depth update of
+  // each frame sees them (two frames: 0 <- 1, 1 <- 0; three: also the pairs
+  // two frames apart); `mask` (optional) limits the pixels.
   std::vector<FrameDepthTerms> Terms(const cv::Mat& mask) const {
-    std::vector<FrameDepthTerms> terms(2);
-    for (int t = 0; t < 2; ++t) {
-      PairMatching pair;
-      pair.t = t;
-      pair.s = 1 - t;
-      pair.observation = &images[t];
-      pair.mask = mask;
-      terms[t].pairs.push_back(pair);
+    const int frames = static_cast<int>(T_world_cam.size());
+    std::vector<FrameDepthTerms> terms(frames);
+    for (int t = 0; t < frames; ++t) {
+      for (int s = 0; s < frames; ++s) {
+        if (s == t) continue;
+        PairMatching pair;
+        pair.t = t;
+        pair.s = s;
+        pair.observation = &images[t];
+        pair.mask = mask;
+        terms[t].pairs.push_back(pair);
+      }
     }
     return terms;
   }
 };
+
+// The quadratic and linear forms sum_p sum_i w_i (J_p x)_i^2 and sum_p
+// sum_i w_i r0_i (J_p x)_i of the pairs of `terms` along a direction x, J_p x
+// the directional derivative of the warped image by central differences and
+// w the IRLS weights at the linearisation point (rho, poses);
+// absolute_linear = sum |w_i r0_i (J_p x)_i|, the size of the linear form's
+// terms before they cancel.
+struct NumericForms {
+  double quadratic = 0.0, linear = 0.0, absolute_linear = 0.0;
+};
+NumericForms NumericNormalForms(const PlaneScene& scene, const std::vector<FrameDepthTerms>& terms,
+                                const std::vector<cv::Mat>& rho, const std::vector<SE3>& poses,
+                                const JointStep& x, double residual_epsilon) {
+  const double h = 1e-3;
+  auto warped_at = [&](const PairMatching& pair, double step) {
+    auto moved = [&](int f) { return SE3::Exp(step * x.poses.segment<6>(6 * f)) * poses[f]; };
+    const cv::Mat rho_t = rho[pair.t] + step * x.inverse_depths[pair.t];
+    return LinearizeWarp(scene.camera, rho_t, moved(pair.t), moved(pair.s), scene.images[pair.s], nullptr);
+  };
+  NumericForms forms;
+  for (const FrameDepthTerms& frame : terms) {
+    for (const PairMatching& pair : frame.pairs) {
+      const WarpLinearization at = warped_at(pair, 0.0), plus = warped_at(pair, h), minus = warped_at(pair, -h);
+      for (int y = 0; y < scene.camera.height; ++y) {
+        for (int xx = 0; xx < scene.camera.width; ++xx) {
+          if (!pair.mask.at<uchar>(y, xx)) continue;
+          EXPECT_TRUE(at.valid.at<uchar>(y, xx) && plus.valid.at<uchar>(y, xx) && minus.valid.at<uchar>(y, xx));
+          for (int c = 0; c < 3; ++c) {
+            const double r0 =
+                scene.images[pair.t].at<cv::Vec3f>(y, xx)[c] - at.warped.at<cv::Vec3f>(y, xx)[c];
+            const double w = 1.0 / std::max(std::abs(r0), residual_epsilon);
+            const double jx =
+                (plus.warped.at<cv::Vec3f>(y, xx)[c] - minus.warped.at<cv::Vec3f>(y, xx)[c]) / (2 * h);
+            forms.quadratic += w * jx * jx;
+            forms.linear += w * r0 * jx;
+            forms.absolute_linear += std::abs(w * r0 * jx);
+          }
+        }
+      }
+    }
+  }
+  return forms;
+}
+
+// x^T N x and rhs^T x of the joint system.
+NumericForms SystemForms(JointDepthPoseSystem* system, const JointStep& rhs, const JointStep& x) {
+  const JointStep nx = system->ApplyNormal(x);
+  NumericForms forms{x.poses.dot(nx.poses), x.poses.dot(rhs.poses)};
+  for (size_t t = 0; t < x.inverse_depths.size(); ++t) {
+    forms.quadratic += x.inverse_depths[t].dot(nx.inverse_depths[t]);
+    forms.linear += x.inverse_depths[t].dot(rhs.inverse_depths[t]);
+  }
+  return forms;
+}
+
+// A smooth inverse-depth increment per frame (0.01 amplitude).
+std::vector<cv::Mat> DepthDirection(int frames) {
+  std::vector<cv::Mat> directions;
+  for (int t = 0; t < frames; ++t) {
+    cv::Mat d(72, 96, CV_32FC1);
+    for (int y = 0; y < 72; ++y) {
+      for (int xx = 0; xx < 96; ++xx) d.at<float>(y, xx) = 0.01f * std::sin(0.1f * xx + 0.2f * y + t);
+    }
+    directions.push_back(d);
+  }
+  return directions;
+}
+
+// No TV, no damping: the normal equations of the data terms alone.
+StructureUpdateOptions DataTermsOnly() {
+  StructureUpdateOptions options;
+  options.lambda_d = 0.0;
+  options.depth_damping = 0.0;
+  options.joint_pose_damping = 0.0;
+  return options;
+}
+
+// A linearisation point off the truth (residuals not all small), so that
+// the IRLS weights vary.
+struct LinearisationPoint {
+  std::vector<cv::Mat> rho;
+  std::vector<SE3> poses;
+};
+LinearisationPoint OffTheTruth(const PlaneScene& scene) {
+  const double factors[] = {1.02, 0.99, 1.01};
+  const Vector6d moves[] = {Vector6d::Zero(),
+                            (Vector6d() << 0.0, 0.003, -0.002, 0.001, 0.0, -0.001).finished(),
+                            (Vector6d() << 0.002, -0.002, 0.001, 0.0, 0.001, 0.001).finished()};
+  LinearisationPoint point;
+  for (size_t t = 0; t < scene.T_world_cam.size(); ++t) {
+    point.rho.push_back(scene.inverse_depths[t] * factors[t]);
+    point.poses.push_back(SE3::Exp(moves[t]) * scene.T_world_cam[t]);
+  }
+  return point;
+}
+
+// The joint system's forms x^T N x and rhs^T x (no TV, no damping, the
+// first pose held) and the numeric ones along x at OffTheTruth, after
+// projecting x's poses onto the gauge; checks the quadratic forms (3 %).
+std::pair<NumericForms, NumericForms> FormsAlong(const PlaneScene& scene, const std::vector<FrameDepthTerms>& terms,
+                                                 JointStep* x) {
+  const StructureUpdateOptions options = DataTermsOnly();
+  const auto [rho, poses] = OffTheTruth(scene);
+  JointDepthPoseSystem system(scene.camera, poses, scene.images, terms, /*parallax_scale=*/8.0, options, 1);
+  system.Linearize(rho);
+  const JointStep rhs = system.RightHandSide(rho);
+  system.ProjectGauge(&x->poses);
+  const NumericForms analytic = SystemForms(&system, rhs, *x);
+  const NumericForms numeric = NumericNormalForms(scene, terms, rho, poses, *x, options.residual_epsilon);
+  std::printf("%zu frames: x^T N x: %.6g (numeric %.6g); rhs^T x: %.6g (numeric %.6g, sum of |terms| %.6g)\n",
+              rho.size(), analytic.quadratic, numeric.quadratic, analytic.linear, numeric.linear,
+              numeric.absolute_linear);
+  EXPECT_GT(numeric.quadratic, 0.0);
+  EXPECT_NEAR(analytic.quadratic, numeric.quadratic, 0.03 * numeric.quadratic);
+  return {analytic, numeric};
+}
+
+// The pixels inside `rect` (whose warps stay inside the other images under
+// the probes).
+cv::Mat PixelMask(const cv::Rect& rect) {
+  cv::Mat mask = cv::Mat::zeros(72, 96, CV_8UC1);
+  mask(rect).setTo(255);
+  return mask;
+}
 
 // The quadratic and linear forms of the joint normal equations along a
 // direction x = (d_0, d_1, eps_1) against the directional derivative J x of
@@ -69,73 +202,85 @@ struct PlaneScene {
 // (J_p x)_i, w the IRLS weights at the linearisation point.
 TEST(JointDepthPoseSystem, NormalEquationsMatchNumericDifferences) {
   const PlaneScene scene;
-  // The pixels whose warps stay inside the other image under the probes.
-  cv::Mat mask = cv::Mat::zeros(72, 96, CV_8UC1);
-  mask(cv::Rect(14, 10, 68, 52)).setTo(255);
-  const std::vector<FrameDepthTerms> terms = scene.Terms(mask);
-  StructureUpdateOptions options;
-  options.lambda_d = 0.0;
-  options.depth_damping = 0.0;
-  options.pose_damping = 0.0;
-  // A linearisation point off the truth (residuals not all small), so that
-  // the IRLS weights vary.
-  std::vector<cv::Mat> rho = {scene.inverse_depths[0] * 1.02, scene.inverse_depths[1] * 0.99};
-  std::vector<SE3> poses = scene.T_world_cam;
-  poses[1] = SE3::Exp((Vector6d() << 0.0, 0.003, -0.002, 0.001, 0.0, -0.001).finished()) * poses[1];
-  JointDepthPoseSystem system(scene.camera, poses, scene.images, terms, /*parallax_scale=*/8.0, options, 1);
-  system.Linearize(rho);
-  const JointStep rhs = system.RightHandSide(rho);
-
+  const std::vector<FrameDepthTerms> terms = scene.Terms(PixelMask(cv::Rect(14, 10, 68, 52)));
   JointStep x;
-  for (int t = 0; t < 2; ++t) {
-    cv::Mat d(72, 96, CV_32FC1);
-    for (int y = 0; y < 72; ++y) {
-      for (int xx = 0; xx < 96; ++xx) d.at<float>(y, xx) = 0.01f * std::sin(0.1f * xx + 0.2f * y + t);
-    }
-    x.inverse_depths.push_back(d);
-  }
+  x.inverse_depths = DepthDirection(2);
   x.poses = Eigen::VectorXd::Zero(12);
   x.poses.segment<6>(6) << 0.004, -0.003, 0.002, 0.002, -0.003, 0.002;
-  system.ProjectGauge(&x.poses);
+  const auto [analytic, numeric] = FormsAlong(scene, terms, &x);
   EXPECT_TRUE(x.poses.head<6>().isZero());  // frame 0 held
   EXPECT_GT(x.poses.segment<6>(6).norm(), 0.0);
-  const JointStep nx = system.ApplyNormal(x);
-  double quadratic = x.poses.dot(nx.poses), linear = x.poses.dot(rhs.poses);
-  for (int t = 0; t < 2; ++t) {
-    quadratic += x.inverse_depths[t].dot(nx.inverse_depths[t]);
-    linear += x.inverse_depths[t].dot(rhs.inverse_depths[t]);
-  }
+  EXPECT_NEAR(analytic.linear, numeric.linear, 0.03 * std::abs(numeric.linear));
+}
 
-  const double h = 1e-3;
-  auto warped_at = [&](int t, double step) {
-    std::vector<SE3> moved = poses;
-    moved[1] = SE3::Exp(step * x.poses.segment<6>(6)) * poses[1];
-    const cv::Mat rho_t = rho[t] + step * x.inverse_depths[t];
-    return LinearizeWarp(scene.camera, rho_t, moved[t], moved[1 - t], scene.images[1 - t], nullptr);
-  };
-  double numeric_quadratic = 0.0, numeric_linear = 0.0;
-  for (int t = 0; t < 2; ++t) {
-    const WarpLinearization at = warped_at(t, 0.0), plus = warped_at(t, h), minus = warped_at(t, -h);
-    for (int y = 0; y < 72; ++y) {
-      for (int xx = 0; xx < 96; ++xx) {
-        if (!mask.at<uchar>(y, xx)) continue;
-        ASSERT_TRUE(at.valid.at<uchar>(y, xx) && plus.valid.at<uchar>(y, xx) && minus.valid.at<uchar>(y, xx));
-        for (int c = 0; c < 3; ++c) {
-          const double r0 = scene.images[t].at<cv::Vec3f>(y, xx)[c] - at.warped.at<cv::Vec3f>(y, xx)[c];
-          const double w = 1.0 / std::max(std::abs(r0), options.residual_epsilon);
-          const double jx =
-              (plus.warped.at<cv::Vec3f>(y, xx)[c] - minus.warped.at<cv::Vec3f>(y, xx)[c]) / (2 * h);
-          numeric_quadratic += w * jx * jx;
-          numeric_linear += w * r0 * jx;
-        }
-      }
+// Three frames with the pairs two frames apart (the pose radius's pairs,
+// joint_step_pose_pairs) and two free poses: the pose block couples frames 0
+// and 2 directly, and the forms still match central differences, along all
+// unknowns and along frame 0's depth with frame 2's pose.
+TEST(JointDepthPoseSystem, PairsTwoFramesApartMatchNumericDifferences) {
+  const PlaneScene scene(/*third=*/true);
+  const std::vector<FrameDepthTerms> terms = scene.Terms(PixelMask(cv::Rect(24, 12, 48, 48)));
+  ASSERT_EQ(terms[0].pairs.size(), 2u);
+  EXPECT_EQ(terms[0].pairs[1].s, 2);
+  JointStep x;
+  x.inverse_depths = DepthDirection(3);
+  x.poses = Eigen::VectorXd::Zero(18);
+  x.poses.segment<6>(6) << 0.004, -0.003, 0.002, 0.002, -0.003, 0.002;
+  x.poses.segment<6>(12) << -0.003, 0.002, 0.003, -0.002, 0.002, 0.001;
+  const auto [analytic, numeric] = FormsAlong(scene, terms, &x);
+  // The six pairs' linear forms nearly cancel (measured: -1.82 against
+  // -1.69 numeric, from terms whose absolute values sum to 207; pair by pair
+  // they agree to 0.5 % of that pair's sum): compared at the scale of the
+  // terms.
+  EXPECT_NEAR(analytic.linear, numeric.linear, 0.01 * numeric.absolute_linear);
+
+
+  // Frame 0's depth and frame 2's pose only: their cross term comes from the
+  // pair 0 <- 2 alone (and 2 <- 0's pose block).
+  JointStep apart;
+  apart.inverse_depths = DepthDirection(3);
+  apart.inverse_depths[1].setTo(0.0);
+  apart.inverse_depths[2].setTo(0.0);
+  apart.poses = Eigen::VectorXd::Zero(18);
+  apart.poses.segment<6>(12) << -0.003, 0.002, 0.003, -0.002, 0.002, 0.001;
+  const auto [apart_analytic, apart_numeric] = FormsAlong(scene, terms, &apart);
+  EXPECT_NEAR(apart_analytic.linear, apart_numeric.linear, 0.01 * apart_numeric.absolute_linear);
+}
+
+// The Levenberg-Marquardt damping of the pose block (joint_pose_damping):
+// N_pp's diagonal grows by that factor, its off-diagonal entries and the
+// depth rows stay. Two held frames leave frame 2's pose free with no scale
+// gauge, so unit directions are admissible; the undamped diagonal is also
+// checked against central differences (sum_i w_i (J e_k)_i^2).
+TEST(JointDepthPoseSystem, PoseDampingScalesThePoseDiagonal) {
+  const PlaneScene scene(/*third=*/true);
+  const std::vector<FrameDepthTerms> terms = scene.Terms(PixelMask(cv::Rect(24, 12, 48, 48)));
+  const auto [rho, poses] = OffTheTruth(scene);
+  const StructureUpdateOptions options = DataTermsOnly();
+  StructureUpdateOptions damped_options = options;
+  damped_options.joint_pose_damping = 0.5;
+  JointDepthPoseSystem plain(scene.camera, poses, scene.images, terms, 8.0, options, 2);
+  JointDepthPoseSystem damped(scene.camera, poses, scene.images, terms, 8.0, damped_options, 2);
+  plain.Linearize(rho);
+  damped.Linearize(rho);
+  for (int k = 12; k < 18; ++k) {
+    JointStep unit;
+    unit.inverse_depths = std::vector<cv::Mat>(3, cv::Mat::zeros(72, 96, CV_32FC1));
+    unit.poses = Eigen::VectorXd::Zero(18);
+    unit.poses(k) = 1e-3;
+    const JointStep n_plain = plain.ApplyNormal(unit), n_damped = damped.ApplyNormal(unit);
+    const double diagonal = n_plain.poses(k) / 1e-3;
+    EXPECT_NEAR(n_damped.poses(k) / 1e-3, 1.5 * diagonal, 1e-4 * diagonal) << "component " << k;
+    for (int i = 12; i < 18; ++i) {
+      if (i == k) continue;
+      EXPECT_NEAR(n_damped.poses(i), n_plain.poses(i), 1e-6 * std::abs(n_plain.poses(k)));
     }
+    for (int t = 0; t < 3; ++t) EXPECT_EQ(cv::norm(n_damped.inverse_depths[t], n_plain.inverse_depths[t]), 0.0);
+    const JointStep rhs = plain.RightHandSide(rho);
+    const NumericForms numeric = NumericNormalForms(scene, terms, rho, poses, unit, options.residual_epsilon);
+    EXPECT_NEAR(unit.poses.dot(n_plain.poses), numeric.quadratic, 0.03 * numeric.quadratic) << "component " << k;
+    EXPECT_NEAR(unit.poses.dot(rhs.poses), numeric.linear, 0.01 * numeric.absolute_linear) << "component " << k;
   }
-  std::printf("x^T N x: %.6g (numeric %.6g); rhs^T x: %.6g (numeric %.6g)\n", quadratic, numeric_quadratic,
-              linear, numeric_linear);
-  EXPECT_GT(numeric_quadratic, 0.0);
-  EXPECT_NEAR(quadratic, numeric_quadratic, 0.03 * numeric_quadratic);
-  EXPECT_NEAR(linear, numeric_linear, 0.03 * std::abs(numeric_linear));
 }
 
 double PoseError(const SE3& estimate, const SE3& truth) {
@@ -198,9 +343,10 @@ StepResult RunStructureUpdates(const PlaneScene& scene, bool joint, int rounds) 
 
 // Measured (3 rounds): from pose error 9.0e-3 and depth error 0.060 the
 // alternation ends at 1.2e-2 and 0.058 (the depth absorbed the pose error:
-// the pose update then finds the biased depth consistent), the joint step at
-// 4.2e-3 and 0.025. After one round the joint step's pose error is still
-// above the start (1.6e-2 against 1.3e-2 for the alternation): the depth
+// the pose update then finds the biased depth consistent), the joint step
+// (default joint_pose_damping 0.01) at 4.7e-3 and 0.021 (4.2e-3 and 0.025
+// with damping 1e-4). After one round the joint step's pose error is still
+// above the start (1.4e-2 against 1.3e-2 for the alternation): the depth
 // starts fronto-parallel, and the poses follow it first.
 TEST(UpdateDepthAndPoses, BeatsTheAlternationFromAPerturbedPose) {
   const PlaneScene scene;
@@ -223,6 +369,12 @@ TEST(UpdateDepthAndPoses, BeatsTheAlternationFromAPerturbedPose) {
 TEST(StructureUpdateOptions, RejectsBadJointCgIterations) {
   StructureUpdateOptions options;
   options.joint_cg_iterations = 0;
+  EXPECT_ANY_THROW(options.Check());
+}
+
+TEST(StructureUpdateOptions, RejectsNegativeJointPoseDamping) {
+  StructureUpdateOptions options;
+  options.joint_pose_damping = -0.1;
   EXPECT_ANY_THROW(options.Check());
 }
 

@@ -50,12 +50,29 @@ struct StructureUpdateOptions {
   // Joint depth + pose step (UpdateDepthAndPoses): the estimator replaces the
   // per-frame depth updates by one Gauss-Newton/IRLS step in which every
   // frame's inverse depth and the free poses move together, so that depth
-  // cannot absorb a pose error; the pose update follows as before. Off
-  // until measured (BENCHMARKS.md "Joint depth + pose step (Schur)").
+  // cannot absorb a pose error; the pose update follows as before. Off:
+  // measured better in depth and ATE than the per-frame depth updates on
+  // every path, but 42 % more CPU per run (BENCHMARKS.md "Joint depth + pose
+  // step (Schur)").
   bool joint_depth_pose_step = false;
   // CG steps per reweighted joint system (its tolerance is
   // depth_cg_tolerance).
   int joint_cg_iterations = 30;
+  // Levenberg-Marquardt damping of the pose block inside the joint step,
+  // relative to the pose block's own diagonal (the pose update's matching
+  // terms, before the depth is eliminated). The depth can trade for a
+  // rotation (bas-relief): that direction of the reduced camera system is
+  // nearly singular, and the damping keeps the step from drifting along it.
+  // 0.01 was measured on 8 sequences (Dolls, Aloe x lateral, arc, forward,
+  // hand-held): with 1e-4 the lateral and arc Aloe windows drift (ATE 4.1x
+  // the baseline's); 0.01 keeps the depth gain elsewhere; 0.1 and more lose it.
+  double joint_pose_damping = 0.01;
+  // The joint step matches every pair within the pose update's radius
+  // (EstimatorOptions::pose_neighbour_radius) instead of N(t): longer
+  // baselines tie each pose to more frames, in depth and pose alike. Off:
+  // measured, it holds the lateral poses but loses depth on the arc and
+  // hand-held paths and costs a fifth more.
+  bool joint_step_pose_pairs = false;
   int num_threads = 0;
   void Check() const;
 };
