@@ -34,6 +34,11 @@ source "$(dirname "$0")/common.sh"
 reference="${1:-${DSM_SPEED_REFERENCE:-175f35b}}"
 work="${2:-$(mktemp -d /tmp/dsm_benchmark_speed.XXXXXX)}"
 sequences="${DSM_SPEED_SEQUENCES:-dolls handheld_gray handheld_colour handheld_rolling}"
+# handheld_gray converts its inputs with Debian's ImageMagick (scripts/install_deps.sh --viewer).
+if [[ " $sequences " == *" handheld_gray "* ]] && ! dpkg-query -W -f='${Status}' imagemagick 2>/dev/null | grep -q "install ok installed"; then
+  echo "benchmark_speed: handheld_gray needs ImageMagick: run scripts/install_deps.sh --viewer (or leave it out of DSM_SPEED_SEQUENCES)" >&2
+  exit 1
+fi
 frames="${DSM_SPEED_FRAMES:-10}"
 read -r width height <<<"${DSM_SPEED_SIZE:-640 480}"
 read -r -a extra_args <<<"${DSM_SPEED_ARGS:-}"
