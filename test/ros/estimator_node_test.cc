@@ -167,7 +167,8 @@ TEST_F(EstimatorNodeTest, PublishesEveryFrameConsistentlyAndBeatsBicubic) {
       [&] {
         std::lock_guard<std::mutex> lock(out_.mutex);
         return out_.poses.size() >= kFrames && out_.restored.size() >= kFrames &&
-               out_.depth.size() >= kFrames && out_.confidence.size() >= kFrames && out_.statuses.size() >= 2;
+               out_.restored_info.size() >= kFrames && out_.depth.size() >= kFrames &&
+               out_.depth_info.size() >= kFrames && out_.confidence.size() >= kFrames && out_.statuses.size() >= 2;
       },
       120.0))
       << "outputs for all " << kFrames << " frames did not arrive: " << Summary();
@@ -175,7 +176,11 @@ TEST_F(EstimatorNodeTest, PublishesEveryFrameConsistentlyAndBeatsBicubic) {
 
   std::lock_guard<std::mutex> lock(out_.mutex);
   ASSERT_EQ(out_.restored.size(), static_cast<size_t>(kFrames)) << "each frame exactly once";
+  // The camera_info topics are separate subscriptions: checked before they
+  // are indexed below (a late message must fail the test, not read past the end).
+  ASSERT_EQ(out_.restored_info.size(), static_cast<size_t>(kFrames));
   ASSERT_EQ(out_.depth.size(), static_cast<size_t>(kFrames));
+  ASSERT_EQ(out_.depth_info.size(), static_cast<size_t>(kFrames));
   ASSERT_EQ(out_.confidence.size(), static_cast<size_t>(kFrames));
   ASSERT_EQ(out_.poses.size(), static_cast<size_t>(kFrames));
 
@@ -203,6 +208,7 @@ TEST_F(EstimatorNodeTest, PublishesEveryFrameConsistentlyAndBeatsBicubic) {
     EXPECT_EQ(depth.encoding, "32FC1");
     EXPECT_EQ(static_cast<int>(depth.width), hr.width);
     EXPECT_EQ(out_.depth_info[t]->header.stamp, stamp);
+    ASSERT_EQ(depth.data.size(), sizeof(float) * hr.width * hr.height) << "frame " << t;
     const float* values = reinterpret_cast<const float*>(depth.data.data());
     int valid = 0;
     for (int i = 0; i < hr.width * hr.height; ++i) valid += std::isfinite(values[i]) && values[i] > 0;
