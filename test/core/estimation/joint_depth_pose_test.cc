@@ -228,11 +228,25 @@ TEST(JointDepthPoseSystem, PairsTwoFramesApartMatchNumericDifferences) {
   x.poses.segment<6>(6) << 0.004, -0.003, 0.002, 0.002, -0.003, 0.002;
   x.poses.segment<6>(12) << -0.003, 0.002, 0.003, -0.002, 0.002, 0.001;
   const auto [analytic, numeric] = FormsAlong(scene, terms, &x);
-  // The six pairs' linear forms nearly cancel (measured: -1.82 against
-  // -1.69 numeric, from terms whose absolute values sum to 207; pair by pair
-  // they agree to 0.5 % of that pair's sum): compared at the scale of the
-  // terms.
+  // The six pairs' linear forms nearly cancel in the sum (measured: -1.82
+  // against -1.69 numeric, from terms whose absolute values sum to 207), so
+  // the sum is compared at the scale of its terms, and so is each pair alone
+  // (1 % of that pair's sum of |terms|: a missing, doubled or sign-flipped
+  // pair fails). Measured: 5 of the 6 pairs agree within 2.5 % of their own
+  // value; pair 1 <- 2 is -1.175 against -1.069 numeric (10 % of its value,
+  // 0.2 % of its terms), the source of the sum's gap: not explained yet.
   EXPECT_NEAR(analytic.linear, numeric.linear, 0.01 * numeric.absolute_linear);
+  for (size_t t = 0; t < terms.size(); ++t) {
+    for (size_t p = 0; p < terms[t].pairs.size(); ++p) {
+      std::vector<FrameDepthTerms> one_pair = terms;
+      for (FrameDepthTerms& frame_terms : one_pair) frame_terms.pairs.clear();
+      one_pair[t].pairs = {terms[t].pairs[p]};
+      JointStep along = x;
+      const auto [pair_analytic, pair_numeric] = FormsAlong(scene, one_pair, &along);
+      EXPECT_NEAR(pair_analytic.linear, pair_numeric.linear, 0.01 * pair_numeric.absolute_linear)
+          << "pair " << t << " <- " << terms[t].pairs[p].s;
+    }
+  }
 
 
   // Frame 0's depth and frame 2's pose only: their cross term comes from the
