@@ -2,9 +2,10 @@
 # End-to-end latency and throughput of the ROS node on a bag: synthesizes a
 # Dolls sequence of N frames, writes it as a bag, plays it through
 # launch/play_bag.launch at a given rate on a private master, records the
-# node's status messages and samples the node's RSS every few seconds, then
-# prints a summary (per-window latency and processing time, drops, throughput,
-# RSS) and writes it to OUT/summary.md.
+# node's status messages and samples the node's RSS and CPU time every few
+# seconds, then prints a summary (per-window latency and processing time,
+# drops, throughput, RSS, the node's CPU seconds per published frame) and
+# writes it to OUT/summary.md.
 # Usage: scripts/node_benchmark.sh [--frames N] [--rate R] [--size WxH] [--out DIR] [--param NAME=VALUE]...
 #   --frames N   frames in the bag (default 30)
 #   --rate R     bag playback rate (default 1.0)
@@ -89,14 +90,14 @@ roslaunch deblur_sr_mvs play_bag.launch bag:="$out/input.bag" exposure_time:="$e
 dsm_pids+=($!)
 
 echo "node_benchmark: $frames frames at rate $rate, windows of $window_size (overlap $overlap): expecting $windows windows"
-echo "seconds,rss_kib" >"$out/rss.csv"
+echo "seconds,rss_kib,cpu_seconds" >"$out/rss.csv"
 node_pid=""
 done_windows=0
 for _ in $(seq 3600); do
   [ -n "$node_pid" ] || node_pid="$(pgrep -f "deblur_sr_mvs/estimator_node" | head -n 1 || true)"
   if [ -n "$node_pid" ]; then
-    rss="$(ps -o rss= -p "$node_pid" 2>/dev/null | tr -d ' ' || true)"
-    [ -n "$rss" ] && echo "$(echo "$(date +%s.%N) - $start" | bc),$rss" >>"$out/rss.csv"
+    read -r rss cpu < <(ps -o rss=,times= -p "$node_pid" 2>/dev/null || true)
+    [ -n "$rss" ] && echo "$(echo "$(date +%s.%N) - $start" | bc),$rss,$cpu" >>"$out/rss.csv"
   fi
   index="$(timeout 5 rostopic echo -n 1 $ns/status/window_index 2>/dev/null | head -n 1 || true)"
   dropped="$(timeout 5 rostopic echo -n 1 $ns/status/windows_dropped 2>/dev/null | head -n 1 || true)"
@@ -105,6 +106,12 @@ for _ in $(seq 3600); do
   sleep 2
 done
 sleep 1
+# The node's CPU time at the end (user + sys, all threads): work that does not
+# depend on how loaded the machine is.
+if [ -n "$node_pid" ]; then
+  read -r rss cpu < <(ps -o rss=,times= -p "$node_pid" 2>/dev/null || true)
+  [ -n "$rss" ] && echo "$(echo "$(date +%s.%N) - $start" | bc),$rss,$cpu" >>"$out/rss.csv"
+fi
 dsm_stop_processes
 trap - EXIT
 
@@ -118,14 +125,18 @@ ok = [s for s in statuses if s.success]
 lat = [s.latency_seconds for s in ok]
 proc = [s.processing_seconds for s in ok]
 last = statuses[-1]
-rss = [int(r["rss_kib"]) for r in csv.DictReader(open(f"{out}/rss.csv"))]
+samples = list(csv.DictReader(open(f"{out}/rss.csv")))
+rss = [int(r["rss_kib"]) for r in samples]
+cpu = max((int(r["cpu_seconds"]) for r in samples), default=0)
 print("| frames in bag | rate | windows processed + dropped / expected | failed | published frames | "
-      "latency mean / max (s) | processing per window mean (s) | estimation throughput (frames/s) | RSS first / peak (MiB) |")
-print("|---|---|---|---|---|---|---|---|---|")
+      "latency mean / max (s) | processing per window mean (s) | estimation throughput (frames/s) | RSS first / peak (MiB) | "
+      "node CPU (s) | CPU per published frame (s) |")
+print("|---|---|---|---|---|---|---|---|---|---|---|")
 print(f"| {frames} | {rate:g} | {len(ok)} + {last.windows_dropped} / {expected} | {last.windows_failed} | "
       f"{last.frames_published} | {sum(lat)/max(len(lat),1):.2f} / {max(lat, default=0):.2f} | "
       f"{sum(proc)/max(len(proc),1):.2f} | {last.frames_published / max(sum(proc), 1e-9):.2f} | "
-      f"{rss[0]/1024 if rss else 0:.0f} / {max(rss, default=0)/1024:.0f} |")
+      f"{rss[0]/1024 if rss else 0:.0f} / {max(rss, default=0)/1024:.0f} | "
+      f"{cpu} | {cpu / max(last.frames_published, 1):.2f} |")
 steady = [s for s in ok if s.continued]
 def stage(s, name):
     return sum(v for n, v in zip(s.stage_names, s.stage_seconds) if n == name)
