@@ -42,17 +42,7 @@ struct StructureUpdateOptions {
   double residual_epsilon = 1e-3;  // L1 smoothing (intensity in [0, 1])
   double tv_epsilon = 0.05;        // TV smoothing, parallax px
   double depth_damping = 1e-3;     // Levenberg damping relative to the data diagonal
-  // Levenberg-Marquardt damping of the pose normal equations, relative to
-  // their diagonal. A camera moving sideways can trade translation for a
-  // rotation (the image motion differs only through the scene's depth
-  // variation): that direction of the pose system is nearly singular, and
-  // with little damping the Gauss-Newton steps slide far along it on small
-  // inconsistencies of depth and latent images. In a stream window whose
-  // leading poses are held, that slid the first new frame towards the last
-  // held one by a third of a frame step per window (Dolls, windows of 4
-  // sharing 2: the stream's scale drifted by 10 % in two windows with 1e-4);
-  // 0.01 keeps the steps within 1 %.
-  double pose_damping = 0.01;
+  double pose_damping = 1e-4;      // likewise for the pose normal equations
   // HR pairs of the pose update use every stride-th pixel of every
   // stride-th row (shifted row to row): six unknowns per frame need far
   // fewer than every pixel, and the update costs 1/stride^2.
