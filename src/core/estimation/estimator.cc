@@ -164,10 +164,10 @@ cv::Mat VisibleFromSource(const PinholeCamera& camera_hr, const std::vector<Fram
 }
 
 // Operators Psi_t[src] and their visibility masks, rebuilt only when the
-// structure they depend on (D_t, P_t, P_neighbour(t), P_src) changed, or
+// structure they depend on (D_t, P_t, the poses of t's blur path, P_src) changed, or
 // taken from the previous window of a stream when they were built there from
 // the same structure. The virtual depths D_tau of frame t depend on D_t, P_t
-// and P_neighbour(t) only: they are computed once per structure, shared by
+// and the poses of its blur path only: they are computed once per structure, shared by
 // the operators of every source, and dropped once each source's operator at
 // that structure is there. Memory is bounded: the least recently used
 // operators go first.
@@ -197,10 +197,8 @@ class OperatorCache {
   std::shared_ptr<const Entry> Get(const std::vector<FrameStructure>& frames,
                                    const std::vector<long>& depth_version,
                                    const std::vector<long>& pose_version, int t, int source, Timer* timer) {
-    const int neighbour = t > 0 ? t - 1 : t + 1;
-    const std::vector<long> depth_versions = {depth_version[t], pose_version[t], pose_version[neighbour]};
-    const std::vector<long> versions = {depth_version[t], pose_version[t], pose_version[neighbour],
-                                        pose_version[source]};
+    const std::vector<long> depth_versions = Versions(depth_version, pose_version, t, t);
+    const std::vector<long> versions = Versions(depth_version, pose_version, t, source);
     const auto key = std::make_pair(t, source);
     {
       std::lock_guard<std::mutex> lock(mutex_);
@@ -232,18 +230,20 @@ class OperatorCache {
     return entry;
   }
 
-  // The operators at the current structure of frames t >= first + 1 sampling
-  // sources >= first (t's path neighbour t - 1 is then >= first too).
+  // The operators at the current structure whose geometry the next window,
+  // which starts at frame `first`, can share: all of CaptureGeometryFrames
+  // among frames >= first, and not the last frame (its blur path gains the
+  // frame after it there). The next window uses those it finds equal.
   CarriedOperators Carry(const std::vector<FrameStructure>& frames, const std::vector<long>& depth_version,
                          const std::vector<long>& pose_version, int first) {
     CarriedOperators carried;
     std::lock_guard<std::mutex> lock(mutex_);
+    const int num_frames = static_cast<int>(frames.size());
     for (const auto& [key, slot] : entries_) {
       const auto [t, source] = key;
-      if (t < first + 1 || source < first) continue;
-      if (slot.versions !=
-          std::vector<long>{depth_version[t], pose_version[t], pose_version[t - 1], pose_version[source]})
-        continue;
+      const std::vector<int> fixing = CaptureGeometryFrames(t, source, num_frames);
+      if (t == num_frames - 1 || *std::min_element(fixing.begin(), fixing.end()) < first) continue;
+      if (slot.versions != Versions(depth_version, pose_version, t, source)) continue;
       carried.push_back(
           {MakeCaptureGeometry(frames, camera_hr_, t, source), options_, visibility_, slot.entry});
     }
@@ -263,6 +263,18 @@ class OperatorCache {
     std::shared_ptr<const Entry> entry;
     std::vector<long> versions;
   };
+
+  // The versions of what fixes Psi_t[source]: D_t and the poses of
+  // CaptureGeometryFrames (P_t, t's blur path, P_source). Source t: those of
+  // frame t's virtual depths.
+  static std::vector<long> Versions(const std::vector<long>& depth_version, const std::vector<long>& pose_version,
+                                    int t, int source) {
+    std::vector<long> versions = {depth_version[t]};
+    for (int frame : CaptureGeometryFrames(t, source, static_cast<int>(pose_version.size()))) {
+      versions.push_back(pose_version[frame]);
+    }
+    return versions;
+  }
 
   // Psi_t[source] and its mask, built on the calling thread.
   std::shared_ptr<const Entry> Build(const std::vector<FrameStructure>& frames,
@@ -301,7 +313,7 @@ class OperatorCache {
     return nullptr;
   }
 
-  // The virtual depths of frame t at `versions` (D_t, P_t, P_neighbour(t)).
+  // The virtual depths of frame t at `versions` (Versions of source t).
   struct FrameDepths {
     std::mutex compute;  // one computation per frame at a time
     std::vector<long> versions;

@@ -47,12 +47,13 @@ void WhitenedGradient(const cv::Mat& image, double sigma_px, FrameEvidence* evid
   cv::filter2D(high, evidence->gy, CV_32F, kernel.t());
 }
 
-// Image motion of frame t's pixels towards the neighbour of its capture path
-// (eq:interpolatingP: t-1, or 1 for frame 0), for depth `depth` (empty: at
-// infinity); its sign does not matter to the correlation.
+// Image motion of frame t's pixels over one frame interval before t along
+// its blur path (SetBlurPath: P_{t-1} itself for t > 0; for frame 0 the path
+// extrapolated backwards), for depth `depth` (empty: at infinity); its sign
+// does not matter to the correlation.
 void FrameMotion(const PinholeCamera& camera, const cv::Mat& depth, const SE3& T_world_cam,
-                 const SE3& T_world_neighbour, double min_motion_px, FrameEvidence* evidence) {
-  const SE3 T_n_t = T_world_neighbour.Inverse() * T_world_cam;
+                 const SE3& T_world_before, double min_motion_px, FrameEvidence* evidence) {
+  const SE3 T_n_t = T_world_before.Inverse() * T_world_cam;
   const cv::Size size(camera.width, camera.height);
   evidence->ux.create(size, CV_32FC1);
   evidence->uy.create(size, CV_32FC1);
@@ -197,11 +198,15 @@ ExposureEstimate EstimateExposureFromMotion(const std::vector<cv::Mat>& images_l
   if (images_lr.size() != n || T_world_cam.size() != n || (!depth_lr.empty() && depth_lr.size() != n)) {
     throw InputError("exposure estimation: images, frames, depths and poses differ in number");
   }
+  std::vector<double> stamps;
+  for (const FrameRecord& frame : frames) stamps.push_back(frame.stamp);
   std::vector<FrameEvidence> evidence(n);
   for (size_t t = 0; t < n; ++t) {
     WhitenedGradient(images_lr[t], options.highpass_sigma_px, &evidence[t]);
+    CaptureGeometry path;
+    SetBlurPath(T_world_cam, stamps, static_cast<int>(t), &path);
     FrameMotion(camera_lr, depth_lr.empty() ? cv::Mat() : depth_lr[t], T_world_cam[t],
-                T_world_cam[t > 0 ? t - 1 : 1], options.min_motion_px, &evidence[t]);
+                PoseAtTime(path, stamps[t] - intervals[t]), options.min_motion_px, &evidence[t]);
   }
   ExposureEstimate estimate;
   const int steps = static_cast<int>(

@@ -1497,18 +1497,24 @@ void SolveTvL1(const PlaneSet& planes, const cv::Mat& edge_weight, const Initial
   }
 }
 
+std::vector<double> Stamps(const std::vector<FrameRecord>& frames) {
+  std::vector<double> stamps;
+  for (const FrameRecord& frame : frames) stamps.push_back(frame.stamp);
+  return stamps;
+}
+
 // P_f^-1 P_f(t_c + delay) for the read-out delay of each of `rows` rows on
-// frame f's eq:interpolatingP path; one identity for a global shutter.
+// frame f's blur path (SetBlurPath); one identity for a global shutter.
 std::vector<SE3> ReadoutIncrements(const std::vector<FrameRecord>& frames,
                                    const std::vector<SE3>& T_world_cam, int f, double readout_time,
                                    int rows) {
   if (!(readout_time > 0.0)) return {SE3()};
-  const int n = f > 0 ? f - 1 : 1;
+  CaptureGeometry path;
+  SetBlurPath(T_world_cam, Stamps(frames), f, &path);
   const SE3 T_cam_world = T_world_cam[f].Inverse();
   std::vector<SE3> increments(rows);
   for (int y = 0; y < rows; ++y) {
-    increments[y] = T_cam_world * PoseAtTime(T_world_cam[n], frames[n].stamp, T_world_cam[f], frames[f].stamp,
-                                             frames[f].stamp + readout_time * y / rows);
+    increments[y] = T_cam_world * PoseAtTime(path, frames[f].stamp + readout_time * y / rows);
   }
   return increments;
 }
@@ -1517,8 +1523,7 @@ std::vector<SE3> ReadoutIncrements(const std::vector<FrameRecord>& frames,
 // Psi_s o B_t of eq:initializationScene) from scale-1 capture operators built
 // with the current depths. Psi_s o B_t is B_t blurred by s's blur: s's
 // exposure path is moved rigidly to t (same relative motion in the camera
-// frame: neighbour pose P_t P_s^-1 P_n(s), stamps shifted likewise), so t's
-// pixels are swept as s's were.
+// frame: MoveBlurPath), so t's pixels are swept as s's were.
 void BuildBlurredPairs(const std::vector<cv::Mat>& images, const PinholeCamera& camera,
                        const std::vector<FrameRecord>& frames, const std::vector<SE3>& T_world_cam,
                        const std::vector<SE3>& T_world_mid, const std::vector<cv::Mat>& depth,
@@ -1532,18 +1537,15 @@ void BuildBlurredPairs(const std::vector<cv::Mat>& images, const PinholeCamera& 
   capture_options.num_threads = threads;
   CaptureOperatorBuilder builder(capture_options);
   CaptureOperator op;
-  // The blur path of frame s: its own pose and its eq:interpolatingP neighbour.
-  auto path_neighbour = [&](int s) { return s > 0 ? s - 1 : std::min(1, num_frames - 1); };
-  // B_frame blurred with the exposure of `kernel_frame`, on frame's grid.
+  const std::vector<double> stamps = Stamps(frames);
+  // B_frame blurred with the exposure of `kernel_frame`, on frame's grid:
+  // kernel_frame's blur path moved rigidly onto frame.
   auto blur_with = [&](int frame, int kernel_frame, cv::Mat* out) {
-    const int n = path_neighbour(kernel_frame);
     CaptureGeometry geometry;
     geometry.camera_hr = camera;
     geometry.depth_hr = depth[frame];
-    geometry.T_world_cam = T_world_cam[frame];
-    geometry.T_world_neighbour = T_world_cam[frame] * T_world_cam[kernel_frame].Inverse() * T_world_cam[n];
-    geometry.stamp = frames[frame].stamp;
-    geometry.neighbour_stamp = frames[frame].stamp + (frames[n].stamp - frames[kernel_frame].stamp);
+    SetBlurPath(T_world_cam, stamps, kernel_frame, &geometry);
+    MoveBlurPath(T_world_cam[frame], frames[frame].stamp, &geometry);
     geometry.exposure = frames[kernel_frame].exposure;
     builder.Build(geometry, &op);
     op.Apply(images[frame], out);

@@ -213,6 +213,21 @@ double DepthRatio(const std::vector<cv::Mat>& previous_hr, const std::vector<cv:
   return *middle;
 }
 
+// Levenberg-Marquardt damping of the pose update (relative to its diagonal)
+// in a continued window. A sideways camera can trade translation for
+// rotation (the image motion differs only through the scene's depth
+// variation): that direction of the pose system is nearly singular. With the
+// shared poses held, the previous window's poses and depths and this
+// window's initialisation disagree slightly, and the pose update's
+// Gauss-Newton steps at the default damping (1e-4) slid the new frames far
+// along it: the first new frame moved a third of a frame step towards the
+// last held one with a 0.35 degree rotation, each window, and the stream's
+// scale drifted by 10 % in two windows (Dolls, windows of 4 sharing 2).
+// 0.01 keeps every step within 3 %. A window that starts a trajectory keeps
+// the default: in single 8-frame windows 0.01 cost hand-held poses 14-29 % in
+// ATE (image and depth unchanged).
+constexpr double kContinuedPoseDamping = 0.01;
+
 // What the window's note says of the shared frames' held latent images.
 std::string WarmStartNote(int held_frames) {
   if (held_frames == 0) return "";
@@ -295,6 +310,7 @@ bool StreamEstimator::ContinueTrajectory(const EstimatorInput& input, const Shar
   EstimatorOptions held = options;
   held.fixed_leading_poses = num_shared;
   held.keep_input_gauge = true;
+  held.structure.pose_damping = std::max(held.structure.pose_damping, kContinuedPoseDamping);
   // Operators of the previous window whose structure did not change are
   // used as they are; this window's are handed to the next.
   held.carried_frames = window_overlap_;

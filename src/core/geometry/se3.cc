@@ -192,6 +192,16 @@ SE3 PoseAtTime(const SE3& T_world_s, double s, const SE3& T_world_t, double t, d
   return InterpolatePose(T_world_s, T_world_t, (tau - s) / (t - s));
 }
 
+SE3 PoseOnQuadraticPath(const SE3& T_world_a, double a, const SE3& T_world_b, double b, const SE3& T_world_t,
+                        double t, double tau) {
+  const SE3 T_t_world = T_world_t.Inverse();
+  const Vector6d xi_a = (T_world_a * T_t_world).Log();
+  const Vector6d xi_b = (T_world_b * T_t_world).Log();
+  const double weight_a = (tau - t) * (tau - b) / ((a - t) * (a - b));
+  const double weight_b = (tau - t) * (tau - a) / ((b - t) * (b - a));
+  return SE3::Exp(weight_a * xi_a + weight_b * xi_b) * T_world_t;
+}
+
 Eigen::Matrix<double, 3, 6> DLeftPerturbedPointDEps(const Eigen::Vector3d& transformed_point) {
   Eigen::Matrix<double, 3, 6> jacobian;
   jacobian.leftCols<3>().setIdentity();

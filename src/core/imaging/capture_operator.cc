@@ -134,16 +134,57 @@ void Multiply(const Matrix& a, const cv::Size& in_size, const cv::Size& out_size
 
 }  // namespace
 
-namespace {
-
-// The pose at time `tau` on the path of eq:interpolatingP: alpha = (tau - s)
-// / (t - s) also extrapolates backwards when s is the next frame (the first
-// frame of a sequence), and forwards past t (rows of a rolling shutter that
-// close after the stamp).
 SE3 PoseAtTime(const CaptureGeometry& geometry, double tau) {
+  if (geometry.T_world_second_neighbour.has_value()) {
+    return PoseOnQuadraticPath(geometry.T_world_neighbour, geometry.neighbour_stamp,
+                               *geometry.T_world_second_neighbour, geometry.second_neighbour_stamp,
+                               geometry.T_world_cam, geometry.stamp, tau);
+  }
+  // eq:interpolatingP: alpha = (tau - s) / (t - s) also extrapolates
+  // backwards when s follows t, and forwards past t.
   return PoseAtTime(geometry.T_world_neighbour, geometry.neighbour_stamp, geometry.T_world_cam,
                     geometry.stamp, tau);
 }
+
+std::vector<int> BlurPathFrames(int t, int num_frames) {
+  if (num_frames < 2 || t < 0 || t >= num_frames) {
+    throw InputError("BlurPathFrames: needs >= 2 frames and a frame inside them");
+  }
+  if (t == 0) return {1};
+  if (t == num_frames - 1) return {t - 1};
+  return {t - 1, t + 1};
+}
+
+void SetBlurPath(const std::vector<SE3>& T_world_cam, const std::vector<double>& stamps, int t,
+                 CaptureGeometry* geometry) {
+  if (T_world_cam.size() != stamps.size()) throw InputError("SetBlurPath: poses and stamps differ in number");
+  const std::vector<int> path = BlurPathFrames(t, static_cast<int>(stamps.size()));
+  geometry->T_world_cam = T_world_cam[t];
+  geometry->stamp = stamps[t];
+  geometry->T_world_neighbour = T_world_cam[path[0]];
+  geometry->neighbour_stamp = stamps[path[0]];
+  geometry->T_world_second_neighbour.reset();
+  geometry->second_neighbour_stamp = 0.0;
+  if (path.size() > 1) {
+    geometry->T_world_second_neighbour = T_world_cam[path[1]];
+    geometry->second_neighbour_stamp = stamps[path[1]];
+  }
+}
+
+void MoveBlurPath(const SE3& T_world_target, double target_stamp, CaptureGeometry* geometry) {
+  const SE3 T_target_cam = T_world_target * geometry->T_world_cam.Inverse();
+  const double shift = target_stamp - geometry->stamp;
+  geometry->T_world_neighbour = T_target_cam * geometry->T_world_neighbour;
+  geometry->neighbour_stamp += shift;
+  if (geometry->T_world_second_neighbour.has_value()) {
+    geometry->T_world_second_neighbour = T_target_cam * *geometry->T_world_second_neighbour;
+    geometry->second_neighbour_stamp += shift;
+  }
+  geometry->T_world_cam = T_world_target;
+  geometry->stamp = target_stamp;
+}
+
+namespace {
 
 // tau_m of the rows that open `row_delay` after row 0.
 double SampleTime(const CaptureGeometry& geometry, int samples, double row_delay, int m) {
@@ -237,6 +278,12 @@ void CheckCaptureGeometry(const CaptureGeometry& geometry, int scale) {
   const double frame_gap = geometry.stamp - geometry.neighbour_stamp;
   if (!std::isfinite(frame_gap) || frame_gap == 0.0) {
     throw InputError("capture operator: the neighbour's stamp must differ from the frame's");
+  }
+  if (geometry.T_world_second_neighbour.has_value()) {
+    const double s2 = geometry.second_neighbour_stamp;
+    if (!std::isfinite(s2) || s2 == geometry.stamp || s2 == geometry.neighbour_stamp) {
+      throw InputError("capture operator: the second neighbour's stamp must differ from the other two");
+    }
   }
 }
 
@@ -778,10 +825,15 @@ bool SameCaptureGeometry(const CaptureGeometry& a, const CaptureGeometry& b) {
   if (!SameCamera(a.camera_hr, b.camera_hr) || a.stamp != b.stamp || a.neighbour_stamp != b.neighbour_stamp ||
       a.exposure != b.exposure || a.readout_time != b.readout_time ||
       !SamePose(a.T_world_cam, b.T_world_cam) || !SamePose(a.T_world_neighbour, b.T_world_neighbour) ||
-      a.T_world_source.has_value() != b.T_world_source.has_value()) {
+      a.T_world_source.has_value() != b.T_world_source.has_value() ||
+      a.T_world_second_neighbour.has_value() != b.T_world_second_neighbour.has_value()) {
     return false;
   }
   if (a.T_world_source.has_value() && !SamePose(*a.T_world_source, *b.T_world_source)) return false;
+  if (a.T_world_second_neighbour.has_value() &&
+      (a.second_neighbour_stamp != b.second_neighbour_stamp ||
+       !SamePose(*a.T_world_second_neighbour, *b.T_world_second_neighbour)))
+    return false;
   return SameBytes(a.depth_hr, b.depth_hr);
 }
 

@@ -1,5 +1,7 @@
 // CrossBlurGeometry: the cross-blurred input pairs of the structure update
-// (EstimatorOptions::cross_blurred_inputs) carry equal blur in both images.
+// (EstimatorOptions::cross_blurred_inputs) carry equal blur in both images;
+// CaptureGeometryFrames: the poses a frame's capture geometry reads.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <random>
@@ -81,6 +83,33 @@ TEST(CrossBlurGeometry, OwnKernelIsTheFramesCapturePath) {
     for (size_t m = 0; m < own.size(); ++m) {
       EXPECT_NEAR((own[m].translation() - cross[m].translation()).norm(), 0.0, 1e-12);
       EXPECT_NEAR((own[m].rotation() - cross[m].rotation()).norm(), 0.0, 1e-12);
+    }
+  }
+}
+
+// The operator cache keys Psi_t[source] on the poses of CaptureGeometryFrames:
+// moving any of those changes the geometry, moving any other frame does not
+// (so a cached operator is never stale and never rebuilt for nothing).
+TEST(CaptureGeometryFrames, ExactlyThePosesTheGeometryReads) {
+  const PinholeCamera camera(64, 48, kFocal, kFocal, 32.0, 24.0);
+  for (int num_frames : {2, 3, 5}) {
+    std::vector<double> positions;
+    for (int f = 0; f < num_frames; ++f) positions.push_back(0.01 * f + 0.002 * f * f);
+    const std::vector<FrameStructure> frames = PlaneFrames(camera, positions);
+    for (int t = 0; t < num_frames; ++t) {
+      for (int source = 0; source < num_frames; ++source) {
+        const std::vector<int> fixing = CaptureGeometryFrames(t, source, num_frames);
+        EXPECT_EQ(fixing.front(), t);
+        const CaptureGeometry geometry = MakeCaptureGeometry(frames, camera, t, source);
+        for (int moved = 0; moved < num_frames; ++moved) {
+          std::vector<FrameStructure> changed = frames;
+          changed[moved].T_world_cam = SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0.0, 1e-4, 0.0)) *
+                                       changed[moved].T_world_cam;
+          const bool reads = std::find(fixing.begin(), fixing.end(), moved) != fixing.end();
+          EXPECT_EQ(!SameCaptureGeometry(geometry, MakeCaptureGeometry(changed, camera, t, source)), reads)
+              << num_frames << " frames, t " << t << ", source " << source << ", moved " << moved;
+        }
+      }
     }
   }
 }

@@ -98,18 +98,22 @@ TEST(OperatorReuse, OptionsRejectANegativeCount) {
   EXPECT_NO_THROW(stream.SetWindowOverlap(0));
 }
 
-// Two windows of 4 frames sharing 2, as the stream runs them (the second
-// holds the shared poses and latent images and starts from their depths):
-// the first hands on the operators of its last frame sampling itself and its
-// predecessor, each equal to a fresh build from the structure it carries,
-// and the second window gives the same result with them as without.
+// Two windows of 4 frames sharing 3, as the stream runs them (the second
+// holds the shared poses and latent images and starts from their depths).
+// A frame's blur path runs through the frames on both sides of it
+// (BlurPathFrames), so the first window hands on the operators of the one
+// frame whose path lies among the shared frames and stays so in the second
+// window (frame 2: path 1-3; frame 3, the last, gains frame 4 there): Psi_2
+// sampling I_1, I_2 and I_3, each equal to a fresh build from the structure
+// it carries, and the second window gives the same result with them as
+// without.
 TEST(OperatorReuse, CarriedOperatorsEqualRebuiltOnesAndChangeNothing) {
   const Sequence& sequence = SmallSequence();
   ASSERT_TRUE(sequence.ground_truth.has_value());
   const SequenceGroundTruth& gt = *sequence.ground_truth;
   EstimatorOptions options = FastEstimatorOptions();
   options.keep_input_gauge = true;
-  options.carried_frames = 2;
+  options.carried_frames = 3;
   std::vector<cv::Mat> depth;
   std::vector<SE3> poses;
   for (int t = 0; t < 4; ++t) {
@@ -119,31 +123,30 @@ TEST(OperatorReuse, CarriedOperatorsEqualRebuiltOnesAndChangeNothing) {
   const EstimatorResult first =
       Estimator(options).RunFromStructure(InputOfFrames(sequence, 0, 4), depth, poses);
   EXPECT_EQ(first.operators_reused, 0);
-  ASSERT_EQ(first.carried_operators.size(), 2u);  // Psi_3 sampling I_2 and I_3
+  ASSERT_EQ(first.carried_operators.size(), 3u);  // Psi_2 sampling I_1, I_2 and I_3
   CaptureOperatorOptions build_options = first.carried_operators[0].options;
   build_options.num_threads = 1;
   build_options.transposed_copy = false;
   for (const CarriedOperator& carried : first.carried_operators) {
     ExpectSameOperator(carried.entry->op, BuildCaptureOperator(carried.geometry, build_options));
-    EXPECT_TRUE(SameBits(carried.geometry.depth_hr, first.depth[3]));
+    EXPECT_TRUE(SameBits(carried.geometry.depth_hr, first.depth[2]));
   }
 
   EstimatorOptions second_options = options;
-  second_options.fixed_leading_poses = 2;
-  second_options.held_leading_latents = 2;
-  EstimatorInput input = InputOfFrames(sequence, 2, 4);
-  input.initial_latents = {first.latent[2], first.latent[3]};
-  const std::vector<cv::Mat> second_depth = {first.depth[2], first.depth[3], gt.depth[4].clone(),
-                                             gt.depth[5].clone()};
-  const std::vector<SE3> second_poses = {first.T_world_cam[2], first.T_world_cam[3], gt.poses[4].T_world_cam,
-                                         gt.poses[5].T_world_cam};
+  second_options.fixed_leading_poses = 3;
+  second_options.held_leading_latents = 3;
+  EstimatorInput input = InputOfFrames(sequence, 1, 4);
+  input.initial_latents = {first.latent[1], first.latent[2], first.latent[3]};
+  const std::vector<cv::Mat> second_depth = {first.depth[1], first.depth[2], first.depth[3], gt.depth[4].clone()};
+  const std::vector<SE3> second_poses = {first.T_world_cam[1], first.T_world_cam[2], first.T_world_cam[3],
+                                         gt.poses[4].T_world_cam};
   const EstimatorResult rebuilt =
       Estimator(second_options).RunFromStructure(input, second_depth, second_poses);
   input.carried_operators = first.carried_operators;
   const EstimatorResult reused =
       Estimator(second_options).RunFromStructure(input, second_depth, second_poses);
   EXPECT_EQ(rebuilt.operators_reused, 0);
-  EXPECT_EQ(reused.operators_reused, 2);
+  EXPECT_EQ(reused.operators_reused, 3);
   ExpectSameResult(reused, rebuilt);
 
   // A structure that differs in one pixel is not reused.
@@ -153,16 +156,21 @@ TEST(OperatorReuse, CarriedOperatorsEqualRebuiltOnesAndChangeNothing) {
   EXPECT_EQ(Estimator(second_options).RunFromStructure(input, nudged, second_poses).operators_reused, 0);
 }
 
-// The stream: windows of 4 sharing 2 on 8 frames. The third window uses the
-// second's operators of the held frames; with the hand-over switched off
-// (overlap 0) every window is the same bit for bit.
+// The stream: windows of 4 sharing 3 on the first 6 frames (windows 0-3,
+// 1-4, 2-5). The third window uses the second's operators of its frame 1
+// (frame 2 of the second window, whose blur path runs through the shared
+// frames on both sides); with the hand-over switched off (overlap 0) every
+// window is the same bit for bit. At the stream's default overlap of 2 no
+// frame's path lies among the shared frames in both windows: nothing is
+// reused.
 TEST(OperatorReuse, StreamWindowsAreTheSameWithAndWithoutReuse) {
   const Sequence& sequence = SmallSequence();
+  const std::vector<cv::Mat> images(sequence.images.begin(), sequence.images.begin() + 6);
+  const std::vector<FrameRecord> frames(sequence.frames.begin(), sequence.frames.begin() + 6);
   StreamOptions stream_options;
   stream_options.window_size = 4;
-  stream_options.window_overlap = 2;
-  const std::vector<StreamWindow> windows =
-      StreamWindowsOf(sequence.images, sequence.frames, stream_options, 100);
+  stream_options.window_overlap = 3;
+  const std::vector<StreamWindow> windows = StreamWindowsOf(images, frames, stream_options, 100);
   ASSERT_EQ(windows.size(), 3u);
   // One thread: the pose update's sums then run in one order, and two runs
   // of a window are the same bit for bit.
@@ -185,8 +193,9 @@ TEST(OperatorReuse, StreamWindowsAreTheSameWithAndWithoutReuse) {
               << " thread-s against " << StageSeconds(b.result, kBuildStage) << " thread-s building all\n";
   }
   // The first window starts a segment (output gauge): nothing is carried
-  // from it; the second hands 2 operators to the third.
-  EXPECT_EQ(reused, 2);
+  // from it; the second hands 3 operators (Psi of its frame 2 sampling its
+  // frames 1-3) to the third.
+  EXPECT_EQ(reused, 3);
 }
 
 }  // namespace

@@ -138,5 +138,60 @@ TEST(SE3, InterpolationEndPointsAndMidpoint) {
   EXPECT_LT(MaxAbs((step * step * before).Matrix() - T_world_s.Matrix()), 1e-12);
 }
 
+// The curved blur path: through its three poses at their times, in any
+// order of the times (before, between or after t).
+TEST(SE3, QuadraticPathPassesThroughItsPoses) {
+  std::mt19937 rng(9);
+  for (int trial = 0; trial < 20; ++trial) {
+    const SE3 T_world_a = SE3::Exp(RandomTangent(&rng, 0.3, 0.5));
+    const SE3 T_world_b = SE3::Exp(RandomTangent(&rng, 0.3, 0.5));
+    const SE3 T_world_t = SE3::Exp(RandomTangent(&rng, 0.3, 0.5));
+    const double t = 1.0;
+    for (const auto& [a, b] : {std::pair{0.9, 1.1}, std::pair{1.1, 1.2}, std::pair{0.8, 0.9}}) {
+      EXPECT_LT(MaxAbs(PoseOnQuadraticPath(T_world_a, a, T_world_b, b, T_world_t, t, a).Matrix() -
+                       T_world_a.Matrix()),
+                1e-12);
+      EXPECT_LT(MaxAbs(PoseOnQuadraticPath(T_world_a, a, T_world_b, b, T_world_t, t, b).Matrix() -
+                       T_world_b.Matrix()),
+                1e-12);
+      EXPECT_LT(MaxAbs(PoseOnQuadraticPath(T_world_a, a, T_world_b, b, T_world_t, t, t).Matrix() -
+                       T_world_t.Matrix()),
+                1e-12);
+    }
+  }
+}
+
+// On a constant-velocity path P_tau = Exp((tau - t) w) P_t the curve is that
+// path, eq:interpolatingP's geodesic, inside and outside its nodes.
+TEST(SE3, QuadraticPathIsTheGeodesicAtConstantVelocity) {
+  std::mt19937 rng(10);
+  for (int trial = 0; trial < 20; ++trial) {
+    const Vector6d twist = RandomTangent(&rng, 2.0, 3.0);  // per second; 0.1 s apart: small angles
+    const SE3 T_world_t = SE3::Exp(RandomTangent(&rng, 0.5, 1.0));
+    const double t = 2.0, a = 1.9, b = 2.1;
+    auto path = [&](double tau) { return SE3::Exp((tau - t) * twist) * T_world_t; };
+    for (double tau : {1.75, 1.9, 1.97, 2.0, 2.05, 2.18}) {
+      const SE3 curved = PoseOnQuadraticPath(path(a), a, path(b), b, T_world_t, t, tau);
+      EXPECT_LT(MaxAbs(curved.Matrix() - path(tau).Matrix()), 1e-12) << tau;
+      EXPECT_LT(MaxAbs(curved.Matrix() - PoseAtTime(path(a), a, T_world_t, t, tau).Matrix()), 1e-12) << tau;
+    }
+  }
+}
+
+// An accelerating path: the curve through three samples follows it to second
+// order, the geodesic through two of them only to first order.
+TEST(SE3, QuadraticPathFollowsAnAcceleratingPath) {
+  const Vector6d velocity = (Vector6d() << 1.0, 0.2, 0.0, 0.1, 0.3, 0.0).finished();
+  const Vector6d acceleration = (Vector6d() << 0.0, 4.0, 1.0, 0.0, 0.0, 2.0).finished();
+  auto path = [&](double tau) { return SE3::Exp(tau * velocity + 0.5 * tau * tau * acceleration); };
+  const double h = 0.05;
+  const double tau = -1.5 * h;  // an opening before the first node, as for frame 0
+  const SE3 curved = PoseOnQuadraticPath(path(h), h, path(2 * h), 2 * h, path(0.0), 0.0, tau);
+  const SE3 straight = PoseAtTime(path(h), h, path(0.0), 0.0, tau);
+  const double curved_error = MaxAbs(curved.Matrix() - path(tau).Matrix());
+  const double straight_error = MaxAbs(straight.Matrix() - path(tau).Matrix());
+  EXPECT_LT(curved_error, 0.05 * straight_error) << curved_error << " " << straight_error;
+}
+
 }  // namespace
 }  // namespace deblur_sr_mvs

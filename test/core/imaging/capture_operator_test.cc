@@ -398,6 +398,96 @@ TEST(CaptureOperator, SharedVirtualDepthsOfAnotherStructureAreRejected) {
   ExpectInputError([&] { other_samples.Build(geometry, shared, &op); }, message);
 }
 
+// Which frames fix a frame's blur path, and SetBlurPath's choice of them.
+TEST(BlurPath, FramesOfTheFirstInteriorAndLastFrame) {
+  EXPECT_EQ(BlurPathFrames(0, 2), (std::vector<int>{1}));
+  EXPECT_EQ(BlurPathFrames(1, 2), (std::vector<int>{0}));
+  EXPECT_EQ(BlurPathFrames(0, 5), (std::vector<int>{1}));
+  EXPECT_EQ(BlurPathFrames(2, 5), (std::vector<int>{1, 3}));
+  EXPECT_EQ(BlurPathFrames(4, 5), (std::vector<int>{3}));
+  EXPECT_THROW(BlurPathFrames(0, 1), InputError);
+  EXPECT_THROW(BlurPathFrames(5, 5), InputError);
+  std::vector<SE3> poses;
+  std::vector<double> stamps;
+  for (int t = 0; t < 5; ++t) {
+    poses.push_back(Translation(0.01 * t * t, 0.0, 0.0));
+    stamps.push_back(0.1 * t);
+  }
+  for (int t = 0; t < 5; ++t) {
+    CaptureGeometry geometry;
+    SetBlurPath(poses, stamps, t, &geometry);
+    const std::vector<int> path = BlurPathFrames(t, 5);
+    EXPECT_EQ(geometry.stamp, stamps[t]);
+    EXPECT_EQ(geometry.neighbour_stamp, stamps[path[0]]);
+    EXPECT_EQ(geometry.T_world_second_neighbour.has_value(), path.size() == 2);
+    // Through every pose that fixes it, at its stamp.
+    EXPECT_LT((PoseAtTime(geometry, stamps[t]).translation() - poses[t].translation()).norm(), 1e-12);
+    for (int frame : path) {
+      EXPECT_LT((PoseAtTime(geometry, stamps[frame]).translation() - poses[frame].translation()).norm(), 1e-12)
+          << t << " " << frame;
+    }
+  }
+}
+
+// The virtual cameras of a curved path are its poses at the sample times, and
+// a constant-velocity curve gives the operator of the geodesic (to rounding).
+TEST(BlurPath, VirtualCamerasFollowTheCurve) {
+  CaptureGeometry geometry = MovingGeometry(48, 36);
+  const SE3 T_world_next = SE3::Exp((Vector6d() << 0.05, -0.01, 0.0, 0.0, 0.02, -0.01).finished());
+  geometry.T_world_second_neighbour = T_world_next;
+  geometry.second_neighbour_stamp = 2.0 / 30.0;
+  const int samples = 7;
+  const std::vector<SE3> poses = VirtualCameraPoses(geometry, samples);
+  for (int m = 0; m < samples; ++m) {
+    const double tau = geometry.stamp - geometry.exposure + (m + 0.5) / samples * geometry.exposure;
+    const SE3 expected = PoseOnQuadraticPath(geometry.T_world_neighbour, geometry.neighbour_stamp, T_world_next,
+                                             geometry.second_neighbour_stamp, geometry.T_world_cam,
+                                             geometry.stamp, tau);
+    EXPECT_LT((poses[m].Matrix() - expected.Matrix()).cwiseAbs().maxCoeff(), 1e-15) << m;
+  }
+  // The same three poses on one constant-velocity path: the geodesic's operator.
+  CaptureGeometry straight = geometry;
+  straight.T_world_second_neighbour.reset();
+  CaptureGeometry constant = straight;
+  constant.T_world_second_neighbour =
+      PoseAtTime(straight.T_world_neighbour, straight.neighbour_stamp, straight.T_world_cam, straight.stamp,
+                 2.0 / 30.0);
+  CaptureOperatorOptions options;
+  options.samples = 9;
+  const CaptureOperator a = BuildCaptureOperator(straight, options);
+  const CaptureOperator b = BuildCaptureOperator(constant, options);
+  cv::Mat hr(36, 48, CV_32FC1), lr_a, lr_b;
+  cv::randu(hr, 0.0, 1.0);
+  a.Apply(hr, &lr_a);
+  b.Apply(hr, &lr_b);
+  EXPECT_LT(cv::norm(lr_a, lr_b, cv::NORM_INF), 1e-5);
+  EXPECT_FALSE(SameCaptureGeometry(straight, constant));  // the cache still tells them apart
+  CaptureGeometry moved = constant;
+  moved.T_world_second_neighbour = Translation(0.0, 0.001, 0.0) * *constant.T_world_second_neighbour;
+  EXPECT_FALSE(SameCaptureGeometry(constant, moved));
+  moved = constant;
+  moved.second_neighbour_stamp += 1e-6;
+  EXPECT_FALSE(SameCaptureGeometry(constant, moved));
+  EXPECT_TRUE(SameCaptureGeometry(constant, CaptureGeometry(constant)));
+}
+
+// MoveBlurPath keeps the motion in the camera frame: P_t^-1 P(tau) is the
+// same along the moved path at the shifted times.
+TEST(BlurPath, MovedPathKeepsTheRelativeMotion) {
+  CaptureGeometry geometry = MovingGeometry(48, 36);
+  geometry.T_world_second_neighbour = SE3::Exp((Vector6d() << 0.05, -0.01, 0.0, 0.0, 0.02, -0.01).finished());
+  geometry.second_neighbour_stamp = 2.0 / 30.0;
+  CaptureGeometry moved = geometry;
+  const SE3 T_world_target = SE3::Exp((Vector6d() << -0.3, 0.1, 0.2, 0.1, -0.2, 0.05).finished());
+  MoveBlurPath(T_world_target, 5.0, &moved);
+  EXPECT_EQ(moved.stamp, 5.0);
+  for (double offset : {-0.05, -0.02, 0.0, 0.01}) {
+    const SE3 original = geometry.T_world_cam.Inverse() * PoseAtTime(geometry, geometry.stamp + offset);
+    const SE3 shifted = T_world_target.Inverse() * PoseAtTime(moved, 5.0 + offset);
+    EXPECT_LT((original.Matrix() - shifted.Matrix()).cwiseAbs().maxCoeff(), 1e-9) << offset;
+  }
+}
+
 // A camera translating parallel to a fronto-parallel plane at depth d moves
 // every image point by f b / d over the exposure (b: the baseline covered
 // while the shutter is open); adaptive M is that length, clamped.

@@ -127,10 +127,13 @@ struct EstimatorOptions {
   // Stream: the result keeps (EstimatorResult::carried_operators) the
   // capture operators that the next window, which shares this window's last
   // `carried_frames` frames, can use as they are: Psi_t sampling I_src with
-  // t, src and t's pose-path neighbour t - 1 all among those frames (the
-  // first of them is the next window's frame 0, whose path runs to its next
-  // frame instead). Kept only with keep_input_gauge, in whose world the next
-  // window receives the structure. 0: none.
+  // t, src and the frames of t's blur path (BlurPathFrames: t - 1 and t + 1)
+  // all among those frames, t not the last frame (its path gains the frame
+  // after it in the next window). The first shared frame is the next
+  // window's frame 0, whose path runs to its next two frames instead, so at
+  // least 3 shared frames are needed for any reuse. Kept only with
+  // keep_input_gauge, in whose world the next window receives the
+  // structure. 0: none.
   int carried_frames = 0;
   // Output gauge (docs/file_formats.md#monocular-scale). false: world = the
   // first camera, monocular scale such that the median scene depth of the

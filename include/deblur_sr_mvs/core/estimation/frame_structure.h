@@ -21,16 +21,22 @@ struct FrameStructure {
 
 // Geometry of Psi_t sampling the latent image of frame `source` (eq:blurOperator;
 // source == t: the self-consistency term, otherwise the matching term). The
-// pose path over t's exposure interpolates towards the previous frame; the
-// first frame extrapolates from the next one (constant velocity).
+// pose path over t's exposure is the curve through the poses of t and its
+// BlurPathFrames (t-1 and t+1; at the ends of the window the geodesic to the
+// one neighbour, extrapolated backwards for the first frame).
 CaptureGeometry MakeCaptureGeometry(const std::vector<FrameStructure>& frames, const PinholeCamera& camera_hr,
                                     int t, int source);
+
+// The frames whose poses MakeCaptureGeometry(frames, camera_hr, t, source)
+// reads: t, its BlurPathFrames, then source if it is none of those. A cache
+// of operators keys on their versions (with D_t's).
+std::vector<int> CaptureGeometryFrames(int t, int source, int num_frames);
 
 // Geometry of `frame` swept by the exposure of `kernel_frame` (at scale 1
 // applied to frame's up-sampled input: B_frame blurred by kernel_frame's
 // blur). kernel_frame's pose path is moved rigidly onto frame (the same
-// motion in the camera frame: neighbour pose P_f P_k^-1 P_n(k), stamps
-// shifted likewise, k's exposure), global shutter. The cross-blurred pair
+// motion in the camera frame: MoveBlurPath), with k's exposure and a global
+// shutter. The cross-blurred pair
 // (B_t through s's blur against B_s through t's blur) carries equal blur in
 // both images whatever the two frames' motions, which the plain inputs do
 // only when t and s move alike (the Psi_s o B_t and Psi_t o B_s of

@@ -176,7 +176,10 @@ class StreamEstimator {
   // them to the next one, which uses those whose structure did not change
   // instead of building them (EstimatorOptions::carried_frames). 0: none.
   // Default: StreamOptions' default (2), the least overlap a stream has, so
-  // those frames are shared whatever the overlap.
+  // those frames are shared whatever the overlap. A frame's blur path runs
+  // through its neighbours on both sides, so an overlap of 2 shares no
+  // operator (the next window's first frame, and this window's last, change
+  // their paths); 3 or more share those of the shared frames inside both.
   void SetWindowOverlap(int frames);
 
   // Estimates `window` (frames of `camera_lr`'s size, increasing stamps).

@@ -60,6 +60,15 @@ Matrix6d SE3LeftJacobianInverse(const Vector6d& xi);
 SE3 InterpolatePose(const SE3& T_world_s, const SE3& T_world_t, double alpha);
 // The same at time `tau` for poses at times s and t (s != t).
 SE3 PoseAtTime(const SE3& T_world_s, double s, const SE3& T_world_t, double t, double tau);
+// The curved path through three poses at distinct times a, b and t: the
+// quadratic in se(3), relative to P_t, through their twists,
+//   P_tau = exp(xi(tau)) P_t,  xi(tau) = L_a(tau) log(P_a P_t^-1) + L_b(tau) log(P_b P_t^-1),
+// with L_a, L_b the Lagrange weights of a and b on the nodes {a, b, t}. It
+// passes through the three poses at their times, and on a constant-velocity
+// path (P_tau = exp((tau - t) w) P_t, rotation below pi between the poses)
+// it is that path: eq:interpolatingP's geodesic, PoseAtTime above.
+SE3 PoseOnQuadraticPath(const SE3& T_world_a, double a, const SE3& T_world_b, double b, const SE3& T_world_t,
+                        double t, double tau);
 
 // Derivative of (Exp(eps) T) * p with respect to eps at eps = 0, for the
 // transformed point q = T p: [I, -Hat(q)] (3x6). Used by the structure update

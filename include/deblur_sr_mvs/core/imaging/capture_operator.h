@@ -3,7 +3,9 @@
 // (Psi_t I)(x) = box-downsample( (1/M) sum_m I( W^{tau_m -> src}(x) ) ):
 // M virtual cameras at tau_m = t_o + ((m - 1/2)/M)(t_c - t_o), m = 1..M (the
 // midpoint of each slice of the exposure; eq:blurOperator has m/M), on the pose
-// path of eq:interpolatingP, each seeing depth D_tau_m reprojected from D_t;
+// path (PoseAtTime: eq:interpolatingP's geodesic, or the curve through the
+// frames on both sides that reduces to it at constant velocity), each seeing
+// depth D_tau_m reprojected from D_t;
 // their pixels are warped into the camera `src` whose latent image is sampled
 // (src = t for the self-consistency term eq:IPterm, a neighbour s for the
 // matching term eq:matchingTerm), read bilinearly and box-averaged by `scale`.
@@ -65,6 +67,13 @@ struct CaptureGeometry {
                                  // a sequence passes the NEXT frame (s > t), and the
                                  // same formula then extrapolates backwards from P_t
                                  // at constant velocity.
+  // A second neighbouring frame's pose and stamp (s2, distinct from s and t):
+  // the path is then the quadratic in se(3) through P_s, P_t and P_s2
+  // (PoseOnQuadraticPath), which follows an accelerating camera and is the
+  // geodesic of eq:interpolatingP when the three lie on one constant-velocity
+  // path. Empty: the geodesic through P_s and P_t. SetBlurPath fills both.
+  std::optional<SE3> T_world_second_neighbour;
+  double second_neighbour_stamp = 0.0;
   double exposure = 0.0;         // t_c - t_o, seconds, 0 < exposure
   // Rolling shutter (docs/file_formats.md#rolling-shutter): LR row y of H is
   // exposed over [t_o + y r / H, t_c + y r / H], r = readout_time (0: a
@@ -78,7 +87,7 @@ struct CaptureGeometry {
 
 // True when `a` and `b` fix the same operator bit for bit: the same camera,
 // D_t of the same size and bytes (NaN payloads included), the same poses
-// (P_t, P_neighbour, P_source or its absence), stamps, exposure and readout.
+// (P_t, the neighbours, P_source or their absence), stamps, exposure and readout.
 // Building from either gives the same operator (the builder is deterministic).
 bool SameCaptureGeometry(const CaptureGeometry& a, const CaptureGeometry& b);
 // True when the options give the same operator from the same geometry
@@ -90,6 +99,34 @@ void TransposeSparse(const SparseMatrixRM& a, SparseMatrixRM* at, int threads);
 // out = a * in for an interleaved C-channel float image `in` with one pixel per
 // column of `a`; `out` becomes a (rows x 1) C-channel image (reshape as needed).
 void MultiplySparse(const SparseMatrixRM& a, const cv::Mat& in, cv::Mat* out, int threads);
+
+// The pose at time `tau` on the frame's blur path (the curved path through
+// the neighbours of `geometry`, or eq:interpolatingP's geodesic): the one
+// place every user of the path (the operator, its blur length, the structure
+// update's derivative, the initialiser) takes it from. Also extrapolates: the
+// first frame's opening lies before its neighbours, rolling-shutter rows close
+// after the stamp.
+SE3 PoseAtTime(const CaptureGeometry& geometry, double tau);
+
+// The frames, besides t, whose poses fix frame t's blur path in a sequence of
+// `num_frames` >= 2 frames, the neighbour P_s first: t-1 and t+1 inside the
+// sequence (the curve); the other frame at either end (the geodesic of
+// eq:interpolatingP: the last frame interpolates towards t-1, the first
+// extrapolates backwards from frame 1). The curve through frames 1 and 2
+// for the first frame follows a hand-held path better with the true poses,
+// but extrapolated over its exposure it multiplies the pose errors of an
+// estimate (about 3x at an exposure of 0.8 frame intervals): its depth
+// collapsed (BENCHMARKS.md, "Curved blur paths").
+std::vector<int> BlurPathFrames(int t, int num_frames);
+// Sets the path of `geometry` (P_t, t and the neighbours) to frame t's among
+// the poses (at shutter close) and stamps of a sequence (BlurPathFrames).
+void SetBlurPath(const std::vector<SE3>& T_world_cam, const std::vector<double>& stamps, int t,
+                 CaptureGeometry* geometry);
+// Moves the path of `geometry` rigidly and in time onto the pose
+// `T_world_target` at `target_stamp`: every pose of the path becomes
+// T_target P_t^-1 P, every stamp shifts by target_stamp - t (the same motion
+// in the camera frame, as seen from the target).
+void MoveBlurPath(const SE3& T_world_target, double target_stamp, CaptureGeometry* geometry);
 
 // Poses T_world_tau_m of the M virtual cameras over the exposure of the rows
 // that open `row_delay` seconds after row 0 (y r / H for LR row y).
