@@ -88,6 +88,9 @@ void ImageUpdateOptions::Check() const {
   CheckAtLeast("image update: cg_iterations", cg_iterations, 1);
   CheckAtLeast("image update: refine_irls_iterations", refine_irls_iterations, 1);
   CheckAtLeast("image update: refine_cg_iterations", refine_cg_iterations, 1);
+  CheckAtLeast("image update: first_irls_iterations", first_irls_iterations, 1);
+  CheckAtLeast("image update: final_irls_iterations", final_irls_iterations, 1);
+  CheckAtLeast("image update: final_cg_iterations", final_cg_iterations, 1);
   CheckInRange("image update: cg_tolerance", cg_tolerance, 0.0, 1.0);
   CheckAbove("image update: residual_epsilon", residual_epsilon, 0.0);
   CheckAbove("image update: tv_epsilon", tv_epsilon, 0.0);
