@@ -149,7 +149,8 @@ void AddWeightedLaplacian(const cv::Mat& x, const cv::Mat& v, double scale, cv::
     } else if (down) {
       AddWeightedLaplacianRow<false, true>(px + offset, pv + offset, s, width, channels, stride, po + offset);
     } else {
-      AddWeightedLaplacianRow<false, false>(px + offset, pv + offset, s, width, channels, stride, po + offset);
+      AddWeightedLaplacianRow<false, false>(px + offset, pv + offset, s, width, channels, stride,
+                                            po + offset);
     }
   }
 }
