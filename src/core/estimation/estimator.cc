@@ -480,7 +480,8 @@ class WindowSolver {
   // ---- Phases.
   void ImagePhase(int iteration);
   void StructurePhase(int iteration, bool isolated);
-  void UpdateLatent(int t, bool refine);
+  ImageUpdateOptions PhaseCounts(int iteration) const;
+  void UpdateLatent(int t, const ImageUpdateOptions& phase_options);
   void UpdateEdgeWeight(int t);
   void UpdateFrameDepth(int t, int iteration, bool isolated, const std::vector<SE3>& poses,
                         const StructureUpdateOptions& structure_options);
@@ -703,10 +704,7 @@ void WindowSolver::ImagePhase(int iteration) {
              "iteration " + std::to_string(iteration) + ": image " + std::to_string(t));
     }
     if (t < options_.held_leading_latents) return;  // I_t stays as given
-    // The phases between the first and the last refine the restored images
-    // with fewer steps; the last gives the output images and runs in full.
-    const int last = options_.update_structure ? options_.max_iterations + 1 : options_.max_iterations;
-    UpdateLatent(t, /*refine=*/iteration > 1 && iteration < last);
+    UpdateLatent(t, PhaseCounts(iteration));
     UpdateEdgeWeight(t);
   });
   ++steps_done_;
@@ -714,11 +712,32 @@ void WindowSolver::ImagePhase(int iteration) {
   result_.energies.push_back(TotalEnergy(iteration, "image"));
 }
 
+// The counts of image phase `iteration` (1 = the first, from the initial
+// latents). The phases between the first and the last refine the restored
+// images with fewer steps; the last gives the output images: after
+// refinement phases it runs the final counts, right after the first phase
+// (one iteration) the full ones, as a phase that is both first and last.
+ImageUpdateOptions WindowSolver::PhaseCounts(int iteration) const {
+  const int last = options_.update_structure ? options_.max_iterations + 1 : options_.max_iterations;
+  ImageUpdateOptions counts = options_.image;
+  if (iteration == last) {
+    if (last > 2) {
+      counts.irls_iterations = counts.final_irls_iterations;
+      counts.cg_iterations = counts.final_cg_iterations;
+    }
+  } else if (iteration == 1) {
+    counts.irls_iterations = counts.first_irls_iterations;
+  } else {
+    counts.irls_iterations = counts.refine_irls_iterations;
+    counts.cg_iterations = counts.refine_cg_iterations;
+  }
+  return counts;
+}
+
 // I_t from the matching terms of its neighbours (Psi_s applied to I_t
-// against B_s) and its own self-consistency term (eq:IPterm). With
-// `refine`, I_t is already restored (an image phase after the first): the
-// update uses the refinement counts.
-void WindowSolver::UpdateLatent(int t, bool refine) {
+// against B_s) and its own self-consistency term (eq:IPterm), with the
+// counts of the phase (PhaseCounts).
+void WindowSolver::UpdateLatent(int t, const ImageUpdateOptions& phase_options) {
   std::vector<LinearL1Term> terms;
   HeldOperators held;
   for (int s : neighbours_[t]) {
@@ -727,12 +746,8 @@ void WindowSolver::UpdateLatent(int t, bool refine) {
   }
   held.push_back(Operator(t, t));
   terms.push_back({&held.back()->op, &observations_[t], cv::Mat(), options_.lambda_s});
-  ImageUpdateOptions image_options = options_.image;
+  ImageUpdateOptions image_options = phase_options;
   image_options.num_threads = 1;
-  if (refine) {
-    image_options.irls_iterations = image_options.refine_irls_iterations;
-    image_options.cg_iterations = image_options.refine_cg_iterations;
-  }
   const double solve_begin = NowMs();
   const ImageUpdateStats stats = UpdateImage(terms, image_options, &latents_[t]);
   timer_.AddSince("image solves (thread seconds)", solve_begin);

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
+#include <tuple>
 #include <utility>
 
 #include "deblur_sr_mvs/core/common/errors.h"
@@ -27,6 +28,20 @@ double Dot(const cv::Mat& a, const cv::Mat& b, int threads) {
 #pragma omp parallel for reduction(+ : sum) num_threads(threads) schedule(static)
   for (long i = 0; i < n; ++i) sum += static_cast<double>(pa[i]) * pb[i];
   return sum;
+}
+
+// (a . a, a . b) in one pass; each sum in the order Dot would take.
+std::pair<double, double> SquaredNormAndDot(const cv::Mat& a, const cv::Mat& b, int threads) {
+  const float* pa = a.ptr<float>();
+  const float* pb = b.ptr<float>();
+  const long n = static_cast<long>(NumValues(a));
+  double aa = 0.0, ab = 0.0;
+#pragma omp parallel for reduction(+ : aa, ab) num_threads(threads) schedule(static)
+  for (long i = 0; i < n; ++i) {
+    aa += static_cast<double>(pa[i]) * pa[i];
+    ab += static_cast<double>(pa[i]) * pb[i];
+  }
+  return {aa, ab};
 }
 
 // y += alpha * x
@@ -73,10 +88,47 @@ void ImageUpdateOptions::Check() const {
   CheckAtLeast("image update: cg_iterations", cg_iterations, 1);
   CheckAtLeast("image update: refine_irls_iterations", refine_irls_iterations, 1);
   CheckAtLeast("image update: refine_cg_iterations", refine_cg_iterations, 1);
+  CheckAtLeast("image update: first_irls_iterations", first_irls_iterations, 1);
+  CheckAtLeast("image update: final_irls_iterations", final_irls_iterations, 1);
+  CheckAtLeast("image update: final_cg_iterations", final_cg_iterations, 1);
   CheckInRange("image update: cg_tolerance", cg_tolerance, 0.0, 1.0);
   CheckAbove("image update: residual_epsilon", residual_epsilon, 0.0);
   CheckAbove("image update: tv_epsilon", tv_epsilon, 0.0);
 }
+
+namespace {
+
+// One row of AddWeightedLaplacian: kUp / kDown say whether the rows above
+// and below exist. The terms are added in the same order at every pixel
+// (right, left, down, up), so the interior loop, free of branches, gives the
+// same sums as the border pixels' checked form.
+template <bool kUp, bool kDown>
+void AddWeightedLaplacianRow(const float* __restrict px, const float* __restrict pv, float s, int width,
+                             int channels, int stride, float* __restrict po) {
+  const auto pixel = [&](int xx, int c) {
+    const long i = static_cast<long>(xx) * channels + c;
+    float acc = 0.0f;
+    if (xx + 1 < width) acc += pv[i] * (px[i] - px[i + channels]);
+    if (xx > 0) acc += pv[i - channels] * (px[i] - px[i - channels]);
+    if (kDown) acc += pv[i] * (px[i] - px[i + stride]);
+    if (kUp) acc += pv[i - stride] * (px[i] - px[i - stride]);
+    po[i] += s * acc;
+  };
+  for (int c = 0; c < channels; ++c) pixel(0, c);
+  const long interior_end = static_cast<long>(width - 1) * channels;
+  for (long i = channels; i < interior_end; ++i) {
+    float acc = 0.0f;
+    acc += pv[i] * (px[i] - px[i + channels]);
+    acc += pv[i - channels] * (px[i] - px[i - channels]);
+    if (kDown) acc += pv[i] * (px[i] - px[i + stride]);
+    if (kUp) acc += pv[i - stride] * (px[i] - px[i - stride]);
+    po[i] += s * acc;
+  }
+  if (width > 1)
+    for (int c = 0; c < channels; ++c) pixel(width - 1, c);
+}
+
+}  // namespace
 
 void AddWeightedLaplacian(const cv::Mat& x, const cv::Mat& v, double scale, cv::Mat* out, int threads) {
   const int channels = x.channels();
@@ -88,17 +140,17 @@ void AddWeightedLaplacian(const cv::Mat& x, const cv::Mat& v, double scale, cv::
   float* po = out->ptr<float>();
 #pragma omp parallel for num_threads(threads) schedule(static)
   for (int y = 0; y < height; ++y) {
-    for (int xx = 0; xx < width; ++xx) {
-      for (int c = 0; c < channels; ++c) {
-        const long i = static_cast<long>(y) * stride + xx * channels + c;
-        float acc = 0.0f;
-        // Edge to the right (owned by this pixel) and from the left.
-        if (xx + 1 < width) acc += pv[i] * (px[i] - px[i + channels]);
-        if (xx > 0) acc += pv[i - channels] * (px[i] - px[i - channels]);
-        if (y + 1 < height) acc += pv[i] * (px[i] - px[i + stride]);
-        if (y > 0) acc += pv[i - stride] * (px[i] - px[i - stride]);
-        po[i] += s * acc;
-      }
+    const long offset = static_cast<long>(y) * stride;
+    const bool up = y > 0, down = y + 1 < height;
+    if (up && down) {
+      AddWeightedLaplacianRow<true, true>(px + offset, pv + offset, s, width, channels, stride, po + offset);
+    } else if (up) {
+      AddWeightedLaplacianRow<true, false>(px + offset, pv + offset, s, width, channels, stride, po + offset);
+    } else if (down) {
+      AddWeightedLaplacianRow<false, true>(px + offset, pv + offset, s, width, channels, stride, po + offset);
+    } else {
+      AddWeightedLaplacianRow<false, false>(px + offset, pv + offset, s, width, channels, stride,
+                                            po + offset);
     }
   }
 }
@@ -176,6 +228,9 @@ void InverseDiagonal(const cv::Mat& diagonal, cv::Mat* inverse) {
   for (size_t i = 0; i < n; ++i) pi[i] = pd[i] > 0.0f ? 1.0f / pd[i] : 1.0f;
 }
 
+void ApplyLaplacianGaussSeidelInverse(const cv::Mat& inverse_diagonal, const cv::Mat& v, double scale,
+                                      const cv::Mat& r, cv::Mat* z);
+
 // The reweighted least-squares problem of one IRLS step of eq:imgUpdate at
 // the current image x: with W_k = weight_k * mask_k / max(|A_k x - b_k|, eps)
 // and V = 1 / max(|grad x|, eps), the normal operator is
@@ -229,7 +284,7 @@ class ReweightedImageSystem {
   // z = M^-1 r with the options' preconditioner.
   void Precondition(const cv::Mat& r, cv::Mat* z) {
     if (options_.preconditioner == ImagePreconditioner::kTvGaussSeidel && options_.lambda_i > 0.0) {
-      ApplyLaplacianGaussSeidel(diagonal_, tv_weights_, options_.lambda_i, r, z);
+      ApplyLaplacianGaussSeidelInverse(inverse_diagonal_, tv_weights_, options_.lambda_i, r, z);
       return;
     }
     cv::multiply(r, inverse_diagonal_, *z);
@@ -273,8 +328,7 @@ int SolvePcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_normal,
   cv::Mat preconditioned, direction, normal_direction;
   apply_preconditioner(residual, &preconditioned);
   direction = preconditioned.clone();
-  double rz = Dot(residual, preconditioned, threads);
-  double rr = Dot(residual, residual, threads);
+  auto [rr, rz] = SquaredNormAndDot(residual, preconditioned, threads);
   const double rr0 = rr;
   const double stop = relative_tolerance * relative_tolerance * rr0;
   int steps = 0;
@@ -285,9 +339,9 @@ int SolvePcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_normal,
     const double alpha = rz / dnd;
     Axpy(alpha, direction, x, threads);
     Axpy(-alpha, normal_direction, &residual, threads);
-    rr = Dot(residual, residual, threads);
     apply_preconditioner(residual, &preconditioned);
-    const double rz_next = Dot(residual, preconditioned, threads);
+    double rz_next = 0.0;
+    std::tie(rr, rz_next) = SquaredNormAndDot(residual, preconditioned, threads);
     const double beta = rz_next / rz;
     rz = rz_next;
     // d = z + beta d
@@ -307,18 +361,21 @@ int SolveJacobiPcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_no
   return SolvePcg(apply_normal, jacobi, std::move(residual), max_iterations, relative_tolerance, threads, x);
 }
 
-void ApplyLaplacianGaussSeidel(const cv::Mat& diagonal, const cv::Mat& v, double scale, const cv::Mat& r,
-                               cv::Mat* z) {
+namespace {
+
+// ApplyLaplacianGaussSeidel with the diagonal given by its inverse
+// (InverseDiagonal): the sweeps multiply by it instead of dividing.
+void ApplyLaplacianGaussSeidelInverse(const cv::Mat& inverse_diagonal, const cv::Mat& v, double scale,
+                                      const cv::Mat& r, cv::Mat* z) {
   const int channels = r.channels();
   const int width = r.cols, height = r.rows;
   const int stride = width * channels;
   const float s = static_cast<float>(scale);
-  const float* pd = diagonal.ptr<float>();
-  const float* pv = v.ptr<float>();
-  const float* pr = r.ptr<float>();
+  const float* __restrict pinv = inverse_diagonal.ptr<float>();
+  const float* __restrict pv = v.ptr<float>();
+  const float* __restrict pr = r.ptr<float>();
   z->create(r.size(), r.type());
-  float* pz = z->ptr<float>();
-  const auto inverse = [pd](long i) { return pd[i] > 0.0f ? 1.0f / pd[i] : 1.0f; };
+  float* __restrict pz = z->ptr<float>();
   // Forward sweep, raster order: (D + L) y = r; the earlier neighbours are
   // the left one (edge weight v there) and the one above (v there).
   for (int y = 0; y < height; ++y) {
@@ -328,7 +385,7 @@ void ApplyLaplacianGaussSeidel(const cv::Mat& diagonal, const cv::Mat& v, double
         float acc = pr[i];
         if (xx > 0) acc += s * pv[i - channels] * pz[i - channels];
         if (y > 0) acc += s * pv[i - stride] * pz[i - stride];
-        pz[i] = acc * inverse(i);
+        pz[i] = acc * pinv[i];
       }
     }
   }
@@ -340,10 +397,19 @@ void ApplyLaplacianGaussSeidel(const cv::Mat& diagonal, const cv::Mat& v, double
         float acc = 0.0f;
         if (xx + 1 < width) acc += pz[i + channels];
         if (y + 1 < height) acc += pz[i + stride];
-        pz[i] += s * pv[i] * acc * inverse(i);
+        pz[i] += s * pv[i] * acc * pinv[i];
       }
     }
   }
+}
+
+}  // namespace
+
+void ApplyLaplacianGaussSeidel(const cv::Mat& diagonal, const cv::Mat& v, double scale, const cv::Mat& r,
+                               cv::Mat* z) {
+  cv::Mat inverse;
+  InverseDiagonal(diagonal, &inverse);
+  ApplyLaplacianGaussSeidelInverse(inverse, v, scale, r, z);
 }
 
 namespace {

@@ -7,6 +7,8 @@
 #include <fstream>
 #include <iostream>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include <opencv2/imgproc.hpp>
 
@@ -117,14 +119,16 @@ TEST(Estimator, StructureUpdateImprovesDegradedStructure) {
   // substantially (measured: to 0.53 after two iterations, 0.66 after one).
   EXPECT_LT(result.energies.back().matching, 0.75 * result.energies[1].matching);
   EXPECT_LT(rel_after, 0.05);
-  // The first image phase restores from the input latents with the full
-  // counts; with one iteration the phase after the structure update is the
-  // last (it gives the output images), so it runs the full counts too (the
-  // refinement counts are for the phases in between).
+  // The first image phase restores from the input latents with the first
+  // phase's reweightings; with one iteration the phase after the structure
+  // update is the last (it gives the output images) and follows no
+  // refinement phase, so it runs the full counts (the refinement and final
+  // counts are for the phases after a refinement).
   const int frames = static_cast<int>(sequence.frames.size());
-  EXPECT_EQ(result.image_work.reweightings, frames * 2 * options.image.irls_iterations);
+  const ImageUpdateOptions& image = options.image;
+  EXPECT_EQ(result.image_work.reweightings, frames * (image.first_irls_iterations + image.irls_iterations));
   EXPECT_LE(result.image_work.cg_steps,
-            frames * 2 * options.image.irls_iterations * options.image.cg_iterations);
+            frames * (image.first_irls_iterations + image.irls_iterations) * image.cg_iterations);
   for (const StageTiming& s : result.timings) std::printf("  %s: %.2f s\n", s.stage.c_str(), s.seconds);
 }
 
@@ -207,6 +211,33 @@ TEST(EstimatorSafety, ExtremeBlurStillRestoresAndStaysFinite) {
   EXPECT_GT(restored, baseline);
 }
 
+// Image phases 1, 2 and 3 of a 3-phase run (images only: each phase
+// restores every frame) run the first, the refinement and the final counts;
+// every reweighting runs, so the count of reweightings is exact.
+TEST(EstimatorSchedule, ImagePhasesRunTheFirstRefinementAndFinalCounts) {
+  const Sequence& sequence = SmallSequence();
+  const std::vector<SE3> poses = TruePoses(sequence);
+  EstimatorOptions options;
+  options.samples = 10;
+  options.update_structure = false;
+  options.max_iterations = 3;
+  options.image.first_irls_iterations = 3;
+  options.image.refine_irls_iterations = 1;
+  options.image.refine_cg_iterations = 2;
+  options.image.final_irls_iterations = 2;
+  options.image.final_cg_iterations = 4;
+  const EstimatorResult result =
+      Estimator(options).RunFromStructure(InputOf(sequence), sequence.ground_truth->depth, poses);
+  const int frames = static_cast<int>(sequence.frames.size());
+  EXPECT_EQ(result.image_work.reweightings, frames * (3 + 1 + 2));
+  EXPECT_LE(result.image_work.cg_steps, frames * (3 * options.image.cg_iterations + 1 * 2 + 2 * 4));
+  // Two phases: the second is last right after the first: the full counts.
+  options.max_iterations = 2;
+  const EstimatorResult two =
+      Estimator(options).RunFromStructure(InputOf(sequence), sequence.ground_truth->depth, poses);
+  EXPECT_EQ(two.image_work.reweightings, frames * (3 + options.image.irls_iterations));
+}
+
 TEST(EstimatorSafety, TimeCapStopsBetweenIterationsAndSaysSo) {
   const Sequence& sequence = SmallSequence();
   const std::vector<SE3> poses = TruePoses(sequence);
@@ -267,15 +298,19 @@ TEST(EstimatorSafety, BadOptionsNameTheRangeAndTheValue) {
   options = EstimatorOptions();
   options.lambda_s = -1.0;
   EXPECT_EQ(message(options), "lambda_s must be >= 0, got -1");
-  options = EstimatorOptions();
-  options.image.cg_iterations = 0;
-  EXPECT_EQ(message(options), "image update: cg_iterations must be >= 1, got 0");
-  options = EstimatorOptions();
-  options.image.refine_irls_iterations = 0;
-  EXPECT_EQ(message(options), "image update: refine_irls_iterations must be >= 1, got 0");
-  options = EstimatorOptions();
-  options.image.refine_cg_iterations = 0;
-  EXPECT_EQ(message(options), "image update: refine_cg_iterations must be >= 1, got 0");
+  // The image update's counts, each set to 0 in turn.
+  const std::vector<std::pair<const char*, int ImageUpdateOptions::*>> counts = {
+      {"cg_iterations", &ImageUpdateOptions::cg_iterations},
+      {"refine_irls_iterations", &ImageUpdateOptions::refine_irls_iterations},
+      {"refine_cg_iterations", &ImageUpdateOptions::refine_cg_iterations},
+      {"first_irls_iterations", &ImageUpdateOptions::first_irls_iterations},
+      {"final_irls_iterations", &ImageUpdateOptions::final_irls_iterations},
+      {"final_cg_iterations", &ImageUpdateOptions::final_cg_iterations}};
+  for (const auto& [name, count] : counts) {
+    options = EstimatorOptions();
+    options.image.*count = 0;
+    EXPECT_EQ(message(options), std::string("image update: ") + name + " must be >= 1, got 0");
+  }
   options = EstimatorOptions();
   options.structure.tv_epsilon = 0.0;
   EXPECT_EQ(message(options), "structure update: tv_epsilon must be > 0, got 0");

@@ -3,6 +3,7 @@
 // copy, the Jacobi-preconditioned CG against plain CG and a direct solve.
 #include "deblur_sr_mvs/core/estimation/image_update.h"
 
+#include <cstring>
 #include <functional>
 #include <random>
 #include <utility>
@@ -181,6 +182,56 @@ Eigen::MatrixXd DenseTvSystem(const cv::Mat& data_diagonal, const cv::Mat& v, do
     dense(j, j) += data_diagonal.ptr<float>()[j];
   }
   return dense;
+}
+
+// out += scale * D^T diag(v) D x pixel by pixel: the four edges of a pixel
+// (right, left, down, up; an edge's weight is v at its left or upper end)
+// summed in that order where the neighbour exists, as AddWeightedLaplacian
+// did before its interior loop lost the checks.
+void CheckedWeightedLaplacian(const cv::Mat& x, const cv::Mat& v, double scale, cv::Mat* out) {
+  const int channels = x.channels();
+  for (int y = 0; y < x.rows; ++y) {
+    for (int col = 0; col < x.cols; ++col) {
+      const int neighbour_x[4] = {col + 1, col - 1, col, col};
+      const int neighbour_y[4] = {y, y, y + 1, y - 1};
+      for (int c = 0; c < channels; ++c) {
+        const auto at = [channels, c](const cv::Mat& m, int yy, int xx) {
+          return m.ptr<float>(yy)[xx * channels + c];
+        };
+        float sum = 0.0f;
+        for (int k = 0; k < 4; ++k) {
+          const int nx = neighbour_x[k], ny = neighbour_y[k];
+          if (nx < 0 || ny < 0 || nx >= x.cols || ny >= x.rows) continue;
+          const float weight = k % 2 == 0 ? at(v, y, col) : at(v, ny, nx);
+          sum += weight * (at(x, y, col) - at(x, ny, nx));
+        }
+        out->ptr<float>(y)[col * channels + c] += static_cast<float>(scale) * sum;
+      }
+    }
+  }
+}
+
+// The row kernels without per-pixel checks add the same terms in the same
+// order: bit for bit the checked stencil, on grids with and without
+// interior, 1 and 3 channels, on one and two threads.
+TEST(WeightedLaplacian, EqualsTheCheckedStencilBitForBit) {
+  std::mt19937 rng(29);
+  for (const cv::Size size :
+       {cv::Size(1, 1), cv::Size(5, 1), cv::Size(1, 4), cv::Size(2, 2), cv::Size(9, 7)}) {
+    for (const int channels : {1, 3}) {
+      for (const int threads : {1, 2}) {
+        const int n = size.area();
+        const cv::Mat x = RandomValues(n, channels, -1.0f, 1.0f, &rng).reshape(channels, size.height);
+        const cv::Mat v = RandomValues(n, channels, 0.1f, 20.0f, &rng).reshape(channels, size.height);
+        const cv::Mat start = RandomValues(n, channels, -1.0f, 1.0f, &rng).reshape(channels, size.height);
+        cv::Mat fast = start.clone(), checked = start.clone();
+        AddWeightedLaplacian(x, v, 0.45, &fast, threads);
+        CheckedWeightedLaplacian(x, v, 0.45, &checked);
+        ASSERT_EQ(std::memcmp(fast.data, checked.data, fast.total() * fast.elemSize()), 0)
+            << size << " channels " << channels << " threads " << threads;
+      }
+    }
+  }
 }
 
 class LaplacianGaussSeidel : public ::testing::TestWithParam<int> {};
