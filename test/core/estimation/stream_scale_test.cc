@@ -69,7 +69,9 @@ TEST(StreamScale, ContinuedWindowsKeepTheScaleOfTheFirst) {
     EXPECT_NEAR(units_per_metre[t] / first_window, 1.0, 0.10) << "frame " << t;
     // Camera steps: every step of the stitched trajectory in that scale too
     // (the slide left the first step of each new window 35-60 % short).
-    if (t > 0) EXPECT_NEAR(step / first_window, 1.0, 0.15) << "step " << t - 1 << " -> " << t;
+    if (t > 0) {
+      EXPECT_NEAR(step / first_window, 1.0, 0.15) << "step " << t - 1 << " -> " << t;
+    }
   }
 }
 
