@@ -187,7 +187,14 @@ class PairWarp {
     Eigen::Matrix<double, 2, 3> d_pixel;
     d_pixel << camera_.fx / z, 0.0, -camera_.fx * point_s.x() / (z * z), 0.0, camera_.fy / z,
         -camera_.fy * point_s.y() / (z * z);
-    return d_pixel * T_s_world_.rotation() * DLeftPerturbedPointDEps(point_w);
+    // d_pixel R_s^T DLeftPerturbedPointDEps(X_w) row by row: with m a row of
+    // d_pixel R_s^T, m [I, -[X_w]x] = [m, (X_w x m)^T].
+    const Eigen::Matrix<double, 2, 3> m = d_pixel * T_s_world_.rotation();
+    Eigen::Matrix<double, 2, 6> jacobian;
+    jacobian.leftCols<3>() = m;
+    jacobian.block<1, 3>(0, 3) = point_w.cross(m.row(0).transpose()).transpose();
+    jacobian.block<1, 3>(1, 3) = point_w.cross(m.row(1).transpose()).transpose();
+    return jacobian;
   }
 
  private:
