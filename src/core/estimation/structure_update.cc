@@ -290,6 +290,7 @@ void StructureUpdateOptions::Check() const {
   CheckAtLeast("structure update: depth_damping", depth_damping, 0.0);
   CheckAtLeast("structure update: pose_damping", pose_damping, 0.0);
   CheckAtLeast("structure update: joint_cg_iterations", joint_cg_iterations, 1);
+  CheckAtLeast("structure update: joint_irls_iterations", joint_irls_iterations, 1);
   CheckAtLeast("structure update: joint_pose_damping", joint_pose_damping, 0.0);
   edge_weight.Check();
 }
@@ -1278,7 +1279,7 @@ void UpdateDepthAndPoses(const PinholeCamera& camera_hr, const std::vector<cv::M
                          std::vector<cv::Mat>* inverse_depths) {
   options.Check();
   JointDepthPoseSystem system(camera_hr, *T_world_cam, latents, frames, parallax_scale, options, num_fixed);
-  for (int irls = 0; irls < options.depth_irls_iterations; ++irls) {
+  for (int irls = 0; irls < options.joint_irls_iterations; ++irls) {
     system.Linearize(*inverse_depths);
     const JointStep step = system.Solve(system.RightHandSide(*inverse_depths));
     if (!step.poses.allFinite()) break;

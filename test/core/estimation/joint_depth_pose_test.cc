@@ -446,6 +446,12 @@ TEST(StructureUpdateOptions, RejectsBadJointCgIterations) {
   EXPECT_ANY_THROW(options.Check());
 }
 
+TEST(StructureUpdateOptions, RejectsBadJointIrlsIterations) {
+  StructureUpdateOptions options;
+  options.joint_irls_iterations = 0;
+  EXPECT_ANY_THROW(options.Check());
+}
+
 TEST(StructureUpdateOptions, RejectsNegativeJointPoseDamping) {
   StructureUpdateOptions options;
   options.joint_pose_damping = -0.1;

@@ -58,6 +58,9 @@ struct StructureUpdateOptions {
   // CG steps per reweighted joint system (its tolerance is
   // depth_cg_tolerance).
   int joint_cg_iterations = 30;
+  // Reweightings (re-linearisations) of the joint step per structure update
+  // (the per-frame depth updates take depth_irls_iterations).
+  int joint_irls_iterations = 3;
   // Levenberg-Marquardt damping of the pose block inside the joint step,
   // relative to the pose block's own diagonal (the pose update's matching
   // terms, before the depth is eliminated). The depth can trade for a
@@ -192,7 +195,7 @@ class JointDepthPoseSystem {
   std::unique_ptr<Impl> impl_;
 };
 
-// depth_irls_iterations joint steps (JointDepthPoseSystem) of all frames'
+// joint_irls_iterations joint steps (JointDepthPoseSystem) of all frames'
 // depths and the poses but the first `num_fixed` (>= 1). `frames[t]` holds
 // frame t's depth terms; latents as in UpdateDepth.
 void UpdateDepthAndPoses(const PinholeCamera& camera_hr, const std::vector<cv::Mat>& latents,
