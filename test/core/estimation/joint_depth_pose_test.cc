@@ -418,10 +418,11 @@ StepResult RunStructureUpdates(const PlaneScene& scene, bool joint, int rounds) 
 // Measured (3 rounds): from pose error 9.0e-3 and depth error 0.060 the
 // alternation ends at 1.2e-2 and 0.058 (the depth absorbed the pose error:
 // the pose update then finds the biased depth consistent), the joint step
-// (default joint_pose_damping 0.01) at 4.7e-3 and 0.021 (4.2e-3 and 0.025
-// with damping 1e-4). After one round the joint step's pose error is still
-// above the start (1.4e-2 against 1.3e-2 for the alternation): the depth
-// starts fronto-parallel, and the poses follow it first.
+// (defaults: joint_pose_damping 0.01, 2 reweightings) at 4.6e-3 and 0.0077
+// (3 reweightings: 4.7e-3 and 0.021; damping 1e-4: 4.2e-3 and 0.025). After
+// one round the joint step's pose error is still above the start (1.5e-2
+// against 1.3e-2 for the alternation): the depth starts fronto-parallel, and
+// the poses follow it first.
 TEST(UpdateDepthAndPoses, BeatsTheAlternationFromAPerturbedPose) {
   const PlaneScene scene;
   for (int rounds : {1, 3}) {
