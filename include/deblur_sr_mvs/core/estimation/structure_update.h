@@ -53,8 +53,8 @@ struct StructureUpdateOptions {
   // cannot absorb a pose error; the pose update follows as before. Off:
   // on 8 sequences better in mean depth and ATE than the per-frame depth
   // updates at 11 % more CPU (under load), but not on every sequence
-  // (lateral / Aloe: depth 0.0225 against 0.0221), and the test suites have
-  // not run with it on (BENCHMARKS.md "Joint depth + pose step (Schur)").
+  // (lateral / Aloe: depth 0.0225 against 0.0221), with 1.8x the peak
+  // memory (BENCHMARKS.md "Joint depth + pose step (Schur)").
   bool joint_depth_pose_step = false;
   // CG steps per reweighted joint system (its tolerance is
   // depth_cg_tolerance).
