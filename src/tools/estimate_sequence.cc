@@ -118,6 +118,9 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   cli.add_option("--joint-cg-iterations", options->structure.joint_cg_iterations,
                  "with --joint-depth-pose-step: CG steps per reweighting")
       ->check(dsm::FlagInt());
+  cli.add_option("--joint-irls-iterations", options->structure.joint_irls_iterations,
+                 "with --joint-depth-pose-step: reweightings of the joint step per structure update")
+      ->check(dsm::FlagInt());
   cli.add_flag("--joint-pose-pairs,!--no-joint-pose-pairs", options->structure.joint_step_pose_pairs,
                "with --joint-depth-pose-step: match the pairs within the pose radius, not only N(t)");
   cli.add_option("--structure-matching", flags->structure_matching, "both, restored or blurred")

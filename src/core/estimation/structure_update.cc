@@ -187,7 +187,14 @@ class PairWarp {
     Eigen::Matrix<double, 2, 3> d_pixel;
     d_pixel << camera_.fx / z, 0.0, -camera_.fx * point_s.x() / (z * z), 0.0, camera_.fy / z,
         -camera_.fy * point_s.y() / (z * z);
-    return d_pixel * T_s_world_.rotation() * DLeftPerturbedPointDEps(point_w);
+    // d_pixel R_s^T DLeftPerturbedPointDEps(X_w) row by row: with m a row of
+    // d_pixel R_s^T, m [I, -[X_w]x] = [m, (X_w x m)^T].
+    const Eigen::Matrix<double, 2, 3> m = d_pixel * T_s_world_.rotation();
+    Eigen::Matrix<double, 2, 6> jacobian;
+    jacobian.leftCols<3>() = m;
+    jacobian.block<1, 3>(0, 3) = point_w.cross(m.row(0).transpose()).transpose();
+    jacobian.block<1, 3>(1, 3) = point_w.cross(m.row(1).transpose()).transpose();
+    return jacobian;
   }
 
  private:
@@ -196,6 +203,20 @@ class PairWarp {
   Eigen::Matrix3d h_;
   Eigen::Vector3d kt_;
   double max_u_ = 0.0, max_v_ = 0.0;
+};
+
+// Per pixel of a pair, from the source's gradients g_c at the warp: S =
+// sum_c w_c g_c g_c^T and b = sum_c w_c r_c g_c (with J = d pixel / d eps_t,
+// the pose terms J^T S J and J^T b).
+struct GradientMoments {
+  double s00 = 0.0, s01 = 0.0, s11 = 0.0, b0 = 0.0, b1 = 0.0;
+  void Add(double w, double r, double gx, double gy) {
+    s00 += w * gx * gx;
+    s01 += w * gx * gy;
+    s11 += w * gy * gy;
+    b0 += w * r * gx;
+    b1 += w * r * gy;
+  }
 };
 
 }  // namespace
@@ -269,6 +290,7 @@ void StructureUpdateOptions::Check() const {
   CheckAtLeast("structure update: depth_damping", depth_damping, 0.0);
   CheckAtLeast("structure update: pose_damping", pose_damping, 0.0);
   CheckAtLeast("structure update: joint_cg_iterations", joint_cg_iterations, 1);
+  CheckAtLeast("structure update: joint_irls_iterations", joint_irls_iterations, 1);
   CheckAtLeast("structure update: joint_pose_damping", joint_pose_damping, 0.0);
   edge_weight.Check();
 }
@@ -320,6 +342,78 @@ WarpLinearization LinearizeWarp(const PinholeCamera& camera_hr, const cv::Mat& i
 }
 
 namespace {
+
+// The pose terms of an HR pair (no capture operator) in one pass over its
+// pixels, without the six pose Jacobian images: channel c's row is A_c =
+// g_c^T J (g_c the source's gradient at the warp, J = d pixel / d eps_t), so
+// with the IRLS weights w and the depth derivative g_rho,
+//   coupling = sum_c w_c g_rho,c A_c^T = J^T q,  q = sum_c w_c g_rho,c g_c,
+//   block = sum J^T S J,  S = sum_c w_c g_c g_c^T,  rhs = sum J^T sum_c w_c r0_c g_c.
+// The 6x6 sums go row by row (float within a row, double across rows).
+void HrPairPoseTerms(const PinholeCamera& camera, const cv::Mat& inverse_depth, const SE3& T_world_t,
+                     const SE3& T_world_s, const cv::Mat& source, const cv::Mat& d_inverse_depth,
+                     const cv::Mat& residual, const cv::Mat& weight, cv::Mat* coupling,
+                     Eigen::Matrix<double, 6, 6>* block, Vector6d* rhs) {
+  const int channels = source.channels();
+  const int width = camera.width;
+  cv::Mat gx, gy;
+  Gradients(source, &gx, &gy);
+  const PairWarp warp(camera, T_world_t, T_world_s);
+  coupling->create(camera.height, width, CV_32FC(6));
+  block->setZero();
+  rhs->setZero();
+  // Per row: J's 12 entries, S J's 12 and the 2 of sum_c w_c r0_c g_c, each
+  // an array over the row's pixels (zero where every weight is zero).
+  Eigen::MatrixXf j_rows(12, width), sj_rows(12, width), b_rows(2, width);
+  std::vector<float> grad_x(channels), grad_y(channels);
+  for (int y = 0; y < camera.height; ++y) {
+    const float* rho_row = inverse_depth.ptr<float>(y);
+    const float* w_row = weight.ptr<float>(y);
+    const float* r_row = residual.ptr<float>(y);
+    const float* g_row = d_inverse_depth.ptr<float>(y);
+    float* out = coupling->ptr<float>(y);
+    j_rows.setZero();
+    sj_rows.setZero();
+    b_rows.setZero();
+    for (int x = 0; x < width; ++x) {
+      float* coupling_x = out + 6 * x;
+      std::fill(coupling_x, coupling_x + 6, 0.0f);
+      const float* w = w_row + x * channels;
+      double u, v, du, dv;
+      if (std::all_of(w, w + channels, [](float value) { return value == 0.0f; }) ||
+          !warp.Project(x, y, rho_row[x], &u, &v, &du, &dv)) {
+        continue;
+      }
+      SampleBilinear(gx, static_cast<float>(u), static_cast<float>(v), grad_x.data());
+      SampleBilinear(gy, static_cast<float>(u), static_cast<float>(v), grad_y.data());
+      GradientMoments m;
+      double q0 = 0.0, q1 = 0.0;
+      for (int c = 0; c < channels; ++c) {
+        const double g_rho = g_row[x * channels + c];
+        m.Add(w[c], r_row[x * channels + c], grad_x[c], grad_y[c]);
+        q0 += w[c] * g_rho * grad_x[c];
+        q1 += w[c] * g_rho * grad_y[c];
+      }
+      const Eigen::Matrix<double, 2, 6> j = warp.DPixelDPose(x, y, rho_row[x]);
+      for (int k = 0; k < 6; ++k) {
+        coupling_x[k] = static_cast<float>(j(0, k) * q0 + j(1, k) * q1);
+        j_rows(k, x) = static_cast<float>(j(0, k));
+        j_rows(6 + k, x) = static_cast<float>(j(1, k));
+        sj_rows(k, x) = static_cast<float>(m.s00 * j(0, k) + m.s01 * j(1, k));
+        sj_rows(6 + k, x) = static_cast<float>(m.s01 * j(0, k) + m.s11 * j(1, k));
+      }
+      b_rows(0, x) = static_cast<float>(m.b0);
+      b_rows(1, x) = static_cast<float>(m.b1);
+    }
+    const Eigen::Matrix<float, 6, 6> row_block =
+        j_rows.topRows(6) * sj_rows.topRows(6).transpose() + j_rows.bottomRows(6) * sj_rows.bottomRows(6).transpose();
+    const Eigen::Matrix<float, 6, 1> row_rhs =
+        j_rows.topRows(6) * b_rows.row(0).transpose() + j_rows.bottomRows(6) * b_rows.row(1).transpose();
+    *block += row_block.cast<double>();
+    *rhs += row_rhs.cast<double>();
+  }
+  *block = 0.5 * (*block + block->transpose());
+}
 
 // The IRLS form of the depth update of one frame (eq:taylorExpansion, with
 // the edge-weighted TV of eq:regularizingTerm on c * rho, c the parallax
@@ -376,10 +470,11 @@ class DepthNormalEquations {
   const cv::Mat& diagonal() const { return diagonal_; }
 
   // With pose_coupling, pair p's terms in the poses after Linearize: for
-  // r = r0 - Psi(g .* d + A (eps_t - eps_s)), coupling[j] = G^T Psi^T W Psi
-  // A_j (HR, one channel), block = A^T Psi^T W Psi A, rhs = A^T Psi^T W r0.
+  // r = r0 - Psi(g .* d + A (eps_t - eps_s)), coupling = G^T Psi^T W Psi
+  // A_j for j = 0..5 interleaved pixel by pixel (HR, CV_32FC(6)), block =
+  // A^T Psi^T W Psi A, rhs = A^T Psi^T W r0.
   struct PoseCoupling {
-    std::array<cv::Mat, 6> coupling;
+    cv::Mat coupling;
     Eigen::Matrix<double, 6, 6> block = Eigen::Matrix<double, 6, 6>::Zero();
     Vector6d rhs = Vector6d::Zero();
   };
@@ -453,13 +548,21 @@ class DepthNormalEquations {
     for (size_t p = 0; p < pairs_.size(); ++p) {
       const PairMatching& pair = pairs_[p];
       PairState& state = states_[p];
+      // HR pairs form their pose terms in one pass (HrPairPoseTerms), without
+      // the pose Jacobian images.
+      const bool jacobian_images = pose_coupling_ && pair.blur != nullptr;
       state.lin = LinearizeWarp(camera_hr_, inverse_depth, T_world_cam_[pair.t], T_world_cam_[pair.s],
-                                SourceImage(pair, latents_), pose_coupling_ ? &pose_jacobians_ : nullptr);
+                                SourceImage(pair, latents_), jacobian_images ? &pose_jacobians_ : nullptr);
       Predict(pair, state.lin.warped, &predicted_);
       state.residual = *pair.observation - predicted_;
       L1Weights(state.residual, ObservationMask(pair, state.lin.valid), options_.residual_epsilon,
                 &state.weight);
-      if (pose_coupling_) CouplePoses(pair, &state);
+      if (jacobian_images) CouplePoses(pair, &state);
+      if (pose_coupling_ && !jacobian_images) {
+        HrPairPoseTerms(camera_hr_, inverse_depth, T_world_cam_[pair.t], T_world_cam_[pair.s],
+                        SourceImage(pair, latents_), state.lin.d_inverse_depth, state.residual, state.weight,
+                        &state.pose.coupling, &state.pose.block, &state.pose.rhs);
+      }
       diagonal_sum += Dot1(state.lin.d_inverse_depth, state.lin.d_inverse_depth) * cv::mean(state.weight)[0] /
                       std::max(1, state.weight.channels());
     }
@@ -472,13 +575,15 @@ class DepthNormalEquations {
   void CouplePoses(const PairMatching& pair, PairState* state) {
     PoseCoupling& pose = state->pose;
     cv::multiply(state->residual, state->weight, predicted_);
+    std::array<cv::Mat, 6> columns;
     for (int j = 0; j < 6; ++j) {
       Predict(pair, pose_jacobians_[j], &projected_[j]);
       cv::multiply(projected_[j], state->weight, weighted_[j]);
       PredictAdjoint(pair, weighted_[j], &back_);
-      pose.coupling[j].create(height_, width_, CV_32FC1);
-      ContractChannels(state->lin.d_inverse_depth, back_, &pose.coupling[j], false);
+      columns[j].create(height_, width_, CV_32FC1);
+      ContractChannels(state->lin.d_inverse_depth, back_, &columns[j], false);
     }
+    cv::merge(columns.data(), columns.size(), pose.coupling);
     PoseProducts(projected_, weighted_, predicted_, &pose.block, &pose.rhs);
   }
 
@@ -641,23 +746,17 @@ PairNormalEquations HrPairNormalEquations(const PinholeCamera& camera_hr, const 
       // Channel c has the row a_c = g_c^T J (g_c: image gradient, J: d pixel
       // / d eps_t), so sum_c w_c a_c^T a_c = J^T S J with the 2x2
       // S = sum_c w_c g_c g_c^T, and sum_c w_c r_c a_c^T = J^T b.
-      double s00 = 0.0, s01 = 0.0, s11 = 0.0, b0 = 0.0, b1 = 0.0;
+      GradientMoments m;
       for (int c = 0; c < channels; ++c) {
         const double r0 = observed[x * channels + c] - value[c];
-        const double w = 1.0 / std::max(std::abs(r0), epsilon);
-        const double gx = grad_x[c], gy = grad_y[c];
-        s00 += w * gx * gx;
-        s01 += w * gx * gy;
-        s11 += w * gy * gy;
-        b0 += w * r0 * gx;
-        b1 += w * r0 * gy;
+        m.Add(1.0 / std::max(std::abs(r0), epsilon), r0, grad_x[c], grad_y[c]);
       }
       const Eigen::Matrix<double, 2, 6> d_pixel = warp.DPixelDPose(x, y, rho_row[x]);
       Eigen::Matrix<double, 2, 6> s_times_j;
-      s_times_j.row(0) = s00 * d_pixel.row(0) + s01 * d_pixel.row(1);
-      s_times_j.row(1) = s01 * d_pixel.row(0) + s11 * d_pixel.row(1);
+      s_times_j.row(0) = m.s00 * d_pixel.row(0) + m.s01 * d_pixel.row(1);
+      s_times_j.row(1) = m.s01 * d_pixel.row(0) + m.s11 * d_pixel.row(1);
       eq.block.noalias() += d_pixel.transpose() * s_times_j;
-      eq.rhs.noalias() += d_pixel.transpose() * Eigen::Vector2d(b0, b1);
+      eq.rhs.noalias() += d_pixel.transpose() * Eigen::Vector2d(m.b0, m.b1);
     }
   }
   return eq;
@@ -802,7 +901,8 @@ class JointDepthPoseSystem::Impl {
         size_(camera_hr.width, camera_hr.height),
         threads_(ResolveThreads(options.num_threads)),
         systems_(frames.size()),
-        couplings_(frames.size()) {
+        couplings_(frames.size()),
+        reference_(frames.size(), 0) {
     if (T_world_cam.size() != frames.size()) {
       throw InputError("joint depth + pose step: one pose and one set of depth terms per frame");
     }
@@ -827,6 +927,7 @@ class JointDepthPoseSystem::Impl {
     for (int t = 0; t < num_frames_; ++t) {
       couplings_[t].clear();
       if (!systems_[t]) continue;
+      reference_[t] = ReferenceFrame(t);
       for (size_t p = 0; p < frames_[t].pairs.size(); ++p) {
         const int s = frames_[t].pairs[p].s;
         const auto& pose = systems_[t]->pose_coupling(p);
@@ -837,8 +938,9 @@ class JointDepthPoseSystem::Impl {
         pose_normal_.block<6, 6>(6 * s, 6 * t) -= pose.block;
         pose_rhs_.segment<6>(6 * t) += pose.rhs;
         pose_rhs_.segment<6>(6 * s) -= pose.rhs;
-        AddCoupling(t, t, pose.coupling, 1.0);
-        AddCoupling(t, s, pose.coupling, -1.0);
+        // +C (eps_t - eps_s) = +C (eps_t - eps_r) - C (eps_s - eps_r).
+        if (t != reference_[t]) AddCoupling(t, t, pose.coupling, 1.0);
+        if (s != reference_[t]) AddCoupling(t, s, pose.coupling, -1.0);
       }
     }
     // Levenberg-Marquardt damping relative to the pose block's diagonal.
@@ -864,7 +966,7 @@ class JointDepthPoseSystem::Impl {
   void ApplyNormal(const cv::Mat& in, cv::Mat* out) {
     out->create(1, num_values(), CV_32FC1);
     const Eigen::VectorXd in_poses = Poses(in);
-    Eigen::VectorXd out_poses = pose_normal_ * in_poses + PosesFromDepths(in, /*divided=*/false);
+    Eigen::VectorXd out_poses = pose_normal_ * in_poses + PosesFromDepths(in);
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads_)
     for (int t = 0; t < num_frames_; ++t) {
       const cv::Mat in_depth = DepthView(in, t);
@@ -874,7 +976,7 @@ class JointDepthPoseSystem::Impl {
         continue;
       }
       systems_[t]->ApplyNormal(in_depth, &out_depth);
-      AddDepthsFromPoses(t, in_poses, 1.0, &out_depth);
+      AddDepthsFromPoses(t, in_poses, 1.0, nullptr, &out_depth);
     }
     ProjectGauge(&out_poses);
     SetPoses(out_poses, out);
@@ -883,19 +985,26 @@ class JointDepthPoseSystem::Impl {
   // z = M^-1 r (see the class comment).
   void ApplyPreconditioner(const cv::Mat& residual, cv::Mat* z) {
     z->create(1, num_values(), CV_32FC1);
-    Eigen::VectorXd reduced = Poses(residual) - PosesFromDepths(residual, /*divided=*/true);
+    // z_d = D^-1 r_d first: N_pd D^-1 r_d = N_pd z_d.
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads_)
+    for (int t = 0; t < num_frames_; ++t) {
+      cv::Mat z_depth = DepthView(*z, t);
+      if (systems_[t]) {
+        cv::divide(DepthView(residual, t), systems_[t]->diagonal(), z_depth);
+      } else {
+        DepthView(residual, t).copyTo(z_depth);
+      }
+    }
+    Eigen::VectorXd reduced = Poses(residual) - PosesFromDepths(*z);
     ProjectGauge(&reduced);
     Eigen::VectorXd z_poses = reduced_solver_.solve(reduced);
     ProjectGauge(&z_poses);
     SetPoses(z_poses, z);
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads_)
     for (int t = 0; t < num_frames_; ++t) {
-      const cv::Mat r_depth = DepthView(residual, t);
-      cv::Mat z_depth = DepthView(*z, t);
-      r_depth.copyTo(z_depth);
       if (!systems_[t]) continue;
-      AddDepthsFromPoses(t, z_poses, -1.0, &z_depth);
-      cv::divide(z_depth, systems_[t]->diagonal(), z_depth);
+      cv::Mat z_depth = DepthView(*z, t);
+      AddDepthsFromPoses(t, z_poses, -1.0, &systems_[t]->diagonal(), &z_depth);
     }
   }
 
@@ -951,51 +1060,71 @@ class JointDepthPoseSystem::Impl {
   }
 
  private:
-  // Frame t's inverse depths coupled to the pose of `frame`: the 6 columns
-  // of N_dp restricted to t's pixels, interleaved pixel by pixel
-  // (CV_32FC(6): one pass over memory serves all six), and the same divided
-  // by D_t.
+  // Frame t's inverse depths coupled to the pose of `frame`: 6 columns of
+  // N_dp restricted to t's pixels, interleaved pixel by pixel (CV_32FC(6):
+  // one pass over memory serves all six). A pair's coupling enters with +C
+  // for eps_t and -C for eps_s, so frame t's columns sum to zero: the
+  // column of one frame r of those t is coupled to (reference_[t]: a held
+  // one if any, else t) is minus the sum of the others and is not stored;
+  // the others multiply eps_frame - eps_r.
   struct Coupling {
     int frame = 0;
-    cv::Mat images, scaled;
+    cv::Mat images;
   };
 
-  // N_pd d for the depth part of `flat` (with `divided`: N_pd D^-1 d).
-  Eigen::VectorXd PosesFromDepths(const cv::Mat& flat, bool divided) const {
+  // A held frame among t and the frames its pairs match, else t.
+  int ReferenceFrame(int t) const {
+    if (t < num_fixed_) return t;
+    for (const PairMatching& pair : frames_[t].pairs) {
+      if (pair.s < num_fixed_) return pair.s;
+    }
+    return t;
+  }
+
+  // N_pd d for the depth part of `flat`.
+  Eigen::VectorXd PosesFromDepths(const cv::Mat& flat) const {
     std::vector<Eigen::VectorXd> parts(num_frames_, Eigen::VectorXd::Zero(6 * num_frames_));
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads_)
     for (int t = 0; t < num_frames_; ++t) {
       const cv::Mat depth = DepthView(flat, t);
       for (const Coupling& c : couplings_[t]) {
-        parts[t].segment<6>(6 * c.frame) = CouplingTimesDepth(divided ? c.scaled : c.images, depth);
+        const Vector6d product = CouplingTimesDepth(c.images, depth);
+        parts[t].segment<6>(6 * c.frame) += product;
+        parts[t].segment<6>(6 * reference_[t]) -= product;
       }
     }
     Eigen::VectorXd sum = Eigen::VectorXd::Zero(6 * num_frames_);
     for (const Eigen::VectorXd& part : parts) sum += part;
     return sum;
   }
-  // depth += scale * (N_dp poses) on frame t's rows, in one pass.
-  void AddDepthsFromPoses(int t, const Eigen::VectorXd& poses, double scale, cv::Mat* depth) const {
+  // depth += scale * (N_dp poses) on frame t's rows (divided by `divisor`
+  // per pixel if given), in one pass.
+  void AddDepthsFromPoses(int t, const Eigen::VectorXd& poses, double scale, const cv::Mat* divisor,
+                          cv::Mat* depth) const {
     const int count = static_cast<int>(couplings_[t].size());
     if (count == 0) return;
     std::vector<float> factors(6 * count);
     std::vector<const float*> columns(count);
+    const int reference = reference_[t];
     for (int c = 0; c < count; ++c) {
       columns[c] = couplings_[t][c].images.ptr<float>();
-      for (int j = 0; j < 6; ++j)
-        factors[6 * c + j] = static_cast<float>(scale * poses(6 * couplings_[t][c].frame + j));
+      const int frame = couplings_[t][c].frame;
+      for (int j = 0; j < 6; ++j) {
+        factors[6 * c + j] = static_cast<float>(scale * (poses(6 * frame + j) - poses(6 * reference + j)));
+      }
     }
+    const float* divide = divisor != nullptr ? divisor->ptr<float>() : nullptr;
     float* out = depth->ptr<float>();
     for (int i = 0; i < pixels_; ++i) {
       float sum = 0.0f;
       for (int c = 0; c < count; ++c) {
         for (int j = 0; j < 6; ++j) sum += factors[6 * c + j] * columns[c][6 * i + j];
       }
-      out[i] += sum;
+      out[i] += divide != nullptr ? sum / divide[i] : sum;
     }
   }
 
-  void AddCoupling(int t, int frame, const std::array<cv::Mat, 6>& images, double sign) {
+  void AddCoupling(int t, int frame, const cv::Mat& images, double sign) {
     auto it = std::find_if(couplings_[t].begin(), couplings_[t].end(),
                            [frame](const Coupling& c) { return c.frame == frame; });
     if (it == couplings_[t].end()) {
@@ -1005,11 +1134,7 @@ class JointDepthPoseSystem::Impl {
       couplings_[t].push_back(std::move(c));
       it = couplings_[t].end() - 1;
     }
-    float* out = it->images.ptr<float>();
-    for (int j = 0; j < 6; ++j) {
-      const float* in = images[j].ptr<float>();
-      for (int i = 0; i < pixels_; ++i) out[6 * i + j] += static_cast<float>(sign) * in[i];
-    }
+    cv::scaleAdd(images, sign, it->images, it->images);
   }
 
   // The scale of a window with one held pose: the component of the first
@@ -1033,19 +1158,24 @@ class JointDepthPoseSystem::Impl {
   void FormReducedCameraSystem() {
     const int n = 6 * num_frames_;
     Eigen::MatrixXd reduced = pose_normal_;
+    cv::Mat scaled(size_, CV_32FC(6));
     for (int t = 0; t < num_frames_; ++t) {
-      for (Coupling& c : couplings_[t]) {
-        c.scaled.create(size_, CV_32FC(6));
+      const int r = reference_[t];
+      for (const Coupling& a : couplings_[t]) {
         const float* diagonal = systems_[t]->diagonal().ptr<float>();
-        const float* in = c.images.ptr<float>();
-        float* out = c.scaled.ptr<float>();
+        const float* in = a.images.ptr<float>();
+        float* out = scaled.ptr<float>();
         for (int i = 0; i < pixels_; ++i) {
           for (int j = 0; j < 6; ++j) out[6 * i + j] = in[6 * i + j] / diagonal[i];
         }
-      }
-      for (const Coupling& a : couplings_[t]) {
         for (const Coupling& b : couplings_[t]) {
-          reduced.block<6, 6>(6 * a.frame, 6 * b.frame) -= CouplingProduct(a.scaled, b.images);
+          // The product of the stored columns a, b and, through the
+          // reference's column -sum of them, its rows and columns.
+          const Eigen::Matrix<double, 6, 6> product = CouplingProduct(scaled, b.images);
+          reduced.block<6, 6>(6 * a.frame, 6 * b.frame) -= product;
+          reduced.block<6, 6>(6 * r, 6 * b.frame) += product;
+          reduced.block<6, 6>(6 * a.frame, 6 * r) += product;
+          reduced.block<6, 6>(6 * r, 6 * r) -= product;
         }
       }
     }
@@ -1093,6 +1223,7 @@ class JointDepthPoseSystem::Impl {
   const int threads_;
   std::vector<std::unique_ptr<DepthNormalEquations>> systems_;  // nullptr: a frame without terms
   std::vector<std::vector<Coupling>> couplings_;                // per frame t
+  std::vector<int> reference_;                                  // per frame t (see Coupling)
   Eigen::MatrixXd pose_normal_;                                 // N_pp (damped)
   Eigen::VectorXd pose_rhs_, gauge_;                            // gauge_: unit, empty if none
   Eigen::LDLT<Eigen::MatrixXd> reduced_solver_;
@@ -1148,7 +1279,7 @@ void UpdateDepthAndPoses(const PinholeCamera& camera_hr, const std::vector<cv::M
                          std::vector<cv::Mat>* inverse_depths) {
   options.Check();
   JointDepthPoseSystem system(camera_hr, *T_world_cam, latents, frames, parallax_scale, options, num_fixed);
-  for (int irls = 0; irls < options.depth_irls_iterations; ++irls) {
+  for (int irls = 0; irls < options.joint_irls_iterations; ++irls) {
     system.Linearize(*inverse_depths);
     const JointStep step = system.Solve(system.RightHandSide(*inverse_depths));
     if (!step.poses.allFinite()) break;

@@ -51,13 +51,20 @@ struct StructureUpdateOptions {
   // per-frame depth updates by one Gauss-Newton/IRLS step in which every
   // frame's inverse depth and the free poses move together, so that depth
   // cannot absorb a pose error; the pose update follows as before. Off:
-  // measured better in depth and ATE than the per-frame depth updates on
-  // every path, but 42 % more CPU per run (BENCHMARKS.md "Joint depth + pose
-  // step (Schur)").
+  // on 8 sequences better in mean depth and ATE than the per-frame depth
+  // updates at 11 % more CPU (under load), but not on every sequence
+  // (lateral / Aloe: depth 0.0225 against 0.0221), with 1.8x the peak
+  // memory (BENCHMARKS.md "Joint depth + pose step (Schur)").
   bool joint_depth_pose_step = false;
   // CG steps per reweighted joint system (its tolerance is
   // depth_cg_tolerance).
   int joint_cg_iterations = 30;
+  // Reweightings (re-linearisations) of the joint step per structure update
+  // (the per-frame depth updates take depth_irls_iterations). 2 was measured
+  // on the 8 sequences of joint_pose_damping against 3: the same mean depth
+  // and ATE (0.890 / 0.853 of the baseline's against 0.891 / 0.852), 16 %
+  // less CPU.
+  int joint_irls_iterations = 2;
   // Levenberg-Marquardt damping of the pose block inside the joint step,
   // relative to the pose block's own diagonal (the pose update's matching
   // terms, before the depth is eliminated). The depth can trade for a
@@ -192,7 +199,7 @@ class JointDepthPoseSystem {
   std::unique_ptr<Impl> impl_;
 };
 
-// depth_irls_iterations joint steps (JointDepthPoseSystem) of all frames'
+// joint_irls_iterations joint steps (JointDepthPoseSystem) of all frames'
 // depths and the poses but the first `num_fixed` (>= 1). `frames[t]` holds
 // frame t's depth terms; latents as in UpdateDepth.
 void UpdateDepthAndPoses(const PinholeCamera& camera_hr, const std::vector<cv::Mat>& latents,
