@@ -198,8 +198,7 @@ ExposureEstimate EstimateExposureFromMotion(const std::vector<cv::Mat>& images_l
   if (images_lr.size() != n || T_world_cam.size() != n || (!depth_lr.empty() && depth_lr.size() != n)) {
     throw InputError("exposure estimation: images, frames, depths and poses differ in number");
   }
-  std::vector<double> stamps;
-  for (const FrameRecord& frame : frames) stamps.push_back(frame.stamp);
+  const std::vector<double> stamps = FrameStamps(frames);
   std::vector<FrameEvidence> evidence(n);
   for (size_t t = 0; t < n; ++t) {
     WhitenedGradient(images_lr[t], options.highpass_sigma_px, &evidence[t]);

@@ -1497,12 +1497,6 @@ void SolveTvL1(const PlaneSet& planes, const cv::Mat& edge_weight, const Initial
   }
 }
 
-std::vector<double> Stamps(const std::vector<FrameRecord>& frames) {
-  std::vector<double> stamps;
-  for (const FrameRecord& frame : frames) stamps.push_back(frame.stamp);
-  return stamps;
-}
-
 // P_f^-1 P_f(t_c + delay) for the read-out delay of each of `rows` rows on
 // frame f's blur path (SetBlurPath); one identity for a global shutter.
 std::vector<SE3> ReadoutIncrements(const std::vector<FrameRecord>& frames,
@@ -1510,7 +1504,7 @@ std::vector<SE3> ReadoutIncrements(const std::vector<FrameRecord>& frames,
                                    int rows) {
   if (!(readout_time > 0.0)) return {SE3()};
   CaptureGeometry path;
-  SetBlurPath(T_world_cam, Stamps(frames), f, &path);
+  SetBlurPath(T_world_cam, FrameStamps(frames), f, &path);
   const SE3 T_cam_world = T_world_cam[f].Inverse();
   std::vector<SE3> increments(rows);
   for (int y = 0; y < rows; ++y) {
@@ -1537,7 +1531,7 @@ void BuildBlurredPairs(const std::vector<cv::Mat>& images, const PinholeCamera& 
   capture_options.num_threads = threads;
   CaptureOperatorBuilder builder(capture_options);
   CaptureOperator op;
-  const std::vector<double> stamps = Stamps(frames);
+  const std::vector<double> stamps = FrameStamps(frames);
   // B_frame blurred with the exposure of `kernel_frame`, on frame's grid:
   // kernel_frame's blur path moved rigidly onto frame.
   auto blur_with = [&](int frame, int kernel_frame, cv::Mat* out) {

@@ -2,6 +2,8 @@
 // evaluation: when a frame was exposed, and a pose at a stamp.
 #pragma once
 
+#include <vector>
+
 #include "deblur_sr_mvs/core/geometry/se3.h"
 
 namespace deblur_sr_mvs {
@@ -13,6 +15,14 @@ struct FrameRecord {
   double stamp = 0.0;
   double exposure = 0.0;
 };
+
+// The stamps of `frames`, in order.
+inline std::vector<double> FrameStamps(const std::vector<FrameRecord>& frames) {
+  std::vector<double> stamps;
+  stamps.reserve(frames.size());
+  for (const FrameRecord& frame : frames) stamps.push_back(frame.stamp);
+  return stamps;
+}
 
 struct StampedPose {
   double stamp = 0.0;
