@@ -1312,7 +1312,8 @@ EstimatorResult Estimator::Run(const EstimatorInput& input, const ProgressCallba
   init_options.num_threads = options_.num_threads;
   InitialStructure initial;
   try {
-    initial = InitializeStructure(input.images, input.camera, input.frames, init_options, input.readout_time);
+    initial = InitializeStructure(input.images, input.camera, input.frames, init_options, input.readout_time,
+                                  input.T_prior_cam);
   } catch (const NoParallaxError& no_parallax) {
     const RotationOnlyMotion motion =
         EstimateRotationOnlyMotion(input.images, input.camera, input.frames, init_options);
