@@ -455,7 +455,7 @@ void EstimatorNodelet::ProcessWindow(PendingWindow window) {
   WindowEstimate estimate;
   try {
     clamped = ResolveExposures(params, &window, &status);
-    prior_lookup = LookUpPriors(params, &window);
+    prior_lookup = LookUpPriors(params, kPriorWaitSeconds, &window);
     estimate = stream_->Process(window.frames, window.camera);
   } catch (const EstimationCancelled&) {
     return;  // shutting down: publish nothing more
@@ -473,6 +473,8 @@ void EstimatorNodelet::ProcessWindow(PendingWindow window) {
   }
 
   if (!estimate.continued) path_.poses.clear();
+  // tf that arrived during the estimation still serves the alignment.
+  if (!prior_lookup.empty()) prior_lookup = LookUpPriors(params, 0.0, &window);
   const OutputGauge gauge = PlaceInPrior(window, estimate, params, prior_lookup);
   // A path holds poses of one frame (the prior's once it is fitted).
   if (path_.header.frame_id != gauge.frame) path_.poses.clear();
@@ -608,7 +610,8 @@ void EstimatorNodelet::SkipWindow(const std::string& message, bool restart, Esti
   PublishStatus(*status);
 }
 
-std::string EstimatorNodelet::LookUpPriors(const ros_glue::NodeParameters& params, PendingWindow* window) {
+std::string EstimatorNodelet::LookUpPriors(const ros_glue::NodeParameters& params, double newest_wait,
+                                           PendingWindow* window) {
   if (!aligner_) return "";
   const std::string& prior = params.pose_prior_frame;
   const size_t count = window->frames.size();
@@ -617,8 +620,9 @@ std::string EstimatorNodelet::LookUpPriors(const ros_glue::NodeParameters& param
   // Newest first: only its tf may still be on its way.
   for (size_t k = 0; k < count && !window->input_frame.empty(); ++k) {
     StreamFrame& frame = window->frames[count - 1 - k];
+    if (frame.T_prior_cam) continue;
     SE3 T_prior_cam;
-    if (LookUpPrior(prior, window->input_frame, frame.stamp_ns, k == 0 ? kPriorWaitSeconds : 0.0, &T_prior_cam,
+    if (LookUpPrior(prior, window->input_frame, frame.stamp_ns, k == 0 ? newest_wait : 0.0, &T_prior_cam,
                     &why)) {
       frame.T_prior_cam = T_prior_cam;
     } else {

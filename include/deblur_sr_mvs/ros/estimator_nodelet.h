@@ -108,10 +108,11 @@ class EstimatorNodelet : public nodelet::Nodelet {
   // A failed window: counted, warned and said in `status`; `restart` also
   // restarts the trajectory.
   void SkipWindow(const std::string& message, bool restart, EstimatorStatus* status);
-  // With pose_prior_frame: each frame's T_prior_cam from tf (waiting briefly
-  // for the newest), for the estimation (the initialiser's bundle
-  // adjustment) and PlaceInPrior. Returns "" or what is missing and why.
-  std::string LookUpPriors(const ros_glue::NodeParameters& params, PendingWindow* window);
+  // With pose_prior_frame: the T_prior_cam from tf of each frame that has
+  // none yet (waiting up to newest_wait seconds for the newest), for the
+  // estimation (the initialiser's bundle adjustment) and PlaceInPrior.
+  // Returns "" or what is missing and why.
+  std::string LookUpPriors(const ros_glue::NodeParameters& params, double newest_wait, PendingWindow* window);
   // The gauge of `estimate`: fits the pose prior (pose_prior_frame) on the
   // segment's frames so far (their T_prior_cam from LookUpPriors, whose note
   // is `lookup_note`).
