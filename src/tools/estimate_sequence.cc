@@ -80,7 +80,8 @@ void AddPosePriorOptions(dsm::ToolCommandLine* command_line, Flags* flags, dsm::
   dsm::ToolCommandLine& cli = *command_line;
   cli.add_option("--pose-prior", flags->pose_prior,
                  "TUM trajectory (T_world_camera, metres) of the same camera: the initialisation's bundle "
-                 "adjustment follows its positions (--pose-prior-sigma), output poses are in its frame, "
+                 "adjustment follows its poses (--pose-prior-sigma, --pose-prior-rotation-sigma), output poses "
+                 "are in its frame, "
                  "depth in its units")
       ->check(CLI::ExistingFile);
   cli.add_option("--pose-prior-sigma", options->initializer.pose_prior_position_sigma,
