@@ -451,9 +451,11 @@ void EstimatorNodelet::ProcessWindow(PendingWindow window) {
   for (const StreamFrame& frame : window.frames) status.frame_stamps.push_back(TimeFromNs(frame.stamp_ns));
   const ros::WallTime start = ros::WallTime::now();
   bool clamped = false;
+  std::string prior_lookup;
   WindowEstimate estimate;
   try {
     clamped = ResolveExposures(params, &window, &status);
+    prior_lookup = LookUpPriors(params, kPriorWaitSeconds, &window);
     estimate = stream_->Process(window.frames, window.camera);
   } catch (const EstimationCancelled&) {
     return;  // shutting down: publish nothing more
@@ -471,7 +473,9 @@ void EstimatorNodelet::ProcessWindow(PendingWindow window) {
   }
 
   if (!estimate.continued) path_.poses.clear();
-  const OutputGauge gauge = PlaceInPrior(window, estimate, params);
+  // tf that arrived during the estimation still serves the alignment.
+  if (!prior_lookup.empty()) prior_lookup = LookUpPriors(params, 0.0, &window);
+  const OutputGauge gauge = PlaceInPrior(window, estimate, params, prior_lookup);
   // A path holds poses of one frame (the prior's once it is fitted).
   if (path_.header.frame_id != gauge.frame) path_.poses.clear();
   const std::vector<cv::Mat> confidence = DepthConfidenceOf(estimate.result, params);
@@ -606,35 +610,47 @@ void EstimatorNodelet::SkipWindow(const std::string& message, bool restart, Esti
   PublishStatus(*status);
 }
 
+std::string EstimatorNodelet::LookUpPriors(const ros_glue::NodeParameters& params, double newest_wait,
+                                           PendingWindow* window) {
+  if (!aligner_) return "";
+  const std::string& prior = params.pose_prior_frame;
+  const size_t count = window->frames.size();
+  size_t missing = 0;
+  std::string why = "the images have no frame_id";
+  // Newest first: only its tf may still be on its way.
+  for (size_t k = 0; k < count && !window->input_frame.empty(); ++k) {
+    StreamFrame& frame = window->frames[count - 1 - k];
+    if (frame.T_prior_cam) continue;
+    SE3 T_prior_cam;
+    if (LookUpPrior(prior, window->input_frame, frame.stamp_ns, k == 0 ? newest_wait : 0.0, &T_prior_cam,
+                    &why)) {
+      frame.T_prior_cam = T_prior_cam;
+    } else {
+      ++missing;
+    }
+  }
+  if (window->input_frame.empty()) missing = count;
+  if (missing == 0) return "";
+  return std::to_string(missing) + " of " + std::to_string(count) + " frames without tf " + prior + " <- " +
+         (window->input_frame.empty() ? "?" : window->input_frame) + " (" + why + "); ";
+}
+
 EstimatorNodelet::OutputGauge EstimatorNodelet::PlaceInPrior(const PendingWindow& window,
                                                              const WindowEstimate& estimate,
-                                                             const ros_glue::NodeParameters& params) {
+                                                             const ros_glue::NodeParameters& params,
+                                                             const std::string& lookup_note) {
   OutputGauge gauge;
   gauge.frame = params.world_frame;
   if (!aligner_) return gauge;
   // A new segment has a new world: the earlier correspondences do not apply.
   if (!estimate.continued) aligner_->Reset();
   const std::string& prior = params.pose_prior_frame;
-  const size_t count = window.frames.size();
-  size_t missing = 0;
-  std::string why = "the images have no frame_id";
-  // Newest first: only its tf may still be on its way.
-  for (size_t k = 0; k < count && !window.input_frame.empty(); ++k) {
-    const size_t i = count - 1 - k;
-    SE3 T_prior_cam;
-    if (LookUpPrior(prior, window.input_frame, estimate.stamps_ns[i], k == 0 ? kPriorWaitSeconds : 0.0,
-                    &T_prior_cam, &why)) {
-      aligner_->Add(estimate.ids[i], estimate.result.T_world_cam[i], T_prior_cam);
-    } else {
-      ++missing;
+  for (size_t i = 0; i < window.frames.size(); ++i) {
+    if (window.frames[i].T_prior_cam) {
+      aligner_->Add(estimate.ids[i], estimate.result.T_world_cam[i], *window.frames[i].T_prior_cam);
     }
   }
-  if (window.input_frame.empty()) missing = count;
-  gauge.note = "prior: ";
-  if (missing > 0) {
-    gauge.note += std::to_string(missing) + " of " + std::to_string(count) + " frames without tf " + prior +
-                  " <- " + (window.input_frame.empty() ? "?" : window.input_frame) + " (" + why + "); ";
-  }
+  gauge.note = "prior: " + lookup_note;
   PriorAlignment alignment;
   try {
     alignment = aligner_->Fit();

@@ -75,6 +75,25 @@ double ParseNoiseSigma(const std::string& text) {
   return gray_levels / 255.0;
 }
 
+// --pose-prior and the weights of its poses in the initialisation.
+void AddPosePriorOptions(dsm::ToolCommandLine* command_line, Flags* flags, dsm::EstimatorOptions* options) {
+  dsm::ToolCommandLine& cli = *command_line;
+  cli.add_option("--pose-prior", flags->pose_prior,
+                 "TUM trajectory (T_world_camera, metres) of the same camera: the initialisation's bundle "
+                 "adjustment follows its poses (--pose-prior-sigma, --pose-prior-rotation-sigma), output poses "
+                 "are in its frame, "
+                 "depth in its units")
+      ->check(CLI::ExistingFile);
+  cli.add_option("--pose-prior-sigma", options->initializer.pose_prior_position_sigma,
+                 "with --pose-prior: standard deviation of its positions per axis (its units, metres) in "
+                 "the bundle adjustment; 0: the prior only aligns the output (default 0.01)")
+      ->check(dsm::FlagNumber(0.0));
+  cli.add_option("--pose-prior-rotation-sigma", options->initializer.pose_prior_rotation_sigma_deg,
+                 "with --pose-prior: standard deviation of its orientations (degrees) in the bundle "
+                 "adjustment; 0: its orientations only align the output (default 0.1)")
+      ->check(dsm::FlagNumber(0.0));
+}
+
 // Parses the command line into flags and options; false after --help.
 bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions* options) {
   dsm::ToolCommandLine cli("estimate_sequence", kDescription);
@@ -134,10 +153,7 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
                  "per window; sets the image TV weight (default auto)");
   cli.add_option("--output-scale", flags->output_scale, "bicubic up-sampling of the outputs, 1-4")
       ->check(dsm::FlagInt(1, 4));
-  cli.add_option("--pose-prior", flags->pose_prior,
-                 "TUM trajectory (T_world_camera, metres) of the same camera: output poses in its frame, "
-                 "depth in its units")
-      ->check(CLI::ExistingFile);
+  AddPosePriorOptions(&cli, flags, options);
   cli.add_option("--depth-confidence-threshold", flags->depth_confidence_threshold,
                  "depth whose confidence (depth_confidence/, in [0, 1]) is below this is written as NaN; "
                  "0 writes every depth (default 0.5)")
@@ -378,7 +394,10 @@ int Run(int argc, char** argv) {
   std::optional<dsm::ExposureEstimate> exposure;
   if (flags.exposure == "auto") exposure = EstimateExposure(options, flags.input, &input);
   std::vector<std::optional<dsm::SE3>> prior;
-  if (!flags.pose_prior.empty()) prior = ReadPriorAtFrames(flags.pose_prior, input.frames);
+  if (!flags.pose_prior.empty()) {
+    prior = ReadPriorAtFrames(flags.pose_prior, input.frames);
+    input.T_prior_cam = prior;
+  }
   dsm::EstimatorResult result = Estimate(options, input, flags.input, flags.quiet);
   if (exposure)
     result.timings.insert(result.timings.begin(), {"exposure estimation", exposure->elapsed_seconds});

@@ -207,6 +207,9 @@ TEST(EstimateSequencePosePrior, BadPriorFilesAreOneLineErrors) {
   ExpectOneLineError("estimate_sequence", with(later), "no prior pose in the frames' time span");
   const std::string backwards = write("backwards.txt", "0.2 0 0 0 0 0 0 1\n0.1 1 0 0 0 0 0 1\n");
   ExpectOneLineError("estimate_sequence", with(backwards), "stamps must increase");
+  std::vector<std::string> negative = with(later);
+  negative.insert(negative.end(), {"--pose-prior-sigma", "-0.01"});
+  ExpectOneLineError("estimate_sequence", negative, "--pose-prior-sigma");
   EXPECT_FALSE(std::filesystem::exists(Folder() + "/out_bad"));
 }
 

@@ -108,10 +108,16 @@ class EstimatorNodelet : public nodelet::Nodelet {
   // A failed window: counted, warned and said in `status`; `restart` also
   // restarts the trajectory.
   void SkipWindow(const std::string& message, bool restart, EstimatorStatus* status);
+  // With pose_prior_frame: the T_prior_cam from tf of each frame that has
+  // none yet (waiting up to newest_wait seconds for the newest), for the
+  // estimation (the initialiser's bundle adjustment) and PlaceInPrior.
+  // Returns "" or what is missing and why.
+  std::string LookUpPriors(const ros_glue::NodeParameters& params, double newest_wait, PendingWindow* window);
   // The gauge of `estimate`: fits the pose prior (pose_prior_frame) on the
-  // segment's frames so far.
+  // segment's frames so far (their T_prior_cam from LookUpPriors, whose note
+  // is `lookup_note`).
   OutputGauge PlaceInPrior(const PendingWindow& window, const WindowEstimate& estimate,
-                           const ros_glue::NodeParameters& params);
+                           const ros_glue::NodeParameters& params, const std::string& lookup_note);
   // T_prior_cam of the input frame at the stamp from tf; false when tf has
   // none (waits up to `wait` seconds).
   bool LookUpPrior(const std::string& prior_frame, const std::string& input_frame, int64_t stamp_ns,

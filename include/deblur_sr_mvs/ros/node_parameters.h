@@ -117,6 +117,8 @@ void ForEachParameter(Params& params, Visitor&& visit) {
   visit("camera_frame", params.camera_frame);
   visit("publish_tf", params.publish_tf);
   visit("pose_prior_frame", params.pose_prior_frame);
+  visit("pose_prior_sigma", params.estimator.initializer.pose_prior_position_sigma);
+  visit("pose_prior_rotation_sigma", params.estimator.initializer.pose_prior_rotation_sigma_deg);
   visit("depth_confidence_threshold", params.depth_confidence_threshold);
   visit("points_stride", params.points_stride);
   visit("max_path_length", params.max_path_length);

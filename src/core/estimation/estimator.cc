@@ -1196,6 +1196,7 @@ EstimatorResult Estimator::RunGainCompensated(const EstimatorInput& input, const
   compensated.frames = input.frames;
   compensated.readout_time = input.readout_time;
   compensated.carried_operators = input.carried_operators;
+  compensated.T_prior_cam = input.T_prior_cam;
   for (size_t t = 0; t < gains.size(); ++t) compensated.images.push_back(input.images[t] * (1.0 / gains[t]));
   // A warm start has its frame's brightness, as the latent images given out.
   for (size_t t = 0; t < input.initial_latents.size() && t < gains.size(); ++t) {
@@ -1312,7 +1313,8 @@ EstimatorResult Estimator::Run(const EstimatorInput& input, const ProgressCallba
   init_options.num_threads = options_.num_threads;
   InitialStructure initial;
   try {
-    initial = InitializeStructure(input.images, input.camera, input.frames, init_options, input.readout_time);
+    initial = InitializeStructure(input.images, input.camera, input.frames, init_options, input.readout_time,
+                                  input.T_prior_cam);
   } catch (const NoParallaxError& no_parallax) {
     const RotationOnlyMotion motion =
         EstimateRotationOnlyMotion(input.images, input.camera, input.frames, init_options);

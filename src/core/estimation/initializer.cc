@@ -42,6 +42,7 @@
 #include <cstdio>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <sstream>
 
 #include <ceres/ceres.h>
@@ -54,6 +55,8 @@
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/common/runtime.h"
+#include "deblur_sr_mvs/core/geometry/pose_prior.h"
+#include "deblur_sr_mvs/core/geometry/sim3.h"
 #include "deblur_sr_mvs/core/geometry/visibility.h"
 #include "deblur_sr_mvs/core/geometry/warp.h"
 #include "deblur_sr_mvs/core/imaging/capture_operator.h"
@@ -376,6 +379,16 @@ struct SparseStructure {
   // baselines): held at 0 (no turn expected) or fitted (SelectFixationTurn).
   double turn_rate = 0.0;
   bool fit_turn_rate = false;
+  // Soft constraints on the camera centres (AdjustToPosePrior): per frame
+  // its pose prior's centre at mid-exposure in the structure's world, none
+  // where the prior has none or disagrees. Empty: no prior, and the gauge
+  // holds the pair's baseline at 1; else the prior fixes the scale.
+  std::vector<std::optional<Eigen::Vector3d>> prior_centres;
+  double prior_sigma = 0.0;  // their standard deviation per axis (world units)
+  // The same frames' prior orientations R_cam_world, and their standard
+  // deviation (radians); 0: not used.
+  std::vector<Eigen::Matrix3d> prior_orientations;
+  double prior_rotation_sigma = 0.0;
   std::vector<std::string> log;
 };
 
@@ -602,6 +615,50 @@ struct AbsoluteRotationPrior {
     return true;
   }
   double scale;
+};
+
+// A camera centre c = -R^T t (T_cam_world = (R, t)) against its pose
+// prior's, in units of the prior's standard deviation.
+struct PriorCentreResidual {
+  PriorCentreResidual(const Eigen::Vector3d& prior_centre, double sigma)
+      : centre(prior_centre), inverse_sigma(1.0 / sigma) {}
+  template <typename T>
+  bool operator()(const T* rotation, const T* translation, T* residual) const {
+    const T inverse[3] = {-rotation[0], -rotation[1], -rotation[2]};
+    const T minus_t[3] = {-translation[0], -translation[1], -translation[2]};
+    T c[3];
+    ceres::AngleAxisRotatePoint(inverse, minus_t, c);
+    for (int k = 0; k < 3; ++k) residual[k] = T(inverse_sigma) * (c[k] - T(centre[k]));
+    return true;
+  }
+  Eigen::Vector3d centre;
+  double inverse_sigma;
+};
+
+// A camera orientation R (T_cam_world = (R, t)) against its pose prior's
+// R_prior: the angle-axis of R R_prior^T in units of the prior's standard
+// deviation (radians).
+struct PriorOrientationResidual {
+  PriorOrientationResidual(const Eigen::Matrix3d& R_prior_cam_world, double sigma_rad)
+      : inverse_sigma(1.0 / sigma_rad) {
+    const Eigen::Quaterniond q(R_prior_cam_world);
+    prior_inverse[0] = q.w();
+    prior_inverse[1] = -q.x();
+    prior_inverse[2] = -q.y();
+    prior_inverse[3] = -q.z();
+  }
+  template <typename T>
+  bool operator()(const T* rotation, T* residual) const {
+    T q[4], difference[4];
+    ceres::AngleAxisToQuaternion(rotation, q);
+    const T prior[4] = {T(prior_inverse[0]), T(prior_inverse[1]), T(prior_inverse[2]), T(prior_inverse[3])};
+    ceres::QuaternionProduct(q, prior, difference);
+    ceres::QuaternionToAngleAxis(difference, residual);
+    for (int k = 0; k < 3; ++k) residual[k] *= T(inverse_sigma);
+    return true;
+  }
+  double prior_inverse[4];  // w, x, y, z of R_prior^T
+  double inverse_sigma;
 };
 
 // Inverse depth along ray0 that best explains x1 for the pose (R, t):
@@ -969,6 +1026,32 @@ int AddReprojectionResiduals(const PinholeCamera& camera, const InitializerOptio
   return observations;
 }
 
+// The PriorCentreResiduals of structure.prior_centres and, with
+// prior_rotation_sigma, the PriorOrientationResiduals of the same frames
+// (Huber loss, quadratic up to kPriorHuberSigmas), on the poses that the
+// problem already has. Returns whether there was any.
+constexpr double kPriorHuberSigmas = 2.0;
+
+bool AddPosePriorResiduals(const SparseStructure& structure, std::vector<PoseParameters>* poses,
+                             ceres::Problem* problem) {
+  bool any = false;
+  for (size_t t = 0; t < structure.prior_centres.size(); ++t) {
+    PoseParameters& pose = (*poses)[t];
+    if (!structure.prior_centres[t] || !problem->HasParameterBlock(pose.rotation)) continue;
+    problem->AddResidualBlock(new ceres::AutoDiffCostFunction<PriorCentreResidual, 3, 3, 3>(
+                                  new PriorCentreResidual(*structure.prior_centres[t], structure.prior_sigma)),
+                              new ceres::HuberLoss(kPriorHuberSigmas), pose.rotation, pose.translation);
+    if (structure.prior_rotation_sigma > 0.0) {
+      problem->AddResidualBlock(
+          new ceres::AutoDiffCostFunction<PriorOrientationResidual, 3, 3>(new PriorOrientationResidual(
+              structure.prior_orientations[t], structure.prior_rotation_sigma)),
+          new ceres::HuberLoss(kPriorHuberSigmas), pose.rotation);
+    }
+    any = true;
+  }
+  return any;
+}
+
 // RMS reprojection error (px) of the observations of inlier points within
 // `outlier_px`.
 double InlierRms(const PinholeCamera& camera, const std::vector<Track>& tracks,
@@ -994,7 +1077,10 @@ double InlierRms(const PinholeCamera& camera, const std::vector<Track>& tracks,
 // frame-to-frame RotationPrior (kappa: structure->turn_rate, fitted when
 // structure->fit_turn_rate), in the two-view pair's gauge: camera a fixed
 // (T_cam_world = identity) and |t_b| = |c_b - c_a| = 1 on a sphere (the
-// output gauge is set later, see NormaliseGauge). Two rounds, dropping observations
+// output gauge is set later, see NormaliseGauge). With a pose prior
+// (AdjustToPosePrior) its residuals fix the gauge instead: camera a is free
+// but for its orientation, which is held unless the prior's orientations
+// are used, and no sphere. Two rounds, dropping observations
 // beyond the outlier threshold in between. Returns the RMS reprojection error
 // (px) of the observations within the threshold.
 double BundleAdjust(const PinholeCamera& camera, const InitializerOptions& options, int threads,
@@ -1020,12 +1106,17 @@ double BundleAdjust(const PinholeCamera& camera, const InitializerOptions& optio
                                poses[t].translation, &structure->turn_rate);
     }
     if (num_frames > 1 && !structure->fit_turn_rate) problem.SetParameterBlockConstant(&structure->turn_rate);
+    const bool prior = AddPosePriorResiduals(*structure, &poses, &problem);
+    // The gauge: with a prior its centres fix the translation and scale (and
+    // its orientations, when used, the rotation) of the world.
     PoseParameters& reference = poses[structure->reference];
     if (problem.HasParameterBlock(reference.rotation)) {
-      problem.SetParameterBlockConstant(reference.rotation);
-      problem.SetParameterBlockConstant(reference.translation);
+      if (!prior || structure->prior_rotation_sigma == 0.0) {
+        problem.SetParameterBlockConstant(reference.rotation);
+      }
+      if (!prior) problem.SetParameterBlockConstant(reference.translation);
     }
-    if (problem.HasParameterBlock(poses[structure->baseline_frame].translation)) {
+    if (!prior && problem.HasParameterBlock(poses[structure->baseline_frame].translation)) {
       problem.SetManifold(poses[structure->baseline_frame].translation, new ceres::SphereManifold<3>());
     }
     SolveQuietly(options, threads, &problem);
@@ -1657,6 +1748,13 @@ void InitializerOptions::Check() const {
   CheckAbove(prefix + "rotation_prior_px", rotation_prior_px, 0.0);
   CheckAbove(prefix + "fixation_test_z", fixation_test_z, 0.0);
   CheckAtLeast(prefix + "ba_max_iterations", ba_max_iterations, 0);
+  CheckAtLeast(prefix + "pose_prior_position_sigma", pose_prior_position_sigma, 0.0);
+  CheckAtLeast(prefix + "pose_prior_rotation_sigma_deg", pose_prior_rotation_sigma_deg, 0.0);
+  try {
+    pose_prior.Check();
+  } catch (const InputError& error) {
+    throw InputError(prefix + "pose_prior: " + error.what());
+  }
   CheckInRange(prefix + "capture_samples", capture_samples, 1, 1000);
   CheckInRange(prefix + "neighbours_per_side", neighbours_per_side, 1, 5);
   CheckInRange(prefix + "num_planes", num_planes, 4, 512);
@@ -1937,6 +2035,94 @@ std::vector<SE3> MidExposureToShutterClose(const std::vector<FrameRecord>& frame
   return T_world_cam;
 }
 
+// Each frame's pose prior at its mid-exposure (t_c - exposure / 2), the time
+// of the sparse poses: on the prior's geodesic through frames t-1 and t
+// (frame 0: 0 and 1, extrapolated), the way MidExposureToShutterClose goes
+// the other way; the frame's own prior pose where that neighbour has none.
+std::vector<std::optional<SE3>> PriorAtMidExposure(const std::vector<FrameRecord>& frames,
+                                                   const std::vector<std::optional<SE3>>& T_prior_cam) {
+  const int num_frames = static_cast<int>(frames.size());
+  std::vector<std::optional<SE3>> T_prior_mid(num_frames);
+  for (int t = 0; t < num_frames; ++t) {
+    if (!T_prior_cam[t]) continue;
+    const int a = t > 0 ? t - 1 : 0;
+    const int b = t > 0 ? t : 1;
+    const double mid = frames[t].stamp - 0.5 * frames[t].exposure;
+    T_prior_mid[t] = T_prior_cam[a] && T_prior_cam[b] ? PoseAtTime(*T_prior_cam[a], frames[a].stamp,
+                                                                   *T_prior_cam[b], frames[b].stamp, mid)
+                                                      : *T_prior_cam[t];
+  }
+  return T_prior_mid;
+}
+
+// Stage 3b, with a pose prior (InitializerOptions::pose_prior_position_sigma):
+// the bundle-adjusted mid-exposure poses are aligned to the prior's by a
+// robust Sim(3) (AlignToPrior), the structure is carried into the prior's
+// frame by it (kappa scales inversely), and the bundle adjustment runs again
+// with the prior centres (and orientations, with pose_prior_rotation_sigma_deg;
+// kappa then fitted) of the frames that agree with the alignment. The
+// structure is then in prior units. Unchanged when the alignment fails (too
+// little prior translation, too few agreeing frames: said in the summary).
+void AdjustToPosePrior(const PinholeCamera& camera, const InitializerOptions& options, int threads,
+                       const std::vector<FrameRecord>& frames, const std::vector<std::optional<SE3>>& T_prior_cam,
+                       const std::vector<Track>& tracks, SparseStructure* structure, std::ostringstream* summary) {
+  if (T_prior_cam.empty() || options.pose_prior_position_sigma == 0.0) return;
+  const double start_ms = NowMs();
+  const std::vector<std::optional<SE3>> T_prior_mid = PriorAtMidExposure(frames, T_prior_cam);
+  std::vector<int> frame_of;
+  std::vector<SE3> estimated, prior;
+  for (size_t t = 0; t < T_prior_mid.size(); ++t) {
+    if (!T_prior_mid[t]) continue;
+    frame_of.push_back(static_cast<int>(t));
+    estimated.push_back(structure->T_cam_world[t].Inverse());
+    prior.push_back(*T_prior_mid[t]);
+  }
+  const PriorAlignment alignment = AlignToPrior(estimated, prior, options.pose_prior);
+  if (!alignment.valid) {
+    *summary << "pose prior: not used by the bundle adjustment (" << alignment.note << ")\n";
+    return;
+  }
+  const Sim3& to_prior = alignment.estimate_to_prior;
+  for (SE3& T_cam_world : structure->T_cam_world) {
+    T_cam_world = TransformPose(to_prior, T_cam_world.Inverse()).Inverse();
+  }
+  for (Eigen::Vector3d& point : structure->points_world) {
+    point = to_prior.scale * (to_prior.rotation * point) + to_prior.translation;
+  }
+  structure->turn_rate /= to_prior.scale;
+  structure->prior_sigma = options.pose_prior_position_sigma;
+  structure->prior_centres.assign(structure->T_cam_world.size(), std::nullopt);
+  structure->prior_orientations.assign(structure->T_cam_world.size(), Eigen::Matrix3d::Identity());
+  structure->prior_rotation_sigma = options.pose_prior_rotation_sigma_deg * M_PI / 180.0;
+  // The prior's orientations observe the turn that RotationPrior otherwise
+  // assumes (kappa): it is fitted to them.
+  if (structure->prior_rotation_sigma > 0.0) structure->fit_turn_rate = true;
+  for (int i : alignment.inlier_frames) {
+    structure->prior_centres[frame_of[i]] = prior[i].translation();
+    structure->prior_orientations[frame_of[i]] = prior[i].rotation().transpose();
+  }
+  int observations = 0;
+  const double rms = BundleAdjust(camera, options, threads, tracks, structure, &observations);
+  double squares = 0.0;
+  for (int i : alignment.inlier_frames) {
+    squares += (structure->T_cam_world[frame_of[i]].Inverse().translation() - prior[i].translation()).squaredNorm();
+  }
+  double angle_squares = 0.0;
+  for (int i : alignment.inlier_frames) {
+    const Eigen::Matrix3d R_cam_prior = structure->T_cam_world[frame_of[i]].rotation() * prior[i].rotation();
+    angle_squares += SO3Log(R_cam_prior).squaredNorm();
+  }
+  const int inliers = std::max(1, alignment.inliers);
+  *summary << Format("pose prior: Sim(3) scale %.4g from %.0f of %.0f frames (rms %.3g); ", to_prior.scale,
+                     alignment.inliers, alignment.used, alignment.rms)
+           << Format("bundle adjustment with their centres (sigma %.3g) and orientations (sigma %.3g deg): ",
+                     options.pose_prior_position_sigma, options.pose_prior_rotation_sigma_deg)
+           << Format("rms %.3f px, centres %.3g and orientations %.3g deg from the prior (rms); prior units "
+                     "from here on; %.1f ms\n",
+                     rms, std::sqrt(squares / inliers), std::sqrt(angle_squares / inliers) * 180.0 / M_PI,
+                     NowMs() - start_ms);
+}
+
 // The tracks follow the blurred patterns, i.e. the blur centroids: the
 // sparse poses are those of mid-exposure, t_c - exposure / 2 (exact for
 // motion that is linear in the image over an exposure). The output poses
@@ -1959,7 +2145,7 @@ void MoveToShutterClose(const std::vector<FrameRecord>& frames, SparseStructure*
   for (auto& point : structure->points_world) point = T_new_old * point;
   *summary << Format(
       "poses moved from mid-exposure to shutter close: %.3f (frame 0), %.3f (last) pair "
-      "baselines\n",
+      "baselines (or prior units)\n",
       ((*T_world_mid)[0].translation() - (*T_world_cam)[0].translation()).norm(),
       ((*T_world_mid)[num_frames - 1].translation() - (*T_world_cam)[num_frames - 1].translation()).norm());
 }
@@ -1988,7 +2174,8 @@ void NormaliseGauge(InitialStructure* result, std::ostringstream* summary) {
   const double median = values[middle];
   for (cv::Mat& depth : result->depth_lr) depth *= 1.0 / median;
   for (SE3& T : result->T_world_cam) T = SE3(T.rotation(), T.translation() / median);
-  *summary << Format("gauge: world = camera 0 at t_c, median depth 1 (%.4g pair baselines)\n", median);
+  *summary << Format("gauge: world = camera 0 at t_c, median depth 1 (%.4g pair baselines, or prior units)\n",
+                     median);
 }
 
 // Inverse-depth range of each frame's sweep and its median depth (the start
@@ -2313,7 +2500,8 @@ RotationOnlyMotion EstimateRotationOnlyMotionUnguarded(const std::vector<cv::Mat
 InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images_lr,
                                               const PinholeCamera& camera_lr,
                                               const std::vector<FrameRecord>& frames,
-                                              const InitializerOptions& options, double readout_time) {
+                                              const InitializerOptions& options, double readout_time,
+                                              const std::vector<std::optional<SE3>>& T_prior_cam) {
   const double start_ms = NowMs();
   std::ostringstream summary;
   TrackedWindow window = TrackWindow(images_lr, camera_lr, frames, options, &summary);
@@ -2328,6 +2516,7 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
     CorrectRollingShutter(camera_lr, options, threads, frames, readout_time, &tracking.tracks, &structure,
                           &summary);
   }
+  AdjustToPosePrior(camera_lr, options, threads, frames, T_prior_cam, tracking.tracks, &structure, &summary);
   std::vector<SE3> T_world_mid;
   MoveToShutterClose(frames, &structure, &result.T_world_cam, &T_world_mid, &summary);
   const DepthRanges ranges = ComputeDepthRanges(tracking.tracks, structure, result.T_world_cam, options);
@@ -2343,12 +2532,17 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
 
 InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
                                      const std::vector<FrameRecord>& frames,
-                                     const InitializerOptions& options, double readout_time) {
+                                     const InitializerOptions& options, double readout_time,
+                                     const std::vector<std::optional<SE3>>& T_prior_cam) {
   if (!std::isfinite(readout_time) || readout_time < 0.0) {
     throw InputError("initialisation: readout_time must be finite and >= 0");
   }
+  if (!T_prior_cam.empty() && T_prior_cam.size() != frames.size()) {
+    throw InputError("initialisation: " + std::to_string(T_prior_cam.size()) + " pose prior entries for " +
+                     std::to_string(frames.size()) + " frames");
+  }
   return WithOpenCvErrorsAsInitializationErrors("initialisation: degenerate geometry (OpenCV: ", [&] {
-    return InitializeStructureUnguarded(images_lr, camera_lr, frames, options, readout_time);
+    return InitializeStructureUnguarded(images_lr, camera_lr, frames, options, readout_time, T_prior_cam);
   });
 }
 

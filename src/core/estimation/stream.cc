@@ -82,11 +82,6 @@ Sim3 AnchorAt(const SE3& source, const SE3& target, double scale) {
   return similarity;
 }
 
-SE3 TransformPose(const Sim3& similarity, const SE3& T_world_cam) {
-  return SE3(similarity.rotation * T_world_cam.rotation(),
-             similarity.scale * (similarity.rotation * T_world_cam.translation()) + similarity.translation);
-}
-
 std::string ProblemWithEstimate(const EstimatorResult& result, double max_step_ratio) {
   for (const SE3& pose : result.T_world_cam) {
     if (!pose.translation().allFinite() || !pose.rotation().allFinite()) return "a pose is not finite";
@@ -155,6 +150,11 @@ EstimatorInput WindowInput(const StreamWindow& window, const PinholeCamera& came
     estimate->stamps_ns.push_back(frame.stamp_ns);
   }
   if (!window.empty()) input.readout_time = window.back().readout_time;
+  const bool any_prior = std::any_of(window.begin(), window.end(),
+                                     [](const StreamFrame& frame) { return frame.T_prior_cam.has_value(); });
+  if (any_prior) {
+    for (const StreamFrame& frame : window) input.T_prior_cam.push_back(frame.T_prior_cam);
+  }
   return input;
 }
 
@@ -288,7 +288,8 @@ bool StreamEstimator::ContinueTrajectory(const EstimatorInput& input, const Shar
   init_options.num_threads = options.num_threads;
   InitialStructure initial;
   try {
-    initial = InitializeStructure(input.images, input.camera, input.frames, init_options, input.readout_time);
+    initial = InitializeStructure(input.images, input.camera, input.frames, init_options, input.readout_time,
+                                  input.T_prior_cam);
   } catch (const NoParallaxError& no_parallax) {
     ContinueRotationOnly(input, shared, no_parallax.what(), progress, estimate);
     return true;

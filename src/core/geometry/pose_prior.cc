@@ -329,6 +329,7 @@ PriorAlignment AlignToPrior(const std::vector<SE3>& T_world_cam, const std::vect
   alignment.estimate_to_prior = similarity;
   alignment.used = n;
   alignment.inliers = count;
+  alignment.inlier_frames = inliers;
   alignment.rms = InlierRms(similarity, estimated, prior, inliers);
   alignment.scale_uncertainty = ScaleUncertainty(similarity, estimated, prior, inliers);
   alignment.note =
@@ -365,6 +366,7 @@ PriorAlignment PosePriorAligner::Fit() {
   PriorAlignment kept = last_valid_;
   kept.updated = false;
   kept.used = alignment.used;
+  kept.inlier_frames.clear();
   kept.note = alignment.note + "; keeping the previous scale";
   return kept;
 }

@@ -9,6 +9,11 @@
 
 namespace deblur_sr_mvs {
 
+SE3 TransformPose(const Sim3& similarity, const SE3& T_world_cam) {
+  return SE3(similarity.rotation * T_world_cam.rotation(),
+             similarity.scale * (similarity.rotation * T_world_cam.translation()) + similarity.translation);
+}
+
 void CheckCorrespondingPoints(const std::vector<Eigen::Vector3d>& source,
                               const std::vector<Eigen::Vector3d>& target, const char* what) {
   if (source.size() != target.size()) {

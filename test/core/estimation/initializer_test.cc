@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -17,6 +18,7 @@
 
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/evaluation/metrics.h"
+#include "deblur_sr_mvs/core/geometry/pose_prior.h"
 #include "deblur_sr_mvs/core/evaluation/synthesizer.h"
 #include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/io/sequence_io.h"
@@ -504,6 +506,90 @@ TEST(InitializerTest, ArcPathTurnIsNotTakenForSidewaysMotion) {
   EXPECT_LT(depth_error, still_depth_error);
 }
 
+// The ground-truth poses of `sequence` as a pose prior (T_prior_cam at the
+// frame stamps), frames `bad` moved by `offset` (m) along x.
+std::vector<std::optional<SE3>> GroundTruthPrior(const Sequence& sequence, const std::vector<int>& bad = {},
+                                                 double offset = 0.0) {
+  std::vector<std::optional<SE3>> prior;
+  for (const StampedPose& pose : sequence.ground_truth->poses) prior.push_back(pose.T_world_cam);
+  for (int t : bad) {
+    prior[t] = SE3(prior[t]->rotation(), prior[t]->translation() + Eigen::Vector3d(offset, 0.0, 0.0));
+  }
+  return prior;
+}
+
+// Depth in metres with no per-frame scale: the structure carried into the
+// ground truth's frame by the robust Sim(3) of its poses onto the true ones
+// (as estimate_sequence --pose-prior does), then the mean depth rel. error
+// (70 % centre crop) against the ground truth. *aligned: the same with each
+// frame's depth scaled by its median ratio (MeanDepthError).
+double MetricDepthError(const InitialStructure& result, const Sequence& sequence, double* aligned) {
+  std::vector<SE3> truth;
+  for (const StampedPose& pose : sequence.ground_truth->poses) truth.push_back(pose.T_world_cam);
+  const PriorAlignment alignment = AlignToPrior(result.T_world_cam, truth, PosePriorOptions());
+  EXPECT_TRUE(alignment.valid) << alignment.note;
+  DepthMetricOptions options;
+  options.crop_fraction = 0.7;
+  options.align_scale = false;
+  double sum = 0.0;
+  for (size_t t = 0; t < result.depth_lr.size(); ++t) {
+    const cv::Mat& depth_truth = sequence.ground_truth->depth[t];
+    cv::Mat upsampled;
+    cv::resize(result.depth_lr[t] * alignment.estimate_to_prior.scale, upsampled, depth_truth.size(), 0, 0,
+               cv::INTER_CUBIC);
+    sum += EvaluateDepth(upsampled, depth_truth, options).relative_error;
+  }
+  *aligned = MeanDepthError(result.depth_lr, sequence);
+  return sum / result.depth_lr.size();
+}
+
+TEST(InitializerTest, ArcPathWithAPosePriorHasDepthInMetres) {
+  const Sequence& sequence = ArcSequence();
+  const std::vector<cv::Mat> images = FloatImages(sequence);
+  const PinholeCamera& camera = sequence.calibration.camera;
+  InitializerOptions alignment_only;
+  alignment_only.pose_prior_position_sigma = 0.0;
+  const std::vector<std::optional<SE3>> exact = GroundTruthPrior(sequence);
+  // Frames 1 and 4 of the prior 20 cm off (the path is 24 cm long).
+  const std::vector<std::optional<SE3>> bad = GroundTruthPrior(sequence, {1, 4}, 0.2);
+  const InitialStructure without =
+      InitializeStructure(images, camera, sequence.frames, alignment_only, 0.0, exact);
+  const InitialStructure with = InitializeStructure(images, camera, sequence.frames, InitializerOptions(), 0.0, exact);
+  const InitialStructure with_bad =
+      InitializeStructure(images, camera, sequence.frames, InitializerOptions(), 0.0, bad);
+  double aligned_without = 0.0, aligned_with = 0.0, aligned_bad = 0.0;
+  const double metric_without = MetricDepthError(without, sequence, &aligned_without);
+  const double metric_with = MetricDepthError(with, sequence, &aligned_with);
+  const double metric_bad = MetricDepthError(with_bad, sequence, &aligned_bad);
+  std::printf("%s\n", with.summary.c_str());
+  std::printf(
+      "depth rel. error in metres / scale-aligned: prior only aligning %.4f / %.4f (%.2f), in the bundle "
+      "adjustment %.4f / %.4f (%.2f), with 2 bad prior poses %.4f / %.4f (%.2f); mean rotation error "
+      "%.3f, %.3f, %.3f deg\n",
+      metric_without, aligned_without, metric_without / aligned_without, metric_with, aligned_with,
+      metric_with / aligned_with, metric_bad, aligned_bad, metric_bad / aligned_bad,
+      MeanRotationErrorDeg(sequence, without), MeanRotationErrorDeg(sequence, with),
+      MeanRotationErrorDeg(sequence, with_bad));
+  EXPECT_NE(with.summary.find("pose prior: Sim(3) scale"), std::string::npos) << with.summary;
+  EXPECT_NE(with_bad.summary.find("from 4 of 6 frames"), std::string::npos) << with_bad.summary;
+  // The criterion: metres within 10 % of the scale-aligned figure.
+  EXPECT_LE(metric_with, 1.1 * aligned_with);
+  EXPECT_LE(metric_bad, 1.1 * aligned_bad);
+  EXPECT_GT(metric_without, 2.0 * aligned_without);  // what the prior in the adjustment changes
+  EXPECT_LT(MeanRotationErrorDeg(sequence, with), 0.5 * MeanRotationErrorDeg(sequence, without));
+}
+
+TEST(InitializerTest, WrongNumberOfPriorPosesIsAnInputError) {
+  const Sequence& sequence = ArcSequence();
+  const std::vector<std::optional<SE3>> prior(2, SE3());
+  ExpectThrowsWith<InputError>(
+      [&] {
+        InitializeStructure(FloatImages(sequence), sequence.calibration.camera, sequence.frames,
+                            InitializerOptions(), 0.0, prior);
+      },
+      "2 pose prior entries for 6 frames");
+}
+
 TEST(InitializerTest, LateralPathKeepsThePriorTowardsNoRotation) {
   const InitialStructure& result = DollsResult();
   EXPECT_NE(result.summary.find("): no turn"), std::string::npos) << result.summary;
@@ -538,6 +624,12 @@ TEST(InitializerTest, BadOptionsAndInputsGiveInputError) {
              "initializer: rotation_prior_px must be > 0, got 0");
   expect_bad([](InitializerOptions* o) { o->ba_loss_px = std::nan(""); },
              "initializer: ba_loss_px must be > 0, got nan");
+  expect_bad([](InitializerOptions* o) { o->pose_prior_position_sigma = -0.01; },
+             "initializer: pose_prior_position_sigma must be >= 0, got -0.01");
+  expect_bad([](InitializerOptions* o) { o->pose_prior_rotation_sigma_deg = std::nan(""); },
+             "initializer: pose_prior_rotation_sigma_deg must be >= 0, got nan");
+  expect_bad([](InitializerOptions* o) { o->pose_prior.outlier_distance = 0.0; },
+             "initializer: pose_prior: outlier_distance must be > 0, got 0");
   expect_bad([](InitializerOptions* o) { o->edge_weight.sigma = 0.0; },
              "initializer: edge_weight: edge weight: sigma must be > 0, got 0");
   EXPECT_NO_THROW(InitializerOptions().Check());

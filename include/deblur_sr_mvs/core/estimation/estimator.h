@@ -6,6 +6,7 @@
 #include <atomic>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -200,6 +201,11 @@ struct EstimatorInput {
   // EstimatorResult::carried_operators): one is used instead of a build
   // only where it was built from the same structure and options.
   CarriedOperators carried_operators;
+  // Pose prior (docs/file_formats.md#monocular-scale): empty, or per frame
+  // T_prior_cam at its stamp, none where the prior has no pose. The
+  // initialisation adjusts the structure to it (InitializerOptions::
+  // pose_prior_position_sigma); the output gauge stays as without it.
+  std::vector<std::optional<SE3>> T_prior_cam;
 };
 
 // Energy of eq:energyFunction at one point of the algorithm.

@@ -2,6 +2,7 @@
 // (paper Sec. optInitialization, eq:initializationScene).
 #pragma once
 
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -11,6 +12,7 @@
 
 #include "deblur_sr_mvs/core/geometry/camera.h"
 #include "deblur_sr_mvs/core/geometry/frame_types.h"
+#include "deblur_sr_mvs/core/geometry/pose_prior.h"
 #include "deblur_sr_mvs/core/geometry/se3.h"
 #include "deblur_sr_mvs/core/geometry/visibility.h"
 
@@ -63,6 +65,29 @@ struct InitializerOptions {
   // of z = 6 is 47. false: the prior is always towards no rotation.
   bool fixation_prior = true;
   double fixation_test_z = 6.0;
+
+  // --- Pose prior (InitializeStructure's T_prior_cam: wheel odometry, VIO,
+  // motion capture; docs/file_formats.md#monocular-scale). The bundle-
+  // adjusted poses are aligned to the prior's by a robust Sim(3)
+  // (AlignToPrior with `pose_prior`: it fixes the gauge and leaves out prior
+  // poses that disagree), carried into the prior's frame, and adjusted again
+  // with the prior camera centre of every agreeing frame as a soft constraint
+  // (Huber loss, quadratic up to 2 sigma) that replaces the pair's unit
+  // baseline: the prior's translations then set the scale of the structure,
+  // which a narrow field of view leaves weakly tied to the path.
+  // Standard deviation of the prior's positions per axis (prior units,
+  // metres): a camera centre this far from its prior costs as much as a 1-px
+  // reprojection error. 0: the prior is not used in the initialisation.
+  double pose_prior_position_sigma = 0.01;
+  // The same for the prior's orientations (degrees): an orientation this far
+  // from its prior costs as much as a 1-px reprojection error, and the turn
+  // rate kappa of the rotation prior is fitted. The orientations decide the
+  // turn that the tracks of a narrow field of view leave open (an arc's
+  // turn, traded against a bend of the inverse depths); the positions do
+  // not. 0: the orientations only enter the alignment.
+  double pose_prior_rotation_sigma_deg = 0.1;
+  PosePriorOptions pose_prior;  // the alignment's outlier distance, extent needed
+
 
   // --- Dense depth (eq:initializationScene): sweep, TV-L1, refinement.
   bool blur_aware = true;    // match Psi_s o B_t against Psi_t o B_s (false: B_t vs B_s)
@@ -128,10 +153,14 @@ class NoParallaxError : public InitializationError {
 // (see EstimateRotationOnlyMotion), InitializationError on other failures.
 // readout_time > 0: a rolling shutter (docs/file_formats.md#rolling-shutter);
 // the tracked points are corrected to a global shutter before the final
-// bundle adjustments.
+// bundle adjustments. T_prior_cam: empty, or per frame its pose in a pose
+// prior's frame at the frame's stamp (none where the prior has none); used
+// by the bundle adjustment (InitializerOptions::pose_prior_position_sigma).
+// The output gauge is the same with or without it.
 InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
                                      const std::vector<FrameRecord>& frames,
-                                     const InitializerOptions& options, double readout_time = 0.0);
+                                     const InitializerOptions& options, double readout_time = 0.0,
+                                     const std::vector<std::optional<SE3>>& T_prior_cam = {});
 
 // Camera orientations of a window whose motion is (close to) a pure rotation:
 // the warps between frames are then homographies K R K^-1 and depth is not

@@ -42,6 +42,9 @@ struct StreamFrame {
   double readout_time =
       0;          // rolling shutter (EstimatorInput::readout_time), s; the window takes its last frame's
   cv::Mat image;  // float in [0, 1], 1 or 3 channels (BGR)
+  // Its pose in a pose prior's frame at stamp_close, when there is one
+  // (EstimatorInput::T_prior_cam; the node: tf pose_prior_frame).
+  std::optional<SE3> T_prior_cam;
 };
 using StreamWindow = std::vector<StreamFrame>;
 
@@ -132,8 +135,6 @@ using PendingWindowQueue = DropOldestQueue<StreamWindow>;
 Sim3 AlignPoseSequence(const std::vector<SE3>& source, const std::vector<SE3>& target);
 // The similarity with the given scale that puts camera `source` on `target`.
 Sim3 AnchorAt(const SE3& source, const SE3& target, double scale);
-// T_world_cam of a camera after a similarity of the world.
-SE3 TransformPose(const Sim3& similarity, const SE3& T_world_cam);
 
 // The estimate of one window, in the stream's world frame.
 struct WindowEstimate {

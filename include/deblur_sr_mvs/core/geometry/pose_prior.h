@@ -33,10 +33,13 @@ struct PriorAlignment {
   bool valid = false;    // estimate_to_prior is usable (fitted now, or kept from before)
   bool updated = false;  // fitted by this call
   // T_prior_cam ~= estimate_to_prior applied to T_world_cam (TransformPose
-  // of stream.h); depths scale by estimate_to_prior.scale.
+  // of sim3.h); depths scale by estimate_to_prior.scale.
   Sim3 estimate_to_prior;
   int used = 0;      // corresponding frames offered to the fit
   int inliers = 0;   // of them, within outlier_distance after the fit
+  // Those frames: indices into the fit's input, increasing (AlignToPrior
+  // only; a kept previous fit of PosePriorAligner has none).
+  std::vector<int> inlier_frames;
   double rms = 0.0;  // position residual of the inliers (prior units)
   // Standard deviation of estimate_to_prior.scale relative to itself (0.02 =
   // 2 %) that the prior's position noise leaves: the least-squares figure

@@ -7,6 +7,8 @@
 
 #include <Eigen/Core>
 
+#include "deblur_sr_mvs/core/geometry/se3.h"
+
 namespace deblur_sr_mvs {
 
 // Similarity transform target ~= scale * rotation * source + translation.
@@ -15,6 +17,10 @@ struct Sim3 {
   Eigen::Matrix3d rotation = Eigen::Matrix3d::Identity();
   Eigen::Vector3d translation = Eigen::Vector3d::Zero();
 };
+
+// T_world_cam of a camera after a similarity of the world (the camera
+// keeps its view; its centre moves with the world).
+SE3 TransformPose(const Sim3& similarity, const SE3& T_world_cam);
 
 // Umeyama (1991) least-squares alignment of corresponding points.
 // Needs >= 3 corresponding points so that the rotation is determined (fewer,
