@@ -856,6 +856,28 @@ PairNormalEquations BlurredPairNormalEquations(const PinholeCamera& camera_hr, c
   return eq;
 }
 
+// The pairs in groups that UpdatePoses evaluates together: HR pairs of the
+// same frames and mask (a restored pair and its input pair) share each
+// pixel's warp (HrPairNormalEquations); a pair with a capture operator is a
+// group of its own. Indices into `pairs`, in their order.
+std::vector<std::vector<int>> GroupPairsByWarp(const std::vector<PairMatching>& pairs) {
+  std::vector<std::vector<int>> groups;
+  for (int p = 0; p < static_cast<int>(pairs.size()); ++p) {
+    const PairMatching& pair = pairs[p];
+    auto group = std::find_if(groups.begin(), groups.end(), [&](const std::vector<int>& members) {
+      const PairMatching& first = pairs[members.front()];
+      return pair.blur == nullptr && first.blur == nullptr && first.t == pair.t && first.s == pair.s &&
+             first.mask.data == pair.mask.data;
+    });
+    if (group != groups.end()) {
+      group->push_back(p);
+    } else {
+      groups.push_back({p});
+    }
+  }
+  return groups;
+}
+
 }  // namespace
 
 std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr, const std::vector<cv::Mat>& inverse_depths,
@@ -881,23 +903,7 @@ std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr, const std::vec
 #pragma omp parallel for schedule(dynamic, 1)
   for (int i = 0; i < static_cast<int>(sources.size()); ++i)
     Gradients(*sources[i], &source_gx[i], &source_gy[i]);
-  // HR pairs of the same frames and mask (a restored pair and its input
-  // pair) form one group: they share each pixel's warp (HrPairNormalEquations)
-  // and their sums; a pair with a capture operator is a group of its own.
-  std::vector<std::vector<int>> groups;
-  for (int p = 0; p < num_pairs; ++p) {
-    const PairMatching& pair = pairs[p];
-    auto group = std::find_if(groups.begin(), groups.end(), [&](const std::vector<int>& members) {
-      const PairMatching& first = pairs[members.front()];
-      return pair.blur == nullptr && first.blur == nullptr && first.t == pair.t && first.s == pair.s &&
-             first.mask.data == pair.mask.data;
-    });
-    if (group != groups.end()) {
-      group->push_back(p);
-    } else {
-      groups.push_back({p});
-    }
-  }
+  const std::vector<std::vector<int>> groups = GroupPairsByWarp(pairs);
   const int num_groups = static_cast<int>(groups.size());
   std::vector<PairNormalEquations> equations(num_groups);
   for (int iteration = 0; iteration < options.pose_iterations; ++iteration) {
