@@ -156,51 +156,80 @@ void ExpandChannels(const cv::Mat& g, const cv::Mat& in, cv::Mat* out) {
 class PairWarp {
  public:
   PairWarp(const PinholeCamera& camera, const SE3& T_world_t, const SE3& T_world_s)
-      : camera_(camera), T_world_t_(T_world_t), T_s_world_(T_world_s.Inverse()) {
-    const SE3 T_s_t = T_s_world_ * T_world_t;
+      : camera_(camera), T_world_s_(T_world_s) {
+    const SE3 T_s_t = T_world_s.Inverse() * T_world_t;
     const Eigen::Matrix3d k = camera.K();
     h_ = k * T_s_t.rotation() * k.inverse();
     kt_ = k * T_s_t.translation();
+    R_s_world_ = T_world_s.rotation().transpose();
     max_u_ = camera.width - 1.0;
     max_v_ = camera.height - 1.0;
   }
+  // Where pixel (x, y) of t lands in s.
+  struct Projection {
+    double u = 0.0, v = 0.0;       // pixel of s
+    double du = 0.0, dv = 0.0;     // d(u, v) / d rho
+    double inverse_depth_s = 0.0;  // 1 / z of the point in s
+  };
   // (u, v) in s of pixel (x, y) of t at inverse depth rho and d(u, v)/d rho;
   // false when rho is unusable or the point falls behind or outside s.
-  bool Project(int x, int y, double rho, double* u, double* v, double* du, double* dv) const {
+  bool Project(int x, int y, double rho, Projection* p) const {
     if (!(rho > 0.0) || !std::isfinite(rho)) return false;
-    // q ~ K X_s scaled by rho: q = H [x y 1] + rho K t.
+    // q ~ K X_s scaled by rho: q = H [x y 1] + rho K t, q_z = rho z_s.
     const Eigen::Vector3d q = h_ * Eigen::Vector3d(x, y, 1.0) + rho * kt_;
     if (!(q.z() > 1e-9)) return false;
-    *u = q.x() / q.z();
-    *v = q.y() / q.z();
-    if (*u < 0.0 || *v < 0.0 || *u > max_u_ || *v > max_v_) return false;
-    *du = (kt_.x() - *u * kt_.z()) / q.z();
-    *dv = (kt_.y() - *v * kt_.z()) / q.z();
+    const double inverse_qz = 1.0 / q.z();
+    p->u = q.x() * inverse_qz;
+    p->v = q.y() * inverse_qz;
+    if (p->u < 0.0 || p->v < 0.0 || p->u > max_u_ || p->v > max_v_) return false;
+    p->du = (kt_.x() - p->u * kt_.z()) * inverse_qz;
+    p->dv = (kt_.y() - p->v * kt_.z()) * inverse_qz;
+    p->inverse_depth_s = rho * inverse_qz;
     return true;
   }
-  // d(u, v)/d eps_t for P_t = exp(eps_t) P_t0 (d/d eps_s is minus it):
-  // X_w = P_t X_t, X_s = R_s^T (X_w - c_s), d X_s / d eps_t = R_s^T [I, -[X_w]x].
-  Eigen::Matrix<double, 2, 6> DPixelDPose(int x, int y, double rho) const {
-    const Eigen::Vector3d point_w = T_world_t_ * (camera_.Ray(x, y) / rho);
-    const Eigen::Vector3d point_s = T_s_world_ * point_w;
-    const double z = point_s.z();
+  bool Project(int x, int y, double rho, double* u, double* v, double* du, double* dv) const {
+    Projection p;
+    if (!Project(x, y, rho, &p)) return false;
+    *u = p.u;
+    *v = p.v;
+    *du = p.du;
+    *dv = p.dv;
+    return true;
+  }
+  // d(u, v)/d eps_t for P_t = exp(eps_t) P_t0 (d/d eps_s is minus it) at a
+  // projection of Project: X_w = P_t X_t, X_s = R_s^T (X_w - c_s),
+  // d X_s / d eps_t = R_s^T [I, -[X_w]x].
+  Eigen::Matrix<double, 2, 6> DPixelDPose(const Projection& p) const {
+    // X_s from the pixel of s and its depth; d pixel / d X_s = [f/z, 0, -(u - c)/z] per row.
+    const double z = 1.0 / p.inverse_depth_s;
+    const double xn = (p.u - camera_.cx) / camera_.fx, yn = (p.v - camera_.cy) / camera_.fy;
+    const Eigen::Vector3d point_w = T_world_s_ * Eigen::Vector3d(xn * z, yn * z, z);
     Eigen::Matrix<double, 2, 3> d_pixel;
-    d_pixel << camera_.fx / z, 0.0, -camera_.fx * point_s.x() / (z * z), 0.0, camera_.fy / z,
-        -camera_.fy * point_s.y() / (z * z);
+    d_pixel << camera_.fx * p.inverse_depth_s, 0.0, -(p.u - camera_.cx) * p.inverse_depth_s, 0.0,
+        camera_.fy * p.inverse_depth_s, -(p.v - camera_.cy) * p.inverse_depth_s;
     // d_pixel R_s^T DLeftPerturbedPointDEps(X_w) row by row: with m a row of
     // d_pixel R_s^T, m [I, -[X_w]x] = [m, (X_w x m)^T].
-    const Eigen::Matrix<double, 2, 3> m = d_pixel * T_s_world_.rotation();
+    const Eigen::Matrix<double, 2, 3> m = d_pixel * R_s_world_;
     Eigen::Matrix<double, 2, 6> jacobian;
     jacobian.leftCols<3>() = m;
     jacobian.block<1, 3>(0, 3) = point_w.cross(m.row(0).transpose()).transpose();
     jacobian.block<1, 3>(1, 3) = point_w.cross(m.row(1).transpose()).transpose();
     return jacobian;
   }
+  // The same at pixel (x, y) of t, inverse depth rho (in front of s).
+  Eigen::Matrix<double, 2, 6> DPixelDPose(int x, int y, double rho) const {
+    const Eigen::Vector3d q = h_ * Eigen::Vector3d(x, y, 1.0) + rho * kt_;
+    Projection p;
+    p.u = q.x() / q.z();
+    p.v = q.y() / q.z();
+    p.inverse_depth_s = rho / q.z();
+    return DPixelDPose(p);
+  }
 
  private:
   PinholeCamera camera_;
-  SE3 T_world_t_, T_s_world_;
-  Eigen::Matrix3d h_;
+  SE3 T_world_s_;
+  Eigen::Matrix3d h_, R_s_world_;
   Eigen::Vector3d kt_;
   double max_u_ = 0.0, max_v_ = 0.0;
 };
@@ -217,6 +246,44 @@ struct GradientMoments {
     b0 += w * r * gx;
     b1 += w * r * gy;
   }
+};
+
+// The pose sums of the pixels of one image row: per pixel J = d pixel /
+// d eps_t, S J and b (GradientMoments) in float; AddTo adds sum J^T S J and
+// sum J^T b over the row to double sums, one product per row.
+class RowPoseSums {
+ public:
+  explicit RowPoseSums(int max_pixels) : j_(12, max_pixels), sj_(12, max_pixels), b_(2, max_pixels) {}
+  // Every pixel's terms to zero.
+  void Clear() {
+    j_.setZero();
+    sj_.setZero();
+    b_.setZero();
+  }
+  // Pixel i of the row.
+  void Set(int i, const Eigen::Matrix<double, 2, 6>& j, const GradientMoments& m) {
+    for (int k = 0; k < 6; ++k) {
+      j_(k, i) = static_cast<float>(j(0, k));
+      j_(6 + k, i) = static_cast<float>(j(1, k));
+      sj_(k, i) = static_cast<float>(m.s00 * j(0, k) + m.s01 * j(1, k));
+      sj_(6 + k, i) = static_cast<float>(m.s01 * j(0, k) + m.s11 * j(1, k));
+    }
+    b_(0, i) = static_cast<float>(m.b0);
+    b_(1, i) = static_cast<float>(m.b1);
+  }
+  // block += sum J^T S J, rhs += sum J^T b over pixels [0, pixels).
+  void AddTo(int pixels, Eigen::Matrix<double, 6, 6>* block, Vector6d* rhs) const {
+    const auto j0 = j_.topLeftCorner(6, pixels), j1 = j_.bottomLeftCorner(6, pixels);
+    const Eigen::Matrix<float, 6, 6> row_block =
+        j0 * sj_.topLeftCorner(6, pixels).transpose() + j1 * sj_.bottomLeftCorner(6, pixels).transpose();
+    const Eigen::Matrix<float, 6, 1> row_rhs =
+        j0 * b_.row(0).head(pixels).transpose() + j1 * b_.row(1).head(pixels).transpose();
+    *block += row_block.cast<double>();
+    *rhs += row_rhs.cast<double>();
+  }
+
+ private:
+  Eigen::MatrixXf j_, sj_, b_;
 };
 
 }  // namespace
@@ -362,9 +429,8 @@ void HrPairPoseTerms(const PinholeCamera& camera, const cv::Mat& inverse_depth, 
   coupling->create(camera.height, width, CV_32FC(6));
   block->setZero();
   rhs->setZero();
-  // Per row: J's 12 entries, S J's 12 and the 2 of sum_c w_c r0_c g_c, each
-  // an array over the row's pixels (zero where every weight is zero).
-  Eigen::MatrixXf j_rows(12, width), sj_rows(12, width), b_rows(2, width);
+  // Per row, zero where every weight is zero.
+  RowPoseSums row_sums(width);
   std::vector<float> grad_x(channels), grad_y(channels);
   for (int y = 0; y < camera.height; ++y) {
     const float* rho_row = inverse_depth.ptr<float>(y);
@@ -372,9 +438,7 @@ void HrPairPoseTerms(const PinholeCamera& camera, const cv::Mat& inverse_depth, 
     const float* r_row = residual.ptr<float>(y);
     const float* g_row = d_inverse_depth.ptr<float>(y);
     float* out = coupling->ptr<float>(y);
-    j_rows.setZero();
-    sj_rows.setZero();
-    b_rows.setZero();
+    row_sums.Clear();
     for (int x = 0; x < width; ++x) {
       float* coupling_x = out + 6 * x;
       std::fill(coupling_x, coupling_x + 6, 0.0f);
@@ -395,22 +459,10 @@ void HrPairPoseTerms(const PinholeCamera& camera, const cv::Mat& inverse_depth, 
         q1 += w[c] * g_rho * grad_y[c];
       }
       const Eigen::Matrix<double, 2, 6> j = warp.DPixelDPose(x, y, rho_row[x]);
-      for (int k = 0; k < 6; ++k) {
-        coupling_x[k] = static_cast<float>(j(0, k) * q0 + j(1, k) * q1);
-        j_rows(k, x) = static_cast<float>(j(0, k));
-        j_rows(6 + k, x) = static_cast<float>(j(1, k));
-        sj_rows(k, x) = static_cast<float>(m.s00 * j(0, k) + m.s01 * j(1, k));
-        sj_rows(6 + k, x) = static_cast<float>(m.s01 * j(0, k) + m.s11 * j(1, k));
-      }
-      b_rows(0, x) = static_cast<float>(m.b0);
-      b_rows(1, x) = static_cast<float>(m.b1);
+      for (int k = 0; k < 6; ++k) coupling_x[k] = static_cast<float>(j(0, k) * q0 + j(1, k) * q1);
+      row_sums.Set(x, j, m);
     }
-    const Eigen::Matrix<float, 6, 6> row_block =
-        j_rows.topRows(6) * sj_rows.topRows(6).transpose() + j_rows.bottomRows(6) * sj_rows.bottomRows(6).transpose();
-    const Eigen::Matrix<float, 6, 1> row_rhs =
-        j_rows.topRows(6) * b_rows.row(0).transpose() + j_rows.bottomRows(6) * b_rows.row(1).transpose();
-    *block += row_block.cast<double>();
-    *rhs += row_rhs.cast<double>();
+    row_sums.AddTo(width, block, rhs);
   }
   *block = 0.5 * (*block + block->transpose());
 }
@@ -721,44 +773,57 @@ struct PairNormalEquations {
   Eigen::Matrix<double, 6, 1> rhs = Eigen::Matrix<double, 6, 1>::Zero();
 };
 
-// An HR pair pixel by pixel, without intermediate images: I_t against
-// I_s(W^{t->s}) with the gradients of I_s given.
+// The images of one HR pair: its source I_s with its gradients and the
+// observation of t.
+struct HrPairImages {
+  const cv::Mat* source;
+  const cv::Mat* source_gx;
+  const cv::Mat* source_gy;
+  const cv::Mat* observation;
+};
+
+// HR pairs of the same frames t <- s and mask (e.g. the restored pair and
+// the input pair), pixel by pixel, without intermediate images: the
+// observations of t against the sources warped by W^{t->s}. Every pair of
+// the group warps the same pixels, so each pixel's warp and J are computed
+// once. Channel c of pair k has the row a_kc = g_kc^T J (J = d pixel /
+// d eps_t), so the group's block = sum J^T S J and rhs = sum J^T b with S
+// and b summed over the pairs' channels (GradientMoments). The 6x6 sums go
+// row by row (RowPoseSums) over the used pixels.
 PairNormalEquations HrPairNormalEquations(const PinholeCamera& camera_hr, const cv::Mat& inverse_depth_t,
-                                          const SE3& T_world_t, const SE3& T_world_s, const cv::Mat& source,
-                                          const cv::Mat& source_gx, const cv::Mat& source_gy,
-                                          const cv::Mat& observation, const cv::Mat& mask, double epsilon,
-                                          int stride) {
-  const int channels = source.channels();
+                                          const SE3& T_world_t, const SE3& T_world_s,
+                                          const std::vector<HrPairImages>& group, const cv::Mat& mask,
+                                          double epsilon, int stride) {
+  const int channels = group.front().source->channels();
   const PairWarp warp(camera_hr, T_world_t, T_world_s);
   PairNormalEquations eq;
   std::vector<float> value(channels), grad_x(channels), grad_y(channels);
+  RowPoseSums row_sums((camera_hr.width + stride - 1) / stride);  // the used pixels, packed
   for (int y = 0; y < camera_hr.height; y += stride) {
     const float* rho_row = inverse_depth_t.ptr<float>(y);
-    const float* observed = observation.ptr<float>(y);
     const uchar* mask_row = mask.empty() ? nullptr : mask.ptr<uchar>(y);
+    int used = 0;
     for (int x = (y / stride) % stride; x < camera_hr.width; x += stride) {
       if (mask_row != nullptr && mask_row[x] == 0) continue;
-      double u, v, du, dv;
-      if (!warp.Project(x, y, rho_row[x], &u, &v, &du, &dv)) continue;
-      SampleBilinear(source, static_cast<float>(u), static_cast<float>(v), value.data());
-      SampleBilinear(source_gx, static_cast<float>(u), static_cast<float>(v), grad_x.data());
-      SampleBilinear(source_gy, static_cast<float>(u), static_cast<float>(v), grad_y.data());
-      // Channel c has the row a_c = g_c^T J (g_c: image gradient, J: d pixel
-      // / d eps_t), so sum_c w_c a_c^T a_c = J^T S J with the 2x2
-      // S = sum_c w_c g_c g_c^T, and sum_c w_c r_c a_c^T = J^T b.
+      PairWarp::Projection p;
+      if (!warp.Project(x, y, rho_row[x], &p)) continue;
+      const float u = static_cast<float>(p.u), v = static_cast<float>(p.v);
       GradientMoments m;
-      for (int c = 0; c < channels; ++c) {
-        const double r0 = observed[x * channels + c] - value[c];
-        m.Add(1.0 / std::max(std::abs(r0), epsilon), r0, grad_x[c], grad_y[c]);
+      for (const HrPairImages& pair : group) {
+        SampleBilinear(*pair.source, u, v, value.data());
+        SampleBilinear(*pair.source_gx, u, v, grad_x.data());
+        SampleBilinear(*pair.source_gy, u, v, grad_y.data());
+        const float* observed = pair.observation->ptr<float>(y) + x * channels;
+        for (int c = 0; c < channels; ++c) {
+          const double r0 = observed[c] - value[c];
+          m.Add(1.0 / std::max(std::abs(r0), epsilon), r0, grad_x[c], grad_y[c]);
+        }
       }
-      const Eigen::Matrix<double, 2, 6> d_pixel = warp.DPixelDPose(x, y, rho_row[x]);
-      Eigen::Matrix<double, 2, 6> s_times_j;
-      s_times_j.row(0) = m.s00 * d_pixel.row(0) + m.s01 * d_pixel.row(1);
-      s_times_j.row(1) = m.s01 * d_pixel.row(0) + m.s11 * d_pixel.row(1);
-      eq.block.noalias() += d_pixel.transpose() * s_times_j;
-      eq.rhs.noalias() += d_pixel.transpose() * Eigen::Vector2d(m.b0, m.b1);
+      row_sums.Set(used++, warp.DPixelDPose(p), m);
     }
+    if (used > 0) row_sums.AddTo(used, &eq.block, &eq.rhs);
   }
+  eq.block = 0.5 * (eq.block + eq.block.transpose());
   return eq;
 }
 
@@ -791,6 +856,28 @@ PairNormalEquations BlurredPairNormalEquations(const PinholeCamera& camera_hr, c
   return eq;
 }
 
+// The pairs in groups that UpdatePoses evaluates together: HR pairs of the
+// same frames and mask (a restored pair and its input pair) share each
+// pixel's warp (HrPairNormalEquations); a pair with a capture operator is a
+// group of its own. Indices into `pairs`, in their order.
+std::vector<std::vector<int>> GroupPairsByWarp(const std::vector<PairMatching>& pairs) {
+  std::vector<std::vector<int>> groups;
+  for (int p = 0; p < static_cast<int>(pairs.size()); ++p) {
+    const PairMatching& pair = pairs[p];
+    auto group = std::find_if(groups.begin(), groups.end(), [&](const std::vector<int>& members) {
+      const PairMatching& first = pairs[members.front()];
+      return pair.blur == nullptr && first.blur == nullptr && first.t == pair.t && first.s == pair.s &&
+             first.mask.data == pair.mask.data;
+    });
+    if (group != groups.end()) {
+      group->push_back(p);
+    } else {
+      groups.push_back({p});
+    }
+  }
+  return groups;
+}
+
 }  // namespace
 
 std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr, const std::vector<cv::Mat>& inverse_depths,
@@ -816,32 +903,37 @@ std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr, const std::vec
 #pragma omp parallel for schedule(dynamic, 1)
   for (int i = 0; i < static_cast<int>(sources.size()); ++i)
     Gradients(*sources[i], &source_gx[i], &source_gy[i]);
-  std::vector<PairNormalEquations> equations(num_pairs);
+  const std::vector<std::vector<int>> groups = GroupPairsByWarp(pairs);
+  const int num_groups = static_cast<int>(groups.size());
+  std::vector<PairNormalEquations> equations(num_groups);
   for (int iteration = 0; iteration < options.pose_iterations; ++iteration) {
-    // Per pair (in parallel): r(eps) = r0 - A (eps_t - eps_s), A^T W A and A^T W r0.
+    // Per group (in parallel): r(eps) = r0 - A (eps_t - eps_s), A^T W A and A^T W r0.
 #pragma omp parallel for schedule(dynamic, 1)
-    for (int p = 0; p < num_pairs; ++p) {
-      const PairMatching& pair = pairs[p];
+    for (int g = 0; g < num_groups; ++g) {
+      const PairMatching& pair = pairs[groups[g].front()];
       const SE3& T_world_t = (*T_world_cam)[pair.t];
       const SE3& T_world_s = (*T_world_cam)[pair.s];
-      const cv::Mat& source = SourceImage(pair, latents);
       if (pair.blur != nullptr) {
-        equations[p] = BlurredPairNormalEquations(camera_hr, inverse_depths[pair.t], T_world_t, T_world_s,
-                                                  source, pair, options.residual_epsilon);
-      } else {
-        const size_t i = std::find(sources.begin(), sources.end(), &source) - sources.begin();
-        equations[p] = HrPairNormalEquations(camera_hr, inverse_depths[pair.t], T_world_t, T_world_s, source,
-                                             source_gx[i], source_gy[i], *pair.observation, pair.mask,
-                                             options.residual_epsilon, options.pose_pixel_stride);
+        equations[g] = BlurredPairNormalEquations(camera_hr, inverse_depths[pair.t], T_world_t, T_world_s,
+                                                  SourceImage(pair, latents), pair, options.residual_epsilon);
+        continue;
       }
+      std::vector<HrPairImages> images;
+      for (int p : groups[g]) {
+        const cv::Mat& source = SourceImage(pairs[p], latents);
+        const size_t i = std::find(sources.begin(), sources.end(), &source) - sources.begin();
+        images.push_back({&source, &source_gx[i], &source_gy[i], pairs[p].observation});
+      }
+      equations[g] = HrPairNormalEquations(camera_hr, inverse_depths[pair.t], T_world_t, T_world_s, images,
+                                           pair.mask, options.residual_epsilon, options.pose_pixel_stride);
     }
     Eigen::MatrixXd hessian = Eigen::MatrixXd::Zero(unknowns, unknowns);
     Eigen::VectorXd gradient = Eigen::VectorXd::Zero(unknowns);
-    for (int p = 0; p < num_pairs; ++p) {
-      const Eigen::Matrix<double, 6, 6>& block = equations[p].block;
-      const Eigen::Matrix<double, 6, 1>& rhs = equations[p].rhs;
+    for (int g = 0; g < num_groups; ++g) {
+      const Eigen::Matrix<double, 6, 6>& block = equations[g].block;
+      const Eigen::Matrix<double, 6, 1>& rhs = equations[g].rhs;
       // Block indices (negative: a fixed frame).
-      const int bt = pairs[p].t - num_fixed, bs = pairs[p].s - num_fixed;
+      const int bt = pairs[groups[g].front()].t - num_fixed, bs = pairs[groups[g].front()].s - num_fixed;
       if (bt >= 0) {
         hessian.block<6, 6>(6 * bt, 6 * bt) += block;
         gradient.segment<6>(6 * bt) += rhs;

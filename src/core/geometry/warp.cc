@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <limits>
+#include <vector>
 
 #include "deblur_sr_mvs/core/common/errors.h"
 
@@ -34,25 +35,38 @@ void ReprojectDepth(const PinholeCamera& camera, const cv::Mat& depth_source, co
   const int width = camera.width;
   const int height = camera.height;
   float* zbuffer = depth_target->ptr<float>();
+  // Per row, first the warp of every pixel (PixelTransferF::Warp's
+  // arithmetic, without its branch, so that the loop vectorises), then the
+  // checks and the z-buffer scatter.
+  std::vector<float> row_u(width), row_v(width), row_z(width);
   for (int y = 0; y < height; ++y) {
-    const float* depth_row = depth_source.ptr<float>(y);
+    const float* __restrict depth_row = depth_source.ptr<float>(y);
     float base[3];
     transfer.RowBase(static_cast<float>(y), base);
+    float* __restrict out_u = row_u.data();
+    float* __restrict out_v = row_v.data();
+    float* __restrict out_z = row_z.data();
     for (int x = 0; x < width; ++x) {
       const float depth = depth_row[x];
-      if (!ValidDepth(depth)) continue;
-      float u, v, target_depth;
-      if (!transfer.Warp(base, static_cast<float>(x), depth, &u, &v, &target_depth)) continue;
+      const float u = static_cast<float>(x);
+      const float z = depth * (transfer.h[6] * u + base[2]) + transfer.t[2];
+      const float inv_z = 1.0f / z;
+      out_u[x] = (depth * (transfer.h[0] * u + base[0]) + transfer.t[0]) * inv_z;
+      out_v[x] = (depth * (transfer.h[3] * u + base[1]) + transfer.t[1]) * inv_z;
+      out_z[x] = z;
+    }
+    for (int x = 0; x < width; ++x) {
+      if (!ValidDepth(depth_row[x]) || !(row_z[x] > 1e-9f)) continue;
       // Nearest target pixel; the z-buffer keeps the closest surface. The
       // unsigned compare rejects negative and too large indices at once.
-      const int tx = static_cast<int>(std::floor(u + 0.5f));
-      const int ty = static_cast<int>(std::floor(v + 0.5f));
+      const int tx = static_cast<int>(std::floor(row_u[x] + 0.5f));
+      const int ty = static_cast<int>(std::floor(row_v[x] + 0.5f));
       if (static_cast<unsigned>(tx) >= static_cast<unsigned>(width) ||
           static_cast<unsigned>(ty) >= static_cast<unsigned>(height)) {
         continue;
       }
       float& slot = zbuffer[ty * width + tx];
-      if (target_depth < slot) slot = target_depth;
+      if (row_z[x] < slot) slot = row_z[x];
     }
   }
   const float missing = std::numeric_limits<float>::quiet_NaN();

@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <string>
 
 #include <opencv2/imgproc.hpp>
 
@@ -28,6 +29,13 @@ cv::Mat SmoothTexture(int width, int height) {
   return image;
 }
 
+// "a b c d e f" with 3 significant digits.
+std::string Format(const Vector6d& v) {
+  char text[128];
+  std::snprintf(text, sizeof(text), "%.3e %.3e %.3e %.3e %.3e %.3e", v(0), v(1), v(2), v(3), v(4), v(5));
+  return text;
+}
+
 struct Scene {
   PinholeCamera camera{96, 72, 80.0, 82.0, 47.3, 35.6};
   cv::Mat inverse_depth;
@@ -41,6 +49,18 @@ struct Scene {
     }
   }
 };
+
+// The pair (1 <- 0) of `scene` whose observation `truth` is frame 0's
+// texture warped by the true poses; it names its own source image.
+PairMatching TruthPair(const Scene& scene, const WarpLinearization& truth) {
+  PairMatching pair;
+  pair.t = 1;
+  pair.s = 0;
+  pair.observation = &truth.warped;
+  pair.mask = truth.valid;
+  pair.source = &scene.latent_s;
+  return pair;
+}
 
 // Interior pixels valid in all three warps.
 std::vector<cv::Point> CheckedPixels(const WarpLinearization& a, const WarpLinearization& b,
@@ -135,12 +155,7 @@ TEST(UpdatePoses, RecoversAPerturbedPoseFromAnHrPair) {
   Scene scene;
   const WarpLinearization truth = LinearizeWarp(scene.camera, scene.inverse_depth, scene.T_world_t,
                                                 scene.T_world_s, scene.latent_s, nullptr);
-  PairMatching pair;
-  pair.t = 1;
-  pair.s = 0;
-  pair.observation = &truth.warped;
-  pair.mask = truth.valid;
-  pair.source = &scene.latent_s;
+  const PairMatching pair = TruthPair(scene, truth);
   const std::vector<cv::Mat> unused_latents(2, cv::Mat::zeros(72, 96, CV_32FC3));
   const std::vector<cv::Mat> inverse_depths = {scene.inverse_depth, scene.inverse_depth};
   const Vector6d perturbation = (Vector6d() << 0.004, -0.003, 0.002, 0.002, -0.003, 0.002).finished();
@@ -158,6 +173,85 @@ TEST(UpdatePoses, RecoversAPerturbedPoseFromAnHrPair) {
     EXPECT_EQ(steps[0], Vector6d::Zero());  // frame 0 is the gauge
     EXPECT_TRUE((poses[0].translation() - scene.T_world_s.translation()).isZero());
   }
+}
+
+// The HR pair's normal equations (pixel by pixel, the Jacobian from the
+// projection into s, float sums within a row) against the general form
+// through a capture operator (pose Jacobian images of LinearizeWarp, double
+// sums) with an identity operator: the same Gauss-Newton step.
+TEST(UpdatePoses, HrPairStepMatchesTheOperatorFormWithAnIdentityOperator) {
+  Scene scene;
+  const WarpLinearization truth = LinearizeWarp(scene.camera, scene.inverse_depth, scene.T_world_t,
+                                                scene.T_world_s, scene.latent_s, nullptr);
+  CaptureGeometry geometry;  // no motion within the exposure, source = t: Psi = I
+  geometry.camera_hr = scene.camera;
+  geometry.depth_hr = 1.0 / scene.inverse_depth;
+  geometry.T_world_cam = scene.T_world_t;
+  geometry.T_world_neighbour = scene.T_world_t;
+  geometry.neighbour_stamp = 0.0;
+  geometry.stamp = 1.0;
+  geometry.exposure = 0.5;
+  CaptureOperatorOptions op_options;
+  op_options.scale = 1;
+  op_options.samples = 4;
+  op_options.num_threads = 1;
+  CaptureOperator identity;
+  CaptureOperatorBuilder(op_options).Build(geometry, &identity);
+  cv::Mat identity_check;
+  identity.Apply(scene.latent_s, &identity_check);
+  ASSERT_EQ(cv::norm(identity_check, scene.latent_s, cv::NORM_INF), 0.0);
+
+  const PairMatching hr_pair = TruthPair(scene, truth);
+  PairMatching operator_pair = hr_pair;
+  operator_pair.blur = &identity;
+  const std::vector<cv::Mat> unused_latents(2, cv::Mat::zeros(72, 96, CV_32FC3));
+  const std::vector<cv::Mat> inverse_depths = {scene.inverse_depth, scene.inverse_depth};
+  StructureUpdateOptions options;
+  options.pose_pixel_stride = 1;
+  options.pose_iterations = 1;
+  const Vector6d perturbation = (Vector6d() << 0.004, -0.003, 0.002, 0.002, -0.003, 0.002).finished();
+  std::vector<Vector6d> steps;
+  for (const PairMatching& pair : {hr_pair, operator_pair}) {
+    std::vector<SE3> poses = {scene.T_world_s, SE3::Exp(perturbation) * scene.T_world_t};
+    steps.push_back(UpdatePoses(scene.camera, inverse_depths, unused_latents, {pair}, options, &poses)[1]);
+  }
+  std::printf("HR step %s\noperator step %s\n", Format(steps[0]).c_str(), Format(steps[1]).c_str());
+  ASSERT_GT(steps[1].norm(), 0.1 * perturbation.norm());
+  EXPECT_LT((steps[0] - steps[1]).norm(), 1e-3 * steps[1].norm());
+}
+
+// A restored pair and an input pair of the same frames and mask share each
+// pixel's warp in UpdatePoses; with a copy of the mask they are summed pair by
+// pair: the same step.
+TEST(UpdatePoses, PairsSharingTheirMaskGiveTheStepOfSeparatePairs) {
+  Scene scene;
+  const WarpLinearization truth = LinearizeWarp(scene.camera, scene.inverse_depth, scene.T_world_t,
+                                                scene.T_world_s, scene.latent_s, nullptr);
+  cv::Mat input_source, input_observation;  // another image pair of the same frames
+  cv::GaussianBlur(scene.latent_s, input_source, cv::Size(0, 0), 1.0);
+  input_observation = LinearizeWarp(scene.camera, scene.inverse_depth, scene.T_world_t, scene.T_world_s,
+                                    input_source, nullptr)
+                          .warped;
+  const PairMatching restored = TruthPair(scene, truth);
+  PairMatching input = restored;
+  input.observation = &input_observation;
+  input.source = &input_source;
+  const std::vector<cv::Mat> unused_latents(2, cv::Mat::zeros(72, 96, CV_32FC3));
+  const std::vector<cv::Mat> inverse_depths = {scene.inverse_depth, scene.inverse_depth};
+  StructureUpdateOptions options;
+  options.pose_iterations = 2;
+  const Vector6d perturbation = (Vector6d() << 0.004, -0.003, 0.002, 0.002, -0.003, 0.002).finished();
+  std::vector<Vector6d> steps;
+  for (bool shared_mask : {true, false}) {
+    PairMatching second = input;
+    if (!shared_mask) second.mask = input.mask.clone();
+    std::vector<SE3> poses = {scene.T_world_s, SE3::Exp(perturbation) * scene.T_world_t};
+    steps.push_back(
+        UpdatePoses(scene.camera, inverse_depths, unused_latents, {restored, second}, options, &poses)[1]);
+  }
+  std::printf("shared mask %s\nseparate    %s\n", Format(steps[0]).c_str(), Format(steps[1]).c_str());
+  ASSERT_GT(steps[1].norm(), 0.5 * perturbation.norm());
+  EXPECT_LT((steps[0] - steps[1]).norm(), 1e-4 * steps[1].norm());
 }
 
 TEST(StructureUpdateOptions, RejectsBadValues) {
