@@ -357,6 +357,68 @@ TEST(JointDepthPoseSystem, PoseDampingScalesThePoseDiagonal) {
   }
 }
 
+// The depth-pose couplings are summed per pose column as the pairs are
+// linearised and applied in one pass with N_dd (ApplyNormal) and in two by
+// the preconditioner: N must stay symmetric, x^T N y = y^T N x, with the TV,
+// the damping and both kinds of coupled frames (frame 1: the held frame 0
+// is its reference; frame 2 without it, pairs 2 <- 1: its own column is
+// left out).
+TEST(JointDepthPoseSystem, NormalMatrixIsSymmetric) {
+  const PlaneScene scene(/*third=*/true);
+  std::vector<FrameDepthTerms> terms = scene.Terms(PixelMask(cv::Rect(24, 12, 48, 48)));
+  terms[2].pairs.erase(terms[2].pairs.begin());  // 2 <- 0: frame 2 then has no held neighbour
+  ASSERT_EQ(terms[2].pairs.size(), 1u);
+  const auto [rho, poses] = OffTheTruth(scene);
+  const StructureUpdateOptions options;  // TV and damping on
+  JointDepthPoseSystem system(scene.camera, poses, scene.images, terms, 8.0, options, 1);
+  system.Linearize(rho);
+  JointStep x = ThreeFrameDirection(), y = ThreeFrameDirection();
+  for (int t = 0; t < 3; ++t) cv::flip(y.inverse_depths[t], y.inverse_depths[t], 1);
+  y.poses.segment<6>(6) << -0.002, 0.001, 0.004, 0.003, 0.001, -0.002;
+  y.poses.segment<6>(12) << 0.001, 0.003, -0.002, 0.002, -0.001, 0.003;
+  system.ProjectGauge(&x.poses);
+  system.ProjectGauge(&y.poses);
+  auto dot = [](const JointStep& a, const JointStep& b) {
+    double sum = a.poses.dot(b.poses);
+    for (size_t t = 0; t < a.inverse_depths.size(); ++t) sum += a.inverse_depths[t].dot(b.inverse_depths[t]);
+    return sum;
+  };
+  const JointStep nx = system.ApplyNormal(x), ny = system.ApplyNormal(y);
+  const double xny = dot(x, ny), ynx = dot(y, nx);
+  const double scale = std::sqrt(dot(x, nx) * dot(y, ny));
+  std::printf("x^T N y %.8g, y^T N x %.8g (sqrt(x^T N x y^T N y) %.6g)\n", xny, ynx, scale);
+  EXPECT_GT(std::abs(xny), 0.01 * scale);  // the directions are not N-orthogonal
+  EXPECT_NEAR(xny, ynx, 1e-5 * scale);
+}
+
+// Without TV every unknown inverse depth meets only its own pixel's terms:
+// N_dd is diagonal, the preconditioner's Schur complement is then N's exact
+// inverse, and one CG step solves the system (to float rounding), however
+// the pairs' couplings are summed.
+TEST(JointDepthPoseSystem, SchurComplementSolvesPerPixelSystemsInOneStep) {
+  const PlaneScene scene(/*third=*/true);
+  const std::vector<FrameDepthTerms> terms = scene.Terms(PixelMask(cv::Rect(24, 12, 48, 48)));
+  const auto [rho, poses] = OffTheTruth(scene);
+  StructureUpdateOptions options = DataTermsOnly();
+  options.depth_damping = 1e-3;  // every pixel's block positive
+  options.joint_cg_iterations = 1;
+  options.depth_cg_tolerance = 0.0;
+  JointDepthPoseSystem system(scene.camera, poses, scene.images, terms, 8.0, options, 1);
+  system.Linearize(rho);
+  const JointStep rhs = system.RightHandSide(rho);
+  const JointStep step = system.Solve(rhs);
+  const JointStep n_step = system.ApplyNormal(step);
+  double residual = (n_step.poses - rhs.poses).squaredNorm(), norm = rhs.poses.squaredNorm();
+  for (int t = 0; t < 3; ++t) {
+    residual += std::pow(cv::norm(n_step.inverse_depths[t], rhs.inverse_depths[t]), 2);
+    norm += std::pow(cv::norm(rhs.inverse_depths[t]), 2);
+  }
+  std::printf("|N x - rhs| / |rhs| after one CG step: %.3g; |step poses| %.3g\n", std::sqrt(residual / norm),
+              step.poses.norm());
+  EXPECT_GT(step.poses.norm(), 0.0);
+  EXPECT_LT(std::sqrt(residual / norm), 1e-3);
+}
+
 double PoseError(const SE3& estimate, const SE3& truth) {
   return (estimate * truth.Inverse()).Log().norm();
 }
