@@ -295,9 +295,14 @@ void StructureUpdateOptions::Check() const {
   edge_weight.Check();
 }
 
-WarpLinearization LinearizeWarp(const PinholeCamera& camera_hr, const cv::Mat& inverse_depth_t,
-                                const SE3& T_world_t, const SE3& T_world_s, const cv::Mat& latent_s,
-                                std::vector<cv::Mat>* pose_jacobians) {
+namespace {
+
+// LinearizeWarp, and with `warped_gradients` the source's gradients at the
+// warp (HR, 2C channels: g_x of channel c at 2c, g_y at 2c + 1; zero where
+// the warp is not valid), for the pose terms of HR pairs.
+WarpLinearization LinearizeWarpSampled(const PinholeCamera& camera_hr, const cv::Mat& inverse_depth_t,
+                                       const SE3& T_world_t, const SE3& T_world_s, const cv::Mat& latent_s,
+                                       std::vector<cv::Mat>* pose_jacobians, cv::Mat* warped_gradients) {
   const int channels = latent_s.channels();
   const int width = camera_hr.width, height = camera_hr.height;
   WarpLinearization lin;
@@ -308,6 +313,7 @@ WarpLinearization LinearizeWarp(const PinholeCamera& camera_hr, const cv::Mat& i
     pose_jacobians->assign(6, cv::Mat());
     for (cv::Mat& j : *pose_jacobians) j = cv::Mat::zeros(height, width, latent_s.type());
   }
+  if (warped_gradients != nullptr) *warped_gradients = cv::Mat::zeros(height, width, CV_32FC(2 * channels));
   cv::Mat gx, gy;
   Gradients(latent_s, &gx, &gy);
   const PairWarp warp(camera_hr, T_world_t, T_world_s);
@@ -328,6 +334,13 @@ WarpLinearization LinearizeWarp(const PinholeCamera& camera_hr, const cv::Mat& i
         warped[c] = value[c];
         d_rho[c] = static_cast<float>(grad_x[c] * du + grad_y[c] * dv);
       }
+      if (warped_gradients != nullptr) {
+        float* gradients = warped_gradients->ptr<float>(y) + x * 2 * channels;
+        for (int c = 0; c < channels; ++c) {
+          gradients[2 * c] = grad_x[c];
+          gradients[2 * c + 1] = grad_y[c];
+        }
+      }
       if (pose_jacobians == nullptr) continue;
       const Eigen::Matrix<double, 2, 6> d_pixel_d_eps = warp.DPixelDPose(x, y, rho_row[x]);
       for (int j = 0; j < 6; ++j) {
@@ -339,6 +352,15 @@ WarpLinearization LinearizeWarp(const PinholeCamera& camera_hr, const cv::Mat& i
     }
   }
   return lin;
+}
+
+}  // namespace
+
+WarpLinearization LinearizeWarp(const PinholeCamera& camera_hr, const cv::Mat& inverse_depth_t,
+                                const SE3& T_world_t, const SE3& T_world_s, const cv::Mat& latent_s,
+                                std::vector<cv::Mat>* pose_jacobians) {
+  return LinearizeWarpSampled(camera_hr, inverse_depth_t, T_world_t, T_world_s, latent_s, pose_jacobians,
+                              nullptr);
 }
 
 namespace {
@@ -354,32 +376,31 @@ using CouplingTargets = std::array<CouplingTarget, 2>;
 
 // The pose terms of an HR pair (no capture operator) in one pass over its
 // pixels, without the six pose Jacobian images: channel c's row is A_c =
-// g_c^T J (g_c the source's gradient at the warp, J = d pixel / d eps_t), so
+// g_c^T J (g_c the source's gradient at the warp, `warped_gradients` of
+// LinearizeWarpSampled; J = d pixel / d eps_t), so
 // with the IRLS weights w and the depth derivative g_rho,
 //   coupling = sum_c w_c g_rho,c A_c^T = J^T q,  q = sum_c w_c g_rho,c g_c,
 //   block = sum J^T S J,  S = sum_c w_c g_c g_c^T,  rhs = sum J^T sum_c w_c r0_c g_c.
 // The coupling is added into `targets` as it is formed (no image per pair).
 // The 6x6 sums go row by row (float within a row, double across rows).
 void HrPairPoseTerms(const PinholeCamera& camera, const cv::Mat& inverse_depth, const SE3& T_world_t,
-                     const SE3& T_world_s, const cv::Mat& source, const cv::Mat& d_inverse_depth,
+                     const SE3& T_world_s, const cv::Mat& warped_gradients, const cv::Mat& d_inverse_depth,
                      const cv::Mat& residual, const cv::Mat& weight, const CouplingTargets& targets,
                      Eigen::Matrix<double, 6, 6>* block, Vector6d* rhs) {
-  const int channels = source.channels();
+  const int channels = d_inverse_depth.channels();
   const int width = camera.width;
-  cv::Mat gx, gy;
-  Gradients(source, &gx, &gy);
   const PairWarp warp(camera, T_world_t, T_world_s);
   block->setZero();
   rhs->setZero();
   // Per row: J's 12 entries, S J's 12 and the 2 of sum_c w_c r0_c g_c, each
   // an array over the row's pixels (zero where every weight is zero).
   Eigen::MatrixXf j_rows(12, width), sj_rows(12, width), b_rows(2, width);
-  std::vector<float> grad_x(channels), grad_y(channels);
   for (int y = 0; y < camera.height; ++y) {
     const float* rho_row = inverse_depth.ptr<float>(y);
     const float* w_row = weight.ptr<float>(y);
     const float* r_row = residual.ptr<float>(y);
     const float* g_row = d_inverse_depth.ptr<float>(y);
+    const float* gradient_row = warped_gradients.ptr<float>(y);
     std::array<float*, 2> out{};
     for (size_t i = 0; i < targets.size(); ++i) {
       if (targets[i].images != nullptr) out[i] = targets[i].images->ptr<float>(y);
@@ -388,21 +409,18 @@ void HrPairPoseTerms(const PinholeCamera& camera, const cv::Mat& inverse_depth, 
     sj_rows.setZero();
     b_rows.setZero();
     for (int x = 0; x < width; ++x) {
+      // A zero weight in every channel: masked, or the warp is not valid.
       const float* w = w_row + x * channels;
-      double u, v, du, dv;
-      if (std::all_of(w, w + channels, [](float value) { return value == 0.0f; }) ||
-          !warp.Project(x, y, rho_row[x], &u, &v, &du, &dv)) {
-        continue;
-      }
-      SampleBilinear(gx, static_cast<float>(u), static_cast<float>(v), grad_x.data());
-      SampleBilinear(gy, static_cast<float>(u), static_cast<float>(v), grad_y.data());
+      if (std::all_of(w, w + channels, [](float value) { return value == 0.0f; })) continue;
+      const float* gradient = gradient_row + x * 2 * channels;
       GradientMoments m;
       double q0 = 0.0, q1 = 0.0;
       for (int c = 0; c < channels; ++c) {
         const double g_rho = g_row[x * channels + c];
-        m.Add(w[c], r_row[x * channels + c], grad_x[c], grad_y[c]);
-        q0 += w[c] * g_rho * grad_x[c];
-        q1 += w[c] * g_rho * grad_y[c];
+        const float grad_x = gradient[2 * c], grad_y = gradient[2 * c + 1];
+        m.Add(w[c], r_row[x * channels + c], grad_x, grad_y);
+        q0 += w[c] * g_rho * grad_x;
+        q1 += w[c] * g_rho * grad_y;
       }
       const Eigen::Matrix<double, 2, 6> j = warp.DPixelDPose(x, y, rho_row[x]);
       for (int k = 0; k < 6; ++k) {
@@ -607,15 +625,17 @@ class DepthNormalEquations {
     hr_diagonal_.setTo(0.0);
     for (PoseColumn& column : couplings_) column.images.setTo(0.0);
     std::vector<cv::Mat> pose_jacobians;  // A_j of a pair with a capture operator
+    cv::Mat warped_gradients;             // the source's gradients at an HR pair's warp
     for (size_t p = 0; p < pairs_.size(); ++p) {
       const PairMatching& pair = pairs_[p];
       PairState& state = states_[p];
       // HR pairs form their pose terms in one pass (HrPairPoseTerms), without
       // the pose Jacobian images.
       const bool jacobian_images = pose_coupling() && pair.blur != nullptr;
-      const WarpLinearization lin =
-          LinearizeWarp(camera_hr_, inverse_depth, T_world_cam_[pair.t], T_world_cam_[pair.s],
-                        SourceImage(pair, latents_), jacobian_images ? &pose_jacobians : nullptr);
+      const bool hr_pose_terms = pose_coupling() && !jacobian_images;
+      const WarpLinearization lin = LinearizeWarpSampled(
+          camera_hr_, inverse_depth, T_world_cam_[pair.t], T_world_cam_[pair.s], SourceImage(pair, latents_),
+          jacobian_images ? &pose_jacobians : nullptr, hr_pose_terms ? &warped_gradients : nullptr);
       Predict(pair, lin.warped, &predicted_);
       const cv::Mat residual = *pair.observation - predicted_;
       cv::Mat weight;
@@ -628,10 +648,10 @@ class DepthNormalEquations {
         ContractChannels(lin.d_inverse_depth, squared_, &hr_diagonal_, true);
       }
       if (jacobian_images) CouplePoses(pair, lin, residual, weight, pose_jacobians, &state.pose);
-      if (pose_coupling() && !jacobian_images) {
-        HrPairPoseTerms(camera_hr_, inverse_depth, T_world_cam_[pair.t], T_world_cam_[pair.s],
-                        SourceImage(pair, latents_), lin.d_inverse_depth, residual, weight, TargetsOf(pair),
-                        &state.pose.block, &state.pose.rhs);
+      if (hr_pose_terms) {
+        HrPairPoseTerms(camera_hr_, inverse_depth, T_world_cam_[pair.t], T_world_cam_[pair.s], warped_gradients,
+                        lin.d_inverse_depth, residual, weight, TargetsOf(pair), &state.pose.block,
+                        &state.pose.rhs);
       }
       diagonal_sum += Dot1(lin.d_inverse_depth, lin.d_inverse_depth) * cv::mean(weight)[0] /
                       std::max(1, weight.channels());
@@ -1199,6 +1219,7 @@ class JointDepthPoseSystem::Impl {
     }
     const int width = size_.width;
     std::vector<const float*> columns(count);
+    std::vector<float> sums(out != nullptr ? width : 0);
     for (int y = 0; y < size_.height; ++y) {
       for (int c = 0; c < count; ++c) columns[c] = couplings[c].images.ptr<float>(y);
       if (depth != nullptr) {
@@ -1209,15 +1230,19 @@ class JointDepthPoseSystem::Impl {
         }
       }
       if (out == nullptr) continue;
+      // Each pixel's sum in the order (c, j), the pixels innermost: the
+      // pixels' sums are independent (not one chain of dependent adds).
+      std::fill(sums.begin(), sums.end(), 0.0f);
+      for (int c = 0; c < count; ++c) {
+        for (int j = 0; j < 6; ++j) {
+          const float factor = factors[6 * c + j];
+          const float* column = columns[c] + j;
+          for (int x = 0; x < width; ++x) sums[x] += factor * column[6 * x];
+        }
+      }
       const float* divide = divisor != nullptr ? divisor->ptr<float>(y) : nullptr;
       float* out_row = out->ptr<float>(y);
-      for (int x = 0; x < width; ++x) {
-        float sum = 0.0f;
-        for (int c = 0; c < count; ++c) {
-          for (int j = 0; j < 6; ++j) sum += factors[6 * c + j] * columns[c][6 * x + j];
-        }
-        out_row[x] += divide != nullptr ? sum / divide[x] : sum;
-      }
+      for (int x = 0; x < width; ++x) out_row[x] += divide != nullptr ? sums[x] / divide[x] : sums[x];
     }
     if (part == nullptr) return;
     for (int c = 0; c < count; ++c) {
