@@ -649,9 +649,9 @@ class DepthNormalEquations {
       }
       if (jacobian_images) CouplePoses(pair, lin, residual, weight, pose_jacobians, &state.pose);
       if (hr_pose_terms) {
-        HrPairPoseTerms(camera_hr_, inverse_depth, T_world_cam_[pair.t], T_world_cam_[pair.s], warped_gradients,
-                        lin.d_inverse_depth, residual, weight, TargetsOf(pair), &state.pose.block,
-                        &state.pose.rhs);
+        HrPairPoseTerms(camera_hr_, inverse_depth, T_world_cam_[pair.t], T_world_cam_[pair.s],
+                        warped_gradients, lin.d_inverse_depth, residual, weight, TargetsOf(pair),
+                        &state.pose.block, &state.pose.rhs);
       }
       diagonal_sum += Dot1(lin.d_inverse_depth, lin.d_inverse_depth) * cv::mean(weight)[0] /
                       std::max(1, weight.channels());
