@@ -1,8 +1,10 @@
 // The joint depth + pose step of the structure update (JointDepthPoseSystem,
 // UpdateDepthAndPoses): its normal equations against central differences of
-// the warp (eq:taylorExpansion, eq:updateVariables), and its effect on a
-// two-frame scene with a perturbed pose against the alternation of depth and
-// pose updates.
+// the warp (eq:taylorExpansion, eq:updateVariables), their symmetry and the
+// exactness of the Schur-complement preconditioner on per-pixel systems (the
+// couplings are summed per pose column, never stored per pair), and its
+// effect on a two-frame scene with a perturbed pose against the alternation
+// of depth and pose updates.
 #include <cmath>
 #include <cstdio>
 #include <vector>
