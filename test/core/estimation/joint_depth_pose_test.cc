@@ -11,7 +11,9 @@
 
 #include <gtest/gtest.h>
 
+#include "deblur_sr_mvs/core/estimation/frame_structure.h"
 #include "deblur_sr_mvs/core/estimation/structure_update.h"
+#include "deblur_sr_mvs/core/imaging/capture_operator.h"
 
 namespace deblur_sr_mvs {
 namespace {
@@ -419,6 +421,118 @@ TEST(JointDepthPoseSystem, SchurComplementSolvesPerPixelSystemsInOneStep) {
               step.poses.norm());
   EXPECT_GT(step.poses.norm(), 0.0);
   EXPECT_LT(std::sqrt(residual / norm), 1e-3);
+}
+
+// The forms of `terms` (pairs with a capture operator) along x by central
+// differences of Psi_t applied to the warped images, Psi_t held as in the
+// linearisation, on the observations' LR grid inside each pair's mask.
+NumericForms BlurredNumericForms(const PlaneScene& scene, const std::vector<FrameDepthTerms>& terms,
+                                 const std::vector<cv::Mat>& observations, const std::vector<cv::Mat>& rho,
+                                 const std::vector<SE3>& poses, const JointStep& x, double residual_epsilon) {
+  const double h = 1e-3;
+  NumericForms numeric;
+  for (const FrameDepthTerms& frame : terms) {
+    const PairMatching& pair = frame.pairs[0];
+    const cv::Size lr = pair.mask.size();
+    auto predicted_at = [&](double step) {
+      auto moved = [&](int f) { return SE3::Exp(step * x.poses.segment<6>(6 * f)) * poses[f]; };
+      const cv::Mat rho_t = rho[pair.t] + step * x.inverse_depths[pair.t];
+      cv::Mat predicted;
+      pair.blur->Apply(
+          LinearizeWarp(scene.camera, rho_t, moved(pair.t), moved(pair.s), scene.images[pair.s], nullptr)
+              .warped,
+          &predicted);
+      return cv::Mat(predicted.reshape(3, lr.height));
+    };
+    const cv::Mat at = predicted_at(0.0), plus = predicted_at(h), minus = predicted_at(-h);
+    for (int y = 0; y < lr.height; ++y) {
+      for (int xx = 0; xx < lr.width; ++xx) {
+        if (!pair.mask.at<uchar>(y, xx)) continue;
+        for (int c = 0; c < 3; ++c) {
+          const double r0 = observations[pair.t].at<cv::Vec3f>(y, xx)[c] - at.at<cv::Vec3f>(y, xx)[c];
+          const double w = 1.0 / std::max(std::abs(r0), residual_epsilon);
+          const double jx = (plus.at<cv::Vec3f>(y, xx)[c] - minus.at<cv::Vec3f>(y, xx)[c]) / (2 * h);
+          numeric.quadratic += w * jx * jx;
+          numeric.linear += w * r0 * jx;
+          numeric.absolute_linear += std::abs(w * r0 * jx);
+        }
+      }
+    }
+  }
+  return numeric;
+}
+
+// Pairs through the capture operator (StructureMatching::kBlurred: B_t
+// against Psi_t applied to I_s warped into t), whose couplings are formed
+// from the six pose Jacobian images and summed per pose column: the forms
+// along x = (d_0, d_1, eps_1) and along x with eps negated against central
+// differences (BlurredNumericForms), and the coupling alone (the difference
+// of the two quadratic forms), which is a small part of either.
+TEST(JointDepthPoseSystem, BlurredPairsMatchNumericDifferences) {
+  const PlaneScene scene;
+  const auto [rho, poses] = OffTheTruth(scene);
+  std::vector<FrameStructure> frames(2);
+  for (int t = 0; t < 2; ++t) {
+    frames[t].stamp = 0.1 * (t + 1);
+    frames[t].exposure = 0.03;
+    frames[t].T_world_cam = poses[t];
+    frames[t].depth_hr = 1.0 / rho[t];
+  }
+  CaptureOperatorOptions op_options;
+  op_options.samples = 8;
+  op_options.scale = 2;
+  std::vector<CaptureOperator> operators(2);
+  std::vector<cv::Mat> observations(2);
+  for (int t = 0; t < 2; ++t) {
+    operators[t] = BuildCaptureOperator(MakeCaptureGeometry(frames, scene.camera, t, t), op_options);
+    operators[t].Apply(scene.images[t], &observations[t]);
+    observations[t] = observations[t].reshape(3, 36);
+  }
+  cv::Mat mask = cv::Mat::zeros(36, 48, CV_8UC1);
+  mask(cv::Rect(8, 6, 32, 24)).setTo(255);
+  std::vector<FrameDepthTerms> terms(2);
+  for (int t = 0; t < 2; ++t) {
+    PairMatching pair;
+    pair.t = t;
+    pair.s = 1 - t;
+    pair.blur = &operators[t];
+    pair.observation = &observations[t];
+    pair.mask = mask;
+    terms[t].pairs.push_back(pair);
+  }
+  const StructureUpdateOptions options = DataTermsOnly();
+  JointDepthPoseSystem system(scene.camera, poses, scene.images, terms, 8.0, options, 1);
+  system.Linearize(rho);
+  const JointStep rhs = system.RightHandSide(rho);
+  // x and x with its pose part negated: the difference of their quadratic
+  // forms is 4 d^T N_dp eps, the depth-pose coupling alone.
+  std::vector<JointStep> directions(2);
+  for (int sign : {1, -1}) {
+    JointStep& x = directions[sign > 0 ? 0 : 1];
+    x.inverse_depths = DepthDirection(2);
+    x.poses = Eigen::VectorXd::Zero(12);
+    x.poses.segment<6>(6) << 0.004, -0.003, 0.002, 0.002, -0.003, 0.002;
+    x.poses *= sign;
+    system.ProjectGauge(&x.poses);
+  }
+  std::vector<NumericForms> analytic, numeric;
+  for (const JointStep& x : directions) {
+    analytic.push_back(SystemForms(&system, rhs, x));
+    numeric.push_back(
+        BlurredNumericForms(scene, terms, observations, rho, poses, x, options.residual_epsilon));
+    std::printf(
+        "blurred pairs: x^T N x: %.6g (numeric %.6g); rhs^T x: %.6g (numeric %.6g, sum of |terms| %.6g)\n",
+        analytic.back().quadratic, numeric.back().quadratic, analytic.back().linear, numeric.back().linear,
+        numeric.back().absolute_linear);
+    EXPECT_GT(numeric.back().quadratic, 0.0);
+    EXPECT_NEAR(analytic.back().quadratic, numeric.back().quadratic, 0.03 * numeric.back().quadratic);
+    EXPECT_NEAR(analytic.back().linear, numeric.back().linear, 0.01 * numeric.back().absolute_linear);
+  }
+  const double cross = analytic[0].quadratic - analytic[1].quadratic;
+  const double numeric_cross = numeric[0].quadratic - numeric[1].quadratic;
+  std::printf("blurred pairs: 4 d^T N_dp eps: %.6g (numeric %.6g)\n", cross, numeric_cross);
+  EXPECT_GT(std::abs(numeric_cross), 0.0);
+  EXPECT_NEAR(cross, numeric_cross, 0.1 * std::abs(numeric_cross));
 }
 
 double PoseError(const SE3& estimate, const SE3& truth) {
