@@ -54,9 +54,10 @@ struct StructureUpdateOptions {
   // sequences (lateral, arc, forward, hand-held; Dolls, Aloe) mean depth
   // 0.891 and ATE 0.800 of the baseline's against 0.904 and 0.934 with the
   // per-frame depth updates (depth 0.0004 worse on lateral / Aloe), at
-  // +9 % / +12 % CPU and 1.14 / 1.01 GiB peak (against 1.01 / 0.88) on the
-  // 10-frame 640x480 speed sequences (BENCHMARKS.md "Joint depth + pose
-  // step (Schur)"). false: the per-frame depth updates.
+  // +9 % to +14 % CPU (one or two threads) and a peak of 1.01 - 1.24 GiB
+  // (against 0.88 - 1.08) on the 10-frame 640x480 speed sequences
+  // (BENCHMARKS.md "Joint depth + pose step (Schur)"). false: the
+  // per-frame depth updates.
   bool joint_depth_pose_step = true;
   // CG steps per reweighted joint system (its tolerance is
   // depth_cg_tolerance).
