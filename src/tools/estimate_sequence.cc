@@ -129,7 +129,7 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   cli.add_flag("--joint-depth-pose-step,!--no-joint-depth-pose-step",
                options->structure.joint_depth_pose_step,
                "the structure update moves all depths and the free poses in one Gauss-Newton step "
-               "(default off)");
+               "(default on; off: per-frame depth updates)");
   cli.add_option("--joint-pose-damping", options->structure.joint_pose_damping,
                  "with --joint-depth-pose-step: Levenberg-Marquardt damping of the poses, relative to "
                  "their diagonal")

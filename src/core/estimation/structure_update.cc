@@ -362,9 +362,14 @@ void StructureUpdateOptions::Check() const {
   edge_weight.Check();
 }
 
-WarpLinearization LinearizeWarp(const PinholeCamera& camera_hr, const cv::Mat& inverse_depth_t,
-                                const SE3& T_world_t, const SE3& T_world_s, const cv::Mat& latent_s,
-                                std::vector<cv::Mat>* pose_jacobians) {
+namespace {
+
+// LinearizeWarp, and with `warped_gradients` the source's gradients at the
+// warp (HR, 2C channels: g_x of channel c at 2c, g_y at 2c + 1; zero where
+// the warp is not valid), for the pose terms of HR pairs.
+WarpLinearization LinearizeWarpSampled(const PinholeCamera& camera_hr, const cv::Mat& inverse_depth_t,
+                                       const SE3& T_world_t, const SE3& T_world_s, const cv::Mat& latent_s,
+                                       std::vector<cv::Mat>* pose_jacobians, cv::Mat* warped_gradients) {
   const int channels = latent_s.channels();
   const int width = camera_hr.width, height = camera_hr.height;
   WarpLinearization lin;
@@ -375,6 +380,7 @@ WarpLinearization LinearizeWarp(const PinholeCamera& camera_hr, const cv::Mat& i
     pose_jacobians->assign(6, cv::Mat());
     for (cv::Mat& j : *pose_jacobians) j = cv::Mat::zeros(height, width, latent_s.type());
   }
+  if (warped_gradients != nullptr) *warped_gradients = cv::Mat::zeros(height, width, CV_32FC(2 * channels));
   cv::Mat gx, gy;
   Gradients(latent_s, &gx, &gy);
   const PairWarp warp(camera_hr, T_world_t, T_world_s);
@@ -395,6 +401,13 @@ WarpLinearization LinearizeWarp(const PinholeCamera& camera_hr, const cv::Mat& i
         warped[c] = value[c];
         d_rho[c] = static_cast<float>(grad_x[c] * du + grad_y[c] * dv);
       }
+      if (warped_gradients != nullptr) {
+        float* gradients = warped_gradients->ptr<float>(y) + x * 2 * channels;
+        for (int c = 0; c < channels; ++c) {
+          gradients[2 * c] = grad_x[c];
+          gradients[2 * c + 1] = grad_y[c];
+        }
+      }
       if (pose_jacobians == nullptr) continue;
       const Eigen::Matrix<double, 2, 6> d_pixel_d_eps = warp.DPixelDPose(x, y, rho_row[x]);
       for (int j = 0; j < 6; ++j) {
@@ -408,58 +421,78 @@ WarpLinearization LinearizeWarp(const PinholeCamera& camera_hr, const cv::Mat& i
   return lin;
 }
 
+}  // namespace
+
+WarpLinearization LinearizeWarp(const PinholeCamera& camera_hr, const cv::Mat& inverse_depth_t,
+                                const SE3& T_world_t, const SE3& T_world_s, const cv::Mat& latent_s,
+                                std::vector<cv::Mat>* pose_jacobians) {
+  return LinearizeWarpSampled(camera_hr, inverse_depth_t, T_world_t, T_world_s, latent_s, pose_jacobians,
+                              nullptr);
+}
+
 namespace {
+
+// Where a pair's depth-pose coupling C (6 values per pixel) is added: one of
+// its frame's interleaved coupling images (CV_32FC(6)), with the sign of the
+// pose column it stands for (+C for eps_t, -C for eps_s).
+struct CouplingTarget {
+  cv::Mat* images = nullptr;  // nullptr: not added
+  float sign = 0.0f;
+};
+using CouplingTargets = std::array<CouplingTarget, 2>;
 
 // The pose terms of an HR pair (no capture operator) in one pass over its
 // pixels, without the six pose Jacobian images: channel c's row is A_c =
-// g_c^T J (g_c the source's gradient at the warp, J = d pixel / d eps_t), so
+// g_c^T J (g_c the source's gradient at the warp, `warped_gradients` of
+// LinearizeWarpSampled; J = d pixel / d eps_t), so
 // with the IRLS weights w and the depth derivative g_rho,
 //   coupling = sum_c w_c g_rho,c A_c^T = J^T q,  q = sum_c w_c g_rho,c g_c,
 //   block = sum J^T S J,  S = sum_c w_c g_c g_c^T,  rhs = sum J^T sum_c w_c r0_c g_c.
+// The coupling is added into `targets` as it is formed (no image per pair).
 // The 6x6 sums go row by row (float within a row, double across rows).
 void HrPairPoseTerms(const PinholeCamera& camera, const cv::Mat& inverse_depth, const SE3& T_world_t,
-                     const SE3& T_world_s, const cv::Mat& source, const cv::Mat& d_inverse_depth,
-                     const cv::Mat& residual, const cv::Mat& weight, cv::Mat* coupling,
+                     const SE3& T_world_s, const cv::Mat& warped_gradients, const cv::Mat& d_inverse_depth,
+                     const cv::Mat& residual, const cv::Mat& weight, const CouplingTargets& targets,
                      Eigen::Matrix<double, 6, 6>* block, Vector6d* rhs) {
-  const int channels = source.channels();
+  const int channels = d_inverse_depth.channels();
   const int width = camera.width;
-  cv::Mat gx, gy;
-  Gradients(source, &gx, &gy);
   const PairWarp warp(camera, T_world_t, T_world_s);
-  coupling->create(camera.height, width, CV_32FC(6));
   block->setZero();
   rhs->setZero();
   // Per row, zero where every weight is zero.
   RowPoseSums row_sums(width);
-  std::vector<float> grad_x(channels), grad_y(channels);
   for (int y = 0; y < camera.height; ++y) {
     const float* rho_row = inverse_depth.ptr<float>(y);
     const float* w_row = weight.ptr<float>(y);
     const float* r_row = residual.ptr<float>(y);
     const float* g_row = d_inverse_depth.ptr<float>(y);
-    float* out = coupling->ptr<float>(y);
+    const float* gradient_row = warped_gradients.ptr<float>(y);
+    std::array<float*, 2> out{};
+    for (size_t i = 0; i < targets.size(); ++i) {
+      if (targets[i].images != nullptr) out[i] = targets[i].images->ptr<float>(y);
+    }
     row_sums.Clear();
     for (int x = 0; x < width; ++x) {
-      float* coupling_x = out + 6 * x;
-      std::fill(coupling_x, coupling_x + 6, 0.0f);
+      // A zero weight in every channel: masked, or the warp is not valid.
       const float* w = w_row + x * channels;
-      double u, v, du, dv;
-      if (std::all_of(w, w + channels, [](float value) { return value == 0.0f; }) ||
-          !warp.Project(x, y, rho_row[x], &u, &v, &du, &dv)) {
-        continue;
-      }
-      SampleBilinear(gx, static_cast<float>(u), static_cast<float>(v), grad_x.data());
-      SampleBilinear(gy, static_cast<float>(u), static_cast<float>(v), grad_y.data());
+      if (std::all_of(w, w + channels, [](float value) { return value == 0.0f; })) continue;
+      const float* gradient = gradient_row + x * 2 * channels;
       GradientMoments m;
       double q0 = 0.0, q1 = 0.0;
       for (int c = 0; c < channels; ++c) {
         const double g_rho = g_row[x * channels + c];
-        m.Add(w[c], r_row[x * channels + c], grad_x[c], grad_y[c]);
-        q0 += w[c] * g_rho * grad_x[c];
-        q1 += w[c] * g_rho * grad_y[c];
+        const float grad_x = gradient[2 * c], grad_y = gradient[2 * c + 1];
+        m.Add(w[c], r_row[x * channels + c], grad_x, grad_y);
+        q0 += w[c] * g_rho * grad_x;
+        q1 += w[c] * g_rho * grad_y;
       }
       const Eigen::Matrix<double, 2, 6> j = warp.DPixelDPose(x, y, rho_row[x]);
-      for (int k = 0; k < 6; ++k) coupling_x[k] = static_cast<float>(j(0, k) * q0 + j(1, k) * q1);
+      for (int k = 0; k < 6; ++k) {
+        const float coupling = static_cast<float>(j(0, k) * q0 + j(1, k) * q1);
+        for (size_t i = 0; i < targets.size(); ++i) {
+          if (out[i] != nullptr) out[i][6 * x + k] += targets[i].sign * coupling;
+        }
+      }
       row_sums.Set(x, j, m);
     }
     row_sums.AddTo(width, block, rhs);
@@ -475,13 +508,25 @@ void HrPairPoseTerms(const PinholeCamera& camera, const cv::Mat& inverse_depth, 
 //   rhs = sum_p G_p^T Psi^T W_p r_p + lambda_s H^T Box^T W_s r_s - lambda_d c^2 L_v rho,
 // G_p the warped images' derivatives in rho, H the self term's (Psi = I for
 // HR pairs).
+//
+// Memory: a pair's images live only while it is linearised. The pairs'
+// share of the right-hand side and the HR pairs' share of N (a diagonal) are
+// summed then; only pairs with a capture operator keep G_p and W_p (their
+// part of N is applied in every CG step). With pose coupling the pairs'
+// depth-pose couplings are summed into one image per coupled pose column.
 class DepthNormalEquations {
  public:
+  // No pose coupling (the per-frame depth update).
+  static constexpr int kNoPoseCoupling = -1;
+
+  // `coupling_reference` (>= 0): the pairs' pose terms are formed too, and
+  // the coupling of the pose column of that frame is left out (see
+  // couplings()).
   DepthNormalEquations(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world_cam,
                        const std::vector<cv::Mat>& latents, const std::vector<PairMatching>& pairs,
                        const SelfConsistencyLinearization* self, const cv::Mat& edge_weight,
                        double parallax_scale, const StructureUpdateOptions& options,
-                       bool pose_coupling = false)
+                       int coupling_reference = kNoPoseCoupling)
       : camera_hr_(camera_hr),
         T_world_cam_(T_world_cam),
         latents_(latents),
@@ -490,7 +535,7 @@ class DepthNormalEquations {
         edge_weight_(edge_weight),
         parallax_scale_(parallax_scale),
         options_(options),
-        pose_coupling_(pose_coupling),
+        coupling_reference_(coupling_reference),
         width_(camera_hr.width),
         height_(camera_hr.height),
         c2_(parallax_scale * parallax_scale),
@@ -498,48 +543,53 @@ class DepthNormalEquations {
         tv_weight_(height_, width_, CV_32FC1),
         nd_self_(height_, width_, CV_32FC1),
         moved_(cv::Mat::zeros(height_, width_, CV_32FC1)),
-        hr_diagonal_(height_, width_, CV_32FC1) {}
+        hr_diagonal_(height_, width_, CV_32FC1),
+        data_rhs_(height_, width_, CV_32FC1) {}
 
   // Linearises every term at `inverse_depth` and reweights (IRLS).
   void Linearize(const cv::Mat& inverse_depth) {
     double diagonal_sum = LinearizePairs(inverse_depth);
     if (self_ != nullptr) diagonal_sum += LinearizeSelf();
     damping_ = options_.depth_damping * diagonal_sum / (width_ * height_) + 1e-12;
-    // HR pairs (no capture operator) act pixel by pixel: their part of the
-    // normal matrix is the diagonal sum_p sum_c w g^2, formed once per
-    // reweighting instead of applied pair by pair in every CG step.
-    hr_diagonal_.setTo(0.0);
-    for (size_t p = 0; p < pairs_.size(); ++p) {
-      if (pairs_[p].blur != nullptr) continue;
-      cv::multiply(states_[p].lin.d_inverse_depth, states_[p].weight, squared_);
-      ContractChannels(states_[p].lin.d_inverse_depth, squared_, &hr_diagonal_, true);
-    }
     ReweightTv(inverse_depth);
     FormDiagonal();
+  }
+
+  // Frees the scratch images of Linearize (kept otherwise for the next one).
+  void ReleaseScratch() {
+    squared_.release();
+    expanded_.release();
+    predicted_.release();
+    back_.release();
   }
 
   // diag(N), the Jacobi preconditioner (after Linearize).
   const cv::Mat& diagonal() const { return diagonal_; }
 
-  // With pose_coupling, pair p's terms in the poses after Linearize: for
-  // r = r0 - Psi(g .* d + A (eps_t - eps_s)), coupling = G^T Psi^T W Psi
-  // A_j for j = 0..5 interleaved pixel by pixel (HR, CV_32FC(6)), block =
-  // A^T Psi^T W Psi A, rhs = A^T Psi^T W r0.
-  struct PoseCoupling {
-    cv::Mat coupling;
+  // With pose coupling, pair p's pose terms after Linearize: for r = r0 -
+  // Psi(g .* d + A (eps_t - eps_s)), block = A^T Psi^T W Psi A and rhs =
+  // A^T Psi^T W r0.
+  struct PoseTerms {
     Eigen::Matrix<double, 6, 6> block = Eigen::Matrix<double, 6, 6>::Zero();
     Vector6d rhs = Vector6d::Zero();
   };
-  const PoseCoupling& pose_coupling(size_t p) const { return states_[p].pose; }
+  const PoseTerms& pose_terms(size_t p) const { return states_[p].pose; }
+
+  // With pose coupling, the columns of N_dp on this frame's pixels after
+  // Linearize: pair p's coupling C_p = G^T Psi^T W Psi A_j (j = 0..5,
+  // interleaved pixel by pixel, CV_32FC(6)) enters with +C_p for eps_t and
+  // -C_p for eps_s, so the frame's columns sum to zero: the column of the
+  // reference frame is minus the sum of the others and is not formed, and
+  // the others multiply eps_frame - eps_reference.
+  struct PoseColumn {
+    int frame = 0;
+    cv::Mat images;
+  };
+  const std::vector<PoseColumn>& couplings() const { return couplings_; }
 
   // rhs at `inverse_depth` (the linearisation point), without damping.
   void RightHandSide(const cv::Mat& inverse_depth, cv::Mat* rhs) {
-    rhs->setTo(0.0);
-    for (size_t p = 0; p < pairs_.size(); ++p) {
-      cv::multiply(states_[p].residual, states_[p].weight, predicted_);
-      PredictAdjoint(pairs_[p], predicted_, &back_);
-      ContractChannels(states_[p].lin.d_inverse_depth, back_, rhs, true);
-    }
+    data_rhs_.copyTo(*rhs);
     if (self_ != nullptr) {
       cv::multiply(self_residual_, self_weight_, predicted_);
       BoxAdjoint(predicted_, self_->scale, &back_);
@@ -554,10 +604,10 @@ class DepthNormalEquations {
     cv::multiply(hr_diagonal_, in, *out);
     for (size_t p = 0; p < pairs_.size(); ++p) {
       if (pairs_[p].blur == nullptr) continue;
-      ExpandChannels(states_[p].lin.d_inverse_depth, in, &expanded_);
+      ExpandChannels(states_[p].d_inverse_depth, in, &expanded_);
       back_ = cv::Mat::zeros(expanded_.size(), expanded_.type());
       AddWeightedNormalProduct(pairs_[p].blur->matrix(), states_[p].weight, expanded_, &back_, 1);
-      ContractChannels(states_[p].lin.d_inverse_depth, back_, out, true);
+      ContractChannels(states_[p].d_inverse_depth, back_, out, true);
     }
     if (self_ != nullptr) {
       ExpandChannels(self_->derivative, in, &expanded_);
@@ -586,57 +636,108 @@ class DepthNormalEquations {
   }
 
  private:
+  // What a pair keeps after Linearize: G and W with a capture operator
+  // (empty for HR pairs), and its pose terms.
   struct PairState {
-    WarpLinearization lin;
-    cv::Mat weight;  // observation grid, C channels
-    cv::Mat residual;
-    PoseCoupling pose;  // with pose_coupling_
+    cv::Mat d_inverse_depth;  // HR, C channels
+    cv::Mat weight;           // observation grid, C channels
+    PoseTerms pose;           // with pose coupling
   };
 
-  // Every pair at the current depth (eq:taylorExpansion); returns its share
-  // of the data diagonal's sum (for the damping).
+  bool pose_coupling() const { return coupling_reference_ != kNoPoseCoupling; }
+
+  // The index in couplings_ of the pose column of `frame` (zero when new).
+  size_t Column(int frame) {
+    for (size_t i = 0; i < couplings_.size(); ++i) {
+      if (couplings_[i].frame == frame) return i;
+    }
+    couplings_.push_back({frame, cv::Mat::zeros(height_, width_, CV_32FC(6))});
+    return couplings_.size() - 1;
+  }
+  // Where pair (t <- s)'s coupling goes: +C to eps_t's column and -C to
+  // eps_s's, leaving out the reference's (columns made first: pointers
+  // into couplings_ last until it grows).
+  CouplingTargets TargetsOf(const PairMatching& pair) {
+    const bool with_t = pair.t != coupling_reference_, with_s = pair.s != coupling_reference_;
+    const size_t column_t = with_t ? Column(pair.t) : 0, column_s = with_s ? Column(pair.s) : 0;
+    CouplingTargets targets;
+    if (with_t) targets[0] = {&couplings_[column_t].images, 1.0f};
+    if (with_s) targets[1] = {&couplings_[column_s].images, -1.0f};
+    return targets;
+  }
+
+  // Every pair at the current depth (eq:taylorExpansion), one at a time:
+  // its share of the right-hand side, of the HR diagonal and, with pose
+  // coupling, its pose terms; returns its share of the data diagonal's sum
+  // (for the damping).
   double LinearizePairs(const cv::Mat& inverse_depth) {
     double diagonal_sum = 0.0;
+    data_rhs_.setTo(0.0);
+    // HR pairs (no capture operator) act pixel by pixel: their part of the
+    // normal matrix is the diagonal sum_p sum_c w g^2, formed once per
+    // reweighting instead of applied pair by pair in every CG step.
+    hr_diagonal_.setTo(0.0);
+    for (PoseColumn& column : couplings_) column.images.setTo(0.0);
+    std::vector<cv::Mat> pose_jacobians;  // A_j of a pair with a capture operator
+    cv::Mat warped_gradients;             // the source's gradients at an HR pair's warp
     for (size_t p = 0; p < pairs_.size(); ++p) {
       const PairMatching& pair = pairs_[p];
       PairState& state = states_[p];
       // HR pairs form their pose terms in one pass (HrPairPoseTerms), without
       // the pose Jacobian images.
-      const bool jacobian_images = pose_coupling_ && pair.blur != nullptr;
-      state.lin = LinearizeWarp(camera_hr_, inverse_depth, T_world_cam_[pair.t], T_world_cam_[pair.s],
-                                SourceImage(pair, latents_), jacobian_images ? &pose_jacobians_ : nullptr);
-      Predict(pair, state.lin.warped, &predicted_);
-      state.residual = *pair.observation - predicted_;
-      L1Weights(state.residual, ObservationMask(pair, state.lin.valid), options_.residual_epsilon,
-                &state.weight);
-      if (jacobian_images) CouplePoses(pair, &state);
-      if (pose_coupling_ && !jacobian_images) {
-        HrPairPoseTerms(camera_hr_, inverse_depth, T_world_cam_[pair.t], T_world_cam_[pair.s],
-                        SourceImage(pair, latents_), state.lin.d_inverse_depth, state.residual, state.weight,
-                        &state.pose.coupling, &state.pose.block, &state.pose.rhs);
+      const bool jacobian_images = pose_coupling() && pair.blur != nullptr;
+      const bool hr_pose_terms = pose_coupling() && !jacobian_images;
+      const WarpLinearization lin = LinearizeWarpSampled(
+          camera_hr_, inverse_depth, T_world_cam_[pair.t], T_world_cam_[pair.s], SourceImage(pair, latents_),
+          jacobian_images ? &pose_jacobians : nullptr, hr_pose_terms ? &warped_gradients : nullptr);
+      Predict(pair, lin.warped, &predicted_);
+      const cv::Mat residual = *pair.observation - predicted_;
+      cv::Mat weight;
+      L1Weights(residual, ObservationMask(pair, lin.valid), options_.residual_epsilon, &weight);
+      cv::multiply(residual, weight, predicted_);
+      PredictAdjoint(pair, predicted_, &back_);
+      ContractChannels(lin.d_inverse_depth, back_, &data_rhs_, true);
+      if (pair.blur == nullptr) {
+        cv::multiply(lin.d_inverse_depth, weight, squared_);
+        ContractChannels(lin.d_inverse_depth, squared_, &hr_diagonal_, true);
       }
-      diagonal_sum += Dot1(state.lin.d_inverse_depth, state.lin.d_inverse_depth) * cv::mean(state.weight)[0] /
-                      std::max(1, state.weight.channels());
+      if (jacobian_images) CouplePoses(pair, lin, residual, weight, pose_jacobians, &state.pose);
+      if (hr_pose_terms) {
+        HrPairPoseTerms(camera_hr_, inverse_depth, T_world_cam_[pair.t], T_world_cam_[pair.s],
+                        warped_gradients, lin.d_inverse_depth, residual, weight, TargetsOf(pair),
+                        &state.pose.block, &state.pose.rhs);
+      }
+      diagonal_sum += Dot1(lin.d_inverse_depth, lin.d_inverse_depth) * cv::mean(weight)[0] /
+                      std::max(1, weight.channels());
+      if (pair.blur != nullptr) {
+        state.d_inverse_depth = lin.d_inverse_depth;
+        state.weight = weight;
+      }
     }
     return diagonal_sum;
   }
 
-  // PoseCoupling of a linearised pair from the pose Jacobians A_j of
-  // LinearizeWarp (eq:updateVariables): Psi A_j on the observation grid, its
-  // weighted products with Psi A_k and W r0, and G^T Psi^T W Psi A_j.
-  void CouplePoses(const PairMatching& pair, PairState* state) {
-    PoseCoupling& pose = state->pose;
-    cv::multiply(state->residual, state->weight, predicted_);
-    std::array<cv::Mat, 6> columns;
+  // The pose terms of a linearised pair with a capture operator from the
+  // pose Jacobians A_j of LinearizeWarp (eq:updateVariables): Psi A_j on the
+  // observation grid, its weighted products with Psi A_k and W r0, and
+  // G^T Psi^T W Psi A_j (added into the pair's coupling columns).
+  void CouplePoses(const PairMatching& pair, const WarpLinearization& lin, const cv::Mat& residual,
+                   const cv::Mat& weight, const std::vector<cv::Mat>& pose_jacobians, PoseTerms* pose) {
+    std::array<cv::Mat, 6> projected, weighted, columns;
+    cv::multiply(residual, weight, predicted_);
     for (int j = 0; j < 6; ++j) {
-      Predict(pair, pose_jacobians_[j], &projected_[j]);
-      cv::multiply(projected_[j], state->weight, weighted_[j]);
-      PredictAdjoint(pair, weighted_[j], &back_);
+      Predict(pair, pose_jacobians[j], &projected[j]);
+      cv::multiply(projected[j], weight, weighted[j]);
+      PredictAdjoint(pair, weighted[j], &back_);
       columns[j].create(height_, width_, CV_32FC1);
-      ContractChannels(state->lin.d_inverse_depth, back_, &columns[j], false);
+      ContractChannels(lin.d_inverse_depth, back_, &columns[j], false);
     }
-    cv::merge(columns.data(), columns.size(), pose.coupling);
-    PoseProducts(projected_, weighted_, predicted_, &pose.block, &pose.rhs);
+    cv::Mat coupling;
+    cv::merge(columns.data(), columns.size(), coupling);
+    for (const CouplingTarget& target : TargetsOf(pair)) {
+      if (target.images != nullptr) cv::scaleAdd(coupling, target.sign, *target.images, *target.images);
+    }
+    PoseProducts(projected, weighted, predicted_, &pose->block, &pose->rhs);
   }
 
   // block(j, k) = sum a_j (w a_k) and rhs(j) = sum a_j (w r0) over every
@@ -677,7 +778,7 @@ class DepthNormalEquations {
     hr_diagonal_.copyTo(diagonal_);
     for (size_t p = 0; p < pairs_.size(); ++p) {
       if (pairs_[p].blur == nullptr) continue;
-      const cv::Mat& g = states_[p].lin.d_inverse_depth;
+      const cv::Mat& g = states_[p].d_inverse_depth;
       back_ = cv::Mat::zeros(g.size(), g.type());
       AddWeightedNormalDiagonal(pairs_[p].blur->matrix(), states_[p].weight, &back_, 1);
       cv::multiply(g, g, squared_);
@@ -717,17 +818,17 @@ class DepthNormalEquations {
   const cv::Mat& edge_weight_;
   const double parallax_scale_;
   const StructureUpdateOptions& options_;
-  const bool pose_coupling_;
+  const int coupling_reference_;  // kNoPoseCoupling: no pose terms
   const int width_, height_;
   const double c2_;
   std::vector<PairState> states_;
+  std::vector<PoseColumn> couplings_;  // with pose coupling
   cv::Mat tv_weight_, nd_self_;
   cv::Mat self_weight_, self_residual_;  // self term: IRLS weights and residual
   cv::Mat moved_;                        // inverse-depth change since the self term's linearisation
-  cv::Mat hr_diagonal_, squared_, diagonal_;
-  cv::Mat expanded_, predicted_, back_;  // scratch
-  std::vector<cv::Mat> pose_jacobians_;  // scratch: A_j of the pair being linearised
-  std::array<cv::Mat, 6> projected_, weighted_;  // scratch: Psi A_j and W Psi A_j
+  cv::Mat hr_diagonal_, diagonal_;
+  cv::Mat data_rhs_;                               // the pairs' share of the rhs
+  cv::Mat squared_, expanded_, predicted_, back_;  // scratch
   double damping_ = 0.0;
 };
 
@@ -993,16 +1094,16 @@ class JointDepthPoseSystem::Impl {
         size_(camera_hr.width, camera_hr.height),
         threads_(ResolveThreads(options.num_threads)),
         systems_(frames.size()),
-        couplings_(frames.size()),
         reference_(frames.size(), 0) {
     if (T_world_cam.size() != frames.size()) {
       throw InputError("joint depth + pose step: one pose and one set of depth terms per frame");
     }
     for (int t = 0; t < num_frames_; ++t) {
       if (frames[t].pairs.empty() && frames[t].self == nullptr) continue;  // D_t stays
+      reference_[t] = ReferenceFrame(t);
       systems_[t] = std::make_unique<DepthNormalEquations>(camera_hr, T_world_cam, latents, frames[t].pairs,
                                                            frames[t].self, frames[t].edge_weight,
-                                                           parallax_scale, options, /*pose_coupling=*/true);
+                                                           parallax_scale, options, reference_[t]);
     }
   }
 
@@ -1011,18 +1112,18 @@ class JointDepthPoseSystem::Impl {
   void Linearize(const std::vector<cv::Mat>& inverse_depths) {
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads_)
     for (int t = 0; t < num_frames_; ++t) {
-      if (systems_[t]) systems_[t]->Linearize(inverse_depths[t]);
+      if (!systems_[t]) continue;
+      systems_[t]->Linearize(inverse_depths[t]);
+      systems_[t]->ReleaseScratch();
     }
     const int n = 6 * num_frames_;
     pose_normal_ = Eigen::MatrixXd::Zero(n, n);
     pose_rhs_ = Eigen::VectorXd::Zero(n);
     for (int t = 0; t < num_frames_; ++t) {
-      couplings_[t].clear();
       if (!systems_[t]) continue;
-      reference_[t] = ReferenceFrame(t);
       for (size_t p = 0; p < frames_[t].pairs.size(); ++p) {
         const int s = frames_[t].pairs[p].s;
-        const auto& pose = systems_[t]->pose_coupling(p);
+        const auto& pose = systems_[t]->pose_terms(p);
         // As UpdatePoses assembles them: eps_t with +A, eps_s with -A.
         pose_normal_.block<6, 6>(6 * t, 6 * t) += pose.block;
         pose_normal_.block<6, 6>(6 * s, 6 * s) += pose.block;
@@ -1030,9 +1131,6 @@ class JointDepthPoseSystem::Impl {
         pose_normal_.block<6, 6>(6 * s, 6 * t) -= pose.block;
         pose_rhs_.segment<6>(6 * t) += pose.rhs;
         pose_rhs_.segment<6>(6 * s) -= pose.rhs;
-        // +C (eps_t - eps_s) = +C (eps_t - eps_r) - C (eps_s - eps_r).
-        if (t != reference_[t]) AddCoupling(t, t, pose.coupling, 1.0);
-        if (s != reference_[t]) AddCoupling(t, s, pose.coupling, -1.0);
       }
     }
     // Levenberg-Marquardt damping relative to the pose block's diagonal.
@@ -1058,7 +1156,9 @@ class JointDepthPoseSystem::Impl {
   void ApplyNormal(const cv::Mat& in, cv::Mat* out) {
     out->create(1, num_values(), CV_32FC1);
     const Eigen::VectorXd in_poses = Poses(in);
-    Eigen::VectorXd out_poses = pose_normal_ * in_poses + PosesFromDepths(in);
+    // Frame t's share of N_pd d and its rows of N_dp eps in one pass over
+    // its couplings.
+    std::vector<Eigen::VectorXd> parts(num_frames_, Eigen::VectorXd::Zero(6 * num_frames_));
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads_)
     for (int t = 0; t < num_frames_; ++t) {
       const cv::Mat in_depth = DepthView(in, t);
@@ -1068,8 +1168,9 @@ class JointDepthPoseSystem::Impl {
         continue;
       }
       systems_[t]->ApplyNormal(in_depth, &out_depth);
-      AddDepthsFromPoses(t, in_poses, 1.0, nullptr, &out_depth);
+      CouplingProducts(t, &in_depth, in_poses, 1.0, nullptr, &out_depth, &parts[t]);
     }
+    Eigen::VectorXd out_poses = pose_normal_ * in_poses + Sum(parts);
     ProjectGauge(&out_poses);
     SetPoses(out_poses, out);
   }
@@ -1152,17 +1253,12 @@ class JointDepthPoseSystem::Impl {
   }
 
  private:
-  // Frame t's inverse depths coupled to the pose of `frame`: 6 columns of
-  // N_dp restricted to t's pixels, interleaved pixel by pixel (CV_32FC(6):
-  // one pass over memory serves all six). A pair's coupling enters with +C
-  // for eps_t and -C for eps_s, so frame t's columns sum to zero: the
-  // column of one frame r of those t is coupled to (reference_[t]: a held
-  // one if any, else t) is minus the sum of the others and is not stored;
-  // the others multiply eps_frame - eps_r.
-  struct Coupling {
-    int frame = 0;
-    cv::Mat images;
-  };
+  using PoseColumn = DepthNormalEquations::PoseColumn;
+  // Frame t's columns of N_dp (none for a frame without terms).
+  const std::vector<PoseColumn>& Couplings(int t) const {
+    static const std::vector<PoseColumn> kNone;
+    return systems_[t] ? systems_[t]->couplings() : kNone;
+  }
 
   // A held frame among t and the frames its pairs match, else t.
   int ReferenceFrame(int t) const {
@@ -1179,54 +1275,74 @@ class JointDepthPoseSystem::Impl {
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads_)
     for (int t = 0; t < num_frames_; ++t) {
       const cv::Mat depth = DepthView(flat, t);
-      for (const Coupling& c : couplings_[t]) {
-        const Vector6d product = CouplingTimesDepth(c.images, depth);
-        parts[t].segment<6>(6 * c.frame) += product;
-        parts[t].segment<6>(6 * reference_[t]) -= product;
-      }
+      CouplingProducts(t, &depth, Eigen::VectorXd(), 0.0, nullptr, nullptr, &parts[t]);
     }
-    Eigen::VectorXd sum = Eigen::VectorXd::Zero(6 * num_frames_);
+    return Sum(parts);
+  }
+  static Eigen::VectorXd Sum(const std::vector<Eigen::VectorXd>& parts) {
+    Eigen::VectorXd sum = Eigen::VectorXd::Zero(parts.empty() ? 0 : parts[0].size());
     for (const Eigen::VectorXd& part : parts) sum += part;
     return sum;
   }
   // depth += scale * (N_dp poses) on frame t's rows (divided by `divisor`
-  // per pixel if given), in one pass.
+  // per pixel if given).
   void AddDepthsFromPoses(int t, const Eigen::VectorXd& poses, double scale, const cv::Mat* divisor,
                           cv::Mat* depth) const {
-    const int count = static_cast<int>(couplings_[t].size());
-    if (count == 0) return;
-    std::vector<float> factors(6 * count);
-    std::vector<const float*> columns(count);
-    const int reference = reference_[t];
-    for (int c = 0; c < count; ++c) {
-      columns[c] = couplings_[t][c].images.ptr<float>();
-      const int frame = couplings_[t][c].frame;
-      for (int j = 0; j < 6; ++j) {
-        factors[6 * c + j] = static_cast<float>(scale * (poses(6 * frame + j) - poses(6 * reference + j)));
-      }
-    }
-    const float* divide = divisor != nullptr ? divisor->ptr<float>() : nullptr;
-    float* out = depth->ptr<float>();
-    for (int i = 0; i < pixels_; ++i) {
-      float sum = 0.0f;
-      for (int c = 0; c < count; ++c) {
-        for (int j = 0; j < 6; ++j) sum += factors[6 * c + j] * columns[c][6 * i + j];
-      }
-      out[i] += divide != nullptr ? sum / divide[i] : sum;
-    }
+    CouplingProducts(t, nullptr, poses, scale, divisor, depth, nullptr);
   }
-
-  void AddCoupling(int t, int frame, const cv::Mat& images, double sign) {
-    auto it = std::find_if(couplings_[t].begin(), couplings_[t].end(),
-                           [frame](const Coupling& c) { return c.frame == frame; });
-    if (it == couplings_[t].end()) {
-      Coupling c;
-      c.frame = frame;
-      c.images = cv::Mat::zeros(size_, CV_32FC(6));
-      couplings_[t].push_back(std::move(c));
-      it = couplings_[t].end() - 1;
+  // One pass over frame t's coupling columns, row by row (a row of the
+  // columns stays in cache for both products): with `depth` and `part`,
+  // part += N_pd depth (frame t's share: float within a row, double across
+  // rows); with `out`, out += scale * (N_dp poses) on t's rows, divided by
+  // `divisor` per pixel if given.
+  void CouplingProducts(int t, const cv::Mat* depth, const Eigen::VectorXd& poses, double scale,
+                        const cv::Mat* divisor, cv::Mat* out, Eigen::VectorXd* part) const {
+    const std::vector<PoseColumn>& couplings = Couplings(t);
+    const int count = static_cast<int>(couplings.size());
+    if (count == 0) return;
+    const int reference = reference_[t];
+    std::vector<float> factors(6 * count);
+    std::vector<Vector6d> products(count, Vector6d::Zero());
+    if (out != nullptr) {
+      for (int c = 0; c < count; ++c) {
+        const int frame = couplings[c].frame;
+        for (int j = 0; j < 6; ++j) {
+          factors[6 * c + j] = static_cast<float>(scale * (poses(6 * frame + j) - poses(6 * reference + j)));
+        }
+      }
     }
-    cv::scaleAdd(images, sign, it->images, it->images);
+    const int width = size_.width;
+    std::vector<const float*> columns(count);
+    std::vector<float> sums(out != nullptr ? width : 0);
+    for (int y = 0; y < size_.height; ++y) {
+      for (int c = 0; c < count; ++c) columns[c] = couplings[c].images.ptr<float>(y);
+      if (depth != nullptr) {
+        const Eigen::Map<const Eigen::VectorXf> row_d(depth->ptr<float>(y), width);
+        for (int c = 0; c < count; ++c) {
+          const Eigen::Map<const Eigen::Matrix<float, 6, Eigen::Dynamic>> rows_a(columns[c], 6, width);
+          products[c] += (rows_a * row_d).cast<double>();
+        }
+      }
+      if (out == nullptr) continue;
+      // Each pixel's sum in the order (c, j), the pixels innermost: the
+      // pixels' sums are independent (not one chain of dependent adds).
+      std::fill(sums.begin(), sums.end(), 0.0f);
+      for (int c = 0; c < count; ++c) {
+        for (int j = 0; j < 6; ++j) {
+          const float factor = factors[6 * c + j];
+          const float* column = columns[c] + j;
+          for (int x = 0; x < width; ++x) sums[x] += factor * column[6 * x];
+        }
+      }
+      const float* divide = divisor != nullptr ? divisor->ptr<float>(y) : nullptr;
+      float* out_row = out->ptr<float>(y);
+      for (int x = 0; x < width; ++x) out_row[x] += divide != nullptr ? sums[x] / divide[x] : sums[x];
+    }
+    if (part == nullptr) return;
+    for (int c = 0; c < count; ++c) {
+      part->segment<6>(6 * couplings[c].frame) += products[c];
+      part->segment<6>(6 * reference) -= products[c];
+    }
   }
 
   // The scale of a window with one held pose: the component of the first
@@ -1253,14 +1369,14 @@ class JointDepthPoseSystem::Impl {
     cv::Mat scaled(size_, CV_32FC(6));
     for (int t = 0; t < num_frames_; ++t) {
       const int r = reference_[t];
-      for (const Coupling& a : couplings_[t]) {
+      for (const PoseColumn& a : Couplings(t)) {
         const float* diagonal = systems_[t]->diagonal().ptr<float>();
         const float* in = a.images.ptr<float>();
         float* out = scaled.ptr<float>();
         for (int i = 0; i < pixels_; ++i) {
           for (int j = 0; j < 6; ++j) out[6 * i + j] = in[6 * i + j] / diagonal[i];
         }
-        for (const Coupling& b : couplings_[t]) {
+        for (const PoseColumn& b : Couplings(t)) {
           // The product of the stored columns a, b and, through the
           // reference's column -sum of them, its rows and columns.
           const Eigen::Matrix<double, 6, 6> product = CouplingProduct(scaled, b.images);
@@ -1278,17 +1394,6 @@ class JointDepthPoseSystem::Impl {
     if (reduced_solver_.info() != Eigen::Success || !reduced_solver_.isPositive()) {
       reduced_solver_.compute(projection * pose_normal_ * projection + complement);
     }
-  }
-  // sum_i a_i d_i over the pixels of an interleaved coupling image and a
-  // depth image (float within a row, double across rows).
-  Vector6d CouplingTimesDepth(const cv::Mat& a, const cv::Mat& depth) const {
-    Vector6d sum = Vector6d::Zero();
-    for (int y = 0; y < size_.height; ++y) {
-      const Eigen::Map<const Eigen::Matrix<float, 6, Eigen::Dynamic>> rows_a(a.ptr<float>(y), 6, size_.width);
-      const Eigen::Map<const Eigen::VectorXf> row_d(depth.ptr<float>(y), size_.width);
-      sum += (rows_a * row_d).cast<double>();
-    }
-    return sum;
   }
   // sum_i a_i b_i^T over the pixels of two interleaved coupling images
   // (float within a row, double across rows).
@@ -1314,10 +1419,9 @@ class JointDepthPoseSystem::Impl {
   const cv::Size size_;
   const int threads_;
   std::vector<std::unique_ptr<DepthNormalEquations>> systems_;  // nullptr: a frame without terms
-  std::vector<std::vector<Coupling>> couplings_;                // per frame t
-  std::vector<int> reference_;                                  // per frame t (see Coupling)
-  Eigen::MatrixXd pose_normal_;                                 // N_pp (damped)
-  Eigen::VectorXd pose_rhs_, gauge_;                            // gauge_: unit, empty if none
+  std::vector<int> reference_;        // per frame t: the pose column its couplings leave out
+  Eigen::MatrixXd pose_normal_;       // N_pp (damped)
+  Eigen::VectorXd pose_rhs_, gauge_;  // gauge_: unit, empty if none
   Eigen::LDLT<Eigen::MatrixXd> reduced_solver_;
 };
 

@@ -1,15 +1,19 @@
 // The joint depth + pose step of the structure update (JointDepthPoseSystem,
 // UpdateDepthAndPoses): its normal equations against central differences of
-// the warp (eq:taylorExpansion, eq:updateVariables), and its effect on a
-// two-frame scene with a perturbed pose against the alternation of depth and
-// pose updates.
+// the warp (eq:taylorExpansion, eq:updateVariables), their symmetry and the
+// exactness of the Schur-complement preconditioner on per-pixel systems (the
+// couplings are summed per pose column, never stored per pair), and its
+// effect on a two-frame scene with a perturbed pose against the alternation
+// of depth and pose updates.
 #include <cmath>
 #include <cstdio>
 #include <vector>
 
 #include <gtest/gtest.h>
 
+#include "deblur_sr_mvs/core/estimation/frame_structure.h"
 #include "deblur_sr_mvs/core/estimation/structure_update.h"
+#include "deblur_sr_mvs/core/imaging/capture_operator.h"
 
 namespace deblur_sr_mvs {
 namespace {
@@ -355,6 +359,180 @@ TEST(JointDepthPoseSystem, PoseDampingScalesThePoseDiagonal) {
     EXPECT_NEAR(unit.poses.dot(n_plain.poses), numeric.quadratic, 0.03 * numeric.quadratic) << "component " << k;
     EXPECT_NEAR(unit.poses.dot(rhs.poses), numeric.linear, 0.01 * numeric.absolute_linear) << "component " << k;
   }
+}
+
+// The depth-pose couplings are summed per pose column as the pairs are
+// linearised and applied in one pass with N_dd (ApplyNormal) and in two by
+// the preconditioner: N must stay symmetric, x^T N y = y^T N x, with the TV,
+// the damping and both kinds of coupled frames (frame 1: the held frame 0
+// is its reference; frame 2 without it, pairs 2 <- 1: its own column is
+// left out).
+TEST(JointDepthPoseSystem, NormalMatrixIsSymmetric) {
+  const PlaneScene scene(/*third=*/true);
+  std::vector<FrameDepthTerms> terms = scene.Terms(PixelMask(cv::Rect(24, 12, 48, 48)));
+  terms[2].pairs.erase(terms[2].pairs.begin());  // 2 <- 0: frame 2 then has no held neighbour
+  ASSERT_EQ(terms[2].pairs.size(), 1u);
+  const auto [rho, poses] = OffTheTruth(scene);
+  const StructureUpdateOptions options;  // TV and damping on
+  JointDepthPoseSystem system(scene.camera, poses, scene.images, terms, 8.0, options, 1);
+  system.Linearize(rho);
+  JointStep x = ThreeFrameDirection(), y = ThreeFrameDirection();
+  for (int t = 0; t < 3; ++t) cv::flip(y.inverse_depths[t], y.inverse_depths[t], 1);
+  y.poses.segment<6>(6) << -0.002, 0.001, 0.004, 0.003, 0.001, -0.002;
+  y.poses.segment<6>(12) << 0.001, 0.003, -0.002, 0.002, -0.001, 0.003;
+  system.ProjectGauge(&x.poses);
+  system.ProjectGauge(&y.poses);
+  auto dot = [](const JointStep& a, const JointStep& b) {
+    double sum = a.poses.dot(b.poses);
+    for (size_t t = 0; t < a.inverse_depths.size(); ++t) sum += a.inverse_depths[t].dot(b.inverse_depths[t]);
+    return sum;
+  };
+  const JointStep nx = system.ApplyNormal(x), ny = system.ApplyNormal(y);
+  const double xny = dot(x, ny), ynx = dot(y, nx);
+  const double scale = std::sqrt(dot(x, nx) * dot(y, ny));
+  std::printf("x^T N y %.8g, y^T N x %.8g (sqrt(x^T N x y^T N y) %.6g)\n", xny, ynx, scale);
+  EXPECT_GT(std::abs(xny), 0.01 * scale);  // the directions are not N-orthogonal
+  EXPECT_NEAR(xny, ynx, 1e-5 * scale);
+}
+
+// Without TV every unknown inverse depth meets only its own pixel's terms:
+// N_dd is diagonal, the preconditioner's Schur complement is then N's exact
+// inverse, and one CG step solves the system (to float rounding), however
+// the pairs' couplings are summed.
+TEST(JointDepthPoseSystem, SchurComplementSolvesPerPixelSystemsInOneStep) {
+  const PlaneScene scene(/*third=*/true);
+  const std::vector<FrameDepthTerms> terms = scene.Terms(PixelMask(cv::Rect(24, 12, 48, 48)));
+  const auto [rho, poses] = OffTheTruth(scene);
+  StructureUpdateOptions options = DataTermsOnly();
+  options.depth_damping = 1e-3;  // every pixel's block positive
+  options.joint_cg_iterations = 1;
+  options.depth_cg_tolerance = 0.0;
+  JointDepthPoseSystem system(scene.camera, poses, scene.images, terms, 8.0, options, 1);
+  system.Linearize(rho);
+  const JointStep rhs = system.RightHandSide(rho);
+  const JointStep step = system.Solve(rhs);
+  const JointStep n_step = system.ApplyNormal(step);
+  double residual = (n_step.poses - rhs.poses).squaredNorm(), norm = rhs.poses.squaredNorm();
+  for (int t = 0; t < 3; ++t) {
+    residual += std::pow(cv::norm(n_step.inverse_depths[t], rhs.inverse_depths[t]), 2);
+    norm += std::pow(cv::norm(rhs.inverse_depths[t]), 2);
+  }
+  std::printf("|N x - rhs| / |rhs| after one CG step: %.3g; |step poses| %.3g\n", std::sqrt(residual / norm),
+              step.poses.norm());
+  EXPECT_GT(step.poses.norm(), 0.0);
+  EXPECT_LT(std::sqrt(residual / norm), 1e-3);
+}
+
+// The forms of `terms` (pairs with a capture operator) along x by central
+// differences of Psi_t applied to the warped images, Psi_t held as in the
+// linearisation, on the observations' LR grid inside each pair's mask.
+NumericForms BlurredNumericForms(const PlaneScene& scene, const std::vector<FrameDepthTerms>& terms,
+                                 const std::vector<cv::Mat>& observations, const std::vector<cv::Mat>& rho,
+                                 const std::vector<SE3>& poses, const JointStep& x, double residual_epsilon) {
+  const double h = 1e-3;
+  NumericForms numeric;
+  for (const FrameDepthTerms& frame : terms) {
+    const PairMatching& pair = frame.pairs[0];
+    const cv::Size lr = pair.mask.size();
+    auto predicted_at = [&](double step) {
+      auto moved = [&](int f) { return SE3::Exp(step * x.poses.segment<6>(6 * f)) * poses[f]; };
+      const cv::Mat rho_t = rho[pair.t] + step * x.inverse_depths[pair.t];
+      cv::Mat predicted;
+      pair.blur->Apply(
+          LinearizeWarp(scene.camera, rho_t, moved(pair.t), moved(pair.s), scene.images[pair.s], nullptr)
+              .warped,
+          &predicted);
+      return cv::Mat(predicted.reshape(3, lr.height));
+    };
+    const cv::Mat at = predicted_at(0.0), plus = predicted_at(h), minus = predicted_at(-h);
+    for (int y = 0; y < lr.height; ++y) {
+      for (int xx = 0; xx < lr.width; ++xx) {
+        if (!pair.mask.at<uchar>(y, xx)) continue;
+        for (int c = 0; c < 3; ++c) {
+          const double r0 = observations[pair.t].at<cv::Vec3f>(y, xx)[c] - at.at<cv::Vec3f>(y, xx)[c];
+          const double w = 1.0 / std::max(std::abs(r0), residual_epsilon);
+          const double jx = (plus.at<cv::Vec3f>(y, xx)[c] - minus.at<cv::Vec3f>(y, xx)[c]) / (2 * h);
+          numeric.quadratic += w * jx * jx;
+          numeric.linear += w * r0 * jx;
+          numeric.absolute_linear += std::abs(w * r0 * jx);
+        }
+      }
+    }
+  }
+  return numeric;
+}
+
+// Pairs through the capture operator (StructureMatching::kBlurred: B_t
+// against Psi_t applied to I_s warped into t), whose couplings are formed
+// from the six pose Jacobian images and summed per pose column: the forms
+// along x = (d_0, d_1, eps_1) and along x with eps negated against central
+// differences (BlurredNumericForms), and the coupling alone (the difference
+// of the two quadratic forms), which is a small part of either.
+TEST(JointDepthPoseSystem, BlurredPairsMatchNumericDifferences) {
+  const PlaneScene scene;
+  const auto [rho, poses] = OffTheTruth(scene);
+  std::vector<FrameStructure> frames(2);
+  for (int t = 0; t < 2; ++t) {
+    frames[t].stamp = 0.1 * (t + 1);
+    frames[t].exposure = 0.03;
+    frames[t].T_world_cam = poses[t];
+    frames[t].depth_hr = 1.0 / rho[t];
+  }
+  CaptureOperatorOptions op_options;
+  op_options.samples = 8;
+  op_options.scale = 2;
+  std::vector<CaptureOperator> operators(2);
+  std::vector<cv::Mat> observations(2);
+  for (int t = 0; t < 2; ++t) {
+    operators[t] = BuildCaptureOperator(MakeCaptureGeometry(frames, scene.camera, t, t), op_options);
+    operators[t].Apply(scene.images[t], &observations[t]);
+    observations[t] = observations[t].reshape(3, 36);
+  }
+  cv::Mat mask = cv::Mat::zeros(36, 48, CV_8UC1);
+  mask(cv::Rect(8, 6, 32, 24)).setTo(255);
+  std::vector<FrameDepthTerms> terms(2);
+  for (int t = 0; t < 2; ++t) {
+    PairMatching pair;
+    pair.t = t;
+    pair.s = 1 - t;
+    pair.blur = &operators[t];
+    pair.observation = &observations[t];
+    pair.mask = mask;
+    terms[t].pairs.push_back(pair);
+  }
+  const StructureUpdateOptions options = DataTermsOnly();
+  JointDepthPoseSystem system(scene.camera, poses, scene.images, terms, 8.0, options, 1);
+  system.Linearize(rho);
+  const JointStep rhs = system.RightHandSide(rho);
+  // x and x with its pose part negated: the difference of their quadratic
+  // forms is 4 d^T N_dp eps, the depth-pose coupling alone.
+  std::vector<JointStep> directions(2);
+  for (int sign : {1, -1}) {
+    JointStep& x = directions[sign > 0 ? 0 : 1];
+    x.inverse_depths = DepthDirection(2);
+    x.poses = Eigen::VectorXd::Zero(12);
+    x.poses.segment<6>(6) << 0.004, -0.003, 0.002, 0.002, -0.003, 0.002;
+    x.poses *= sign;
+    system.ProjectGauge(&x.poses);
+  }
+  std::vector<NumericForms> analytic, numeric;
+  for (const JointStep& x : directions) {
+    analytic.push_back(SystemForms(&system, rhs, x));
+    numeric.push_back(
+        BlurredNumericForms(scene, terms, observations, rho, poses, x, options.residual_epsilon));
+    std::printf(
+        "blurred pairs: x^T N x: %.6g (numeric %.6g); rhs^T x: %.6g (numeric %.6g, sum of |terms| %.6g)\n",
+        analytic.back().quadratic, numeric.back().quadratic, analytic.back().linear, numeric.back().linear,
+        numeric.back().absolute_linear);
+    EXPECT_GT(numeric.back().quadratic, 0.0);
+    EXPECT_NEAR(analytic.back().quadratic, numeric.back().quadratic, 0.03 * numeric.back().quadratic);
+    EXPECT_NEAR(analytic.back().linear, numeric.back().linear, 0.01 * numeric.back().absolute_linear);
+  }
+  const double cross = analytic[0].quadratic - analytic[1].quadratic;
+  const double numeric_cross = numeric[0].quadratic - numeric[1].quadratic;
+  std::printf("blurred pairs: 4 d^T N_dp eps: %.6g (numeric %.6g)\n", cross, numeric_cross);
+  EXPECT_GT(std::abs(numeric_cross), 0.0);
+  EXPECT_NEAR(cross, numeric_cross, 0.1 * std::abs(numeric_cross));
 }
 
 double PoseError(const SE3& estimate, const SE3& truth) {

@@ -50,12 +50,15 @@ struct StructureUpdateOptions {
   // Joint depth + pose step (UpdateDepthAndPoses): the estimator replaces the
   // per-frame depth updates by one Gauss-Newton/IRLS step in which every
   // frame's inverse depth and the free poses move together, so that depth
-  // cannot absorb a pose error; the pose update follows as before. Off:
-  // on 8 sequences better in mean depth and ATE than the per-frame depth
-  // updates at 11 % more CPU (under load), but not on every sequence
-  // (lateral / Aloe: depth 0.0225 against 0.0221), with 1.8x the peak
-  // memory (BENCHMARKS.md "Joint depth + pose step (Schur)").
-  bool joint_depth_pose_step = false;
+  // cannot absorb a pose error; the pose update follows as before. On: on 8
+  // sequences (lateral, arc, forward, hand-held; Dolls, Aloe) mean depth
+  // 0.891 and ATE 0.800 of the baseline's against 0.904 and 0.934 with the
+  // per-frame depth updates (depth 0.0004 worse on lateral / Aloe), at
+  // +9 % to +14 % CPU (one or two threads) and a peak of 1.01 - 1.24 GiB
+  // (against 0.88 - 1.08) on the 10-frame 640x480 speed sequences
+  // (BENCHMARKS.md "Joint depth + pose step (Schur)"). false: the
+  // per-frame depth updates.
+  bool joint_depth_pose_step = true;
   // CG steps per reweighted joint system (its tolerance is
   // depth_cg_tolerance).
   int joint_cg_iterations = 30;
