@@ -991,7 +991,6 @@ std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr, const std::vec
   num_fixed = std::max(1, num_fixed);  // at least frame 0: the gauge
   if (num_frames <= num_fixed || pairs.empty()) return total;
   const int unknowns = 6 * (num_frames - num_fixed);
-  const int num_pairs = static_cast<int>(pairs.size());
   // Gradients of every image that HR pairs warp, once per image.
   std::vector<const cv::Mat*> sources;
   for (const PairMatching& pair : pairs) {
