@@ -35,9 +35,8 @@ void ReprojectDepth(const PinholeCamera& camera, const cv::Mat& depth_source, co
   const int width = camera.width;
   const int height = camera.height;
   float* zbuffer = depth_target->ptr<float>();
-  // Per row, first the warp of every pixel (PixelTransferF::Warp's
-  // arithmetic, without its branch, so that the loop vectorises), then the
-  // checks and the z-buffer scatter.
+  // Per row, first the warp of every pixel (PixelTransferF::WarpUnchecked,
+  // which vectorises), then the checks and the z-buffer scatter.
   std::vector<float> row_u(width), row_v(width), row_z(width);
   for (int y = 0; y < height; ++y) {
     const float* __restrict depth_row = depth_source.ptr<float>(y);
@@ -47,13 +46,7 @@ void ReprojectDepth(const PinholeCamera& camera, const cv::Mat& depth_source, co
     float* __restrict out_v = row_v.data();
     float* __restrict out_z = row_z.data();
     for (int x = 0; x < width; ++x) {
-      const float depth = depth_row[x];
-      const float u = static_cast<float>(x);
-      const float z = depth * (transfer.h[6] * u + base[2]) + transfer.t[2];
-      const float inv_z = 1.0f / z;
-      out_u[x] = (depth * (transfer.h[0] * u + base[0]) + transfer.t[0]) * inv_z;
-      out_v[x] = (depth * (transfer.h[3] * u + base[1]) + transfer.t[1]) * inv_z;
-      out_z[x] = z;
+      transfer.WarpUnchecked(base, static_cast<float>(x), depth_row[x], &out_u[x], &out_v[x], &out_z[x]);
     }
     for (int x = 0; x < width; ++x) {
       if (!ValidDepth(depth_row[x]) || !(row_z[x] > 1e-9f)) continue;

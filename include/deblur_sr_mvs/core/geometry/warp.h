@@ -48,13 +48,19 @@ struct PixelTransferF {
   // Same contract as PixelTransfer::Warp.
   bool Warp(const float base[3], float u, float depth, float* target_u, float* target_v,
             float* target_depth) const {
+    WarpUnchecked(base, u, depth, target_u, target_v, target_depth);
+    return *target_depth > 1e-9f;
+  }
+  // Warp's arithmetic without its check (branch-free, so that a loop over a
+  // row vectorises): the caller must reject target_depth <= 1e-9 (or NaN),
+  // where target_u and target_v mean nothing.
+  void WarpUnchecked(const float base[3], float u, float depth, float* target_u, float* target_v,
+                     float* target_depth) const {
     const float z = depth * (h[6] * u + base[2]) + t[2];
-    if (!(z > 1e-9f)) return false;
     const float inv_z = 1.0f / z;
     *target_u = (depth * (h[0] * u + base[0]) + t[0]) * inv_z;
     *target_v = (depth * (h[3] * u + base[1]) + t[1]) * inv_z;
     *target_depth = z;
-    return true;
   }
 };
 
