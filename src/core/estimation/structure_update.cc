@@ -979,6 +979,35 @@ std::vector<std::vector<int>> GroupPairsByWarp(const std::vector<PairMatching>& 
   return groups;
 }
 
+// The normal equations of the free poses (frames from num_fixed on) from
+// each group's r(eps) = r0 - A (eps_t - eps_s): its A^T W A enters the
+// (t, t) and (s, s) blocks and, negated, (t, s) and (s, t); A^T W r0 enters
+// t's gradient and, negated, s's. Fixed frames' rows and columns are left out.
+void AssemblePoseSystem(const std::vector<PairMatching>& pairs, const std::vector<std::vector<int>>& groups,
+                        const std::vector<PairNormalEquations>& equations, int num_fixed, int unknowns,
+                        Eigen::MatrixXd* hessian, Eigen::VectorXd* gradient) {
+  *hessian = Eigen::MatrixXd::Zero(unknowns, unknowns);
+  *gradient = Eigen::VectorXd::Zero(unknowns);
+  for (size_t g = 0; g < groups.size(); ++g) {
+    const Eigen::Matrix<double, 6, 6>& block = equations[g].block;
+    const Eigen::Matrix<double, 6, 1>& rhs = equations[g].rhs;
+    // Block indices (negative: a fixed frame).
+    const int bt = pairs[groups[g].front()].t - num_fixed, bs = pairs[groups[g].front()].s - num_fixed;
+    if (bt >= 0) {
+      hessian->block<6, 6>(6 * bt, 6 * bt) += block;
+      gradient->segment<6>(6 * bt) += rhs;
+    }
+    if (bs >= 0) {
+      hessian->block<6, 6>(6 * bs, 6 * bs) += block;
+      gradient->segment<6>(6 * bs) -= rhs;
+    }
+    if (bt >= 0 && bs >= 0) {
+      hessian->block<6, 6>(6 * bt, 6 * bs) -= block;
+      hessian->block<6, 6>(6 * bs, 6 * bt) -= block;
+    }
+  }
+}
+
 }  // namespace
 
 std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr, const std::vector<cv::Mat>& inverse_depths,
@@ -1027,26 +1056,9 @@ std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr, const std::vec
       equations[g] = HrPairNormalEquations(camera_hr, inverse_depths[pair.t], T_world_t, T_world_s, images,
                                            pair.mask, options.residual_epsilon, options.pose_pixel_stride);
     }
-    Eigen::MatrixXd hessian = Eigen::MatrixXd::Zero(unknowns, unknowns);
-    Eigen::VectorXd gradient = Eigen::VectorXd::Zero(unknowns);
-    for (int g = 0; g < num_groups; ++g) {
-      const Eigen::Matrix<double, 6, 6>& block = equations[g].block;
-      const Eigen::Matrix<double, 6, 1>& rhs = equations[g].rhs;
-      // Block indices (negative: a fixed frame).
-      const int bt = pairs[groups[g].front()].t - num_fixed, bs = pairs[groups[g].front()].s - num_fixed;
-      if (bt >= 0) {
-        hessian.block<6, 6>(6 * bt, 6 * bt) += block;
-        gradient.segment<6>(6 * bt) += rhs;
-      }
-      if (bs >= 0) {
-        hessian.block<6, 6>(6 * bs, 6 * bs) += block;
-        gradient.segment<6>(6 * bs) -= rhs;
-      }
-      if (bt >= 0 && bs >= 0) {
-        hessian.block<6, 6>(6 * bt, 6 * bs) -= block;
-        hessian.block<6, 6>(6 * bs, 6 * bt) -= block;
-      }
-    }
+    Eigen::MatrixXd hessian;
+    Eigen::VectorXd gradient;
+    AssemblePoseSystem(pairs, groups, equations, num_fixed, unknowns, &hessian, &gradient);
     // Levenberg-Marquardt damping on the diagonal.
     Eigen::MatrixXd damped = hessian;
     for (int i = 0; i < unknowns; ++i) {
