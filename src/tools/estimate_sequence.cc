@@ -142,6 +142,18 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
       ->check(dsm::FlagInt());
   cli.add_flag("--joint-pose-pairs,!--no-joint-pose-pairs", options->structure.joint_step_pose_pairs,
                "with --joint-depth-pose-step: match the pairs within the pose radius, not only N(t)");
+  cli.add_flag("--blur-pose-evidence,!--no-blur-pose-evidence", options->blur_pose_evidence,
+               "joint: the pose update also fits the blur of each frame (the self-consistency term "
+               "linearised in the poses of its blur path; default off)");
+  cli.add_option("--blur-pose-weight", options->structure.blur_pose_weight,
+                 "with --blur-pose-evidence: its weight relative to lambda_s")
+      ->check(dsm::FlagNumber());
+  cli.add_option("--blur-pose-samples", options->structure.blur_pose_samples,
+                 "with --blur-pose-evidence: virtual cameras per frame for its Jacobian")
+      ->check(dsm::FlagInt());
+  cli.add_option("--blur-pose-stride", options->structure.blur_pose_stride,
+                 "with --blur-pose-evidence: every N-th LR pixel and row")
+      ->check(dsm::FlagInt());
   cli.add_option("--structure-matching", flags->structure_matching, "both, restored or blurred")
       ->check(CLI::IsMember({"both", "restored", "blurred"}));
   cli.add_option("--exposure", flags->exposure,

@@ -489,6 +489,7 @@ class WindowSolver {
                       const StructureUpdateOptions& structure_options);
   void UpdateDepthsAndPosesJointly(int iteration, bool isolated,
                                    const StructureUpdateOptions& structure_options);
+  std::vector<BlurPoseTerm> BlurPoseTerms(const StructureUpdateOptions& structure_options);
   void AppendPairs(int t, const std::vector<int>& sources, bool with_inputs, std::vector<PairMatching>* pairs,
                    HeldOperators* held);
   SelfConsistencyLinearization SelfConsistencyOf(int t);
@@ -868,12 +869,35 @@ void WindowSolver::UpdateAllPoses(int iteration, bool isolated, const std::vecto
   for (int t = 0; t < num_frames_; ++t)
     AppendPairs(t, Neighbours(t, num_frames_, pose_radius), /*with_inputs=*/true, &pairs, &held);
   std::vector<SE3> updated = poses;
+  const bool blur_evidence = joint_ && options_.blur_pose_evidence;
+  const std::vector<BlurPoseTerm> blur_terms =
+      blur_evidence ? BlurPoseTerms(structure_options) : std::vector<BlurPoseTerm>();
   const double pose_begin = NowMs();
   UpdatePoses(camera_hr_, inverse_depth_, latents_, pairs, structure_options, &updated,
-              options_.fixed_leading_poses);
+              options_.fixed_leading_poses, blur_evidence ? &blur_terms : nullptr);
   timer_.AddSince("pose updates", pose_begin);
   SetPoses(updated);
   if (isolated && !(TotalEnergy(iteration, "structure").total <= before)) SetPoses(poses);
+}
+
+// Blur as motion evidence (EstimatorOptions::blur_pose_evidence): every
+// frame's self-consistency term linearised in the poses of its blur path,
+// at the current structure and latent images.
+std::vector<BlurPoseTerm> WindowSolver::BlurPoseTerms(const StructureUpdateOptions& structure_options) {
+  const double begin = NowMs();
+  std::vector<BlurPoseTerm> terms(num_frames_);
+  ForEachFrame([this, &terms, &structure_options](int t) {
+    const auto self_op = Operator(t, t);
+    cv::Mat predicted;
+    self_op->op.Apply(latents_[t], &predicted);
+    std::vector<int> frames = {t};
+    for (int f : BlurPathFrames(t, num_frames_)) frames.push_back(f);
+    terms[t] = LinearizeBlurInPoses(MakeCaptureGeometry(frames_, camera_hr_, t, t), frames, options_.samples,
+                                    scale_, inverse_depth_[t], latents_[t], observations_[t], predicted,
+                                    structure_options.blur_pose_weight * options_.lambda_s, structure_options);
+  });
+  timer_.AddSince("blur pose evidence", begin);
+  return terms;
 }
 
 // The pairs (t <- s) of frame t with s in `sources` (eq:matchingTerm), with

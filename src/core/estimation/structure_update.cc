@@ -345,6 +345,230 @@ cv::Mat BlurDerivativeWrtInverseDepth(const CaptureGeometry& geometry, int sampl
   return derivative;
 }
 
+// ---- Blur as motion evidence (BlurPoseJacobian, LinearizeBlurInPoses).
+namespace {
+
+// The poses of a self-consistency geometry's blur path, in the order of
+// BlurPoseJacobian's frames: P_t, P_neighbour, P_second_neighbour (if set).
+int PathPoseCount(const CaptureGeometry& geometry) {
+  return geometry.T_world_second_neighbour.has_value() ? 3 : 2;
+}
+SE3* PathPose(CaptureGeometry* geometry, int k) {
+  if (k == 0) return &geometry->T_world_cam;
+  if (k == 1) return &geometry->T_world_neighbour;
+  return &*geometry->T_world_second_neighbour;
+}
+
+// The instant tau of virtual camera m of M over the exposure of rows that
+// open `row_delay` later (as the operator samples it), and the basis of the
+// path's pose derivative at tau: phi_1 = (tau - t) / exposure, phi_2 = phi_1^2.
+double VirtualCameraTime(const CaptureGeometry& geometry, int samples, double row_delay, int m) {
+  return geometry.stamp - geometry.exposure + row_delay + (m + 0.5) / samples * geometry.exposure;
+}
+Eigen::Vector2d PathBasis(const CaptureGeometry& geometry, double tau) {
+  const double phi = (tau - geometry.stamp) / geometry.exposure;
+  return {phi, phi * phi};
+}
+
+// d delta(tau) / d eps (6 x 6F) of the virtual camera at tau relative to P_t,
+// T_t_tau = P_t^-1 P(tau), with Exp(delta) T_t_tau(eps) ~ T_t_tau(eps + d eps)
+// ... by central differences over the 6 axes of each path pose, at 8
+// instants spanning the exposure and the readout, fitted by least squares as
+// phi_1(tau) C_1 + phi_2(tau) C_2 (the path passes through P_t at t, so
+// delta(t) = 0). Returns [C_1; C_2] (12 x 6F).
+Eigen::MatrixXd PathPoseChain(const CaptureGeometry& geometry) {
+  const int frames = PathPoseCount(geometry);
+  const int nodes = 8;
+  const double first = geometry.stamp - geometry.exposure;
+  const double span = geometry.exposure + geometry.readout_time;
+  std::vector<double> taus(nodes);
+  std::vector<SE3> T_tau_t(nodes);  // the inverse of T_t_tau at eps = 0
+  const SE3 T_t_world = geometry.T_world_cam.Inverse();
+  for (int i = 0; i < nodes; ++i) {
+    taus[i] = first + span * i / (nodes - 1.0);
+    T_tau_t[i] = (T_t_world * PoseAtTime(geometry, taus[i])).Inverse();
+  }
+  const double h = 1e-6;
+  // y(i, 6F r + c): d delta_r(tau_i) / d eps_c.
+  Eigen::MatrixXd y = Eigen::MatrixXd::Zero(nodes, 36 * frames);
+  for (int k = 0; k < frames; ++k) {
+    for (int j = 0; j < 6; ++j) {
+      for (const double sign : {1.0, -1.0}) {
+        CaptureGeometry moved = geometry;
+        Vector6d eps = Vector6d::Zero();
+        eps(j) = sign * h;
+        *PathPose(&moved, k) = SE3::Exp(eps) * *PathPose(&moved, k);
+        const SE3 T_t_world_moved = moved.T_world_cam.Inverse();
+        for (int i = 0; i < nodes; ++i) {
+          const Vector6d delta = (T_t_world_moved * PoseAtTime(moved, taus[i]) * T_tau_t[i]).Log();
+          for (int r = 0; r < 6; ++r) y(i, 6 * frames * r + 6 * k + j) += sign * delta(r) / (2.0 * h);
+        }
+      }
+    }
+  }
+  Eigen::MatrixXd phi(nodes, 2);
+  for (int i = 0; i < nodes; ++i) phi.row(i) = PathBasis(geometry, taus[i]).transpose();
+  const Eigen::MatrixXd fit = (phi.transpose() * phi).ldlt().solve(phi.transpose() * y);  // 2 x 36F
+  Eigen::MatrixXd chain(12, 6 * frames);
+  for (int b = 0; b < 2; ++b) {
+    for (int r = 0; r < 6; ++r) chain.row(6 * b + r) = fit.block(b, 6 * frames * r, 1, 6 * frames);
+  }
+  return chain;
+}
+
+// One used virtual camera: the warp of its pixels into t (q = H [x y 1] +
+// rho K t, as BlurDerivativeWrtInverseDepth) and its path basis.
+struct BlurPoseCamera {
+  Eigen::Matrix3d h;
+  Eigen::Vector3d kt;
+  Eigen::Vector2d basis;
+};
+
+// At most max_samples of the M virtual cameras, evenly spread (the middle
+// one of each of max_samples slices), per LR row for a rolling shutter.
+std::vector<BlurPoseCamera> BlurPoseCameras(const CaptureGeometry& geometry, int samples, int max_samples,
+                                            int num_sets, int lr_rows, int* used_per_set) {
+  const int used = std::max(1, std::min(samples, max_samples));
+  *used_per_set = used;
+  const Eigen::Matrix3d k = geometry.camera_hr.K();
+  const Eigen::Matrix3d k_inv = k.inverse();
+  const SE3 T_t_world = geometry.T_world_cam.Inverse();
+  std::vector<BlurPoseCamera> cameras;
+  cameras.reserve(num_sets * used);
+  for (int set = 0; set < num_sets; ++set) {
+    const double delay = RowDelay(geometry, set, lr_rows);
+    for (int i = 0; i < used; ++i) {
+      const int m = static_cast<int>((i + 0.5) * samples / used);
+      const double tau = VirtualCameraTime(geometry, samples, delay, m);
+      const SE3 T_t_tau = T_t_world * PoseAtTime(geometry, tau);
+      cameras.push_back({k * T_t_tau.rotation() * k_inv, k * T_t_tau.translation(), PathBasis(geometry, tau)});
+    }
+  }
+  return cameras;
+}
+
+// Adds, for HR pixel (x, y) of t at inverse depth rho seen by `camera`,
+// scale_weight x g^T d pixel / d delta x phi_b into moments[(2 c + b) 6 + j]
+// (g the gradient of channel c of I_t at the warp, delta the virtual
+// camera's pose relative to P_t).
+void AddBlurPoseMoments(const PinholeCamera& hr, const BlurPoseCamera& camera, int x, int y, double rho,
+                        const cv::Mat& gx, const cv::Mat& gy, double scale_weight, float* grad_x, float* grad_y,
+                        double* moments) {
+  const Eigen::Vector3d q = camera.h * Eigen::Vector3d(x, y, 1.0) + rho * camera.kt;
+  if (!(q.z() > 1e-9)) return;
+  const double u = q.x() / q.z(), v = q.y() / q.z();
+  if (u < 0.0 || v < 0.0 || u > hr.width - 1.0 || v > hr.height - 1.0) return;
+  SampleBilinear(gx, static_cast<float>(u), static_cast<float>(v), grad_x);
+  SampleBilinear(gy, static_cast<float>(u), static_cast<float>(v), grad_y);
+  // X_t = z K^-1 [u v 1] with 1 / z = rho / q_z; d pixel / d delta = d pixel
+  // / d X_t [I, -[X_t]x]: row m gives [m, (X_t x m)^T].
+  const double iz = rho / q.z();
+  const Eigen::Vector3d point = hr.Ray(u, v) / iz;
+  const Eigen::Vector3d m0(hr.fx * iz, 0.0, -(u - hr.cx) * iz), m1(0.0, hr.fy * iz, -(v - hr.cy) * iz);
+  Eigen::Matrix<double, 2, 6> jacobian;
+  jacobian << m0.transpose(), point.cross(m0).transpose(), m1.transpose(), point.cross(m1).transpose();
+  const int channels = gx.channels();
+  for (int c = 0; c < channels; ++c) {
+    const Eigen::Matrix<double, 1, 6> a =
+        scale_weight * (grad_x[c] * jacobian.row(0) + grad_y[c] * jacobian.row(1));
+    for (int b = 0; b < 2; ++b) {
+      double* out = moments + (2 * c + b) * 6;
+      for (int j = 0; j < 6; ++j) out[j] += camera.basis(b) * a(j);
+    }
+  }
+}
+
+// True for the LR pixels that blur_pose_stride uses.
+bool UsedBlurPosePixel(int x, int y, int stride) {
+  return y % stride == 0 && x % stride == (y / stride) % stride;
+}
+
+}  // namespace
+
+cv::Mat BlurPoseJacobian(const CaptureGeometry& geometry, int samples, int scale, const cv::Mat& inverse_depth,
+                         const cv::Mat& latent, int max_samples, int stride) {
+  if (geometry.T_world_source.has_value()) {
+    throw InputError("BlurPoseJacobian: needs the self-consistency geometry (no source camera)");
+  }
+  const PinholeCamera& hr = geometry.camera_hr;
+  const int channels = latent.channels(), frames = PathPoseCount(geometry);
+  const int lr_rows = hr.height / scale, lr_cols = hr.width / scale;
+  const int num_sets = geometry.readout_time > 0.0 ? lr_rows : 1;
+  int used = 0;
+  const std::vector<BlurPoseCamera> cameras =
+      BlurPoseCameras(geometry, samples, max_samples, num_sets, lr_rows, &used);
+  const Eigen::MatrixXd chain = PathPoseChain(geometry);  // [C_1; C_2]
+  cv::Mat gx, gy;
+  Gradients(latent, &gx, &gy);
+  cv::Mat jacobian = cv::Mat::zeros(lr_rows, lr_cols, CV_32FC(channels * frames * 6));
+  const double scale_weight = 1.0 / (used * scale * scale);
+#pragma omp parallel for schedule(static)
+  for (int ly = 0; ly < lr_rows; ++ly) {
+    std::vector<float> grad_x(channels), grad_y(channels);
+    Eigen::VectorXd moments(channels * 12);
+    const BlurPoseCamera* set = &cameras[(num_sets > 1 ? ly : 0) * used];
+    float* out = jacobian.ptr<float>(ly);
+    for (int lx = 0; lx < lr_cols; ++lx) {
+      if (!UsedBlurPosePixel(lx, ly, stride)) continue;
+      moments.setZero();
+      for (int y = ly * scale; y < (ly + 1) * scale; ++y) {
+        const float* rho_row = inverse_depth.ptr<float>(y);
+        for (int x = lx * scale; x < (lx + 1) * scale; ++x) {
+          const double rho = rho_row[x];
+          if (!(rho > 0.0) || !std::isfinite(rho)) continue;
+          for (int i = 0; i < used; ++i) {
+            AddBlurPoseMoments(hr, set[i], x, y, rho, gx, gy, scale_weight, grad_x.data(), grad_y.data(),
+                               moments.data());
+          }
+        }
+      }
+      // J_c = A_c1 C_1 + A_c2 C_2 (A_cb the 6 moments of channel c, basis b).
+      for (int c = 0; c < channels; ++c) {
+        const Eigen::RowVectorXd row = moments.segment<6>(12 * c).transpose() * chain.topRows<6>() +
+                                       moments.segment<6>(12 * c + 6).transpose() * chain.bottomRows<6>();
+        for (int i = 0; i < 6 * frames; ++i) out[(lx * channels + c) * 6 * frames + i] = static_cast<float>(row(i));
+      }
+    }
+  }
+  return jacobian;
+}
+
+BlurPoseTerm LinearizeBlurInPoses(const CaptureGeometry& geometry, const std::vector<int>& frames, int samples,
+                                  int scale, const cv::Mat& inverse_depth, const cv::Mat& latent,
+                                  const cv::Mat& observation, const cv::Mat& predicted, double weight,
+                                  const StructureUpdateOptions& options) {
+  const int stride = options.blur_pose_stride;
+  const cv::Mat jacobian = BlurPoseJacobian(geometry, samples, scale, inverse_depth, latent,
+                                            options.blur_pose_samples, stride);
+  const int unknowns = 6 * PathPoseCount(geometry), channels = observation.channels();
+  if (static_cast<int>(frames.size()) * 6 != unknowns) {
+    throw InputError("LinearizeBlurInPoses: one frame index per pose of the blur path");
+  }
+  BlurPoseTerm term;
+  term.frames = frames;
+  term.hessian = Eigen::MatrixXd::Zero(unknowns, unknowns);
+  term.gradient = Eigen::VectorXd::Zero(unknowns);
+  const double sampled_weight = weight * stride * stride;
+  for (int y = 0; y < jacobian.rows; ++y) {
+    const float* b = observation.ptr<float>(y);
+    const float* p = predicted.ptr<float>(y);
+    const float* j = jacobian.ptr<float>(y);
+    for (int x = 0; x < jacobian.cols; ++x) {
+      if (!UsedBlurPosePixel(x, y, stride)) continue;
+      for (int c = 0; c < channels; ++c) {
+        const double r0 = b[x * channels + c] - p[x * channels + c];
+        const double w = sampled_weight / std::max(std::abs(r0), options.residual_epsilon);
+        const Eigen::VectorXd a =
+            Eigen::Map<const Eigen::VectorXf>(j + (x * channels + c) * unknowns, unknowns).cast<double>();
+        term.hessian.selfadjointView<Eigen::Upper>().rankUpdate(a, w);
+        term.gradient += (w * r0) * a;
+      }
+    }
+  }
+  term.hessian = term.hessian.selfadjointView<Eigen::Upper>();
+  return term;
+}
+
 void StructureUpdateOptions::Check() const {
   CheckAtLeast("structure update: lambda_d", lambda_d, 0.0);
   CheckInRange("structure update: pose_pixel_stride", pose_pixel_stride, 1, 8);
@@ -359,6 +583,9 @@ void StructureUpdateOptions::Check() const {
   CheckAtLeast("structure update: joint_cg_iterations", joint_cg_iterations, 1);
   CheckAtLeast("structure update: joint_irls_iterations", joint_irls_iterations, 1);
   CheckAtLeast("structure update: joint_pose_damping", joint_pose_damping, 0.0);
+  CheckInRange("structure update: blur_pose_samples", blur_pose_samples, 1, 1000);
+  CheckInRange("structure update: blur_pose_stride", blur_pose_stride, 1, 8);
+  CheckAtLeast("structure update: blur_pose_weight", blur_pose_weight, 0.0);
   edge_weight.Check();
 }
 
@@ -1008,17 +1235,39 @@ void AssemblePoseSystem(const std::vector<PairMatching>& pairs, const std::vecto
   }
 }
 
+// Adds the blur terms (blur as motion evidence) at the steps `taken` so far
+// in this pose update: r = r0 - J taken, so the gradient is J^T W r0 -
+// J^T W J taken; their blocks of the free frames enter as they are.
+void AddBlurPoseTerms(const std::vector<BlurPoseTerm>& terms, const std::vector<Vector6d>& taken, int num_fixed,
+                      Eigen::MatrixXd* hessian, Eigen::VectorXd* gradient) {
+  for (const BlurPoseTerm& term : terms) {
+    const int frames = static_cast<int>(term.frames.size());
+    Eigen::VectorXd steps(6 * frames);
+    for (int k = 0; k < frames; ++k) steps.segment<6>(6 * k) = taken[term.frames[k]];
+    const Eigen::VectorXd g = term.gradient - term.hessian * steps;
+    for (int k = 0; k < frames; ++k) {
+      const int bk = term.frames[k] - num_fixed;  // negative: a fixed frame
+      if (bk < 0) continue;
+      gradient->segment<6>(6 * bk) += g.segment<6>(6 * k);
+      for (int l = 0; l < frames; ++l) {
+        const int bl = term.frames[l] - num_fixed;
+        if (bl >= 0) hessian->block<6, 6>(6 * bk, 6 * bl) += term.hessian.block<6, 6>(6 * k, 6 * l);
+      }
+    }
+  }
+}
+
 }  // namespace
 
 std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr, const std::vector<cv::Mat>& inverse_depths,
                                   const std::vector<cv::Mat>& latents, const std::vector<PairMatching>& pairs,
                                   const StructureUpdateOptions& options, std::vector<SE3>* T_world_cam,
-                                  int num_fixed) {
+                                  int num_fixed, const std::vector<BlurPoseTerm>* blur_terms) {
   options.Check();
   const int num_frames = static_cast<int>(T_world_cam->size());
   std::vector<Vector6d> total(num_frames, Vector6d::Zero());
   num_fixed = std::max(1, num_fixed);  // at least frame 0: the gauge
-  if (num_frames <= num_fixed || pairs.empty()) return total;
+  if (num_frames <= num_fixed || (pairs.empty() && (blur_terms == nullptr || blur_terms->empty()))) return total;
   const int unknowns = 6 * (num_frames - num_fixed);
   // Gradients of every image that HR pairs warp, once per image.
   std::vector<const cv::Mat*> sources;
@@ -1059,6 +1308,7 @@ std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr, const std::vec
     Eigen::MatrixXd hessian;
     Eigen::VectorXd gradient;
     AssemblePoseSystem(pairs, groups, equations, num_fixed, unknowns, &hessian, &gradient);
+    if (blur_terms != nullptr) AddBlurPoseTerms(*blur_terms, total, num_fixed, &hessian, &gradient);
     // Levenberg-Marquardt damping on the diagonal.
     Eigen::MatrixXd damped = hessian;
     for (int i = 0; i < unknowns; ++i) {

@@ -164,6 +164,14 @@ struct EstimatorOptions {
   // orientation error rises from 0.15 to 0.66 deg (BENCHMARKS.md "Method
   // ablation"). So it stays on.
   bool depth_input_pairs = true;
+  // Joint mode: blur as motion evidence. The pose update also takes the
+  // self-consistency term lambda_s |B_t - Psi_t I_t| (eq:IPterm) linearised
+  // in the poses that fix Psi_t's blur path (P_t and its neighbours,
+  // eq:interpolatingP), so that the blur's length and direction in B_t
+  // constrain the motion (LinearizeBlurInPoses; its sampling and weight:
+  // StructureUpdateOptions::blur_pose_*). The baseline has no capture model
+  // and ignores it.
+  bool blur_pose_evidence = false;
   int num_threads = 0;  // OpenMP threads for every stage; 0 = default
   // Wall-time cap of one run (s): no outer iteration starts after it, the
   // last accepted state is returned and the cap is noted (0: no cap). Every

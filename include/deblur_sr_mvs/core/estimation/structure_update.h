@@ -83,6 +83,18 @@ struct StructureUpdateOptions {
   // measured, it holds the lateral poses but loses depth on the arc and
   // hand-held paths and costs a fifth more.
   bool joint_step_pose_pairs = false;
+  // Blur as motion evidence (EstimatorOptions::blur_pose_evidence): the
+  // self-consistency term's Jacobian in the poses (LinearizeBlurInPoses)
+  // from at most this many of Psi_t's virtual cameras, evenly spread over
+  // the exposure, ...
+  int blur_pose_samples = 8;
+  // ... on every blur_pose_stride-th LR pixel of every blur_pose_stride-th
+  // LR row (shifted row to row; the term's weight is multiplied by
+  // stride^2, so that it stands for every pixel), ...
+  int blur_pose_stride = 1;
+  // ... with the weight blur_pose_weight x lambda_s (1: the weight of
+  // eq:IPterm in the energy).
+  double blur_pose_weight = 1.0;
   int num_threads = 0;
   void Check() const;
 };
@@ -140,13 +152,54 @@ void UpdateDepth(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world
                  const SelfConsistencyLinearization* self, const cv::Mat& edge_weight, double parallax_scale,
                  const StructureUpdateOptions& options, cv::Mat* inverse_depth);
 
+// Blur as motion evidence: the self-consistency term lambda_s |B_t - Psi_t
+// I_t| (eq:IPterm) linearised in the poses that fix Psi_t's blur path
+// (eq:interpolatingP: P_t and the frames of BlurPathFrames), so that the
+// length and direction of the blur in B_t are evidence about the motion.
+// With r(eps) = r0 - J eps, r0 = B_t - Psi_t I_t, J = d (Psi_t I_t) / d eps
+// for P_f = Exp(eps_f) P_f0 (f in `frames`), and the L1 IRLS weights W of
+// r0 (held for the pose update's Gauss-Newton steps): hessian = weight J^T
+// W J, gradient = weight J^T W r0.
+struct BlurPoseTerm {
+  std::vector<int> frames;   // t first, then its blur path's frames
+  Eigen::MatrixXd hessian;   // 6 frames.size() square
+  Eigen::VectorXd gradient;  // 6 frames.size()
+};
+
+// J = d (Psi_t I_t) / d eps (LR, C x 6F channels: channel c of the
+// observation, frame k of the geometry's path (P_t, P_neighbour, then
+// P_second_neighbour if set), axis j at channel (c * F + k) * 6 + j), for
+// the self-consistency geometry of frame t (its T_world_source must be
+// empty: the operator samples I_t). The virtual cameras of Psi_t see
+// I_t(W^{tau_m->t}(x)) at depth D_t (D_tau ~ D_t, as in
+// BlurDerivativeWrtInverseDepth, `inverse_depth` standing for the
+// geometry's depth); the pose derivative of each virtual camera relative to
+// P_t is taken by central differences of the path (PoseAtTime) over the 6
+// axes of each pose, fitted by a quadratic in tau - t (the path is one,
+// through P_t at t: eq:interpolatingP, PoseOnQuadraticPath), and chained
+// with the image gradient at the warp. At most `max_samples` of the
+// `samples` virtual cameras; only the LR pixels of `stride` (see
+// StructureUpdateOptions::blur_pose_stride), the others are zero.
+cv::Mat BlurPoseJacobian(const CaptureGeometry& geometry, int samples, int scale, const cv::Mat& inverse_depth,
+                         const cv::Mat& latent, int max_samples, int stride);
+
+// The term of frame t from J (BlurPoseJacobian), r0 = observation -
+// predicted (LR) and `weight` (lambda_s; multiplied by stride^2); `frames`
+// are the frame indices of the geometry's path, t first.
+BlurPoseTerm LinearizeBlurInPoses(const CaptureGeometry& geometry, const std::vector<int>& frames, int samples,
+                                  int scale, const cv::Mat& inverse_depth, const cv::Mat& latent,
+                                  const cv::Mat& observation, const cv::Mat& predicted, double weight,
+                                  const StructureUpdateOptions& options);
+
 // Gauss-Newton/IRLS update of all poses but the first `num_fixed` (>= 1; frame
 // 0 is the gauge) from all pairs, with depth fixed. Returns the applied
-// tangent steps (6 per frame; zero for the fixed frames).
+// tangent steps (6 per frame; zero for the fixed frames). `blur_terms`
+// (optional): blur as motion evidence, linearised at the given poses; each
+// Gauss-Newton step sees them at r0 - J (the steps taken so far).
 std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr, const std::vector<cv::Mat>& inverse_depths,
                                   const std::vector<cv::Mat>& latents, const std::vector<PairMatching>& pairs,
                                   const StructureUpdateOptions& options, std::vector<SE3>* T_world_cam,
-                                  int num_fixed = 1);
+                                  int num_fixed = 1, const std::vector<BlurPoseTerm>* blur_terms = nullptr);
 
 // The terms of one frame's depth update (as UpdateDepth takes them).
 struct FrameDepthTerms {
