@@ -151,6 +151,9 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   cli.add_option("--blur-pose-samples", options->structure.blur_pose_samples,
                  "with --blur-pose-evidence: virtual cameras per frame for its Jacobian")
       ->check(dsm::FlagInt());
+  cli.add_flag("--blur-pose-from-pairs", options->structure.blur_pose_from_pairs,
+               "with --blur-pose-evidence: the sharp image is the neighbours' latent images warped into t "
+               "(blurred matching pairs), not I_t");
   cli.add_option("--blur-pose-stride", options->structure.blur_pose_stride,
                  "with --blur-pose-evidence: every N-th LR pixel and row")
       ->check(dsm::FlagInt());

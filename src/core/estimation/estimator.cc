@@ -885,17 +885,32 @@ void WindowSolver::UpdateAllPoses(int iteration, bool isolated, const std::vecto
 // at the current structure and latent images.
 std::vector<BlurPoseTerm> WindowSolver::BlurPoseTerms(const StructureUpdateOptions& structure_options) {
   const double begin = NowMs();
-  std::vector<BlurPoseTerm> terms(num_frames_);
-  ForEachFrame([this, &terms, &structure_options](int t) {
+  const bool from_pairs = structure_options.blur_pose_from_pairs;
+  std::vector<std::vector<BlurPoseTerm>> per_frame(num_frames_);
+  ForEachFrame([this, from_pairs, &per_frame, &structure_options](int t) {
     const auto self_op = Operator(t, t);
-    cv::Mat predicted;
-    self_op->op.Apply(latents_[t], &predicted);
     std::vector<int> frames = {t};
     for (int f : BlurPathFrames(t, num_frames_)) frames.push_back(f);
-    terms[t] = LinearizeBlurInPoses(MakeCaptureGeometry(frames_, camera_hr_, t, t), frames, options_.samples,
-                                    scale_, inverse_depth_[t], latents_[t], observations_[t], predicted,
-                                    structure_options.blur_pose_weight * options_.lambda_s, structure_options);
+    const CaptureGeometry geometry = MakeCaptureGeometry(frames_, camera_hr_, t, t);
+    const double weight = structure_options.blur_pose_weight;
+    if (from_pairs) {
+      for (int s : neighbours_[t]) {
+        per_frame[t].push_back(LinearizeBlurredPairInPoses(
+            geometry, frames, s, options_.samples, scale_, inverse_depth_[t], frames_[s].T_world_cam,
+            latents_[s], self_op->op, observations_[t], weight, structure_options));
+      }
+      return;
+    }
+    cv::Mat predicted;
+    self_op->op.Apply(latents_[t], &predicted);
+    per_frame[t].push_back(LinearizeBlurInPoses(geometry, frames, options_.samples, scale_, inverse_depth_[t],
+                                                latents_[t], observations_[t], predicted,
+                                                weight * options_.lambda_s, structure_options));
   });
+  std::vector<BlurPoseTerm> terms;
+  for (std::vector<BlurPoseTerm>& frame_terms : per_frame) {
+    for (BlurPoseTerm& term : frame_terms) terms.push_back(std::move(term));
+  }
   timer_.AddSince("blur pose evidence", begin);
   return terms;
 }

@@ -533,38 +533,91 @@ cv::Mat BlurPoseJacobian(const CaptureGeometry& geometry, int samples, int scale
   return jacobian;
 }
 
+namespace {
+
+// Adds weight x stride^2 x J^T W J and J^T W r0 of the used LR pixels
+// (blur_pose_stride) inside `mask` (LR; empty: all) to `term`, J the rows of
+// `jacobian` (BlurPoseJacobian's layout over the first columns of the term)
+// plus, with `warp` (6 LR images: the warp's pose Jacobian through Psi_t),
+// +warp in the columns of frame kt and -warp in those of frame ks.
+void AccumulateBlurPoseTerm(const cv::Mat& jacobian, const cv::Mat& residual, const cv::Mat& mask,
+                            const std::vector<cv::Mat>* warp, int kt, int ks, double weight,
+                            const StructureUpdateOptions& options, BlurPoseTerm* term) {
+  const int stride = options.blur_pose_stride, channels = residual.channels();
+  const int blur_columns = jacobian.channels() / channels, unknowns = static_cast<int>(term->gradient.size());
+  const double sampled_weight = weight * stride * stride;
+  Eigen::VectorXd a(unknowns);
+  for (int y = 0; y < jacobian.rows; ++y) {
+    const float* r = residual.ptr<float>(y);
+    const float* j = jacobian.ptr<float>(y);
+    const uchar* m = mask.empty() ? nullptr : mask.ptr<uchar>(y);
+    for (int x = 0; x < jacobian.cols; ++x) {
+      if (!UsedBlurPosePixel(x, y, stride) || (m != nullptr && m[x] == 0)) continue;
+      for (int c = 0; c < channels; ++c) {
+        const int i = x * channels + c;
+        const double r0 = r[i];
+        const double w = sampled_weight / std::max(std::abs(r0), options.residual_epsilon);
+        a.setZero();
+        a.head(blur_columns) = Eigen::Map<const Eigen::VectorXf>(j + i * blur_columns, blur_columns).cast<double>();
+        for (int e = 0; warp != nullptr && e < 6; ++e) {
+          const double value = (*warp)[e].ptr<float>(y)[i];
+          a(6 * kt + e) += value;
+          a(6 * ks + e) -= value;
+        }
+        term->hessian.selfadjointView<Eigen::Upper>().rankUpdate(a, w);
+        term->gradient += (w * r0) * a;
+      }
+    }
+  }
+}
+
+BlurPoseTerm EmptyBlurPoseTerm(const std::vector<int>& frames) {
+  BlurPoseTerm term;
+  term.frames = frames;
+  term.hessian = Eigen::MatrixXd::Zero(6 * frames.size(), 6 * frames.size());
+  term.gradient = Eigen::VectorXd::Zero(6 * frames.size());
+  return term;
+}
+
+}  // namespace
+
 BlurPoseTerm LinearizeBlurInPoses(const CaptureGeometry& geometry, const std::vector<int>& frames, int samples,
                                   int scale, const cv::Mat& inverse_depth, const cv::Mat& latent,
                                   const cv::Mat& observation, const cv::Mat& predicted, double weight,
                                   const StructureUpdateOptions& options) {
-  const int stride = options.blur_pose_stride;
-  const cv::Mat jacobian = BlurPoseJacobian(geometry, samples, scale, inverse_depth, latent,
-                                            options.blur_pose_samples, stride);
-  const int unknowns = 6 * PathPoseCount(geometry), channels = observation.channels();
-  if (static_cast<int>(frames.size()) * 6 != unknowns) {
+  if (static_cast<int>(frames.size()) != PathPoseCount(geometry)) {
     throw InputError("LinearizeBlurInPoses: one frame index per pose of the blur path");
   }
-  BlurPoseTerm term;
-  term.frames = frames;
-  term.hessian = Eigen::MatrixXd::Zero(unknowns, unknowns);
-  term.gradient = Eigen::VectorXd::Zero(unknowns);
-  const double sampled_weight = weight * stride * stride;
-  for (int y = 0; y < jacobian.rows; ++y) {
-    const float* b = observation.ptr<float>(y);
-    const float* p = predicted.ptr<float>(y);
-    const float* j = jacobian.ptr<float>(y);
-    for (int x = 0; x < jacobian.cols; ++x) {
-      if (!UsedBlurPosePixel(x, y, stride)) continue;
-      for (int c = 0; c < channels; ++c) {
-        const double r0 = b[x * channels + c] - p[x * channels + c];
-        const double w = sampled_weight / std::max(std::abs(r0), options.residual_epsilon);
-        const Eigen::VectorXd a =
-            Eigen::Map<const Eigen::VectorXf>(j + (x * channels + c) * unknowns, unknowns).cast<double>();
-        term.hessian.selfadjointView<Eigen::Upper>().rankUpdate(a, w);
-        term.gradient += (w * r0) * a;
-      }
-    }
+  const cv::Mat jacobian = BlurPoseJacobian(geometry, samples, scale, inverse_depth, latent,
+                                            options.blur_pose_samples, options.blur_pose_stride);
+  BlurPoseTerm term = EmptyBlurPoseTerm(frames);
+  AccumulateBlurPoseTerm(jacobian, observation - predicted, cv::Mat(), nullptr, 0, 0, weight, options, &term);
+  term.hessian = term.hessian.selfadjointView<Eigen::Upper>();
+  return term;
+}
+
+BlurPoseTerm LinearizeBlurredPairInPoses(const CaptureGeometry& geometry, const std::vector<int>& frames,
+                                         int s, int samples, int scale, const cv::Mat& inverse_depth,
+                                         const SE3& T_world_s, const cv::Mat& latent_s,
+                                         const CaptureOperator& psi_t, const cv::Mat& observation, double weight,
+                                         const StructureUpdateOptions& options) {
+  if (static_cast<int>(frames.size()) != PathPoseCount(geometry)) {
+    throw InputError("LinearizeBlurredPairInPoses: one frame index per pose of the blur path");
   }
+  std::vector<int> all = frames;
+  if (std::find(all.begin(), all.end(), s) == all.end()) all.push_back(s);
+  const int ks = static_cast<int>(std::find(all.begin(), all.end(), s) - all.begin());
+  std::vector<cv::Mat> jacobians, projected(6);
+  const WarpLinearization lin = LinearizeWarp(geometry.camera_hr, inverse_depth, geometry.T_world_cam,
+                                              T_world_s, latent_s, &jacobians);
+  for (int e = 0; e < 6; ++e) psi_t.Apply(jacobians[e], &projected[e]);
+  cv::Mat predicted;
+  psi_t.Apply(lin.warped, &predicted);
+  const cv::Mat blur = BlurPoseJacobian(geometry, samples, scale, inverse_depth, lin.warped,
+                                        options.blur_pose_samples, options.blur_pose_stride);
+  BlurPoseTerm term = EmptyBlurPoseTerm(all);
+  AccumulateBlurPoseTerm(blur, observation - predicted, DownscaleMaskAll(lin.valid, scale), &projected, 0, ks,
+                         weight, options, &term);
   term.hessian = term.hessian.selfadjointView<Eigen::Upper>();
   return term;
 }

@@ -95,6 +95,12 @@ struct StructureUpdateOptions {
   // ... with the weight blur_pose_weight x lambda_s (1: the weight of
   // eq:IPterm in the energy).
   double blur_pose_weight = 1.0;
+  // The blur evidence's sharp image: false, I_t itself (the self-consistency
+  // term, LinearizeBlurInPoses, weight lambda_s); true, the latent images of
+  // N(t) warped into t (the blurred matching pairs of eq:matchingTerm,
+  // LinearizeBlurredPairInPoses, weight 1 each): I_t was fitted to B_t
+  // through the current blur, which then holds the poses where they were.
+  bool blur_pose_from_pairs = false;
   int num_threads = 0;
   void Check() const;
 };
@@ -190,6 +196,19 @@ BlurPoseTerm LinearizeBlurInPoses(const CaptureGeometry& geometry, const std::ve
                                   int scale, const cv::Mat& inverse_depth, const cv::Mat& latent,
                                   const cv::Mat& observation, const cv::Mat& predicted, double weight,
                                   const StructureUpdateOptions& options);
+
+// The blurred matching pair (t <- s) of eq:matchingTerm, B_t against Psi_t
+// applied to I_s warped into t (W^{t->s} at `inverse_depth` of t), linearised
+// in the poses of Psi_t's blur path (BlurPoseJacobian of the warped image)
+// and of the warp (LinearizeWarp's pose Jacobians mapped by Psi_t, for P_t
+// and P_s): the blur evidence from a sharp image that was not fitted to
+// B_t. `psi_t` is Psi_t sampling frame t (the geometry's operator);
+// `frames` as in LinearizeBlurInPoses, the term's frames are them and s.
+BlurPoseTerm LinearizeBlurredPairInPoses(const CaptureGeometry& geometry, const std::vector<int>& frames,
+                                         int s, int samples, int scale, const cv::Mat& inverse_depth,
+                                         const SE3& T_world_s, const cv::Mat& latent_s,
+                                         const CaptureOperator& psi_t, const cv::Mat& observation, double weight,
+                                         const StructureUpdateOptions& options);
 
 // Gauss-Newton/IRLS update of all poses but the first `num_fixed` (>= 1; frame
 // 0 is the gauge) from all pairs, with depth fixed. Returns the applied
