@@ -94,6 +94,26 @@ void AddPosePriorOptions(dsm::ToolCommandLine* command_line, Flags* flags, dsm::
       ->check(dsm::FlagNumber(0.0));
 }
 
+// --blur-pose-evidence and its sampling and weight.
+void AddBlurPoseOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions* options) {
+  dsm::ToolCommandLine& cli = *command_line;
+  cli.add_flag("--blur-pose-evidence,!--no-blur-pose-evidence", options->blur_pose_evidence,
+               "joint: the pose update also fits the blur of each frame (the self-consistency term "
+               "linearised in the poses of its blur path; default off)");
+  cli.add_option("--blur-pose-weight", options->structure.blur_pose_weight,
+                 "with --blur-pose-evidence: its weight relative to lambda_s (self term) or to 1 (pairs)")
+      ->check(dsm::FlagNumber());
+  cli.add_option("--blur-pose-samples", options->structure.blur_pose_samples,
+                 "with --blur-pose-evidence: virtual cameras per frame for its Jacobian")
+      ->check(dsm::FlagInt());
+  cli.add_flag("--blur-pose-from-pairs", options->structure.blur_pose_from_pairs,
+               "with --blur-pose-evidence: the sharp image is the neighbours' latent images warped into t "
+               "(blurred matching pairs), not I_t");
+  cli.add_option("--blur-pose-stride", options->structure.blur_pose_stride,
+                 "with --blur-pose-evidence: every N-th LR pixel and row")
+      ->check(dsm::FlagInt());
+}
+
 // Parses the command line into flags and options; false after --help.
 bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions* options) {
   dsm::ToolCommandLine cli("estimate_sequence", kDescription);
@@ -142,21 +162,7 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
       ->check(dsm::FlagInt());
   cli.add_flag("--joint-pose-pairs,!--no-joint-pose-pairs", options->structure.joint_step_pose_pairs,
                "with --joint-depth-pose-step: match the pairs within the pose radius, not only N(t)");
-  cli.add_flag("--blur-pose-evidence,!--no-blur-pose-evidence", options->blur_pose_evidence,
-               "joint: the pose update also fits the blur of each frame (the self-consistency term "
-               "linearised in the poses of its blur path; default off)");
-  cli.add_option("--blur-pose-weight", options->structure.blur_pose_weight,
-                 "with --blur-pose-evidence: its weight relative to lambda_s")
-      ->check(dsm::FlagNumber());
-  cli.add_option("--blur-pose-samples", options->structure.blur_pose_samples,
-                 "with --blur-pose-evidence: virtual cameras per frame for its Jacobian")
-      ->check(dsm::FlagInt());
-  cli.add_flag("--blur-pose-from-pairs", options->structure.blur_pose_from_pairs,
-               "with --blur-pose-evidence: the sharp image is the neighbours' latent images warped into t "
-               "(blurred matching pairs), not I_t");
-  cli.add_option("--blur-pose-stride", options->structure.blur_pose_stride,
-                 "with --blur-pose-evidence: every N-th LR pixel and row")
-      ->check(dsm::FlagInt());
+  AddBlurPoseOptions(&cli, options);
   cli.add_option("--structure-matching", flags->structure_matching, "both, restored or blurred")
       ->check(CLI::IsMember({"both", "restored", "blurred"}));
   cli.add_option("--exposure", flags->exposure,
