@@ -10,6 +10,8 @@
 
 #include <gtest/gtest.h>
 
+#include "deblur_sr_mvs/core/estimation/image_update.h"
+
 namespace deblur_sr_mvs {
 namespace {
 
@@ -395,6 +397,43 @@ TEST(UpdatePoses, BlurAloneRecoversAPerturbedPose) {
   const double after = (poses[2] * scene.poses[1].Inverse()).Log().norm();
   std::printf("blur alone: pose error %.2e -> %.2e\n", before, after);
   EXPECT_LT(after, 0.2 * before);
+}
+
+// Why the self term does not help the estimator (BENCHMARKS.md "Blur as
+// motion evidence in the pose update"): when I_1 is the image restored from
+// B_1 through the current, perturbed blur (the image update of the self term
+// alone, from the bicubic input), the term holds P_1 where it is; the same
+// rounds with the true sharp image (the test above) remove the error.
+TEST(UpdatePoses, BlurOfAnImageRestoredThroughTheSameBlurHoldsThePose) {
+  const BlurScene scene;
+  CaptureOperatorOptions operator_options;
+  const cv::Mat observation = scene.Predict(scene.poses, 1, operator_options);
+  const Vector6d motion = (scene.poses[1] * scene.poses[0].Inverse()).Log();
+  std::vector<SE3> poses = scene.poses;
+  poses[1] = SE3::Exp(0.3 * (Vector6d() << motion(1), -motion(0), motion(2), -motion(5), motion(3),
+                                   motion(4)).finished()) * poses[1];
+  std::swap(poses[1], poses[2]);
+  const std::vector<cv::Mat> unused(3, cv::Mat::zeros(72, 96, CV_32FC3));
+  StructureUpdateOptions options;
+  options.blur_pose_samples = 16;
+  const double before = (poses[2] * scene.poses[1].Inverse()).Log().norm();
+  cv::Mat latent;
+  cv::resize(observation, latent, scene.latent.size(), 0, 0, cv::INTER_CUBIC);
+  for (int round = 0; round < 4; ++round) {
+    const std::vector<SE3> path = {poses[0], poses[2], poses[1]};
+    const CaptureOperator psi = BuildCaptureOperator(scene.Geometry(path, 1), operator_options);
+    UpdateImage({{&psi, &observation, cv::Mat(), 30.0}}, ImageUpdateOptions(), &latent);
+    cv::Mat predicted;
+    psi.Apply(latent, &predicted);
+    std::vector<BlurPoseTerm> terms = {LinearizeBlurInPoses(scene.Geometry(path, 1), {2, 0, 1}, 50, 2,
+                                                            scene.inverse_depth, latent, observation, predicted,
+                                                            30.0, options)};
+    UpdatePoses(scene.camera, {scene.inverse_depth, scene.inverse_depth, scene.inverse_depth}, unused, {},
+                options, &poses, /*num_fixed=*/2, &terms);
+  }
+  const double after = (poses[2] * scene.poses[1].Inverse()).Log().norm();
+  std::printf("restored through the perturbed blur: pose error %.2e -> %.2e\n", before, after);
+  EXPECT_GT(after, 0.5 * before);
 }
 
 // The blurred pair form: frame 1's sharp image is frame 0's texture warped
