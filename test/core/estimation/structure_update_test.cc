@@ -4,6 +4,8 @@
 
 #include <cmath>
 #include <cstdio>
+#include <functional>
+#include <utility>
 #include <string>
 
 #include <opencv2/imgproc.hpp>
@@ -367,34 +369,47 @@ TEST(BlurPoseJacobian, MatchesNumericDifferencesOfTheOperator) {
   }
 }
 
-// Blur alone fixes a perturbed pose: frame 1's observation is Psi_1 I_1 at
-// the true poses; P_0 and P_2 are held, P_1 starts off by 0.3 of its motion
-// from frame 0 (its blur path changes with it), and the pose update sees no
-// pairs, only frame 1's blur term, relinearised 4 times.
-TEST(UpdatePoses, BlurAloneRecoversAPerturbedPose) {
-  const BlurScene scene;
-  CaptureOperatorOptions operator_options;
-  const cv::Mat observation = scene.Predict(scene.poses, 1, operator_options);
+// The pose error of frame 1 before and after 4 rounds of the pose update
+// on the blur terms that `make_terms` gives at the current poses (in the
+// frames' own order), from P_1 moved by 0.3 of its motion from frame 0 in a
+// direction other than the motion. P_0 and P_2 are held: the pose update
+// holds leading frames, so frame 1 sits at index 2 (frames 0, 2, 1).
+using BlurTermMaker = std::function<std::vector<BlurPoseTerm>(const std::vector<SE3>& T_world_cam)>;
+std::pair<double, double> RecoverPerturbedPose(const BlurScene& scene, const BlurTermMaker& make_terms) {
   const Vector6d motion = (scene.poses[1] * scene.poses[0].Inverse()).Log();
-  std::vector<SE3> poses = scene.poses;
-  poses[1] = SE3::Exp(0.3 * (Vector6d() << motion(1), -motion(0), motion(2), -motion(5), motion(3),
-                                   motion(4)).finished()) * poses[1];
-  std::swap(poses[1], poses[2]);  // held frames first: 0 and 2 (renamed 0 and 1), free: 1 (renamed 2)
+  std::vector<SE3> poses = {scene.poses[0], scene.poses[2], scene.poses[1]};
+  poses[2] = SE3::Exp(0.3 * (Vector6d() << motion(1), -motion(0), motion(2), -motion(5), motion(3),
+                                   motion(4)).finished()) * poses[2];
   const std::vector<cv::Mat> unused(3, cv::Mat::zeros(72, 96, CV_32FC3));
   StructureUpdateOptions options;
-  options.blur_pose_samples = 16;
   const double before = (poses[2] * scene.poses[1].Inverse()).Log().norm();
   for (int round = 0; round < 4; ++round) {
-    std::vector<SE3> path = {poses[0], poses[2], poses[1]};  // original order for the geometry
-    const cv::Mat predicted = scene.Predict(path, 1, operator_options);
-    std::vector<BlurPoseTerm> terms = {LinearizeBlurInPoses(scene.Geometry(path, 1), {2, 0, 1}, 50, 2,
-                                                            scene.inverse_depth, scene.latent, observation,
-                                                            predicted, 30.0, options)};
+    const std::vector<BlurPoseTerm> terms = make_terms({poses[0], poses[2], poses[1]});
     UpdatePoses(scene.camera, {scene.inverse_depth, scene.inverse_depth, scene.inverse_depth}, unused, {},
                 options, &poses, /*num_fixed=*/2, &terms);
-    std::printf("round %d: pose error %.2e\n", round, (poses[2] * scene.poses[1].Inverse()).Log().norm());
   }
-  const double after = (poses[2] * scene.poses[1].Inverse()).Log().norm();
+  return {before, (poses[2] * scene.poses[1].Inverse()).Log().norm()};
+}
+
+StructureUpdateOptions BlurTestOptions() {
+  StructureUpdateOptions options;
+  options.blur_pose_samples = 16;
+  return options;
+}
+
+// Blur alone fixes a perturbed pose: frame 1's observation is Psi_1 I_1 at
+// the true poses, and the pose update sees no pairs, only frame 1's blur
+// term with the true sharp image I_1 (frames 1, 0, 2 are indices 2, 0, 1).
+TEST(UpdatePoses, BlurAloneRecoversAPerturbedPose) {
+  const BlurScene scene;
+  const CaptureOperatorOptions operator_options;
+  const cv::Mat observation = scene.Predict(scene.poses, 1, operator_options);
+  const auto [before, after] = RecoverPerturbedPose(scene, [&](const std::vector<SE3>& path) {
+    const cv::Mat predicted = scene.Predict(path, 1, operator_options);
+    return std::vector<BlurPoseTerm>{LinearizeBlurInPoses(scene.Geometry(path, 1), {2, 0, 1}, 50, 2,
+                                                          scene.inverse_depth, scene.latent, observation,
+                                                          predicted, 30.0, BlurTestOptions())};
+  });
   std::printf("blur alone: pose error %.2e -> %.2e\n", before, after);
   EXPECT_LT(after, 0.2 * before);
 }
@@ -402,72 +417,47 @@ TEST(UpdatePoses, BlurAloneRecoversAPerturbedPose) {
 // Why the self term does not help the estimator (BENCHMARKS.md "Blur as
 // motion evidence in the pose update"): when I_1 is the image restored from
 // B_1 through the current, perturbed blur (the image update of the self term
-// alone, from the bicubic input), the term holds P_1 where it is; the same
-// rounds with the true sharp image (the test above) remove the error.
+// alone, from the bicubic input) before each round, the term holds P_1 where
+// it is; the same rounds with the true sharp image (the test above) remove
+// the error.
 TEST(UpdatePoses, BlurOfAnImageRestoredThroughTheSameBlurHoldsThePose) {
   const BlurScene scene;
-  CaptureOperatorOptions operator_options;
+  const CaptureOperatorOptions operator_options;
   const cv::Mat observation = scene.Predict(scene.poses, 1, operator_options);
-  const Vector6d motion = (scene.poses[1] * scene.poses[0].Inverse()).Log();
-  std::vector<SE3> poses = scene.poses;
-  poses[1] = SE3::Exp(0.3 * (Vector6d() << motion(1), -motion(0), motion(2), -motion(5), motion(3),
-                                   motion(4)).finished()) * poses[1];
-  std::swap(poses[1], poses[2]);
-  const std::vector<cv::Mat> unused(3, cv::Mat::zeros(72, 96, CV_32FC3));
-  StructureUpdateOptions options;
-  options.blur_pose_samples = 16;
-  const double before = (poses[2] * scene.poses[1].Inverse()).Log().norm();
   cv::Mat latent;
   cv::resize(observation, latent, scene.latent.size(), 0, 0, cv::INTER_CUBIC);
-  for (int round = 0; round < 4; ++round) {
-    const std::vector<SE3> path = {poses[0], poses[2], poses[1]};
+  const auto [before, after] = RecoverPerturbedPose(scene, [&](const std::vector<SE3>& path) {
     const CaptureOperator psi = BuildCaptureOperator(scene.Geometry(path, 1), operator_options);
     UpdateImage({{&psi, &observation, cv::Mat(), 30.0}}, ImageUpdateOptions(), &latent);
     cv::Mat predicted;
     psi.Apply(latent, &predicted);
-    std::vector<BlurPoseTerm> terms = {LinearizeBlurInPoses(scene.Geometry(path, 1), {2, 0, 1}, 50, 2,
-                                                            scene.inverse_depth, latent, observation, predicted,
-                                                            30.0, options)};
-    UpdatePoses(scene.camera, {scene.inverse_depth, scene.inverse_depth, scene.inverse_depth}, unused, {},
-                options, &poses, /*num_fixed=*/2, &terms);
-  }
-  const double after = (poses[2] * scene.poses[1].Inverse()).Log().norm();
+    return std::vector<BlurPoseTerm>{LinearizeBlurInPoses(scene.Geometry(path, 1), {2, 0, 1}, 50, 2,
+                                                          scene.inverse_depth, latent, observation, predicted,
+                                                          30.0, BlurTestOptions())};
+  });
   std::printf("restored through the perturbed blur: pose error %.2e -> %.2e\n", before, after);
   EXPECT_GT(after, 0.5 * before);
 }
 
 // The blurred pair form: frame 1's sharp image is frame 0's texture warped
-// into 1 at the true poses, its observation that image through Psi_1; from
-// the perturbed P_1 of the test above, the pair (1 <- 0) alone (its blur path
-// and its warp linearised) brings P_1 back.
+// into 1 at the true poses, its observation that image through Psi_1; the
+// pair (1 <- 0) alone (its blur path and its warp linearised) brings P_1
+// back.
 TEST(UpdatePoses, BlurredPairAloneRecoversAPerturbedPose) {
   const BlurScene scene;
-  CaptureOperatorOptions operator_options;
+  const CaptureOperatorOptions operator_options;
   const cv::Mat& latent_0 = scene.latent;
   const cv::Mat sharp_1 =
       LinearizeWarp(scene.camera, scene.inverse_depth, scene.poses[1], scene.poses[0], latent_0, nullptr).warped;
   cv::Mat observation;
   BuildCaptureOperator(scene.Geometry(scene.poses, 1), operator_options).Apply(sharp_1, &observation);
-  const Vector6d motion = (scene.poses[1] * scene.poses[0].Inverse()).Log();
-  std::vector<SE3> poses = scene.poses;
-  poses[1] = SE3::Exp(0.3 * (Vector6d() << motion(1), -motion(0), motion(2), -motion(5), motion(3),
-                                   motion(4)).finished()) * poses[1];
-  std::swap(poses[1], poses[2]);  // held: frames 0 and 2 (indices 0, 1); free: frame 1 (index 2)
-  const std::vector<cv::Mat> unused(3, cv::Mat::zeros(72, 96, CV_32FC3));
-  StructureUpdateOptions options;
-  options.blur_pose_samples = 16;
-  const double before = (poses[2] * scene.poses[1].Inverse()).Log().norm();
-  for (int round = 0; round < 4; ++round) {
-    const std::vector<SE3> path = {poses[0], poses[2], poses[1]};  // the frames' own order
+  const auto [before, after] = RecoverPerturbedPose(scene, [&](const std::vector<SE3>& path) {
     const CaptureGeometry geometry = scene.Geometry(path, 1);
     const CaptureOperator psi = BuildCaptureOperator(geometry, operator_options);
-    std::vector<BlurPoseTerm> terms = {LinearizeBlurredPairInPoses(geometry, {2, 0, 1}, 0, 50, 2,
-                                                                   scene.inverse_depth, poses[0], latent_0, psi,
-                                                                   observation, 1.0, options)};
-    UpdatePoses(scene.camera, {scene.inverse_depth, scene.inverse_depth, scene.inverse_depth}, unused, {},
-                options, &poses, /*num_fixed=*/2, &terms);
-  }
-  const double after = (poses[2] * scene.poses[1].Inverse()).Log().norm();
+    return std::vector<BlurPoseTerm>{LinearizeBlurredPairInPoses(geometry, {2, 0, 1}, 0, 50, 2,
+                                                                 scene.inverse_depth, path[0], latent_0, psi,
+                                                                 observation, 1.0, BlurTestOptions())};
+  });
   std::printf("blurred pair alone: pose error %.2e -> %.2e\n", before, after);
   EXPECT_LT(after, 0.2 * before);
 }
