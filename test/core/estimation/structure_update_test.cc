@@ -5,9 +5,10 @@
 #include <cmath>
 #include <cstdio>
 #include <functional>
-#include <utility>
 #include <string>
+#include <utility>
 
+#include <Eigen/Eigenvalues>
 #include <opencv2/imgproc.hpp>
 
 #include <gtest/gtest.h>
@@ -460,6 +461,52 @@ TEST(UpdatePoses, BlurredPairAloneRecoversAPerturbedPose) {
   });
   std::printf("blurred pair alone: pose error %.2e -> %.2e\n", before, after);
   EXPECT_LT(after, 0.2 * before);
+}
+
+// What blur cannot add (BENCHMARKS.md "Blur as motion evidence in the pose
+// update", the arc path): on a nearly fronto-parallel plane seen by a camera
+// moving sideways, the least constrained direction of P_1 in frame 1's blur
+// term (J^T J of BlurPoseJacobian's P_1 columns) is the one of the HR pair
+// (1 <- 0) (J^T J of LinearizeWarp's pose Jacobians): a translation traded
+// for a rotation (bas-relief). The blur sees the same motion field as the
+// pair, over a shorter time.
+TEST(BlurPoseJacobian, SharesTheWeakestDirectionOfAnHrPair) {
+  BlurScene scene;
+  for (int y = 0; y < 72; ++y) {
+    for (int x = 0; x < 96; ++x) {
+      scene.inverse_depth.at<float>(y, x) = 0.5f + 0.0002f * x;
+      scene.depth.at<float>(y, x) = 1.0f / scene.inverse_depth.at<float>(y, x);
+    }
+  }
+  const std::vector<SE3> poses = {SE3(), SE3::Exp((Vector6d() << 0.05, 0, 0, 0, 0, 0).finished()),
+                                  SE3::Exp((Vector6d() << 0.1, 0, 0, 0, 0, 0).finished())};
+  const cv::Mat blur = BlurPoseJacobian(scene.Geometry(poses, 1), 50, 2, scene.inverse_depth, scene.latent, 16, 1);
+  std::vector<cv::Mat> pair;
+  LinearizeWarp(scene.camera, scene.inverse_depth, poses[1], poses[0], scene.latent, &pair);
+  Matrix6d blur_normal = Matrix6d::Zero(), pair_normal = Matrix6d::Zero();
+  for (int y = 0; y < blur.rows; ++y) {
+    for (int x = 0; x < blur.cols * 3; ++x) {
+      const Vector6d a = Eigen::Map<const Eigen::Matrix<float, 6, 1>>(blur.ptr<float>(y) + x * 18).cast<double>();
+      blur_normal += a * a.transpose();
+    }
+  }
+  for (int y = 0; y < 72; ++y) {
+    for (int x = 0; x < 96; ++x) {
+      for (int c = 0; c < 3; ++c) {
+        Vector6d a;
+        for (int j = 0; j < 6; ++j) a(j) = pair[j].at<cv::Vec3f>(y, x)[c];
+        pair_normal += a * a.transpose();
+      }
+    }
+  }
+  const Eigen::SelfAdjointEigenSolver<Matrix6d> blur_eigen(blur_normal), pair_eigen(pair_normal);
+  const double cosine = std::abs(blur_eigen.eigenvectors().col(0).dot(pair_eigen.eigenvectors().col(0)));
+  std::printf("weakest direction: blur %s (eigenvalue ratio %.2e), pair %s (%.2e), |cos| %.4f\n",
+              Format(blur_eigen.eigenvectors().col(0)).c_str(),
+              blur_eigen.eigenvalues()(0) / blur_eigen.eigenvalues()(5),
+              Format(pair_eigen.eigenvectors().col(0)).c_str(),
+              pair_eigen.eigenvalues()(0) / pair_eigen.eigenvalues()(5), cosine);
+  EXPECT_GT(cosine, 0.95);
 }
 
 }  // namespace
