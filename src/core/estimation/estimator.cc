@@ -881,8 +881,9 @@ void WindowSolver::UpdateAllPoses(int iteration, bool isolated, const std::vecto
 }
 
 // Blur as motion evidence (EstimatorOptions::blur_pose_evidence): every
-// frame's self-consistency term linearised in the poses of its blur path,
-// at the current structure and latent images.
+// frame's self-consistency term (or, with blur_pose_from_pairs, its blurred
+// matching pairs with N(t)) linearised in the poses of its blur path, at the
+// current structure and latent images.
 std::vector<BlurPoseTerm> WindowSolver::BlurPoseTerms(const StructureUpdateOptions& structure_options) {
   const double begin = NowMs();
   const bool from_pairs = structure_options.blur_pose_from_pairs;

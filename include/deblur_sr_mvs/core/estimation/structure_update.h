@@ -202,7 +202,8 @@ BlurPoseTerm LinearizeBlurInPoses(const CaptureGeometry& geometry, const std::ve
 // in the poses of Psi_t's blur path (BlurPoseJacobian of the warped image)
 // and of the warp (LinearizeWarp's pose Jacobians mapped by Psi_t, for P_t
 // and P_s): the blur evidence from a sharp image that was not fitted to
-// B_t. `psi_t` is Psi_t sampling frame t (the geometry's operator);
+// B_t. The mask is the warp's validity only (no occlusion set Omega_ts).
+// `psi_t` is Psi_t sampling frame t (the geometry's operator);
 // `frames` as in LinearizeBlurInPoses, the term's frames are them and s.
 BlurPoseTerm LinearizeBlurredPairInPoses(const CaptureGeometry& geometry, const std::vector<int>& frames,
                                          int s, int samples, int scale, const cv::Mat& inverse_depth,
