@@ -6,12 +6,14 @@
 #include <cmath>
 #include <cstring>
 #include <sstream>
+#include <type_traits>
 
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/common/runtime.h"
 #include "deblur_sr_mvs/core/geometry/warp.h"
 #include "deblur_sr_mvs/core/imaging/normal_product.h"
+#include "deblur_sr_mvs/core/imaging/rgb_run_kernels.h"
 
 namespace deblur_sr_mvs {
 namespace {
@@ -40,6 +42,17 @@ void MultiplyFixed(const Rows& a, int rows, const float* x, float* y, int thread
     });
     float* py = y + static_cast<std::ptrdiff_t>(r) * kChannels;
     for (int c = 0; c < kChannels; ++c) py[c] = acc[c];
+  }
+}
+
+// MultiplyFixed<3> over row runs with one 4-lane vector per pixel
+// (rgb_run_kernels.h): the same values, bit for bit.
+void MultiplyRgbRuns(const RunRowSpans& a, int rows, int cols, const float* x, float* y, int threads) {
+#pragma omp parallel for schedule(static) num_threads(threads)
+  for (int r = 0; r < rows; ++r) {
+    const rgb_runs::Float4 sum = rgb_runs::GatherRow(a, r, x, cols);
+    float* py = y + static_cast<std::ptrdiff_t>(r) * 3;
+    for (int c = 0; c < 3; ++c) py[c] = sum[c];
   }
 }
 
@@ -106,7 +119,11 @@ void MultiplyAnyChannels(const Matrix& a, const float* x, float* y, int channels
       MultiplyFixed<2>(rows, n, x, y, threads);
       return;
     case 3:
-      MultiplyFixed<3>(rows, n, x, y, threads);
+      if constexpr (std::is_same_v<Matrix, RowRunMatrix>) {
+        MultiplyRgbRuns(rows, n, static_cast<int>(a.cols()), x, y, threads);
+      } else {
+        MultiplyFixed<3>(rows, n, x, y, threads);
+      }
       return;
     case 4:
       MultiplyFixed<4>(rows, n, x, y, threads);
@@ -224,7 +241,10 @@ void CaptureOperator::Apply(const cv::Mat& hr, cv::Mat* lr) const {
   Multiply(forward_, hr_size_, lr_size_, hr, lr, num_threads_, "Apply");
 }
 
-void MultiplySparse(const SparseMatrixRM& a, const cv::Mat& in, cv::Mat* out, int threads) {
+namespace {
+
+template <typename Matrix>
+void MultiplyMatrix(const Matrix& a, const cv::Mat& in, cv::Mat* out, int threads) {
   if (in.depth() != CV_32F || in.rows * in.cols != a.cols()) {
     throw InputError("MultiplySparse: input must be a float image with one pixel per column");
   }
@@ -232,6 +252,16 @@ void MultiplySparse(const SparseMatrixRM& a, const cv::Mat& in, cv::Mat* out, in
   const cv::Mat source = in.isContinuous() ? in : in.clone();
   out->create(static_cast<int>(a.rows()), 1, CV_32FC(channels));
   MultiplyAnyChannels(a, source.ptr<float>(), out->ptr<float>(), channels, ResolveThreads(threads));
+}
+
+}  // namespace
+
+void MultiplySparse(const SparseMatrixRM& a, const cv::Mat& in, cv::Mat* out, int threads) {
+  MultiplyMatrix(a, in, out, threads);
+}
+
+void MultiplySparse(const RowRunMatrix& a, const cv::Mat& in, cv::Mat* out, int threads) {
+  MultiplyMatrix(a, in, out, threads);
 }
 
 void CaptureOperator::ApplyAdjoint(const cv::Mat& lr, cv::Mat* hr) const {

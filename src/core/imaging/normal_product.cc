@@ -6,10 +6,12 @@
 #include <array>
 #include <cstddef>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/common/runtime.h"
+#include "deblur_sr_mvs/core/imaging/rgb_run_kernels.h"
 
 namespace deblur_sr_mvs {
 namespace {
@@ -70,6 +72,38 @@ void NormalDiagonalRows(const Rows& a, const float* __restrict weight, int first
     });
   }
 }
+
+// The three row kernels for 3-channel images over row runs, with one 4-lane
+// vector per pixel (rgb_run_kernels.h): the same values, bit for bit, as
+// the kernels above.
+void NormalProductRowsRgb(const RunRowSpans& a, int cols, const float* __restrict weight,
+                          const float* __restrict x, int first, int last, float* __restrict out) {
+  for (int r = first; r < last; ++r) {
+    const float* w = weight + static_cast<std::ptrdiff_t>(r) * 3;
+    if (w[0] == 0.0f && w[1] == 0.0f && w[2] == 0.0f) continue;
+    const rgb_runs::Float4 sum = rgb_runs::GatherRow(a, r, x, cols);
+    rgb_runs::ScatterRow(a, r, sum * rgb_runs::Float4{w[0], w[1], w[2], 0.0f}, out);
+  }
+}
+
+void AdjointRowsRgb(const RunRowSpans& a, const float* __restrict y, int first, int last, float* __restrict out) {
+  for (int r = first; r < last; ++r) {
+    const float* py = y + static_cast<std::ptrdiff_t>(r) * 3;
+    rgb_runs::ScatterRow(a, r, rgb_runs::Float4{py[0], py[1], py[2], 0.0f}, out);
+  }
+}
+
+void NormalDiagonalRowsRgb(const RunRowSpans& a, const float* __restrict weight, int first, int last,
+                           float* __restrict out) {
+  for (int r = first; r < last; ++r) {
+    const float* w = weight + static_cast<std::ptrdiff_t>(r) * 3;
+    rgb_runs::ScatterRow</*kSquare=*/true>(a, r, rgb_runs::Float4{w[0], w[1], w[2], 0.0f}, out);
+  }
+}
+
+// Whether a pass over `Matrix` with kChannels channels takes the kernels above.
+template <int kChannels, typename Matrix>
+constexpr bool kRgbRuns = kChannels == 3 && std::is_same_v<Matrix, RowRunMatrix>;
 
 // Per-thread latent accumulators of ScatterRowBlocks, kept between calls
 // (the OpenMP threads persist): a call zeroes them but allocates only when
@@ -148,7 +182,11 @@ struct NormalProductPass {
     const auto rows = RowSpansOf(a);
     ScatterRowBlocks(static_cast<int>(a.rows()), static_cast<size_t>(a.cols()) * kChannels, threads, out,
                      [&](int first, int last, float* target) {
-                       NormalProductRows<kChannels>(rows, weight, x, first, last, target);
+                       if constexpr (kRgbRuns<kChannels, Matrix>) {
+                         NormalProductRowsRgb(rows, static_cast<int>(a.cols()), weight, x, first, last, target);
+                       } else {
+                         NormalProductRows<kChannels>(rows, weight, x, first, last, target);
+                       }
                      });
   }
 };
@@ -160,7 +198,13 @@ struct AdjointPass {
     const auto rows = RowSpansOf(a);
     ScatterRowBlocks(
         static_cast<int>(a.rows()), static_cast<size_t>(a.cols()) * kChannels, threads, out,
-        [&](int first, int last, float* target) { AdjointRows<kChannels>(rows, y, first, last, target); });
+        [&](int first, int last, float* target) {
+          if constexpr (kRgbRuns<kChannels, Matrix>) {
+            AdjointRowsRgb(rows, y, first, last, target);
+          } else {
+            AdjointRows<kChannels>(rows, y, first, last, target);
+          }
+        });
   }
 };
 
@@ -171,7 +215,11 @@ struct NormalDiagonalPass {
     const auto rows = RowSpansOf(a);
     ScatterRowBlocks(static_cast<int>(a.rows()), static_cast<size_t>(a.cols()) * kChannels, threads, out,
                      [&](int first, int last, float* target) {
-                       NormalDiagonalRows<kChannels>(rows, weight, first, last, target);
+                       if constexpr (kRgbRuns<kChannels, Matrix>) {
+                         NormalDiagonalRowsRgb(rows, weight, first, last, target);
+                       } else {
+                         NormalDiagonalRows<kChannels>(rows, weight, first, last, target);
+                       }
                      });
   }
 };
