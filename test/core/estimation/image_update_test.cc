@@ -267,6 +267,71 @@ TEST_P(LaplacianGaussSeidel, IsTheSymmetricGaussSeidelInverseOfTheDenseSystem) {
     EXPECT_NEAR(z.ptr<float>()[i], expected[i], 1e-4 * expected.cwiseAbs().maxCoeff());
 }
 
+// The symmetric Gauss-Seidel sweeps in plain raster order (the form before
+// the wavefront), with the inverse diagonal as ApplyLaplacianGaussSeidel
+// forms it.
+cv::Mat RasterGaussSeidel(const cv::Mat& diagonal, const cv::Mat& v, double scale, const cv::Mat& r) {
+  const int channels = r.channels(), width = r.cols, height = r.rows, stride = width * channels;
+  const float s = static_cast<float>(scale);
+  cv::Mat inverse(diagonal.size(), diagonal.type());
+  for (size_t i = 0; i < diagonal.total() * channels; ++i) {
+    const float d = diagonal.ptr<float>()[i];
+    inverse.ptr<float>()[i] = d > 0.0f ? 1.0f / d : 1.0f;
+  }
+  const float* pinv = inverse.ptr<float>();
+  const float* pv = v.ptr<float>();
+  const float* pr = r.ptr<float>();
+  cv::Mat z(r.size(), r.type());
+  float* pz = z.ptr<float>();
+  for (int y = 0; y < height; ++y) {
+    for (int x = 0; x < width; ++x) {
+      for (int c = 0; c < channels; ++c) {
+        const long i = static_cast<long>(y) * stride + x * channels + c;
+        float acc = pr[i];
+        if (x > 0) acc += s * pv[i - channels] * pz[i - channels];
+        if (y > 0) acc += s * pv[i - stride] * pz[i - stride];
+        pz[i] = acc * pinv[i];
+      }
+    }
+  }
+  for (int y = height - 1; y >= 0; --y) {
+    for (int x = width - 1; x >= 0; --x) {
+      for (int c = channels - 1; c >= 0; --c) {
+        const long i = static_cast<long>(y) * stride + x * channels + c;
+        float acc = 0.0f;
+        if (x + 1 < width) acc += pz[i + channels];
+        if (y + 1 < height) acc += pz[i + stride];
+        pz[i] += s * pv[i] * acc * pinv[i];
+      }
+    }
+  }
+  return z;
+}
+
+// The wavefront sweeps (blocks of rows as interleaved chains) give the
+// raster sweeps' values bit for bit, at sizes that are and are not multiples
+// of the block, down to one row or one column.
+TEST(LaplacianGaussSeidel, WavefrontEqualsRasterSweeps) {
+  std::mt19937 rng(29);
+  for (const cv::Size size : {cv::Size(1, 1), cv::Size(1, 7), cv::Size(9, 1), cv::Size(2, 3), cv::Size(13, 8),
+                              cv::Size(17, 11), cv::Size(40, 23)}) {
+    for (int channels = 1; channels <= 4; ++channels) {
+      const int n = size.area();
+      const cv::Mat v = RandomValues(n, channels, 0.1f, 20.0f, &rng).reshape(channels, size.height);
+      cv::Mat diagonal = RandomValues(n, channels, 0.0f, 2.0f, &rng).reshape(channels, size.height);
+      AddWeightedLaplacianDiagonal(v, 0.45, &diagonal);
+      diagonal.ptr<float>()[0] = 0.0f;  // a value without a diagonal (inverse 1)
+      const cv::Mat r = RandomValues(n, channels, -1.0f, 1.0f, &rng).reshape(channels, size.height);
+      cv::Mat z;
+      ApplyLaplacianGaussSeidel(diagonal, v, 0.45, r, &z);
+      const cv::Mat expected = RasterGaussSeidel(diagonal, v, 0.45, r);
+      ASSERT_EQ(std::memcmp(z.data, expected.data, z.total() * z.elemSize()), 0)
+          << size << " channels " << channels;
+      EXPECT_GT(cv::norm(z, cv::NORM_INF), 0.0);
+    }
+  }
+}
+
 // On a TV-dominated system (large TV weights on a flat image, a weak data
 // term), CG with the Gauss-Seidel preconditioner reaches the same solution
 // as Jacobi-CG, in fewer steps.
