@@ -44,14 +44,34 @@ std::pair<double, double> SquaredNormAndDot(const cv::Mat& a, const cv::Mat& b, 
   return {aa, ab};
 }
 
-// y += alpha * x
-void Axpy(double alpha, const cv::Mat& x, cv::Mat* y, int threads) {
-  const float* px = x.ptr<float>();
-  float* py = y->ptr<float>();
-  const long n = static_cast<long>(NumValues(x));
-  const float a = static_cast<float>(alpha);
+// x += alpha * d and r -= alpha * q in one pass (each value as Axpy forms it).
+void StepSolutionAndResidual(double alpha, const cv::Mat& d, const cv::Mat& q, cv::Mat* x, cv::Mat* r,
+                             int threads) {
+  const float* __restrict pd = d.ptr<float>();
+  const float* __restrict pq = q.ptr<float>();
+  float* __restrict px = x->ptr<float>();
+  float* __restrict pr = r->ptr<float>();
+  const long n = static_cast<long>(NumValues(d));
+  const float a = static_cast<float>(alpha), minus_a = static_cast<float>(-alpha);
 #pragma omp parallel for num_threads(threads) schedule(static)
-  for (long i = 0; i < n; ++i) py[i] += a * px[i];
+  for (long i = 0; i < n; ++i) {
+    px[i] += a * pd[i];
+    pr[i] += minus_a * pq[i];
+  }
+}
+
+// d = z + beta d in one pass, each value as `d *= beta` (OpenCV: d * (float)
+// beta + 0) followed by Axpy(1, z, d) formed it.
+void NextDirection(double beta, const cv::Mat& z, cv::Mat* d, int threads) {
+  const float* __restrict pz = z.ptr<float>();
+  float* __restrict pd = d->ptr<float>();
+  const long n = static_cast<long>(NumValues(z));
+  const float b = static_cast<float>(beta), one = 1.0f;
+#pragma omp parallel for num_threads(threads) schedule(static)
+  for (long i = 0; i < n; ++i) {
+    const float scaled = pd[i] * b + 0.0f;
+    pd[i] = scaled + one * pz[i];
+  }
 }
 
 // Per-channel TV weights v = 1 / max(|grad I|, eps) on the HR grid.
@@ -337,16 +357,13 @@ int SolvePcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_normal,
     const double dnd = Dot(direction, normal_direction, threads);
     if (!(dnd > 0.0) || !(rz > 0.0)) break;
     const double alpha = rz / dnd;
-    Axpy(alpha, direction, x, threads);
-    Axpy(-alpha, normal_direction, &residual, threads);
+    StepSolutionAndResidual(alpha, direction, normal_direction, x, &residual, threads);
     apply_preconditioner(residual, &preconditioned);
     double rz_next = 0.0;
     std::tie(rr, rz_next) = SquaredNormAndDot(residual, preconditioned, threads);
     const double beta = rz_next / rz;
     rz = rz_next;
-    // d = z + beta d
-    direction *= beta;
-    Axpy(1.0, preconditioned, &direction, threads);
+    NextDirection(beta, preconditioned, &direction, threads);
   }
   return steps;
 }

@@ -166,6 +166,64 @@ TEST(JacobiPcg, StopsAtTheRelativeResidualOrTheCap) {
   EXPECT_LT(loose_steps, SolveSmall(system, jacobi, 2000, 1e-5).second);
 }
 
+// PCG as SolvePcg took its steps before its vector updates were fused:
+// x += alpha d and r -= alpha N d as two Axpy passes, d = z + beta d as
+// OpenCV's d *= beta then an Axpy; sums in double, in order.
+int UnfusedPcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply, const cv::Mat& inverse_diagonal,
+               cv::Mat residual, int max_steps, cv::Mat* x) {
+  const auto dot = [](const cv::Mat& a, const cv::Mat& b) {
+    double sum = 0.0;
+    for (size_t i = 0; i < a.total(); ++i) sum += static_cast<double>(a.ptr<float>()[i]) * b.ptr<float>()[i];
+    return sum;
+  };
+  const auto axpy = [](double alpha, const cv::Mat& in, cv::Mat* out) {
+    const float a = static_cast<float>(alpha);
+    for (size_t i = 0; i < in.total(); ++i) out->ptr<float>()[i] += a * in.ptr<float>()[i];
+  };
+  cv::Mat z, normal_direction;
+  cv::multiply(residual, inverse_diagonal, z);
+  cv::Mat direction = z.clone();
+  double rz = dot(residual, z);
+  int steps = 0;
+  for (; steps < max_steps; ++steps) {
+    apply(direction, &normal_direction);
+    const double alpha = rz / dot(direction, normal_direction);
+    axpy(alpha, direction, x);
+    axpy(-alpha, normal_direction, &residual);
+    cv::multiply(residual, inverse_diagonal, z);
+    const double rz_next = dot(residual, z);
+    const double beta = rz_next / rz;
+    rz = rz_next;
+    direction *= beta;
+    axpy(1.0, z, &direction);
+  }
+  return steps;
+}
+
+// SolvePcg's fused vector updates (one pass for x and r, one for d) give
+// the unfused steps' iterates bit for bit.
+TEST(JacobiPcg, FusedVectorUpdatesEqualTheUnfusedStepsBitForBit) {
+  const int n = 40;
+  const SmallSystem system = BadlyScaledSystem(n);
+  const Eigen::MatrixXf normal = system.normal.cast<float>();
+  const auto apply = [&normal, n](const cv::Mat& x, cv::Mat* out) {
+    out->create(n, 1, CV_32FC1);
+    Eigen::Map<const Eigen::VectorXf> in(x.ptr<float>(), n);
+    Eigen::Map<Eigen::VectorXf>(out->ptr<float>(), n) = normal * in;
+  };
+  cv::Mat inverse_diagonal(n, 1, CV_32FC1), residual(n, 1, CV_32FC1);
+  for (int i = 0; i < n; ++i) {
+    inverse_diagonal.at<float>(i) = static_cast<float>(1.0 / static_cast<float>(system.normal(i, i)));
+    residual.at<float>(i) = static_cast<float>(system.rhs[i]);
+  }
+  const auto jacobi = [&inverse_diagonal](const cv::Mat& r, cv::Mat* z) { cv::multiply(r, inverse_diagonal, *z); };
+  cv::Mat fused = cv::Mat::zeros(n, 1, CV_32FC1), unfused = cv::Mat::zeros(n, 1, CV_32FC1);
+  ASSERT_EQ(SolvePcg(apply, jacobi, residual.clone(), 12, 0.0, 1, &fused), 12);
+  ASSERT_EQ(UnfusedPcg(apply, inverse_diagonal, residual.clone(), 12, &unfused), 12);
+  EXPECT_EQ(std::memcmp(fused.data, unfused.data, n * sizeof(float)), 0);
+  EXPECT_GT(cv::norm(fused, cv::NORM_INF), 0.0);
+}
+
 // The dense matrix of x -> diag(data) x + scale * D^T diag(v) D x on a
 // rows x cols image with `channels` interleaved channels.
 Eigen::MatrixXd DenseTvSystem(const cv::Mat& data_diagonal, const cv::Mat& v, double scale) {
