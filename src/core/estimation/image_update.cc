@@ -472,8 +472,10 @@ void SymmetricGaussSeidelSweeps(const SweepImages& m) {
 void ApplyLaplacianGaussSeidelInverse(const cv::Mat& inverse_diagonal, const cv::Mat& v, double scale,
                                       const cv::Mat& r, cv::Mat* z) {
   z->create(r.size(), r.type());
-  const SweepImages m{inverse_diagonal.ptr<float>(), v.ptr<float>(), r.ptr<float>(), z->ptr<float>(),
-                      static_cast<float>(scale), r.cols, r.rows};
+  SweepImages m{inverse_diagonal.ptr<float>(), v.ptr<float>(), r.ptr<float>(), z->ptr<float>(), 0.0f, 0, 0};
+  m.s = static_cast<float>(scale);
+  m.width = r.cols;
+  m.height = r.rows;
   switch (r.channels()) {
     case 1:
       return SymmetricGaussSeidelSweeps<1>(m);

@@ -503,7 +503,8 @@ void MergeTapsInGrid(const AssemblyContext& context, const TapBox& box, PixelScr
     const float wy1 = scratch->frac_y[k] * sample_weight;
     const float wy0 = sample_weight - wy1;
     const float fx = scratch->frac_x[k];
-    float* cell = c + 4 * ((scratch->tap_y[k] - box.min_y + 1) * stride + (scratch->tap_x[k] - box.min_x + 1));
+    float* cell =
+        c + 4 * ((scratch->tap_y[k] - box.min_y + 1) * stride + (scratch->tap_x[k] - box.min_x + 1));
     cell[0] += (1.0f - fx) * wy0;
     cell[1] += fx * wy0;
     cell[2] += (1.0f - fx) * wy1;

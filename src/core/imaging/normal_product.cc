@@ -86,7 +86,8 @@ void NormalProductRowsRgb(const RunRowSpans& a, int cols, const float* __restric
   }
 }
 
-void AdjointRowsRgb(const RunRowSpans& a, const float* __restrict y, int first, int last, float* __restrict out) {
+void AdjointRowsRgb(const RunRowSpans& a, const float* __restrict y, int first, int last,
+                    float* __restrict out) {
   for (int r = first; r < last; ++r) {
     const float* py = y + static_cast<std::ptrdiff_t>(r) * 3;
     rgb_runs::ScatterRow(a, r, rgb_runs::Float4{py[0], py[1], py[2], 0.0f}, out);
@@ -183,7 +184,8 @@ struct NormalProductPass {
     ScatterRowBlocks(static_cast<int>(a.rows()), static_cast<size_t>(a.cols()) * kChannels, threads, out,
                      [&](int first, int last, float* target) {
                        if constexpr (kRgbRuns<kChannels, Matrix>) {
-                         NormalProductRowsRgb(rows, static_cast<int>(a.cols()), weight, x, first, last, target);
+                         NormalProductRowsRgb(rows, static_cast<int>(a.cols()), weight, x, first, last,
+                                              target);
                        } else {
                          NormalProductRows<kChannels>(rows, weight, x, first, last, target);
                        }
@@ -196,15 +198,14 @@ struct AdjointPass {
   template <typename Matrix>
   static void Run(const Matrix& a, const float* y, float* out, int threads) {
     const auto rows = RowSpansOf(a);
-    ScatterRowBlocks(
-        static_cast<int>(a.rows()), static_cast<size_t>(a.cols()) * kChannels, threads, out,
-        [&](int first, int last, float* target) {
-          if constexpr (kRgbRuns<kChannels, Matrix>) {
-            AdjointRowsRgb(rows, y, first, last, target);
-          } else {
-            AdjointRows<kChannels>(rows, y, first, last, target);
-          }
-        });
+    ScatterRowBlocks(static_cast<int>(a.rows()), static_cast<size_t>(a.cols()) * kChannels, threads, out,
+                     [&](int first, int last, float* target) {
+                       if constexpr (kRgbRuns<kChannels, Matrix>) {
+                         AdjointRowsRgb(rows, y, first, last, target);
+                       } else {
+                         AdjointRows<kChannels>(rows, y, first, last, target);
+                       }
+                     });
   }
 };
 

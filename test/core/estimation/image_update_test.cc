@@ -216,7 +216,9 @@ TEST(JacobiPcg, FusedVectorUpdatesEqualTheUnfusedStepsBitForBit) {
     inverse_diagonal.at<float>(i) = static_cast<float>(1.0 / static_cast<float>(system.normal(i, i)));
     residual.at<float>(i) = static_cast<float>(system.rhs[i]);
   }
-  const auto jacobi = [&inverse_diagonal](const cv::Mat& r, cv::Mat* z) { cv::multiply(r, inverse_diagonal, *z); };
+  const auto jacobi = [&inverse_diagonal](const cv::Mat& r, cv::Mat* z) {
+    cv::multiply(r, inverse_diagonal, *z);
+  };
   cv::Mat fused = cv::Mat::zeros(n, 1, CV_32FC1), unfused = cv::Mat::zeros(n, 1, CV_32FC1);
   ASSERT_EQ(SolvePcg(apply, jacobi, residual.clone(), 12, 0.0, 1, &fused), 12);
   ASSERT_EQ(UnfusedPcg(apply, inverse_diagonal, residual.clone(), 12, &unfused), 12);

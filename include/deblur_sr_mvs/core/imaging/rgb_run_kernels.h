@@ -41,8 +41,8 @@ inline Float4 LoadPixel(const float* p) {
 // image of `cols` pixels; each lane's sum in tap order. The full 4-value
 // load reads the next pixel's first channel into the unused lane, except at
 // the image's last pixel.
-inline Float4 GatherRun(const float* __restrict v, const float* __restrict x, int column, int length, int cols,
-                        Float4 sum) {
+inline Float4 GatherRun(const float* __restrict v, const float* __restrict x, int column, int length,
+                        int cols, Float4 sum) {
   const float* __restrict px = x + static_cast<std::ptrdiff_t>(column) * 3;
   const int safe = column + length == cols ? length - 1 : length;
   int i = 0;
