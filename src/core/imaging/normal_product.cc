@@ -16,66 +16,9 @@
 namespace deblur_sr_mvs {
 namespace {
 
-// The three row kernels over rows [first, last) of A, scattering into `out`
-// (interleaved kChannels values per column). The output never aliases the
-// operator or the inputs (__restrict): the scatter then need not reload the
-// taps after each store.
-template <int kChannels, typename Rows>
-void NormalProductRows(const Rows& a, const float* __restrict weight, const float* __restrict x, int first,
-                       int last, float* __restrict out) {
-  for (int r = first; r < last; ++r) {
-    const float* w = weight + static_cast<std::ptrdiff_t>(r) * kChannels;
-    bool used = false;
-    for (int c = 0; c < kChannels; ++c) used = used || w[c] != 0.0f;
-    if (!used) continue;
-    float acc[kChannels] = {};
-    a.ForEachSpan(r, [&](const float* __restrict v, int column, int length) {
-      const float* __restrict px = x + static_cast<std::ptrdiff_t>(column) * kChannels;
-      for (int i = 0; i < length; ++i) {
-        for (int c = 0; c < kChannels; ++c) acc[c] += v[i] * px[i * kChannels + c];
-      }
-    });
-    for (int c = 0; c < kChannels; ++c) acc[c] *= w[c];
-    a.ForEachSpan(r, [&](const float* __restrict v, int column, int length) {
-      float* __restrict po = out + static_cast<std::ptrdiff_t>(column) * kChannels;
-      for (int i = 0; i < length; ++i) {
-        for (int c = 0; c < kChannels; ++c) po[i * kChannels + c] += v[i] * acc[c];
-      }
-    });
-  }
-}
-
-template <int kChannels, typename Rows>
-void AdjointRows(const Rows& a, const float* __restrict y, int first, int last, float* __restrict out) {
-  for (int r = first; r < last; ++r) {
-    const float* py = y + static_cast<std::ptrdiff_t>(r) * kChannels;
-    a.ForEachSpan(r, [&](const float* __restrict v, int column, int length) {
-      float* __restrict po = out + static_cast<std::ptrdiff_t>(column) * kChannels;
-      for (int i = 0; i < length; ++i) {
-        for (int c = 0; c < kChannels; ++c) po[i * kChannels + c] += v[i] * py[c];
-      }
-    });
-  }
-}
-
-template <int kChannels, typename Rows>
-void NormalDiagonalRows(const Rows& a, const float* __restrict weight, int first, int last,
-                        float* __restrict out) {
-  for (int r = first; r < last; ++r) {
-    const float* w = weight + static_cast<std::ptrdiff_t>(r) * kChannels;
-    a.ForEachSpan(r, [&](const float* __restrict v, int column, int length) {
-      float* __restrict po = out + static_cast<std::ptrdiff_t>(column) * kChannels;
-      for (int i = 0; i < length; ++i) {
-        const float squared = v[i] * v[i];
-        for (int c = 0; c < kChannels; ++c) po[i * kChannels + c] += squared * w[c];
-      }
-    });
-  }
-}
-
 // The three row kernels for 3-channel images over row runs, with one 4-lane
 // vector per pixel (rgb_run_kernels.h): the same values, bit for bit, as
-// the kernels above.
+// the scalar kernels below, which call them for such images.
 void NormalProductRowsRgb(const RunRowSpans& a, int cols, const float* __restrict weight,
                           const float* __restrict x, int first, int last, float* __restrict out) {
   for (int r = first; r < last; ++r) {
@@ -102,9 +45,69 @@ void NormalDiagonalRowsRgb(const RunRowSpans& a, const float* __restrict weight,
   }
 }
 
-// Whether a pass over `Matrix` with kChannels channels takes the kernels above.
-template <int kChannels, typename Matrix>
-constexpr bool kRgbRuns = kChannels == 3 && std::is_same_v<Matrix, RowRunMatrix>;
+// Whether a kernel over `Rows` with kChannels channels takes the ones above.
+template <int kChannels, typename Rows>
+constexpr bool kRgbRuns = kChannels == 3 && std::is_same_v<Rows, RunRowSpans>;
+
+// The three row kernels over rows [first, last) of A, scattering into `out`
+// (interleaved kChannels values per column). The output never aliases the
+// operator or the inputs (__restrict): the scatter then need not reload the
+// taps after each store.
+template <int kChannels, typename Rows>
+void NormalProductRows(const Rows& a, int cols, const float* __restrict weight, const float* __restrict x,
+                       int first, int last, float* __restrict out) {
+  if constexpr (kRgbRuns<kChannels, Rows>) return NormalProductRowsRgb(a, cols, weight, x, first, last, out);
+  for (int r = first; r < last; ++r) {
+    const float* w = weight + static_cast<std::ptrdiff_t>(r) * kChannels;
+    bool used = false;
+    for (int c = 0; c < kChannels; ++c) used = used || w[c] != 0.0f;
+    if (!used) continue;
+    float acc[kChannels] = {};
+    a.ForEachSpan(r, [&](const float* __restrict v, int column, int length) {
+      const float* __restrict px = x + static_cast<std::ptrdiff_t>(column) * kChannels;
+      for (int i = 0; i < length; ++i) {
+        for (int c = 0; c < kChannels; ++c) acc[c] += v[i] * px[i * kChannels + c];
+      }
+    });
+    for (int c = 0; c < kChannels; ++c) acc[c] *= w[c];
+    a.ForEachSpan(r, [&](const float* __restrict v, int column, int length) {
+      float* __restrict po = out + static_cast<std::ptrdiff_t>(column) * kChannels;
+      for (int i = 0; i < length; ++i) {
+        for (int c = 0; c < kChannels; ++c) po[i * kChannels + c] += v[i] * acc[c];
+      }
+    });
+  }
+}
+
+template <int kChannels, typename Rows>
+void AdjointRows(const Rows& a, const float* __restrict y, int first, int last, float* __restrict out) {
+  if constexpr (kRgbRuns<kChannels, Rows>) return AdjointRowsRgb(a, y, first, last, out);
+  for (int r = first; r < last; ++r) {
+    const float* py = y + static_cast<std::ptrdiff_t>(r) * kChannels;
+    a.ForEachSpan(r, [&](const float* __restrict v, int column, int length) {
+      float* __restrict po = out + static_cast<std::ptrdiff_t>(column) * kChannels;
+      for (int i = 0; i < length; ++i) {
+        for (int c = 0; c < kChannels; ++c) po[i * kChannels + c] += v[i] * py[c];
+      }
+    });
+  }
+}
+
+template <int kChannels, typename Rows>
+void NormalDiagonalRows(const Rows& a, const float* __restrict weight, int first, int last,
+                        float* __restrict out) {
+  if constexpr (kRgbRuns<kChannels, Rows>) return NormalDiagonalRowsRgb(a, weight, first, last, out);
+  for (int r = first; r < last; ++r) {
+    const float* w = weight + static_cast<std::ptrdiff_t>(r) * kChannels;
+    a.ForEachSpan(r, [&](const float* __restrict v, int column, int length) {
+      float* __restrict po = out + static_cast<std::ptrdiff_t>(column) * kChannels;
+      for (int i = 0; i < length; ++i) {
+        const float squared = v[i] * v[i];
+        for (int c = 0; c < kChannels; ++c) po[i * kChannels + c] += squared * w[c];
+      }
+    });
+  }
+}
 
 // Per-thread latent accumulators of ScatterRowBlocks, kept between calls
 // (the OpenMP threads persist): a call zeroes them but allocates only when
@@ -183,12 +186,8 @@ struct NormalProductPass {
     const auto rows = RowSpansOf(a);
     ScatterRowBlocks(static_cast<int>(a.rows()), static_cast<size_t>(a.cols()) * kChannels, threads, out,
                      [&](int first, int last, float* target) {
-                       if constexpr (kRgbRuns<kChannels, Matrix>) {
-                         NormalProductRowsRgb(rows, static_cast<int>(a.cols()), weight, x, first, last,
-                                              target);
-                       } else {
-                         NormalProductRows<kChannels>(rows, weight, x, first, last, target);
-                       }
+                       NormalProductRows<kChannels>(rows, static_cast<int>(a.cols()), weight, x, first, last,
+                                                    target);
                      });
   }
 };
@@ -198,14 +197,9 @@ struct AdjointPass {
   template <typename Matrix>
   static void Run(const Matrix& a, const float* y, float* out, int threads) {
     const auto rows = RowSpansOf(a);
-    ScatterRowBlocks(static_cast<int>(a.rows()), static_cast<size_t>(a.cols()) * kChannels, threads, out,
-                     [&](int first, int last, float* target) {
-                       if constexpr (kRgbRuns<kChannels, Matrix>) {
-                         AdjointRowsRgb(rows, y, first, last, target);
-                       } else {
-                         AdjointRows<kChannels>(rows, y, first, last, target);
-                       }
-                     });
+    ScatterRowBlocks(
+        static_cast<int>(a.rows()), static_cast<size_t>(a.cols()) * kChannels, threads, out,
+        [&](int first, int last, float* target) { AdjointRows<kChannels>(rows, y, first, last, target); });
   }
 };
 
@@ -216,11 +210,7 @@ struct NormalDiagonalPass {
     const auto rows = RowSpansOf(a);
     ScatterRowBlocks(static_cast<int>(a.rows()), static_cast<size_t>(a.cols()) * kChannels, threads, out,
                      [&](int first, int last, float* target) {
-                       if constexpr (kRgbRuns<kChannels, Matrix>) {
-                         NormalDiagonalRowsRgb(rows, weight, first, last, target);
-                       } else {
-                         NormalDiagonalRows<kChannels>(rows, weight, first, last, target);
-                       }
+                       NormalDiagonalRows<kChannels>(rows, weight, first, last, target);
                      });
   }
 };
