@@ -44,14 +44,34 @@ std::pair<double, double> SquaredNormAndDot(const cv::Mat& a, const cv::Mat& b, 
   return {aa, ab};
 }
 
-// y += alpha * x
-void Axpy(double alpha, const cv::Mat& x, cv::Mat* y, int threads) {
-  const float* px = x.ptr<float>();
-  float* py = y->ptr<float>();
-  const long n = static_cast<long>(NumValues(x));
-  const float a = static_cast<float>(alpha);
+// x += alpha * d and r -= alpha * q in one pass (each value as Axpy forms it).
+void StepSolutionAndResidual(double alpha, const cv::Mat& d, const cv::Mat& q, cv::Mat* x, cv::Mat* r,
+                             int threads) {
+  const float* __restrict pd = d.ptr<float>();
+  const float* __restrict pq = q.ptr<float>();
+  float* __restrict px = x->ptr<float>();
+  float* __restrict pr = r->ptr<float>();
+  const long n = static_cast<long>(NumValues(d));
+  const float a = static_cast<float>(alpha), minus_a = static_cast<float>(-alpha);
 #pragma omp parallel for num_threads(threads) schedule(static)
-  for (long i = 0; i < n; ++i) py[i] += a * px[i];
+  for (long i = 0; i < n; ++i) {
+    px[i] += a * pd[i];
+    pr[i] += minus_a * pq[i];
+  }
+}
+
+// d = z + beta d in one pass, each value as `d *= beta` (OpenCV: d * (float)
+// beta + 0) followed by Axpy(1, z, d) formed it.
+void NextDirection(double beta, const cv::Mat& z, cv::Mat* d, int threads) {
+  const float* __restrict pz = z.ptr<float>();
+  float* __restrict pd = d->ptr<float>();
+  const long n = static_cast<long>(NumValues(z));
+  const float b = static_cast<float>(beta), one = 1.0f;
+#pragma omp parallel for num_threads(threads) schedule(static)
+  for (long i = 0; i < n; ++i) {
+    const float scaled = pd[i] * b + 0.0f;
+    pd[i] = scaled + one * pz[i];
+  }
 }
 
 // Per-channel TV weights v = 1 / max(|grad I|, eps) on the HR grid.
@@ -337,16 +357,13 @@ int SolvePcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_normal,
     const double dnd = Dot(direction, normal_direction, threads);
     if (!(dnd > 0.0) || !(rz > 0.0)) break;
     const double alpha = rz / dnd;
-    Axpy(alpha, direction, x, threads);
-    Axpy(-alpha, normal_direction, &residual, threads);
+    StepSolutionAndResidual(alpha, direction, normal_direction, x, &residual, threads);
     apply_preconditioner(residual, &preconditioned);
     double rz_next = 0.0;
     std::tie(rr, rz_next) = SquaredNormAndDot(residual, preconditioned, threads);
     const double beta = rz_next / rz;
     rz = rz_next;
-    // d = z + beta d
-    direction *= beta;
-    Axpy(1.0, preconditioned, &direction, threads);
+    NextDirection(beta, preconditioned, &direction, threads);
   }
   return steps;
 }
@@ -363,43 +380,113 @@ int SolveJacobiPcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_no
 
 namespace {
 
+// The sweeps of ApplyLaplacianGaussSeidelInverse. Pixel (x, y) of the
+// forward sweep needs (x - 1, y) and (x, y - 1); a raster sweep is one chain
+// of dependent float operations per channel. The sweeps therefore go over
+// blocks of kSweepRows rows as a wavefront: row j of a block runs j pixels
+// behind row j - 1, so the block's rows are independent chains that the CPU
+// overlaps. Every value gets the same operations, in the same order, from
+// the same (final) neighbours as in the raster sweep: the results are
+// bit for bit the raster sweep's (LaplacianGaussSeidel.WavefrontEqualsRasterSweeps).
+constexpr int kSweepRows = 4;
+
+struct SweepImages {
+  const float* __restrict inverse_diagonal;
+  const float* __restrict v;
+  const float* __restrict r;
+  float* __restrict z;
+  float s;
+  int width, height;
+};
+
+// One value of the forward sweep, (D + L) y = r: the earlier neighbours are
+// the left one (edge weight v there) and the one above (v there).
+template <int kChannels>
+inline void ForwardValue(const SweepImages& m, long i, bool left, bool up) {
+  const long stride = static_cast<long>(m.width) * kChannels;
+  float acc = m.r[i];
+  if (left) acc += m.s * m.v[i - kChannels] * m.z[i - kChannels];
+  if (up) acc += m.s * m.v[i - stride] * m.z[i - stride];
+  m.z[i] = acc * m.inverse_diagonal[i];
+}
+
+// One value of the backward sweep, (D + U) z = D y, i.e. z = y + D^-1
+// (lambda v (z_right + z_down)).
+template <int kChannels>
+inline void BackwardValue(const SweepImages& m, long i, bool right, bool down) {
+  const long stride = static_cast<long>(m.width) * kChannels;
+  float acc = 0.0f;
+  if (right) acc += m.z[i + kChannels];
+  if (down) acc += m.z[i + stride];
+  m.z[i] += m.s * m.v[i] * acc * m.inverse_diagonal[i];
+}
+
+// The forward sweep over rows [y0, y0 + rows), row j of the block j pixels
+// behind row j - 1 (wavefront step k: row j at x = k - j). While every row
+// of the block is inside the image (rows - 1 <= k < width) the x checks
+// are known.
+template <int kChannels>
+void ForwardSweepBlock(const SweepImages& m, int y0, int rows) {
+  const auto step = [&](int k, bool edges) {
+    for (int j = 0; j < rows; ++j) {
+      const int xx = k - j, y = y0 + j;
+      if (edges && (xx < 0 || xx >= m.width)) continue;
+      const long pixel = (static_cast<long>(y) * m.width + xx) * kChannels;
+      for (int c = 0; c < kChannels; ++c) ForwardValue<kChannels>(m, pixel + c, !edges || xx > 0, y > 0);
+    }
+  };
+  const int steady_end = std::max(rows, m.width);
+  for (int k = 0; k < m.width + rows - 1; ++k) step(k, k < rows || k >= steady_end);
+}
+
+// The backward sweep over rows (y0 - rows, y0], bottom-up: row y0 - j at
+// x = width - 1 - (k - j).
+template <int kChannels>
+void BackwardSweepBlock(const SweepImages& m, int y0, int rows) {
+  const auto step = [&](int k, bool edges) {
+    for (int j = 0; j < rows; ++j) {
+      const int xx = m.width - 1 - (k - j), y = y0 - j;
+      if (edges && (xx < 0 || xx >= m.width)) continue;
+      const long pixel = (static_cast<long>(y) * m.width + xx) * kChannels;
+      for (int c = kChannels - 1; c >= 0; --c) {
+        BackwardValue<kChannels>(m, pixel + c, !edges || xx + 1 < m.width, y + 1 < m.height);
+      }
+    }
+  };
+  const int steady_end = std::max(rows, m.width);
+  for (int k = 0; k < m.width + rows - 1; ++k) step(k, k < rows || k >= steady_end);
+}
+
+template <int kChannels>
+void SymmetricGaussSeidelSweeps(const SweepImages& m) {
+  for (int y0 = 0; y0 < m.height; y0 += kSweepRows) {
+    ForwardSweepBlock<kChannels>(m, y0, std::min(kSweepRows, m.height - y0));
+  }
+  for (int y0 = m.height - 1; y0 >= 0; y0 -= kSweepRows) {
+    BackwardSweepBlock<kChannels>(m, y0, std::min(kSweepRows, y0 + 1));
+  }
+}
+
 // ApplyLaplacianGaussSeidel with the diagonal given by its inverse
 // (InverseDiagonal): the sweeps multiply by it instead of dividing.
 void ApplyLaplacianGaussSeidelInverse(const cv::Mat& inverse_diagonal, const cv::Mat& v, double scale,
                                       const cv::Mat& r, cv::Mat* z) {
-  const int channels = r.channels();
-  const int width = r.cols, height = r.rows;
-  const int stride = width * channels;
-  const float s = static_cast<float>(scale);
-  const float* __restrict pinv = inverse_diagonal.ptr<float>();
-  const float* __restrict pv = v.ptr<float>();
-  const float* __restrict pr = r.ptr<float>();
   z->create(r.size(), r.type());
-  float* __restrict pz = z->ptr<float>();
-  // Forward sweep, raster order: (D + L) y = r; the earlier neighbours are
-  // the left one (edge weight v there) and the one above (v there).
-  for (int y = 0; y < height; ++y) {
-    for (int xx = 0; xx < width; ++xx) {
-      for (int c = 0; c < channels; ++c) {
-        const long i = static_cast<long>(y) * stride + xx * channels + c;
-        float acc = pr[i];
-        if (xx > 0) acc += s * pv[i - channels] * pz[i - channels];
-        if (y > 0) acc += s * pv[i - stride] * pz[i - stride];
-        pz[i] = acc * pinv[i];
-      }
-    }
-  }
-  // Backward sweep: (D + U) z = D y, i.e. z = y + D^-1 (lambda v (z_right + z_down)).
-  for (int y = height - 1; y >= 0; --y) {
-    for (int xx = width - 1; xx >= 0; --xx) {
-      for (int c = channels - 1; c >= 0; --c) {
-        const long i = static_cast<long>(y) * stride + xx * channels + c;
-        float acc = 0.0f;
-        if (xx + 1 < width) acc += pz[i + channels];
-        if (y + 1 < height) acc += pz[i + stride];
-        pz[i] += s * pv[i] * acc * pinv[i];
-      }
-    }
+  SweepImages m{inverse_diagonal.ptr<float>(), v.ptr<float>(), r.ptr<float>(), z->ptr<float>(), 0.0f, 0, 0};
+  m.s = static_cast<float>(scale);
+  m.width = r.cols;
+  m.height = r.rows;
+  switch (r.channels()) {
+    case 1:
+      return SymmetricGaussSeidelSweeps<1>(m);
+    case 2:
+      return SymmetricGaussSeidelSweeps<2>(m);
+    case 3:
+      return SymmetricGaussSeidelSweeps<3>(m);
+    case 4:
+      return SymmetricGaussSeidelSweeps<4>(m);
+    default:
+      throw InputError("image update: images must have 1 to 4 channels");
   }
 }
 

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstring>
 #include <memory>
 
 #include <Eigen/Dense>
@@ -1638,16 +1639,7 @@ class JointDepthPoseSystem::Impl {
         }
       }
       if (out == nullptr) continue;
-      // Each pixel's sum in the order (c, j), the pixels innermost: the
-      // pixels' sums are independent (not one chain of dependent adds).
-      std::fill(sums.begin(), sums.end(), 0.0f);
-      for (int c = 0; c < count; ++c) {
-        for (int j = 0; j < 6; ++j) {
-          const float factor = factors[6 * c + j];
-          const float* column = columns[c] + j;
-          for (int x = 0; x < width; ++x) sums[x] += factor * column[6 * x];
-        }
-      }
+      CouplingSums(columns, factors, width, sums.data());
       const float* divide = divisor != nullptr ? divisor->ptr<float>(y) : nullptr;
       float* out_row = out->ptr<float>(y);
       for (int x = 0; x < width; ++x) out_row[x] += divide != nullptr ? sums[x] / divide[x] : sums[x];
@@ -1656,6 +1648,36 @@ class JointDepthPoseSystem::Impl {
     for (int c = 0; c < count; ++c) {
       part->segment<6>(6 * couplings[c].frame) += products[c];
       part->segment<6>(6 * reference) -= products[c];
+    }
+  }
+
+  // sums[x] = sum_{c, j} factors[6 c + j] columns[c][6 x + j], each pixel's
+  // sum from 0 in the order (c, j). Four pixels at a time as 4-lane vectors
+  // (a column's 24 values of four pixels regathered into six vectors by j):
+  // the pixels' sums are independent, each value gets the same float
+  // operations in the same order as one pixel's scalar sum.
+  static void CouplingSums(const std::vector<const float*>& columns, const std::vector<float>& factors,
+                           int width, float* __restrict sums) {
+    using Float4 = float __attribute__((vector_size(16)));
+    const int count = static_cast<int>(columns.size());
+    int x = 0;
+    for (; x + 4 <= width; x += 4) {
+      Float4 sum = {0.0f, 0.0f, 0.0f, 0.0f};
+      for (int c = 0; c < count; ++c) {
+        const float* __restrict p = columns[c] + 6 * x;
+        for (int j = 0; j < 6; ++j) {
+          const Float4 values = {p[j], p[6 + j], p[12 + j], p[18 + j]};
+          sum += factors[6 * c + j] * values;
+        }
+      }
+      std::memcpy(sums + x, &sum, sizeof(sum));
+    }
+    for (; x < width; ++x) {
+      float sum = 0.0f;
+      for (int c = 0; c < count; ++c) {
+        for (int j = 0; j < 6; ++j) sum += factors[6 * c + j] * columns[c][6 * x + j];
+      }
+      sums[x] = sum;
     }
   }
 

@@ -6,12 +6,14 @@
 #include <cmath>
 #include <cstring>
 #include <sstream>
+#include <type_traits>
 
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/common/runtime.h"
 #include "deblur_sr_mvs/core/geometry/warp.h"
 #include "deblur_sr_mvs/core/imaging/normal_product.h"
+#include "deblur_sr_mvs/core/imaging/rgb_run_kernels.h"
 
 namespace deblur_sr_mvs {
 namespace {
@@ -40,6 +42,17 @@ void MultiplyFixed(const Rows& a, int rows, const float* x, float* y, int thread
     });
     float* py = y + static_cast<std::ptrdiff_t>(r) * kChannels;
     for (int c = 0; c < kChannels; ++c) py[c] = acc[c];
+  }
+}
+
+// MultiplyFixed<3> over row runs with one 4-lane vector per pixel
+// (rgb_run_kernels.h): the same values, bit for bit.
+void MultiplyRgbRuns(const RunRowSpans& a, int rows, int cols, const float* x, float* y, int threads) {
+#pragma omp parallel for schedule(static) num_threads(threads)
+  for (int r = 0; r < rows; ++r) {
+    const rgb_runs::Float4 sum = rgb_runs::GatherRow(a, r, x, cols);
+    float* py = y + static_cast<std::ptrdiff_t>(r) * 3;
+    for (int c = 0; c < 3; ++c) py[c] = sum[c];
   }
 }
 
@@ -106,7 +119,11 @@ void MultiplyAnyChannels(const Matrix& a, const float* x, float* y, int channels
       MultiplyFixed<2>(rows, n, x, y, threads);
       return;
     case 3:
-      MultiplyFixed<3>(rows, n, x, y, threads);
+      if constexpr (std::is_same_v<Matrix, RowRunMatrix>) {
+        MultiplyRgbRuns(rows, n, static_cast<int>(a.cols()), x, y, threads);
+      } else {
+        MultiplyFixed<3>(rows, n, x, y, threads);
+      }
       return;
     case 4:
       MultiplyFixed<4>(rows, n, x, y, threads);
@@ -224,7 +241,10 @@ void CaptureOperator::Apply(const cv::Mat& hr, cv::Mat* lr) const {
   Multiply(forward_, hr_size_, lr_size_, hr, lr, num_threads_, "Apply");
 }
 
-void MultiplySparse(const SparseMatrixRM& a, const cv::Mat& in, cv::Mat* out, int threads) {
+namespace {
+
+template <typename Matrix>
+void MultiplyMatrix(const Matrix& a, const cv::Mat& in, cv::Mat* out, int threads) {
   if (in.depth() != CV_32F || in.rows * in.cols != a.cols()) {
     throw InputError("MultiplySparse: input must be a float image with one pixel per column");
   }
@@ -232,6 +252,16 @@ void MultiplySparse(const SparseMatrixRM& a, const cv::Mat& in, cv::Mat* out, in
   const cv::Mat source = in.isContinuous() ? in : in.clone();
   out->create(static_cast<int>(a.rows()), 1, CV_32FC(channels));
   MultiplyAnyChannels(a, source.ptr<float>(), out->ptr<float>(), channels, ResolveThreads(threads));
+}
+
+}  // namespace
+
+void MultiplySparse(const SparseMatrixRM& a, const cv::Mat& in, cv::Mat* out, int threads) {
+  MultiplyMatrix(a, in, out, threads);
+}
+
+void MultiplySparse(const RowRunMatrix& a, const cv::Mat& in, cv::Mat* out, int threads) {
+  MultiplyMatrix(a, in, out, threads);
 }
 
 void CaptureOperator::ApplyAdjoint(const cv::Mat& lr, cv::Mat* hr) const {
@@ -352,7 +382,9 @@ struct PixelScratch {
   std::vector<float> depth;
   std::vector<int> tap_x, tap_y;
   std::vector<float> frac_x, frac_y;
-  std::vector<float> cells;
+  std::vector<float> cells;       // the local grid with a zero row above and column to the left
+  std::vector<int> grid_columns;  // a grid's non-zero taps before they are appended
+  std::vector<float> grid_values;
   std::vector<float> scatter;  // fallback for huge footprints
   std::vector<int> touched;
 
@@ -362,7 +394,9 @@ struct PixelScratch {
         tap_y(context.samples_per_pixel),
         frac_x(context.samples_per_pixel),
         frac_y(context.samples_per_pixel),
-        cells(4 * kMaxLocalGrid) {}
+        cells(4 * (2 * kMaxLocalGrid + 2)),
+        grid_columns(kMaxLocalGrid),
+        grid_values(kMaxLocalGrid) {}
 };
 
 // The taps of HR pixel (x, y) for every virtual camera, written at `offset`
@@ -452,41 +486,46 @@ TapBox BoundTaps(const AssemblyContext& context, const PixelScratch& scratch) {
 // Merges the taps in a local dense grid. Each sample adds its four bilinear
 // weights to ONE cell as a 4-vector (top-left, top-right, bottom-left,
 // bottom-right); the stencil is unfolded when the grid is emitted. Emitting
-// in raster order gives sorted column indices.
+// in raster order gives sorted column indices. The grid has a zero row
+// above and a zero column to the left, so every cell adds its four parts
+// (the missing neighbours' are +0: the same sums, as the weights are never
+// negative) without branches, and the non-zero cells are kept by a
+// branch-free compaction.
 void MergeTapsInGrid(const AssemblyContext& context, const TapBox& box, PixelScratch* scratch,
                      std::vector<int>* columns, std::vector<float>* values) {
   const int grid_width = box.Width();
   const int grid_height = box.Height();
+  const int stride = grid_width + 1;  // in cells
   const float sample_weight = context.sample_weight;
-  std::fill(scratch->cells.begin(), scratch->cells.begin() + 4 * grid_width * grid_height, 0.0f);
+  std::fill(scratch->cells.begin(), scratch->cells.begin() + 4 * stride * (grid_height + 1), 0.0f);
   float* __restrict c = scratch->cells.data();
   for (int k = 0; k < context.samples_per_pixel; ++k) {
     const float wy1 = scratch->frac_y[k] * sample_weight;
     const float wy0 = sample_weight - wy1;
     const float fx = scratch->frac_x[k];
-    float* cell = c + 4 * ((scratch->tap_y[k] - box.min_y) * grid_width + (scratch->tap_x[k] - box.min_x));
+    float* cell =
+        c + 4 * ((scratch->tap_y[k] - box.min_y + 1) * stride + (scratch->tap_x[k] - box.min_x + 1));
     cell[0] += (1.0f - fx) * wy0;
     cell[1] += fx * wy0;
     cell[2] += (1.0f - fx) * wy1;
     cell[3] += fx * wy1;
   }
+  int* __restrict out_columns = scratch->grid_columns.data();
+  float* __restrict out_values = scratch->grid_values.data();
+  int count = 0;
   for (int gy = 0; gy < grid_height; ++gy) {
-    const float* here = c + 4 * gy * grid_width;
-    const float* above = here - 4 * grid_width;
+    const float* here = c + 4 * ((gy + 1) * stride + 1);
+    const float* above = here - 4 * stride;
     const int base = (box.min_y + gy) * context.hr_width + box.min_x;
     for (int gx = 0; gx < grid_width; ++gx) {
-      float value = here[4 * gx];
-      if (gx > 0) value += here[4 * gx - 3];
-      if (gy > 0) {
-        value += above[4 * gx + 2];
-        if (gx > 0) value += above[4 * gx - 1];
-      }
-      if (value != 0.0f) {
-        columns->push_back(base + gx);
-        values->push_back(value);
-      }
+      const float value = here[4 * gx] + here[4 * gx - 3] + above[4 * gx + 2] + above[4 * gx - 1];
+      out_columns[count] = base + gx;
+      out_values[count] = value;
+      count += value != 0.0f ? 1 : 0;
     }
   }
+  columns->insert(columns->end(), out_columns, out_columns + count);
+  values->insert(values->end(), out_values, out_values + count);
 }
 
 // Merges the taps of a footprint too large for a local grid (extreme blur)

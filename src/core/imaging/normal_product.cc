@@ -6,21 +6,57 @@
 #include <array>
 #include <cstddef>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/common/runtime.h"
+#include "deblur_sr_mvs/core/imaging/rgb_run_kernels.h"
 
 namespace deblur_sr_mvs {
 namespace {
+
+// The three row kernels for 3-channel images over row runs, with one 4-lane
+// vector per pixel (rgb_run_kernels.h): the same values, bit for bit, as
+// the scalar kernels below, which call them for such images.
+void NormalProductRowsRgb(const RunRowSpans& a, int cols, const float* __restrict weight,
+                          const float* __restrict x, int first, int last, float* __restrict out) {
+  for (int r = first; r < last; ++r) {
+    const float* w = weight + static_cast<std::ptrdiff_t>(r) * 3;
+    if (w[0] == 0.0f && w[1] == 0.0f && w[2] == 0.0f) continue;
+    const rgb_runs::Float4 sum = rgb_runs::GatherRow(a, r, x, cols);
+    rgb_runs::ScatterRow(a, r, sum * rgb_runs::Float4{w[0], w[1], w[2], 0.0f}, out);
+  }
+}
+
+void AdjointRowsRgb(const RunRowSpans& a, const float* __restrict y, int first, int last,
+                    float* __restrict out) {
+  for (int r = first; r < last; ++r) {
+    const float* py = y + static_cast<std::ptrdiff_t>(r) * 3;
+    rgb_runs::ScatterRow(a, r, rgb_runs::Float4{py[0], py[1], py[2], 0.0f}, out);
+  }
+}
+
+void NormalDiagonalRowsRgb(const RunRowSpans& a, const float* __restrict weight, int first, int last,
+                           float* __restrict out) {
+  for (int r = first; r < last; ++r) {
+    const float* w = weight + static_cast<std::ptrdiff_t>(r) * 3;
+    rgb_runs::ScatterRow</*kSquare=*/true>(a, r, rgb_runs::Float4{w[0], w[1], w[2], 0.0f}, out);
+  }
+}
+
+// Whether a kernel over `Rows` with kChannels channels takes the ones above.
+template <int kChannels, typename Rows>
+constexpr bool kRgbRuns = kChannels == 3 && std::is_same_v<Rows, RunRowSpans>;
 
 // The three row kernels over rows [first, last) of A, scattering into `out`
 // (interleaved kChannels values per column). The output never aliases the
 // operator or the inputs (__restrict): the scatter then need not reload the
 // taps after each store.
 template <int kChannels, typename Rows>
-void NormalProductRows(const Rows& a, const float* __restrict weight, const float* __restrict x, int first,
-                       int last, float* __restrict out) {
+void NormalProductRows(const Rows& a, int cols, const float* __restrict weight, const float* __restrict x,
+                       int first, int last, float* __restrict out) {
+  if constexpr (kRgbRuns<kChannels, Rows>) return NormalProductRowsRgb(a, cols, weight, x, first, last, out);
   for (int r = first; r < last; ++r) {
     const float* w = weight + static_cast<std::ptrdiff_t>(r) * kChannels;
     bool used = false;
@@ -45,6 +81,7 @@ void NormalProductRows(const Rows& a, const float* __restrict weight, const floa
 
 template <int kChannels, typename Rows>
 void AdjointRows(const Rows& a, const float* __restrict y, int first, int last, float* __restrict out) {
+  if constexpr (kRgbRuns<kChannels, Rows>) return AdjointRowsRgb(a, y, first, last, out);
   for (int r = first; r < last; ++r) {
     const float* py = y + static_cast<std::ptrdiff_t>(r) * kChannels;
     a.ForEachSpan(r, [&](const float* __restrict v, int column, int length) {
@@ -59,6 +96,7 @@ void AdjointRows(const Rows& a, const float* __restrict y, int first, int last, 
 template <int kChannels, typename Rows>
 void NormalDiagonalRows(const Rows& a, const float* __restrict weight, int first, int last,
                         float* __restrict out) {
+  if constexpr (kRgbRuns<kChannels, Rows>) return NormalDiagonalRowsRgb(a, weight, first, last, out);
   for (int r = first; r < last; ++r) {
     const float* w = weight + static_cast<std::ptrdiff_t>(r) * kChannels;
     a.ForEachSpan(r, [&](const float* __restrict v, int column, int length) {
@@ -148,7 +186,8 @@ struct NormalProductPass {
     const auto rows = RowSpansOf(a);
     ScatterRowBlocks(static_cast<int>(a.rows()), static_cast<size_t>(a.cols()) * kChannels, threads, out,
                      [&](int first, int last, float* target) {
-                       NormalProductRows<kChannels>(rows, weight, x, first, last, target);
+                       NormalProductRows<kChannels>(rows, static_cast<int>(a.cols()), weight, x, first, last,
+                                                    target);
                      });
   }
 };

@@ -166,6 +166,66 @@ TEST(JacobiPcg, StopsAtTheRelativeResidualOrTheCap) {
   EXPECT_LT(loose_steps, SolveSmall(system, jacobi, 2000, 1e-5).second);
 }
 
+// PCG as SolvePcg took its steps before its vector updates were fused:
+// x += alpha d and r -= alpha N d as two Axpy passes, d = z + beta d as
+// OpenCV's d *= beta then an Axpy; sums in double, in order.
+int UnfusedPcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply, const cv::Mat& inverse_diagonal,
+               cv::Mat residual, int max_steps, cv::Mat* x) {
+  const auto dot = [](const cv::Mat& a, const cv::Mat& b) {
+    double sum = 0.0;
+    for (size_t i = 0; i < a.total(); ++i) sum += static_cast<double>(a.ptr<float>()[i]) * b.ptr<float>()[i];
+    return sum;
+  };
+  const auto axpy = [](double alpha, const cv::Mat& in, cv::Mat* out) {
+    const float a = static_cast<float>(alpha);
+    for (size_t i = 0; i < in.total(); ++i) out->ptr<float>()[i] += a * in.ptr<float>()[i];
+  };
+  cv::Mat z, normal_direction;
+  cv::multiply(residual, inverse_diagonal, z);
+  cv::Mat direction = z.clone();
+  double rz = dot(residual, z);
+  int steps = 0;
+  for (; steps < max_steps; ++steps) {
+    apply(direction, &normal_direction);
+    const double alpha = rz / dot(direction, normal_direction);
+    axpy(alpha, direction, x);
+    axpy(-alpha, normal_direction, &residual);
+    cv::multiply(residual, inverse_diagonal, z);
+    const double rz_next = dot(residual, z);
+    const double beta = rz_next / rz;
+    rz = rz_next;
+    direction *= beta;
+    axpy(1.0, z, &direction);
+  }
+  return steps;
+}
+
+// SolvePcg's fused vector updates (one pass for x and r, one for d) give
+// the unfused steps' iterates bit for bit.
+TEST(JacobiPcg, FusedVectorUpdatesEqualTheUnfusedStepsBitForBit) {
+  const int n = 40;
+  const SmallSystem system = BadlyScaledSystem(n);
+  const Eigen::MatrixXf normal = system.normal.cast<float>();
+  const auto apply = [&normal, n](const cv::Mat& x, cv::Mat* out) {
+    out->create(n, 1, CV_32FC1);
+    Eigen::Map<const Eigen::VectorXf> in(x.ptr<float>(), n);
+    Eigen::Map<Eigen::VectorXf>(out->ptr<float>(), n) = normal * in;
+  };
+  cv::Mat inverse_diagonal(n, 1, CV_32FC1), residual(n, 1, CV_32FC1);
+  for (int i = 0; i < n; ++i) {
+    inverse_diagonal.at<float>(i) = static_cast<float>(1.0 / static_cast<float>(system.normal(i, i)));
+    residual.at<float>(i) = static_cast<float>(system.rhs[i]);
+  }
+  const auto jacobi = [&inverse_diagonal](const cv::Mat& r, cv::Mat* z) {
+    cv::multiply(r, inverse_diagonal, *z);
+  };
+  cv::Mat fused = cv::Mat::zeros(n, 1, CV_32FC1), unfused = cv::Mat::zeros(n, 1, CV_32FC1);
+  ASSERT_EQ(SolvePcg(apply, jacobi, residual.clone(), 12, 0.0, 1, &fused), 12);
+  ASSERT_EQ(UnfusedPcg(apply, inverse_diagonal, residual.clone(), 12, &unfused), 12);
+  EXPECT_EQ(std::memcmp(fused.data, unfused.data, n * sizeof(float)), 0);
+  EXPECT_GT(cv::norm(fused, cv::NORM_INF), 0.0);
+}
+
 // The dense matrix of x -> diag(data) x + scale * D^T diag(v) D x on a
 // rows x cols image with `channels` interleaved channels.
 Eigen::MatrixXd DenseTvSystem(const cv::Mat& data_diagonal, const cv::Mat& v, double scale) {
@@ -265,6 +325,71 @@ TEST_P(LaplacianGaussSeidel, IsTheSymmetricGaussSeidelInverseOfTheDenseSystem) {
   const Eigen::VectorXd expected = m.ldlt().solve(rv);
   for (int i = 0; i < n; ++i)
     EXPECT_NEAR(z.ptr<float>()[i], expected[i], 1e-4 * expected.cwiseAbs().maxCoeff());
+}
+
+// The symmetric Gauss-Seidel sweeps in plain raster order (the form before
+// the wavefront), with the inverse diagonal as ApplyLaplacianGaussSeidel
+// forms it.
+cv::Mat RasterGaussSeidel(const cv::Mat& diagonal, const cv::Mat& v, double scale, const cv::Mat& r) {
+  const int channels = r.channels(), width = r.cols, height = r.rows, stride = width * channels;
+  const float s = static_cast<float>(scale);
+  cv::Mat inverse(diagonal.size(), diagonal.type());
+  for (size_t i = 0; i < diagonal.total() * channels; ++i) {
+    const float d = diagonal.ptr<float>()[i];
+    inverse.ptr<float>()[i] = d > 0.0f ? 1.0f / d : 1.0f;
+  }
+  const float* pinv = inverse.ptr<float>();
+  const float* pv = v.ptr<float>();
+  const float* pr = r.ptr<float>();
+  cv::Mat z(r.size(), r.type());
+  float* pz = z.ptr<float>();
+  for (int y = 0; y < height; ++y) {
+    for (int x = 0; x < width; ++x) {
+      for (int c = 0; c < channels; ++c) {
+        const long i = static_cast<long>(y) * stride + x * channels + c;
+        float acc = pr[i];
+        if (x > 0) acc += s * pv[i - channels] * pz[i - channels];
+        if (y > 0) acc += s * pv[i - stride] * pz[i - stride];
+        pz[i] = acc * pinv[i];
+      }
+    }
+  }
+  for (int y = height - 1; y >= 0; --y) {
+    for (int x = width - 1; x >= 0; --x) {
+      for (int c = channels - 1; c >= 0; --c) {
+        const long i = static_cast<long>(y) * stride + x * channels + c;
+        float acc = 0.0f;
+        if (x + 1 < width) acc += pz[i + channels];
+        if (y + 1 < height) acc += pz[i + stride];
+        pz[i] += s * pv[i] * acc * pinv[i];
+      }
+    }
+  }
+  return z;
+}
+
+// The wavefront sweeps (blocks of rows as interleaved chains) give the
+// raster sweeps' values bit for bit, at sizes that are and are not multiples
+// of the block, down to one row or one column.
+TEST(LaplacianGaussSeidel, WavefrontEqualsRasterSweeps) {
+  std::mt19937 rng(29);
+  for (const cv::Size size : {cv::Size(1, 1), cv::Size(1, 7), cv::Size(9, 1), cv::Size(2, 3), cv::Size(13, 8),
+                              cv::Size(17, 11), cv::Size(40, 23)}) {
+    for (int channels = 1; channels <= 4; ++channels) {
+      const int n = size.area();
+      const cv::Mat v = RandomValues(n, channels, 0.1f, 20.0f, &rng).reshape(channels, size.height);
+      cv::Mat diagonal = RandomValues(n, channels, 0.0f, 2.0f, &rng).reshape(channels, size.height);
+      AddWeightedLaplacianDiagonal(v, 0.45, &diagonal);
+      diagonal.ptr<float>()[0] = 0.0f;  // a value without a diagonal (inverse 1)
+      const cv::Mat r = RandomValues(n, channels, -1.0f, 1.0f, &rng).reshape(channels, size.height);
+      cv::Mat z;
+      ApplyLaplacianGaussSeidel(diagonal, v, 0.45, r, &z);
+      const cv::Mat expected = RasterGaussSeidel(diagonal, v, 0.45, r);
+      ASSERT_EQ(std::memcmp(z.data, expected.data, z.total() * z.elemSize()), 0)
+          << size << " channels " << channels;
+      EXPECT_GT(cv::norm(z, cv::NORM_INF), 0.0);
+    }
+  }
 }
 
 // On a TV-dominated system (large TV weights on a flat image, a weak data

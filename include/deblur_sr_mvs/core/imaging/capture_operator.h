@@ -99,6 +99,8 @@ void TransposeSparse(const SparseMatrixRM& a, SparseMatrixRM* at, int threads);
 // out = a * in for an interleaved C-channel float image `in` with one pixel per
 // column of `a`; `out` becomes a (rows x 1) C-channel image (reshape as needed).
 void MultiplySparse(const SparseMatrixRM& a, const cv::Mat& in, cv::Mat* out, int threads);
+// The same over row runs (the products of CaptureOperator::Apply).
+void MultiplySparse(const RowRunMatrix& a, const cv::Mat& in, cv::Mat* out, int threads);
 
 // The pose at time `tau` on the frame's blur path (the curved path through
 // the neighbours of `geometry`, or eq:interpolatingP's geodesic): the one
