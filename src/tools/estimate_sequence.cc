@@ -75,7 +75,8 @@ double ParseNoiseSigma(const std::string& text) {
   return gray_levels / 255.0;
 }
 
-// --pose-prior and the weights of its poses in the initialisation.
+// --pose-prior and the weights of its poses in the initialisation and the
+// iterations.
 void AddPosePriorOptions(dsm::ToolCommandLine* command_line, Flags* flags, dsm::EstimatorOptions* options) {
   dsm::ToolCommandLine& cli = *command_line;
   cli.add_option("--pose-prior", flags->pose_prior,
@@ -92,6 +93,13 @@ void AddPosePriorOptions(dsm::ToolCommandLine* command_line, Flags* flags, dsm::
                  "with --pose-prior: standard deviation of its orientations (degrees) in the bundle "
                  "adjustment; 0: its orientations only align the output (default 0.1)")
       ->check(dsm::FlagNumber(0.0));
+  cli.add_flag("--pose-prior-iterations,!--no-pose-prior-iterations", options->pose_prior_in_iterations,
+               "with --pose-prior: the joint iterations' pose steps keep its centres and orientations as "
+               "terms with the same sigmas (default on)");
+  cli.add_option("--pose-prior-weight", options->pose_prior_weight,
+                 "with --pose-prior-iterations: weight of the prior's terms against the photometric ones "
+                 "(default 1e4)")
+      ->check(dsm::FlagNumber(1e-12));
 }
 
 // --blur-pose-evidence and its sampling and weight.

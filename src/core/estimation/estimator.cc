@@ -19,6 +19,7 @@
 #include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/common/runtime.h"
 #include "deblur_sr_mvs/core/estimation/frame_structure.h"
+#include "deblur_sr_mvs/core/geometry/pose_prior.h"
 #include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/imaging/noise_estimation.h"
 
@@ -446,6 +447,51 @@ cv::Mat InitialLatent(const EstimatorInput& input, int t, const cv::Mat& bicubic
   return latent.clone();
 }
 
+// The pose prior of a window (EstimatorInput::T_prior_cam) as terms of the
+// structure update (EstimatorOptions::pose_prior_in_iterations), in the
+// world of T_world_cam: the frames that the robust Sim(3) of T_world_cam to
+// the prior keeps (AlignToPrior with the initialiser's options), carried
+// into that world by its inverse; the sigmas are the initialiser's, the
+// position sigma divided by the Sim(3)'s scale. None when the options leave
+// it out or the alignment fails; `note` says which.
+PosePriorTerms WindowPosePrior(const EstimatorOptions& options, const EstimatorInput& input,
+                               const std::vector<SE3>& T_world_cam, std::string* note) {
+  PosePriorTerms terms;
+  const InitializerOptions& init = options.initializer;
+  if (input.T_prior_cam.empty() || !options.pose_prior_in_iterations || !options.update_structure ||
+      !(init.pose_prior_position_sigma > 0.0)) {
+    return terms;
+  }
+  std::vector<int> frame_of;
+  std::vector<SE3> estimated, prior;
+  for (size_t t = 0; t < input.T_prior_cam.size() && t < T_world_cam.size(); ++t) {
+    if (!input.T_prior_cam[t]) continue;
+    frame_of.push_back(static_cast<int>(t));
+    estimated.push_back(T_world_cam[t]);
+    prior.push_back(*input.T_prior_cam[t]);
+  }
+  const PriorAlignment alignment = AlignToPrior(estimated, prior, init.pose_prior);
+  if (!alignment.valid) {
+    *note = "pose prior: not in the structure update (" + alignment.note + ")";
+    return terms;
+  }
+  const Sim3& to_prior = alignment.estimate_to_prior;
+  const Eigen::Matrix3d R_world_prior = to_prior.rotation.transpose();
+  terms.centre_world.assign(T_world_cam.size(), std::nullopt);
+  terms.R_world_cam.assign(T_world_cam.size(), Eigen::Matrix3d::Identity());
+  for (int i : alignment.inlier_frames) {
+    const int t = frame_of[i];
+    terms.centre_world[t] = R_world_prior * (prior[i].translation() - to_prior.translation) / to_prior.scale;
+    terms.R_world_cam[t] = R_world_prior * prior[i].rotation();
+  }
+  terms.position_sigma = init.pose_prior_position_sigma / to_prior.scale;
+  terms.rotation_sigma = init.pose_prior_rotation_sigma_deg * M_PI / 180.0;
+  terms.weight = options.pose_prior_weight;
+  *note = "pose prior in the structure update: " + std::to_string(alignment.inliers) + " of " +
+          std::to_string(alignment.used) + " frames (" + alignment.note + ")";
+  return terms;
+}
+
 // Algorithm 1 (alg:optimization) on one window from a given structure. The
 // object holds the window's state: observations B_t, latent images I_t, the
 // frame structures (D_t, P_t), inverse depths, edge weights g_t, the
@@ -558,6 +604,7 @@ class WindowSolver {
   // depends on them.
   std::vector<long> depth_version_, pose_version_;
   std::vector<std::vector<int>> neighbours_;  // N(t)
+  PosePriorTerms pose_prior_;                 // empty: none (WindowPosePrior)
   std::unique_ptr<OperatorCache> cache_;
   std::mutex work_mutex_;  // result_.image_work, summed by the frames' threads
 };
@@ -621,6 +668,9 @@ WindowSolver::WindowSolver(const EstimatorOptions& options, int threads, const E
     frames_[t].depth_hr = DepthFromInverse(inverse_depth_[t]);
     UpdateEdgeWeight(t);
   }
+  std::string prior_note;
+  pose_prior_ = WindowPosePrior(options_, input, T_world_cam, &prior_note);
+  if (!prior_note.empty()) result_.notes.push_back(prior_note);
   omp_set_max_active_levels(1);
   std::vector<int> sources_per_frame(num_frames_);
   for (int t = 0; t < num_frames_; ++t) {
@@ -846,7 +896,7 @@ void WindowSolver::UpdateDepthsAndPosesJointly(int iteration, bool isolated,
   const std::vector<SE3> saved_poses = poses;
   const double begin = NowMs();
   UpdateDepthAndPoses(camera_hr_, latents_, terms, ParallaxScale(), structure_options,
-                      options_.fixed_leading_poses, &poses, &inverse_depths);
+                      options_.fixed_leading_poses, &poses, &inverse_depths, &pose_prior_);
   timer_.AddSince("joint depth + pose steps", begin);
   for (int t = 0; t < num_frames_; ++t) SetInverseDepth(t, inverse_depths[t]);
   SetPoses(poses);
@@ -874,7 +924,7 @@ void WindowSolver::UpdateAllPoses(int iteration, bool isolated, const std::vecto
       blur_evidence ? BlurPoseTerms(structure_options) : std::vector<BlurPoseTerm>();
   const double pose_begin = NowMs();
   UpdatePoses(camera_hr_, inverse_depth_, latents_, pairs, structure_options, &updated,
-              options_.fixed_leading_poses, blur_evidence ? &blur_terms : nullptr);
+              options_.fixed_leading_poses, &pose_prior_, blur_evidence ? &blur_terms : nullptr);
   timer_.AddSince("pose updates", pose_begin);
   SetPoses(updated);
   if (isolated && !(TotalEnergy(iteration, "structure").total <= before)) SetPoses(poses);
@@ -1297,6 +1347,7 @@ void EstimatorOptions::Check() const {
   CheckAtLeast("held_leading_latents", held_leading_latents, 0);
   CheckAtLeast("carried_frames", carried_frames, 0);
   CheckAtLeast("max_seconds", max_seconds, 0.0);
+  CheckAbove("pose_prior_weight", pose_prior_weight, 0.0);
   CheckInRange("model_error_sigma", model_error_sigma, 1e-6, 1.0);
   if (noise_sigma > 1.0) throw InputError("noise_sigma must be <= 1 (intensity units; negative: auto)");
   gain.Check();

@@ -847,6 +847,12 @@ class DepthNormalEquations {
   // diag(N), the Jacobi preconditioner (after Linearize).
   const cv::Mat& diagonal() const { return diagonal_; }
 
+  // From now on Linearize also sums the pairs' absolute residuals over
+  // their masks (the photometric scale of a pose prior's terms).
+  void MeasureResiduals() { measure_residuals_ = true; }
+  double absolute_residuals() const { return absolute_residuals_; }
+  double residual_values() const { return residual_values_; }
+
   // With pose coupling, pair p's pose terms after Linearize: for r = r0 -
   // Psi(g .* d + A (eps_t - eps_s)), block = A^T Psi^T W Psi A and rhs =
   // A^T Psi^T W r0.
@@ -953,6 +959,7 @@ class DepthNormalEquations {
   // (for the damping).
   double LinearizePairs(const cv::Mat& inverse_depth) {
     double diagonal_sum = 0.0;
+    absolute_residuals_ = residual_values_ = 0.0;
     data_rhs_.setTo(0.0);
     // HR pairs (no capture operator) act pixel by pixel: their part of the
     // normal matrix is the diagonal sum_p sum_c w g^2, formed once per
@@ -974,7 +981,9 @@ class DepthNormalEquations {
       Predict(pair, lin.warped, &predicted_);
       const cv::Mat residual = *pair.observation - predicted_;
       cv::Mat weight;
-      L1Weights(residual, ObservationMask(pair, lin.valid), options_.residual_epsilon, &weight);
+      const cv::Mat mask = ObservationMask(pair, lin.valid);
+      L1Weights(residual, mask, options_.residual_epsilon, &weight);
+      if (measure_residuals_) MeasureResidual(residual, mask);
       cv::multiply(residual, weight, predicted_);
       PredictAdjoint(pair, predicted_, &back_);
       ContractChannels(lin.d_inverse_depth, back_, &data_rhs_, true);
@@ -996,6 +1005,21 @@ class DepthNormalEquations {
       }
     }
     return diagonal_sum;
+  }
+
+  // Adds sum |r| and the count of values over the mask (empty: all).
+  void MeasureResidual(const cv::Mat& residual, const cv::Mat& mask) {
+    const cv::Scalar sums = cv::sum(cv::abs(residual));
+    if (mask.empty()) {
+      for (int c = 0; c < residual.channels(); ++c) absolute_residuals_ += sums[c];
+      residual_values_ += static_cast<double>(residual.total() * residual.channels());
+      return;
+    }
+    cv::Mat masked = cv::Mat::zeros(residual.size(), residual.type());
+    residual.copyTo(masked, mask);
+    const cv::Scalar masked_sums = cv::sum(cv::abs(masked));
+    for (int c = 0; c < residual.channels(); ++c) absolute_residuals_ += masked_sums[c];
+    residual_values_ += static_cast<double>(cv::countNonZero(mask)) * residual.channels();
   }
 
   // The pose terms of a linearised pair with a capture operator from the
@@ -1111,6 +1135,8 @@ class DepthNormalEquations {
   cv::Mat data_rhs_;                               // the pairs' share of the rhs
   cv::Mat squared_, expanded_, predicted_, back_;  // scratch
   double damping_ = 0.0;
+  bool measure_residuals_ = false;
+  double absolute_residuals_ = 0.0, residual_values_ = 0.0;  // of the pairs, with measure_residuals_
 };
 
 // CG on N step = rhs from a zero step, Jacobi-preconditioned when asked
@@ -1153,6 +1179,8 @@ namespace {
 struct PairNormalEquations {
   Eigen::Matrix<double, 6, 6> block = Eigen::Matrix<double, 6, 6>::Zero();
   Eigen::Matrix<double, 6, 1> rhs = Eigen::Matrix<double, 6, 1>::Zero();
+  double absolute_residuals = 0.0;  // sum |r0| over the used values
+  double values = 0.0;              // how many
 };
 
 // The images of one HR pair: its source I_s with its gradients and the
@@ -1199,7 +1227,9 @@ PairNormalEquations HrPairNormalEquations(const PinholeCamera& camera_hr, const 
         for (int c = 0; c < channels; ++c) {
           const double r0 = observed[c] - value[c];
           m.Add(1.0 / std::max(std::abs(r0), epsilon), r0, grad_x[c], grad_y[c]);
+          eq.absolute_residuals += std::abs(r0);
         }
+        eq.values += channels;
       }
       row_sums.Set(used++, warp.DPixelDPose(p), m);
     }
@@ -1229,6 +1259,8 @@ PairNormalEquations BlurredPairNormalEquations(const PinholeCamera& camera_hr, c
   const float* r0 = residual.ptr<float>();
   for (size_t i = 0; i < values; ++i) {
     if (w[i] == 0.0f) continue;
+    eq.absolute_residuals += std::abs(r0[i]);
+    eq.values += 1.0;
     Eigen::Matrix<double, 6, 1> a;
     for (int j = 0; j < 6; ++j) a(j) = projected[j].ptr<float>()[i];
     eq.rhs += (w[i] * r0[i]) * a;
@@ -1313,10 +1345,50 @@ void AddBlurPoseTerms(const std::vector<BlurPoseTerm>& terms, const std::vector<
 
 }  // namespace
 
+bool PosePriorTerms::any() const {
+  return std::any_of(centre_world.begin(), centre_world.end(),
+                     [](const std::optional<Eigen::Vector3d>& centre) { return centre.has_value(); });
+}
+
+// Per frame with a prior: the centre residual e_c = c - c_prior (d e_c /
+// d eps = [I, -Hat(c)], since Exp(eps) P moves c to c + rho + phi x c) and,
+// with rotation_sigma, the orientation residual e_R = Log(R R_prior^T)
+// (d e_R / d phi = J_l(e_R)^-1), each Huber-reweighted on |e| / sigma.
+void AddPosePriorNormalEquations(const PosePriorTerms& prior, const std::vector<SE3>& T_world_cam,
+                                 int num_fixed, int offset, double photometric_scale, Eigen::MatrixXd* hessian,
+                                 Eigen::VectorXd* gradient) {
+  const auto huber_weight = [&prior](double sigmas) {
+    return sigmas <= prior.huber ? 1.0 : prior.huber / sigmas;
+  };
+  photometric_scale *= prior.weight;
+  const int count = std::min(static_cast<int>(prior.centre_world.size()), static_cast<int>(T_world_cam.size()));
+  for (int f = std::max(num_fixed, 0); f < count; ++f) {
+    if (!prior.centre_world[f]) continue;
+    const int block = 6 * (f - offset);
+    const Eigen::Vector3d centre = T_world_cam[f].translation();
+    const Eigen::Vector3d e_c = centre - *prior.centre_world[f];
+    Eigen::Matrix<double, 3, 6> j_c;
+    j_c << Eigen::Matrix3d::Identity(), -Hat(centre);
+    const double inverse_variance_c = 1.0 / (prior.position_sigma * prior.position_sigma);
+    const double w_c =
+        photometric_scale * inverse_variance_c * huber_weight(e_c.norm() / prior.position_sigma);
+    hessian->block<6, 6>(block, block) += w_c * j_c.transpose() * j_c;
+    gradient->segment<6>(block) -= w_c * j_c.transpose() * e_c;
+    if (!(prior.rotation_sigma > 0.0)) continue;
+    const Eigen::Vector3d e_r = SO3Log(T_world_cam[f].rotation() * prior.R_world_cam[f].transpose());
+    const Eigen::Matrix3d j_r = SO3LeftJacobianInverse(e_r);
+    const double w_r = photometric_scale / (prior.rotation_sigma * prior.rotation_sigma) *
+                       huber_weight(e_r.norm() / prior.rotation_sigma);
+    hessian->block<3, 3>(block + 3, block + 3) += w_r * j_r.transpose() * j_r;
+    gradient->segment<3>(block + 3) -= w_r * j_r.transpose() * e_r;
+  }
+}
+
 std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr, const std::vector<cv::Mat>& inverse_depths,
                                   const std::vector<cv::Mat>& latents, const std::vector<PairMatching>& pairs,
                                   const StructureUpdateOptions& options, std::vector<SE3>* T_world_cam,
-                                  int num_fixed, const std::vector<BlurPoseTerm>* blur_terms) {
+                                  int num_fixed, const PosePriorTerms* prior,
+                                  const std::vector<BlurPoseTerm>* blur_terms) {
   options.Check();
   const int num_frames = static_cast<int>(T_world_cam->size());
   std::vector<Vector6d> total(num_frames, Vector6d::Zero());
@@ -1368,6 +1440,17 @@ std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr, const std::vec
     for (int i = 0; i < unknowns; ++i) {
       damped(i, i) += options.pose_damping * hessian(i, i) + 1e-12;
     }
+    if (prior != nullptr && prior->any()) {
+      double absolute = 0.0, values = 0.0;
+      for (const PairNormalEquations& eq : equations) {
+        absolute += eq.absolute_residuals;
+        values += eq.values;
+      }
+      if (values > 0.0) {
+        AddPosePriorNormalEquations(*prior, *T_world_cam, num_fixed, num_fixed, absolute / values, &damped,
+                                    &gradient);
+      }
+    }
     const Eigen::VectorXd step = damped.ldlt().solve(gradient);
     if (!step.allFinite()) break;
     for (int f = num_fixed; f < num_frames; ++f) {
@@ -1399,10 +1482,11 @@ class JointDepthPoseSystem::Impl {
  public:
   Impl(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world_cam,
        const std::vector<cv::Mat>& latents, const std::vector<FrameDepthTerms>& frames, double parallax_scale,
-       const StructureUpdateOptions& options, int num_fixed)
+       const StructureUpdateOptions& options, int num_fixed, const PosePriorTerms* prior)
       : T_world_cam_(T_world_cam),
         frames_(frames),
         options_(options),
+        prior_(prior != nullptr && prior->any() ? prior : nullptr),
         num_frames_(static_cast<int>(frames.size())),
         num_fixed_(std::max(1, num_fixed)),
         pixels_(camera_hr.width * camera_hr.height),
@@ -1419,6 +1503,7 @@ class JointDepthPoseSystem::Impl {
       systems_[t] = std::make_unique<DepthNormalEquations>(camera_hr, T_world_cam, latents, frames[t].pairs,
                                                            frames[t].self, frames[t].edge_weight,
                                                            parallax_scale, options, reference_[t]);
+      if (prior_ != nullptr) systems_[t]->MeasureResiduals();
     }
   }
 
@@ -1450,6 +1535,7 @@ class JointDepthPoseSystem::Impl {
     }
     // Levenberg-Marquardt damping relative to the pose block's diagonal.
     for (int i = 0; i < n; ++i) pose_normal_(i, i) += options_.joint_pose_damping * pose_normal_(i, i) + 1e-12;
+    if (prior_ != nullptr) AddPrior();
     SetGauge();
     FormReducedCameraSystem();
   }
@@ -1681,12 +1767,37 @@ class JointDepthPoseSystem::Impl {
     }
   }
 
+  // The pose prior's terms in N_pp and the pose rhs, in units of the pairs'
+  // mean absolute residual (AddPosePriorNormalEquations).
+  void AddPrior() {
+    double absolute = 0.0, values = 0.0;
+    for (const auto& system : systems_) {
+      if (!system) continue;
+      absolute += system->absolute_residuals();
+      values += system->residual_values();
+    }
+    if (values > 0.0) {
+      AddPosePriorNormalEquations(*prior_, T_world_cam_, num_fixed_, 0, absolute / values, &pose_normal_,
+                                  &pose_rhs_);
+    }
+  }
+
+  // Whether the pose prior has a centre on a free frame: it fixes the scale.
+  bool PriorFixesScale() const {
+    if (prior_ == nullptr) return false;
+    for (int f = num_fixed_; f < num_frames_ && f < static_cast<int>(prior_->centre_world.size()); ++f) {
+      if (prior_->centre_world[f]) return true;
+    }
+    return false;
+  }
+
   // The scale of a window with one held pose: the component of the first
   // free pose's increment that stretches its baseline b = c_f - c_h from the
-  // held centre, b . (v + w x c_f) for eps = (v, w) (DLeftPerturbedPointDEps).
+  // held centre, b . (v + w x c_f) for eps = (v, w) (DLeftPerturbedPointDEps);
+  // none when the pose prior fixes the scale.
   void SetGauge() {
     gauge_.resize(0);
-    if (num_fixed_ != 1 || num_frames_ < 2) return;
+    if (num_fixed_ != 1 || num_frames_ < 2 || PriorFixesScale()) return;
     const Eigen::Vector3d held = T_world_cam_[0].translation();
     const Eigen::Vector3d centre = T_world_cam_[1].translation();
     const Eigen::Vector3d baseline = centre - held;
@@ -1751,6 +1862,7 @@ class JointDepthPoseSystem::Impl {
   const std::vector<SE3>& T_world_cam_;
   const std::vector<FrameDepthTerms>& frames_;
   const StructureUpdateOptions& options_;
+  const PosePriorTerms* prior_;  // nullptr: none
   const int num_frames_, num_fixed_, pixels_;
   const cv::Size size_;
   const int threads_;
@@ -1765,9 +1877,10 @@ JointDepthPoseSystem::JointDepthPoseSystem(const PinholeCamera& camera_hr,
                                            const std::vector<SE3>& T_world_cam,
                                            const std::vector<cv::Mat>& latents,
                                            const std::vector<FrameDepthTerms>& frames, double parallax_scale,
-                                           const StructureUpdateOptions& options, int num_fixed)
-    : impl_(std::make_unique<Impl>(camera_hr, T_world_cam, latents, frames, parallax_scale, options,
-                                   num_fixed)) {}
+                                           const StructureUpdateOptions& options, int num_fixed,
+                                           const PosePriorTerms* prior)
+    : impl_(std::make_unique<Impl>(camera_hr, T_world_cam, latents, frames, parallax_scale, options, num_fixed,
+                                   prior)) {}
 JointDepthPoseSystem::~JointDepthPoseSystem() = default;
 
 void JointDepthPoseSystem::Linearize(const std::vector<cv::Mat>& inverse_depths) {
@@ -1808,9 +1921,10 @@ void JointDepthPoseSystem::ApplyStep(const JointStep& step, std::vector<cv::Mat>
 void UpdateDepthAndPoses(const PinholeCamera& camera_hr, const std::vector<cv::Mat>& latents,
                          const std::vector<FrameDepthTerms>& frames, double parallax_scale,
                          const StructureUpdateOptions& options, int num_fixed, std::vector<SE3>* T_world_cam,
-                         std::vector<cv::Mat>* inverse_depths) {
+                         std::vector<cv::Mat>* inverse_depths, const PosePriorTerms* prior) {
   options.Check();
-  JointDepthPoseSystem system(camera_hr, *T_world_cam, latents, frames, parallax_scale, options, num_fixed);
+  JointDepthPoseSystem system(camera_hr, *T_world_cam, latents, frames, parallax_scale, options, num_fixed,
+                              prior);
   for (int irls = 0; irls < options.joint_irls_iterations; ++irls) {
     system.Linearize(*inverse_depths);
     const JointStep step = system.Solve(system.RightHandSide(*inverse_depths));

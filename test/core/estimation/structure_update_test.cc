@@ -387,7 +387,7 @@ std::pair<double, double> RecoverPerturbedPose(const BlurScene& scene, const Blu
   for (int round = 0; round < 4; ++round) {
     const std::vector<BlurPoseTerm> terms = make_terms({poses[0], poses[2], poses[1]});
     UpdatePoses(scene.camera, {scene.inverse_depth, scene.inverse_depth, scene.inverse_depth}, unused, {},
-                options, &poses, /*num_fixed=*/2, &terms);
+                options, &poses, /*num_fixed=*/2, /*prior=*/nullptr, &terms);
   }
   return {before, (poses[2] * scene.poses[1].Inverse()).Log().norm()};
 }

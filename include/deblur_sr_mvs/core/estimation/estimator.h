@@ -112,6 +112,27 @@ struct EstimatorOptions {
   VisibilityOptions visibility;
   InitializerOptions initializer;
   bool update_poses = true;  // false keeps the initial poses
+  // With a pose prior (EstimatorInput::T_prior_cam and
+  // initializer.pose_prior_position_sigma > 0): the structure update's pose
+  // steps (UpdatePoses, the joint depth + pose step) carry the prior's
+  // centres and orientations as Huber terms with the initialiser's sigmas
+  // (PosePriorTerms), in the world of the structure the window starts from,
+  // carried there by the robust Sim(3) of its poses to the prior. Without
+  // them the iterations keep the initialiser's scale only through the
+  // depth, and move along the bas-relief direction (a rotation traded for a
+  // shift of the inverse depths) by a few percent of the depth in metres
+  // (BENCHMARKS.md "The pose prior in the joint iterations"). false: only
+  // the initialisation and the output alignment use the prior.
+  bool pose_prior_in_iterations = true;
+  // The weight of those terms against the photometric ones: 1 treats every
+  // matched value of the pose update as an independent observation
+  // (Laplace, scale = the mean absolute residual), which overstates the
+  // photometric evidence by orders of magnitude (neighbouring values, the
+  // pairs that share a frame, and the restored and input pair of each are
+  // far from independent), so that the prior then changes nothing. The
+  // default is measured (BENCHMARKS.md "The pose prior in the joint
+  // iterations").
+  double pose_prior_weight = 1e4;
   // Leading frames whose poses the structure update holds (>= 1: frame 0 is
   // the gauge). The stream holds the frames shared with the previous window,
   // which then also fixes the scale.

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <memory>
+#include <optional>
 #include <vector>
 
 #include <Eigen/Core>
@@ -211,15 +212,48 @@ BlurPoseTerm LinearizeBlurredPairInPoses(const CaptureGeometry& geometry, const 
                                          const CaptureOperator& psi_t, const cv::Mat& observation, double weight,
                                          const StructureUpdateOptions& options);
 
+// A pose prior (EstimatorInput::T_prior_cam) in the window's world, as
+// terms of the structure update: per frame the prior's camera centre and
+// orientation carried into the world by the similarity that aligns the
+// window to the prior (AlignToPrior), Huber-weighted. The photometric terms
+// do not see the monocular scale, nor, well, the bas-relief trade of a
+// rotation against the inverse depths; the prior is the metric evidence
+// for both (docs/file_formats.md#monocular-scale).
+struct PosePriorTerms {
+  // Per frame: the prior's camera centre in the world; none: no prior term
+  // (no prior pose, or one the alignment left out).
+  std::vector<std::optional<Eigen::Vector3d>> centre_world;
+  std::vector<Eigen::Matrix3d> R_world_cam;  // per frame: the prior's orientation in the world
+  double position_sigma = 0.0;  // per axis, world units (> 0 where a centre is given)
+  double rotation_sigma = 0.0;  // radians; 0: centres only
+  double huber = 2.0;           // quadratic up to this many sigmas (as the initialiser's)
+  // Multiplies the terms' weight (EstimatorOptions::pose_prior_weight).
+  double weight = 1.0;
+  bool any() const;             // some frame has a term
+};
+
+// Adds the prior's Huber-reweighted normal equations at T_world_cam to a
+// pose system H eps = g (eps = (rho, phi) per frame, P_f <- Exp(eps_f) P_f),
+// frame f >= num_fixed at block f - offset, in units of the photometric
+// terms: `photometric_scale` b (their mean absolute residual) times
+// prior.weight times the prior's 0.5 |e / sigma|^2; with weight 1 the MAP
+// weighting of an L1 (Laplace, scale b) data term of independent values
+// against the prior's Gaussian.
+void AddPosePriorNormalEquations(const PosePriorTerms& prior, const std::vector<SE3>& T_world_cam,
+                                 int num_fixed, int offset, double photometric_scale, Eigen::MatrixXd* hessian,
+                                 Eigen::VectorXd* gradient);
+
 // Gauss-Newton/IRLS update of all poses but the first `num_fixed` (>= 1; frame
-// 0 is the gauge) from all pairs, with depth fixed. Returns the applied
-// tangent steps (6 per frame; zero for the fixed frames). `blur_terms`
-// (optional): blur as motion evidence, linearised at the given poses; each
-// Gauss-Newton step sees them at r0 - J (the steps taken so far).
+// 0 is the gauge) from all pairs, with depth fixed, and the pose prior's
+// terms if given (with any()). Returns the applied tangent steps (6 per
+// frame; zero for the fixed frames). `blur_terms` (optional): blur as motion
+// evidence, linearised at the given poses; each Gauss-Newton step sees them
+// at r0 - J (the steps taken so far).
 std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr, const std::vector<cv::Mat>& inverse_depths,
                                   const std::vector<cv::Mat>& latents, const std::vector<PairMatching>& pairs,
                                   const StructureUpdateOptions& options, std::vector<SE3>* T_world_cam,
-                                  int num_fixed = 1, const std::vector<BlurPoseTerm>* blur_terms = nullptr);
+                                  int num_fixed = 1, const PosePriorTerms* prior = nullptr,
+                                  const std::vector<BlurPoseTerm>* blur_terms = nullptr);
 
 // The terms of one frame's depth update (as UpdateDepth takes them).
 struct FrameDepthTerms {
@@ -246,12 +280,15 @@ struct JointStep {
 // = G^T Psi^T W Psi A and N_pp the pose update's blocks (plus its damping).
 // The first `num_fixed` poses are held; with one held pose the scale is
 // fixed by holding the length of the first free frame's baseline to the
-// held frame (the pose update alone fixes it by holding the depth).
+// held frame (the pose update alone fixes it by holding the depth), unless
+// a pose prior (`prior`, optional) has a centre on a free frame: its terms
+// join N_pp and the rhs, and fix the scale.
 class JointDepthPoseSystem {
  public:
   JointDepthPoseSystem(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world_cam,
                        const std::vector<cv::Mat>& latents, const std::vector<FrameDepthTerms>& frames,
-                       double parallax_scale, const StructureUpdateOptions& options, int num_fixed);
+                       double parallax_scale, const StructureUpdateOptions& options, int num_fixed,
+                       const PosePriorTerms* prior = nullptr);
   ~JointDepthPoseSystem();
   // Linearises and reweights every term at the given state (T_world_cam is
   // the vector given to the constructor, read at each call).
@@ -276,11 +313,12 @@ class JointDepthPoseSystem {
 };
 
 // joint_irls_iterations joint steps (JointDepthPoseSystem) of all frames'
-// depths and the poses but the first `num_fixed` (>= 1). `frames[t]` holds
+// depths and the poses but the first `num_fixed` (>= 1), with the pose
+// prior's terms if given. `frames[t]` holds
 // frame t's depth terms; latents as in UpdateDepth.
 void UpdateDepthAndPoses(const PinholeCamera& camera_hr, const std::vector<cv::Mat>& latents,
                          const std::vector<FrameDepthTerms>& frames, double parallax_scale,
                          const StructureUpdateOptions& options, int num_fixed, std::vector<SE3>* T_world_cam,
-                         std::vector<cv::Mat>* inverse_depths);
+                         std::vector<cv::Mat>* inverse_depths, const PosePriorTerms* prior = nullptr);
 
 }  // namespace deblur_sr_mvs
