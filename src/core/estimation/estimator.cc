@@ -449,11 +449,14 @@ cv::Mat InitialLatent(const EstimatorInput& input, int t, const cv::Mat& bicubic
 
 // The pose prior of a window (EstimatorInput::T_prior_cam) as terms of the
 // structure update (EstimatorOptions::pose_prior_in_iterations), in the
-// world of T_world_cam: the frames that the robust Sim(3) of T_world_cam to
-// the prior keeps (AlignToPrior with the initialiser's options), carried
-// into that world by its inverse; the sigmas are the initialiser's, the
-// position sigma divided by the Sim(3)'s scale. None when the options leave
-// it out or the alignment fails; `note` says which.
+// world of T_world_cam, carried there by the inverse of the similarity of
+// that world to the prior: the caller's (EstimatorInput::world_to_prior),
+// with the frames whose aligned position lies within the initialiser's
+// outlier distance of the prior's, or else the robust Sim(3) of T_world_cam
+// to the prior (AlignToPrior with the initialiser's options) with the frames
+// it keeps. The sigmas are the initialiser's, the position sigma divided by
+// the similarity's scale. None when the options leave it out or the
+// alignment fails; `note` says which.
 PosePriorTerms WindowPosePrior(const EstimatorOptions& options, const EstimatorInput& input,
                                const std::vector<SE3>& T_world_cam, std::string* note) {
   PosePriorTerms terms;
@@ -470,16 +473,32 @@ PosePriorTerms WindowPosePrior(const EstimatorOptions& options, const EstimatorI
     estimated.push_back(T_world_cam[t]);
     prior.push_back(*input.T_prior_cam[t]);
   }
-  const PriorAlignment alignment = AlignToPrior(estimated, prior, init.pose_prior);
-  if (!alignment.valid) {
-    *note = "pose prior: not in the structure update (" + alignment.note + ")";
-    return terms;
+  Sim3 to_prior;
+  std::vector<int> kept;  // indices into estimated / prior
+  std::string how;
+  if (input.world_to_prior) {
+    to_prior = *input.world_to_prior;
+    for (size_t i = 0; i < estimated.size(); ++i) {
+      const Eigen::Vector3d aligned = TransformPose(to_prior, estimated[i]).translation();
+      if ((aligned - prior[i].translation()).norm() <= init.pose_prior.outlier_distance) {
+        kept.push_back(static_cast<int>(i));
+      }
+    }
+    how = "through the stream's alignment, scale " + std::to_string(to_prior.scale);
+  } else {
+    const PriorAlignment alignment = AlignToPrior(estimated, prior, init.pose_prior);
+    if (!alignment.valid) {
+      *note = "pose prior: not in the structure update (" + alignment.note + ")";
+      return terms;
+    }
+    to_prior = alignment.estimate_to_prior;
+    kept = alignment.inlier_frames;
+    how = alignment.note;
   }
-  const Sim3& to_prior = alignment.estimate_to_prior;
   const Eigen::Matrix3d R_world_prior = to_prior.rotation.transpose();
   terms.centre_world.assign(T_world_cam.size(), std::nullopt);
   terms.R_world_cam.assign(T_world_cam.size(), Eigen::Matrix3d::Identity());
-  for (int i : alignment.inlier_frames) {
+  for (int i : kept) {
     const int t = frame_of[i];
     terms.centre_world[t] = R_world_prior * (prior[i].translation() - to_prior.translation) / to_prior.scale;
     terms.R_world_cam[t] = R_world_prior * prior[i].rotation();
@@ -487,8 +506,8 @@ PosePriorTerms WindowPosePrior(const EstimatorOptions& options, const EstimatorI
   terms.position_sigma = init.pose_prior_position_sigma / to_prior.scale;
   terms.rotation_sigma = init.pose_prior_rotation_sigma_deg * M_PI / 180.0;
   terms.weight = options.pose_prior_weight;
-  *note = "pose prior in the structure update: " + std::to_string(alignment.inliers) + " of " +
-          std::to_string(alignment.used) + " frames (" + alignment.note + ")";
+  *note = "pose prior in the structure update: " + std::to_string(kept.size()) + " of " +
+          std::to_string(estimated.size()) + " frames (" + how + ")";
   return terms;
 }
 

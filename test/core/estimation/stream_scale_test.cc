@@ -64,9 +64,11 @@ TEST(StreamScale, ContinuedWindowsKeepTheScaleOfTheFirst) {
     std::cout << "frame " << t << ": depth " << units_per_metre[t] << " units/m, step from the previous "
               << step << " units/m\n";
     // Depth: the new frames in the first window's scale. A continued window
-    // takes its scale from one shared camera step, whose error (3 % here) it
-    // carries; the slide compounded 11-12 % by frame 6.
-    EXPECT_NEAR(units_per_metre[t] / first_window, 1.0, 0.10) << "frame " << t;
+    // takes its scale from the shared frames' depth maps: at most 1.7 % off
+    // here. Taken from the one shared camera step instead, its error (3-5 %
+    // per window) added up to 6.7 % by frame 6; the slide compounded
+    // 11-12 %.
+    EXPECT_NEAR(units_per_metre[t] / first_window, 1.0, 0.05) << "frame " << t;
     // Camera steps: every step of the stitched trajectory in that scale too
     // (the slide left the first step of each new window 35-60 % short).
     if (t > 0) {

@@ -20,6 +20,7 @@
 #include "deblur_sr_mvs/core/geometry/camera.h"
 #include "deblur_sr_mvs/core/geometry/frame_types.h"
 #include "deblur_sr_mvs/core/geometry/se3.h"
+#include "deblur_sr_mvs/core/geometry/sim3.h"
 #include "deblur_sr_mvs/core/geometry/visibility.h"
 #include "deblur_sr_mvs/core/imaging/capture_operator.h"
 
@@ -241,6 +242,15 @@ struct EstimatorInput {
   // initialisation adjusts the structure to it (InitializerOptions::
   // pose_prior_position_sigma); the output gauge stays as without it.
   std::vector<std::optional<SE3>> T_prior_cam;
+  // With T_prior_cam: the similarity that carries this window's world to
+  // the prior's frame, when the caller knows it already. A continued stream
+  // window (StreamEstimator) sets the stream's fit over the frames it has
+  // estimated: its held poses fix the window's world and scale, so a fresh
+  // fit on the window's few frames would only add the new frames' initial
+  // scale error to the prior's noise. Set: the prior's terms in the
+  // structure update carry the prior through it; none: through the robust
+  // Sim(3) of this window's poses (AlignToPrior).
+  std::optional<Sim3> world_to_prior;
 };
 
 // Energy of eq:energyFunction at one point of the algorithm.

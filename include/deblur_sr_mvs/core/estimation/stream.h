@@ -19,6 +19,7 @@
 
 #include "deblur_sr_mvs/core/estimation/estimator.h"
 #include "deblur_sr_mvs/core/geometry/camera.h"
+#include "deblur_sr_mvs/core/geometry/pose_prior.h"
 #include "deblur_sr_mvs/core/geometry/se3.h"
 #include "deblur_sr_mvs/core/geometry/sim3.h"
 
@@ -203,11 +204,13 @@ class StreamEstimator {
   SharedFrames SharedWithPrevious(const StreamWindow& window) const;
   // How this window's initial structure is carried into the stream's world
   // and scale; the estimator holds every shared camera where the previous
-  // window put it. When the shared cameras' path carries kMinSharedParallaxPx
-  // of parallax, the similarity of AlignPoseSequence (scale from the path).
-  // Else (cameras that barely move, or only rotate) the similarity that puts
-  // the last shared camera on its previous pose, with the scale from the
-  // shared frames' depths, or the last known median depth.
+  // window put it. Where the shared frames have depth, the similarity that
+  // puts the last shared camera on its previous pose, with the scale from
+  // those depths against the initial ones (the median ratio over their
+  // pixels). Else, when the shared cameras' path carries
+  // kMinSharedParallaxPx of parallax, the similarity of AlignPoseSequence
+  // (scale from the path); else the last shared camera's similarity with the
+  // scale from the last known median depth.
   struct StreamTie {
     Sim3 initial_to_stream;
     std::string how;  // for the window's note
@@ -241,6 +244,11 @@ class StreamEstimator {
   std::map<uint64_t, cv::Mat> last_depths_;   // its depths (HR), when observable
   std::map<uint64_t, cv::Mat> last_latents_;  // its latent images (HR)
   CarriedOperators last_operators_;           // its operators among the frames the next window shares
+  // The frames of this trajectory segment with a pose prior, as estimated:
+  // a continued window's prior terms carry the prior into the stream's
+  // world by this fit (EstimatorInput::world_to_prior). Its options are
+  // those of the constructor's initializer.pose_prior.
+  PosePriorAligner prior_history_;
   int window_overlap_ = StreamOptions().window_overlap;
   // Median depth of the last window with observable depth (stream units; 0
   // before the first).
