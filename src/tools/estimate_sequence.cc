@@ -145,6 +145,9 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   cli.add_option("--neighbours", options->neighbour_radius, "N(t) radius")->check(dsm::FlagInt());
   cli.add_option("--pose-neighbours", options->pose_neighbour_radius, "pose update radius")
       ->check(dsm::FlagInt());
+  cli.add_option("--source-occlusion-margin", options->visibility.source_depth_margin,
+                 "Omega_ts also drops pixels of t behind D_s by more than this relative margin (0: off)")
+      ->check(dsm::FlagNumber());
   cli.add_flag("--fixed-poses", flags->fixed_poses, "keep the initial poses");
   cli.add_flag("--gain-compensation,!--no-gain-compensation", options->gain_compensation,
                "estimate and divide out a per-frame gain (auto-gain), restore each image at its gain "
