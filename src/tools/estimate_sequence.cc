@@ -122,6 +122,35 @@ void AddBlurPoseOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOption
       ->check(dsm::FlagInt());
 }
 
+// --joint-depth-pose-step and its solver, and the structure update's
+// variants for depth edges (--input-edge-band, --joint-coarse-levels).
+void AddJointStepOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions* options) {
+  dsm::ToolCommandLine& cli = *command_line;
+  cli.add_flag("--joint-depth-pose-step,!--no-joint-depth-pose-step",
+               options->structure.joint_depth_pose_step,
+               "the structure update moves all depths and the free poses in one Gauss-Newton step "
+               "(default on; off: per-frame depth updates)");
+  cli.add_option("--input-edge-band", options->input_edge_band,
+                 "joint, --structure-matching both: input pairs skip pixels within this many HR px of an "
+                 "edge of the restored image (0: off)")
+      ->check(dsm::FlagInt());
+  cli.add_option("--joint-coarse-levels", options->structure.joint_coarse_levels,
+                 "with the joint step: coarse-to-fine, this many levels at 1/2, 1/4, ... first (0: off)")
+      ->check(dsm::FlagInt());
+  cli.add_option("--joint-pose-damping", options->structure.joint_pose_damping,
+                 "with --joint-depth-pose-step: Levenberg-Marquardt damping of the poses, relative to "
+                 "their diagonal")
+      ->check(dsm::FlagNumber());
+  cli.add_option("--joint-cg-iterations", options->structure.joint_cg_iterations,
+                 "with --joint-depth-pose-step: CG steps per reweighting")
+      ->check(dsm::FlagInt());
+  cli.add_option("--joint-irls-iterations", options->structure.joint_irls_iterations,
+                 "with --joint-depth-pose-step: reweightings of the joint step per structure update")
+      ->check(dsm::FlagInt());
+  cli.add_flag("--joint-pose-pairs,!--no-joint-pose-pairs", options->structure.joint_step_pose_pairs,
+               "with --joint-depth-pose-step: match the pairs within the pose radius, not only N(t)");
+}
+
 // Parses the command line into flags and options; false after --help.
 bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions* options) {
   dsm::ToolCommandLine cli("estimate_sequence", kDescription);
@@ -157,22 +186,7 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   cli.add_flag("--depth-input-pairs,!--no-depth-input-pairs", options->depth_input_pairs,
                "joint, --structure-matching both: the depth update matches the input pairs too (default "
                "on; off: restored pairs for depth, both kinds for poses)");
-  cli.add_flag("--joint-depth-pose-step,!--no-joint-depth-pose-step",
-               options->structure.joint_depth_pose_step,
-               "the structure update moves all depths and the free poses in one Gauss-Newton step "
-               "(default on; off: per-frame depth updates)");
-  cli.add_option("--joint-pose-damping", options->structure.joint_pose_damping,
-                 "with --joint-depth-pose-step: Levenberg-Marquardt damping of the poses, relative to "
-                 "their diagonal")
-      ->check(dsm::FlagNumber());
-  cli.add_option("--joint-cg-iterations", options->structure.joint_cg_iterations,
-                 "with --joint-depth-pose-step: CG steps per reweighting")
-      ->check(dsm::FlagInt());
-  cli.add_option("--joint-irls-iterations", options->structure.joint_irls_iterations,
-                 "with --joint-depth-pose-step: reweightings of the joint step per structure update")
-      ->check(dsm::FlagInt());
-  cli.add_flag("--joint-pose-pairs,!--no-joint-pose-pairs", options->structure.joint_step_pose_pairs,
-               "with --joint-depth-pose-step: match the pairs within the pose radius, not only N(t)");
+  AddJointStepOptions(&cli, options);
   AddBlurPoseOptions(&cli, options);
   cli.add_option("--structure-matching", flags->structure_matching, "both, restored or blurred")
       ->check(CLI::IsMember({"both", "restored", "blurred"}));
