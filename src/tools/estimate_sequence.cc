@@ -122,18 +122,13 @@ void AddBlurPoseOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOption
       ->check(dsm::FlagInt());
 }
 
-// --joint-depth-pose-step and its solver, and the structure update's
-// variants for depth edges (--input-edge-band, --joint-coarse-levels).
+// --joint-depth-pose-step, its solver and its coarse-to-fine levels.
 void AddJointStepOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions* options) {
   dsm::ToolCommandLine& cli = *command_line;
   cli.add_flag("--joint-depth-pose-step,!--no-joint-depth-pose-step",
                options->structure.joint_depth_pose_step,
                "the structure update moves all depths and the free poses in one Gauss-Newton step "
                "(default on; off: per-frame depth updates)");
-  cli.add_option("--input-edge-band", options->input_edge_band,
-                 "joint, --structure-matching both: input pairs skip pixels within this many HR px of an "
-                 "edge of the restored image (0: off)")
-      ->check(dsm::FlagInt());
   cli.add_option("--joint-coarse-levels", options->structure.joint_coarse_levels,
                  "with the joint step: coarse-to-fine, this many levels at 1/2, 1/4, ... first (0: off)")
       ->check(dsm::FlagInt());

@@ -581,7 +581,6 @@ class WindowSolver {
                               : std::max(options_.neighbour_radius, options_.pose_neighbour_radius);
   }
   void BuildCrossBlurredInputs();
-  cv::Mat AwayFromEdges(const cv::Mat& mask, const cv::Mat& edge_weight) const;
 
   const EstimatorOptions& options_;
   const std::atomic<bool>* cancel_;
@@ -1002,22 +1001,9 @@ void WindowSolver::AppendPairs(int t, const std::vector<int>& sources, bool with
       const int radius = PoseRadius();
       pair.observation = cross_blurred_inputs() ? &cross_blurred_[t][s - t + radius] : &bicubic_[t];
       pair.source = cross_blurred_inputs() ? &cross_blurred_[s][t - s + radius] : &bicubic_[s];
-      if (options_.input_edge_band > 0) pair.mask = AwayFromEdges(pair.mask, edge_weight_[t]);
       pairs->push_back(pair);
     }
   }
-}
-
-// `mask` less the pixels within EstimatorOptions::input_edge_band of an edge
-// of the restored image (g_t below input_edge_weight).
-cv::Mat WindowSolver::AwayFromEdges(const cv::Mat& mask, const cv::Mat& edge_weight) const {
-  cv::Mat band;
-  cv::compare(edge_weight, options_.input_edge_weight, band, cv::CMP_LT);
-  const int size = 2 * options_.input_edge_band + 1;
-  cv::dilate(band, band, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(size, size)));
-  cv::Mat away;
-  cv::bitwise_and(mask, ~band, away);
-  return away;
 }
 
 // Psi_b o B_a and Psi_a o B_b for every pair of frames within the pose
@@ -1369,8 +1355,6 @@ void EstimatorOptions::Check() const {
   CheckAtLeast("max_seconds", max_seconds, 0.0);
   CheckAbove("pose_prior_weight", pose_prior_weight, 0.0);
   CheckInRange("model_error_sigma", model_error_sigma, 1e-6, 1.0);
-  CheckInRange("input_edge_band", input_edge_band, 0, 32);
-  CheckInRange("input_edge_weight", input_edge_weight, 0.0, 1.0);
   if (noise_sigma > 1.0) throw InputError("noise_sigma must be <= 1 (intensity units; negative: auto)");
   gain.Check();
   image.Check();

@@ -185,16 +185,6 @@ struct EstimatorOptions {
   // orientation error rises from 0.15 to 0.66 deg (BENCHMARKS.md "Method
   // ablation"). So it stays on.
   bool depth_input_pairs = true;
-  // kRestoredAndInput in joint mode (issue 14, depth edges): the input pairs
-  // leave out the pixels within this many HR pixels of an edge of the
-  // restored image I_t (edge weight g_t < input_edge_weight). There the
-  // blurred inputs mix the two sides of a depth edge, and the blur that
-  // the foreground spreads over the background moves with the foreground:
-  // the input pairs pull a band of background, about one blur wide, to the
-  // foreground's depth (thin structures come out fat). The restored pairs
-  // keep those pixels. 0: off.
-  int input_edge_band = 0;
-  double input_edge_weight = 0.3;
   // Joint mode: blur as motion evidence. The pose update also takes the
   // self-consistency term lambda_s |B_t - Psi_t I_t| (eq:IPterm) linearised
   // in the poses that fix Psi_t's blur path (P_t and its neighbours,
