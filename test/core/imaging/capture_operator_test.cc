@@ -262,14 +262,21 @@ TEST(CaptureOperator, RejectsInconsistentInput) {
   EXPECT_THROW(op.Apply(wrong, &out), InputError);
 }
 
+// An 80 x 60 camera seeing a square at 1 m in front of a plane at 4 m.
+struct SquareBeforePlane {
+  PinholeCamera camera{80, 60, 100.0, 100.0, 39.5, 29.5};
+  cv::Rect square{30, 20, 20, 20};
+  cv::Mat depth;
+  SquareBeforePlane() : depth(60, 80, CV_32FC1, cv::Scalar(4.0f)) { depth(square).setTo(1.0f); }
+};
+
 // A near square in front of a far plane; the second camera moves sideways,
 // so part of the plane next to the square is hidden behind it from s.
 TEST(Visibility, OccludedBackgroundIsNotVisible) {
-  const int width = 80, height = 60;
-  const PinholeCamera camera(width, height, 100.0, 100.0, 39.5, 29.5);
-  cv::Mat depth(height, width, CV_32FC1, cv::Scalar(4.0f));
-  const cv::Rect square(30, 20, 20, 20);
-  depth(square).setTo(1.0f);
+  const SquareBeforePlane scene;
+  const PinholeCamera& camera = scene.camera;
+  const cv::Mat& depth = scene.depth;
+  const cv::Rect& square = scene.square;
   // Camera s is 0.1 m to the right: near points shift left by f b/Z = 10 px,
   // far ones by 2.5 px, so the plane just left of the square is covered.
   const SE3 T_s_t = Translation(-0.1, 0.0, 0.0);
@@ -296,11 +303,11 @@ TEST(Visibility, OccludedBackgroundIsNotVisible) {
 // there. With s's depth map (VisibilityOptions::source_depth_margin) every
 // one of them is left out, and nothing that s sees is.
 TEST(Visibility, SourceDepthFindsOccludedPixelsThatTheSplatMisses) {
-  const int width = 80, height = 60;
-  const PinholeCamera camera(width, height, 100.0, 100.0, 39.5, 29.5);
-  cv::Mat depth_t(height, width, CV_32FC1, cv::Scalar(4.0f));
-  const cv::Rect square(30, 20, 20, 20);
-  depth_t(square).setTo(1.0f);
+  const SquareBeforePlane scene;
+  const PinholeCamera& camera = scene.camera;
+  const cv::Mat& depth_t = scene.depth;
+  const cv::Rect& square = scene.square;
+  const int width = camera.width, height = camera.height;
   const SE3 T_s_t = Translation(0.0, 0.0, -0.3);
   // D_s: the square's continuous extent [29.5, 49.5] x [19.5, 39.5] of t at
   // 0.7 m, seen from s; the plane at 3.7 m.
