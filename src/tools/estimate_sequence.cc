@@ -122,6 +122,30 @@ void AddBlurPoseOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOption
       ->check(dsm::FlagInt());
 }
 
+// --joint-depth-pose-step, its solver and its coarse-to-fine levels.
+void AddJointStepOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions* options) {
+  dsm::ToolCommandLine& cli = *command_line;
+  cli.add_flag("--joint-depth-pose-step,!--no-joint-depth-pose-step",
+               options->structure.joint_depth_pose_step,
+               "the structure update moves all depths and the free poses in one Gauss-Newton step "
+               "(default on; off: per-frame depth updates)");
+  cli.add_option("--joint-coarse-levels", options->structure.joint_coarse_levels,
+                 "with the joint step: coarse-to-fine, this many levels at 1/2, 1/4, ... first (0: off)")
+      ->check(dsm::FlagInt());
+  cli.add_option("--joint-pose-damping", options->structure.joint_pose_damping,
+                 "with --joint-depth-pose-step: Levenberg-Marquardt damping of the poses, relative to "
+                 "their diagonal")
+      ->check(dsm::FlagNumber());
+  cli.add_option("--joint-cg-iterations", options->structure.joint_cg_iterations,
+                 "with --joint-depth-pose-step: CG steps per reweighting")
+      ->check(dsm::FlagInt());
+  cli.add_option("--joint-irls-iterations", options->structure.joint_irls_iterations,
+                 "with --joint-depth-pose-step: reweightings of the joint step per structure update")
+      ->check(dsm::FlagInt());
+  cli.add_flag("--joint-pose-pairs,!--no-joint-pose-pairs", options->structure.joint_step_pose_pairs,
+               "with --joint-depth-pose-step: match the pairs within the pose radius, not only N(t)");
+}
+
 // Parses the command line into flags and options; false after --help.
 bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions* options) {
   dsm::ToolCommandLine cli("estimate_sequence", kDescription);
@@ -145,6 +169,9 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   cli.add_option("--neighbours", options->neighbour_radius, "N(t) radius")->check(dsm::FlagInt());
   cli.add_option("--pose-neighbours", options->pose_neighbour_radius, "pose update radius")
       ->check(dsm::FlagInt());
+  cli.add_option("--source-occlusion-margin", options->visibility.source_depth_margin,
+                 "Omega_ts also drops pixels of t behind D_s by more than this relative margin (0: off)")
+      ->check(dsm::FlagNumber());
   cli.add_flag("--fixed-poses", flags->fixed_poses, "keep the initial poses");
   cli.add_flag("--gain-compensation,!--no-gain-compensation", options->gain_compensation,
                "estimate and divide out a per-frame gain (auto-gain), restore each image at its gain "
@@ -154,22 +181,7 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   cli.add_flag("--depth-input-pairs,!--no-depth-input-pairs", options->depth_input_pairs,
                "joint, --structure-matching both: the depth update matches the input pairs too (default "
                "on; off: restored pairs for depth, both kinds for poses)");
-  cli.add_flag("--joint-depth-pose-step,!--no-joint-depth-pose-step",
-               options->structure.joint_depth_pose_step,
-               "the structure update moves all depths and the free poses in one Gauss-Newton step "
-               "(default on; off: per-frame depth updates)");
-  cli.add_option("--joint-pose-damping", options->structure.joint_pose_damping,
-                 "with --joint-depth-pose-step: Levenberg-Marquardt damping of the poses, relative to "
-                 "their diagonal")
-      ->check(dsm::FlagNumber());
-  cli.add_option("--joint-cg-iterations", options->structure.joint_cg_iterations,
-                 "with --joint-depth-pose-step: CG steps per reweighting")
-      ->check(dsm::FlagInt());
-  cli.add_option("--joint-irls-iterations", options->structure.joint_irls_iterations,
-                 "with --joint-depth-pose-step: reweightings of the joint step per structure update")
-      ->check(dsm::FlagInt());
-  cli.add_flag("--joint-pose-pairs,!--no-joint-pose-pairs", options->structure.joint_step_pose_pairs,
-               "with --joint-depth-pose-step: match the pairs within the pose radius, not only N(t)");
+  AddJointStepOptions(&cli, options);
   AddBlurPoseOptions(&cli, options);
   cli.add_option("--structure-matching", flags->structure_matching, "both, restored or blurred")
       ->check(CLI::IsMember({"both", "restored", "blurred"}));

@@ -157,11 +157,14 @@ cv::Mat DepthFromInverse(const cv::Mat& rho) {
   return depth;
 }
 
-// Pixels of frame t (HR CV_8UC1) that frame s sees: Omega_{t,s} of eq:occSet.
+// Pixels of frame t (HR CV_8UC1) that frame s sees: Omega_{t,s} of eq:occSet,
+// with `source_depth` also the test against D_s
+// (VisibilityOptions::source_depth_margin, when it is on).
 cv::Mat VisibleFromSource(const PinholeCamera& camera_hr, const std::vector<FrameStructure>& frames, int t,
-                          int s, const VisibilityOptions& options) {
+                          int s, const VisibilityOptions& options, bool source_depth = true) {
   const SE3 T_s_t = frames[s].T_world_cam.Inverse() * frames[t].T_world_cam;
-  return ComputeVisibility(camera_hr, frames[t].depth_hr, T_s_t, options);
+  return ComputeVisibility(camera_hr, frames[t].depth_hr, T_s_t, options,
+                           source_depth ? &frames[s].depth_hr : nullptr);
 }
 
 // Operators Psi_t[src] and their visibility masks, rebuilt only when the
@@ -290,8 +293,11 @@ class OperatorCache {
     const std::vector<float>& coverage = entry->op.coverage();
     for (int i = 0; i < lr.area(); ++i) entry->mask.ptr<uchar>()[i] = coverage[i] >= 1.0f ? 255 : 0;
     if (source != t) {
-      const cv::Mat visible = DownscaleMaskAll(VisibleFromSource(camera_hr_, frames, t, source, visibility_),
-                                               camera_hr_.width / lr.width);
+      // D_t's own occlusion test only: the cache's versions do not follow
+      // D_source (VisibilityOptions::source_depth_margin is for the HR pairs).
+      const cv::Mat visible = DownscaleMaskAll(
+          VisibleFromSource(camera_hr_, frames, t, source, visibility_, /*source_depth=*/false),
+          camera_hr_.width / lr.width);
       cv::bitwise_and(entry->mask, visible, entry->mask);
     }
     return entry;

@@ -6,6 +6,8 @@
 #include <array>
 #include <cmath>
 #include <cstring>
+#include <list>
+#include <map>
 #include <memory>
 
 #include <Eigen/Dense>
@@ -637,6 +639,7 @@ void StructureUpdateOptions::Check() const {
   CheckAtLeast("structure update: joint_cg_iterations", joint_cg_iterations, 1);
   CheckAtLeast("structure update: joint_irls_iterations", joint_irls_iterations, 1);
   CheckAtLeast("structure update: joint_pose_damping", joint_pose_damping, 0.0);
+  CheckInRange("structure update: joint_coarse_levels", joint_coarse_levels, 0, 4);
   CheckInRange("structure update: blur_pose_samples", blur_pose_samples, 1, 1000);
   CheckInRange("structure update: blur_pose_stride", blur_pose_stride, 1, 8);
   CheckAtLeast("structure update: blur_pose_weight", blur_pose_weight, 0.0);
@@ -1918,11 +1921,98 @@ void JointDepthPoseSystem::ApplyStep(const JointStep& step, std::vector<cv::Mat>
   impl_->ApplyStep(impl_->Flatten(step), inverse_depths, T_world_cam);
 }
 
+namespace {
+
+// Box down-sampling by an integer factor (the scaling rule's, for images,
+// inverse depths and edge weights).
+cv::Mat BoxDownsampled(const cv::Mat& image, int factor) {
+  cv::Mat out;
+  cv::resize(image, out, cv::Size(image.cols / factor, image.rows / factor), 0.0, 0.0, cv::INTER_AREA);
+  return out;
+}
+
+// The images of the coarse level: every image a pair points at (observation,
+// source) and the latents, box-downsampled once each.
+class CoarseImages {
+ public:
+  CoarseImages(const std::vector<cv::Mat>& latents, int factor) : factor_(factor) {
+    for (const cv::Mat& latent : latents) latents_.push_back(BoxDownsampled(latent, factor));
+    for (size_t i = 0; i < latents.size(); ++i) images_.emplace(&latents[i], &latents_[i]);
+  }
+  const std::vector<cv::Mat>& latents() const { return latents_; }
+  // The coarse copy of `image` (made on first use; nullptr stays nullptr).
+  const cv::Mat* Of(const cv::Mat* image) {
+    if (image == nullptr) return nullptr;
+    auto found = images_.find(image);
+    if (found != images_.end()) return found->second;
+    others_.push_back(BoxDownsampled(*image, factor_));
+    images_.emplace(image, &others_.back());
+    return &others_.back();
+  }
+
+ private:
+  const int factor_;
+  std::vector<cv::Mat> latents_;
+  std::list<cv::Mat> others_;  // stable addresses
+  std::map<const cv::Mat*, const cv::Mat*> images_;
+};
+
+// StructureUpdateOptions::joint_coarse_levels: the joint step on the window
+// box-downsampled by `factor`, its inverse-depth increments up-sampled onto
+// `inverse_depths` (each value kept above a quarter of itself, as the step
+// does). False where the level does not apply (size, blurred pairs, self term).
+bool CoarseJointStep(const PinholeCamera& camera_hr, const std::vector<cv::Mat>& latents,
+                     const std::vector<FrameDepthTerms>& frames, double parallax_scale,
+                     const StructureUpdateOptions& options, int factor, int num_fixed,
+                     std::vector<SE3>* T_world_cam, std::vector<cv::Mat>* inverse_depths,
+                     const PosePriorTerms* prior) {
+  if (camera_hr.width % factor != 0 || camera_hr.height % factor != 0) return false;
+  for (const FrameDepthTerms& frame : frames) {
+    if (frame.self != nullptr) return false;
+    for (const PairMatching& pair : frame.pairs) {
+      if (pair.blur != nullptr) return false;
+    }
+  }
+  CoarseImages images(latents, factor);
+  std::vector<FrameDepthTerms> coarse(frames.size());
+  std::vector<cv::Mat> rho(frames.size()), rho_before(frames.size());
+  for (size_t t = 0; t < frames.size(); ++t) {
+    for (PairMatching pair : frames[t].pairs) {
+      pair.observation = images.Of(pair.observation);
+      pair.source = images.Of(pair.source);
+      if (!pair.mask.empty()) pair.mask = DownscaleMaskAll(pair.mask, factor);
+      coarse[t].pairs.push_back(pair);
+    }
+    if (!frames[t].edge_weight.empty()) coarse[t].edge_weight = BoxDownsampled(frames[t].edge_weight, factor);
+    rho[t] = BoxDownsampled((*inverse_depths)[t], factor);
+    rho_before[t] = rho[t].clone();
+  }
+  StructureUpdateOptions coarse_options = options;
+  coarse_options.joint_coarse_levels = 0;
+  UpdateDepthAndPoses(camera_hr.Downscaled(factor), images.latents(), coarse, parallax_scale / factor,
+                      coarse_options, num_fixed, T_world_cam, &rho, prior);
+  for (size_t t = 0; t < frames.size(); ++t) {
+    cv::Mat increment;
+    cv::resize(rho[t] - rho_before[t], increment, (*inverse_depths)[t].size(), 0.0, 0.0, cv::INTER_LINEAR);
+    cv::Mat& fine = (*inverse_depths)[t];
+    const cv::Mat floor = fine * 0.25f;
+    const cv::Mat moved = fine + increment;
+    cv::max(moved, floor, fine);
+  }
+  return true;
+}
+
+}  // namespace
+
 void UpdateDepthAndPoses(const PinholeCamera& camera_hr, const std::vector<cv::Mat>& latents,
                          const std::vector<FrameDepthTerms>& frames, double parallax_scale,
                          const StructureUpdateOptions& options, int num_fixed, std::vector<SE3>* T_world_cam,
                          std::vector<cv::Mat>* inverse_depths, const PosePriorTerms* prior) {
   options.Check();
+  for (int level = options.joint_coarse_levels; level >= 1; --level) {
+    CoarseJointStep(camera_hr, latents, frames, parallax_scale, options, 1 << level, num_fixed, T_world_cam,
+                    inverse_depths, prior);
+  }
   JointDepthPoseSystem system(camera_hr, *T_world_cam, latents, frames, parallax_scale, options, num_fixed,
                               prior);
   for (int irls = 0; irls < options.joint_irls_iterations; ++irls) {

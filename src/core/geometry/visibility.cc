@@ -13,14 +13,20 @@ namespace deblur_sr_mvs {
 
 void VisibilityOptions::Check() const {
   CheckInInterval("visibility: depth_tolerance", depth_tolerance, 0.0, 1.0, Interval::kLeftClosed);
+  CheckInInterval("visibility: source_depth_margin", source_depth_margin, 0.0, 1.0, Interval::kLeftClosed);
 }
 
 cv::Mat ComputeVisibility(const PinholeCamera& camera, const cv::Mat& depth_t, const SE3& T_s_t,
-                          const VisibilityOptions& options) {
+                          const VisibilityOptions& options, const cv::Mat* depth_s) {
   options.Check();
   if (depth_t.type() != CV_32FC1 || depth_t.cols != camera.width || depth_t.rows != camera.height) {
     throw InputError("visibility: depth must be CV_32FC1 of the camera size");
   }
+  const bool source_test = options.source_depth_margin > 0.0 && depth_s != nullptr;
+  if (source_test && (depth_s->type() != CV_32FC1 || depth_s->size() != depth_t.size())) {
+    throw InputError("visibility: source depth must be CV_32FC1 of the camera size");
+  }
+  const float behind_source = static_cast<float>(1.0 + options.source_depth_margin);
   const int width = camera.width;
   const int height = camera.height;
   const PixelTransfer transfer(camera, T_s_t);
@@ -44,6 +50,12 @@ cv::Mat ComputeVisibility(const PinholeCamera& camera, const cv::Mat& depth_t, c
       z[x] = static_cast<float>(target_depth);
       float& slot = nearest.ptr<float>(ty)[tx];
       if (z[x] < slot) slot = z[x];
+      // Behind the surface that s sees there: occluded in s (the z-buffer
+      // above still counts x as a possible occluder of t's other pixels).
+      if (source_test) {
+        const float seen = depth_s->ptr<float>(ty)[tx];
+        if (ValidDepth(seen) && z[x] > seen * behind_source) c[x] = -1;
+      }
     }
   }
   cv::Mat visible(depth_t.size(), CV_8UC1, cv::Scalar(0));

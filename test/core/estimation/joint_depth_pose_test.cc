@@ -619,6 +619,47 @@ TEST(UpdateDepthAndPoses, BeatsTheAlternationFromAPerturbedPose) {
   }
 }
 
+// Depth rel. error after one joint step from a fronto-parallel start (true
+// poses), with `levels` coarse levels first (joint_coarse_levels) and
+// `reweightings` per level.
+double DepthErrorAfterOneStep(const PlaneScene& scene, int levels, int reweightings) {
+  StructureUpdateOptions options;
+  options.joint_coarse_levels = levels;
+  options.joint_irls_iterations = reweightings;
+  const double mean_rho = 0.5 * (cv::mean(scene.inverse_depths[0])[0] + cv::mean(scene.inverse_depths[1])[0]);
+  std::vector<cv::Mat> rho(2);
+  for (cv::Mat& r : rho) r = cv::Mat(72, 96, CV_32FC1, cv::Scalar(mean_rho));
+  std::vector<SE3> poses = scene.T_world_cam;
+  UpdateDepthAndPoses(scene.camera, scene.images, scene.Terms(cv::Mat()), scene.camera.fx * 0.12, options, 1,
+                      &poses, &rho);
+  return 0.5 * (DepthError(rho[0], scene.inverse_depths[0]) + DepthError(rho[1], scene.inverse_depths[1]));
+}
+
+// Coarse-to-fine (joint_coarse_levels): the coarse levels' increments, up-sampled,
+// move the depth towards the truth (a wrong scale of the coarse camera, of
+// the parallax scale or of the increments would move it away), so one
+// update with them ends closer than the full-resolution step alone.
+TEST(UpdateDepthAndPoses, CoarseLevelsMoveTheDepthTowardsTheTruth) {
+  const PlaneScene scene;
+  for (int reweightings : {1, 2}) {
+    const double fine = DepthErrorAfterOneStep(scene, 0, reweightings);
+    const double one = DepthErrorAfterOneStep(scene, 1, reweightings);
+    const double two = DepthErrorAfterOneStep(scene, 2, reweightings);
+    std::printf("%d reweighting(s): inverse-depth rel. error %.4f (full resolution only), %.4f (1 coarse level), "
+                "%.4f (2)\n", reweightings, fine, one, two);
+    EXPECT_LT(one, fine);
+    EXPECT_LT(two, fine);
+  }
+}
+
+TEST(StructureUpdateOptions, RejectsBadJointCoarseLevels) {
+  StructureUpdateOptions options;
+  options.joint_coarse_levels = 5;
+  EXPECT_ANY_THROW(options.Check());
+  options.joint_coarse_levels = -1;
+  EXPECT_ANY_THROW(options.Check());
+}
+
 TEST(StructureUpdateOptions, RejectsBadJointCgIterations) {
   StructureUpdateOptions options;
   options.joint_cg_iterations = 0;

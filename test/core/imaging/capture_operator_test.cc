@@ -262,14 +262,21 @@ TEST(CaptureOperator, RejectsInconsistentInput) {
   EXPECT_THROW(op.Apply(wrong, &out), InputError);
 }
 
+// An 80 x 60 camera seeing a square at 1 m in front of a plane at 4 m.
+struct SquareBeforePlane {
+  PinholeCamera camera{80, 60, 100.0, 100.0, 39.5, 29.5};
+  cv::Rect square{30, 20, 20, 20};
+  cv::Mat depth;
+  SquareBeforePlane() : depth(60, 80, CV_32FC1, cv::Scalar(4.0f)) { depth(square).setTo(1.0f); }
+};
+
 // A near square in front of a far plane; the second camera moves sideways,
 // so part of the plane next to the square is hidden behind it from s.
 TEST(Visibility, OccludedBackgroundIsNotVisible) {
-  const int width = 80, height = 60;
-  const PinholeCamera camera(width, height, 100.0, 100.0, 39.5, 29.5);
-  cv::Mat depth(height, width, CV_32FC1, cv::Scalar(4.0f));
-  const cv::Rect square(30, 20, 20, 20);
-  depth(square).setTo(1.0f);
+  const SquareBeforePlane scene;
+  const PinholeCamera& camera = scene.camera;
+  const cv::Mat& depth = scene.depth;
+  const cv::Rect& square = scene.square;
   // Camera s is 0.1 m to the right: near points shift left by f b/Z = 10 px,
   // far ones by 2.5 px, so the plane just left of the square is covered.
   const SE3 T_s_t = Translation(-0.1, 0.0, 0.0);
@@ -289,6 +296,61 @@ TEST(Visibility, OccludedBackgroundIsNotVisible) {
   EXPECT_EQ(visible_lr.at<uchar>(5, 35), 255);
 }
 
+// A near square (1 m) in front of a far plane (4 m); camera s is 0.3 m
+// closer, so the square's image grows by 1 / 0.7 = 1.43 and the forward splat
+// of D_t leaves empty cells inside it: background pixels of t whose rays land
+// in those holes pass D_t's own occlusion test although s sees the square
+// there. With s's depth map (VisibilityOptions::source_depth_margin) every
+// one of them is left out, and nothing that s sees is.
+TEST(Visibility, SourceDepthFindsOccludedPixelsThatTheSplatMisses) {
+  const SquareBeforePlane scene;
+  const PinholeCamera& camera = scene.camera;
+  const cv::Mat& depth_t = scene.depth;
+  const cv::Rect& square = scene.square;
+  const int width = camera.width, height = camera.height;
+  const SE3 T_s_t = Translation(0.0, 0.0, -0.3);
+  // D_s: the square's continuous extent [29.5, 49.5] x [19.5, 39.5] of t at
+  // 0.7 m, seen from s; the plane at 3.7 m.
+  const auto to_s = [](double t_coordinate, double centre) { return centre + (t_coordinate - centre) / 0.7; };
+  const cv::Rect2d square_s(cv::Point2d(to_s(29.5, 39.5), to_s(19.5, 29.5)),
+                            cv::Point2d(to_s(49.5, 39.5), to_s(39.5, 29.5)));
+  cv::Mat depth_s(height, width, CV_32FC1, cv::Scalar(3.7f));
+  for (int v = 0; v < height; ++v) {
+    for (int u = 0; u < width; ++u) {
+      if (square_s.contains(cv::Point2d(u, v))) depth_s.at<float>(v, u) = 0.7f;
+    }
+  }
+  VisibilityOptions options;
+  const cv::Mat own = ComputeVisibility(camera, depth_t, T_s_t, options, &depth_s);  // margin 0: ignored
+  options.source_depth_margin = 0.02;
+  const cv::Mat both = ComputeVisibility(camera, depth_t, T_s_t, options, &depth_s);
+  EXPECT_EQ(cv::countNonZero(own != ComputeVisibility(camera, depth_t, T_s_t, VisibilityOptions())), 0);
+  // Background pixels whose rays land at least one pixel inside the square's
+  // image in s are occluded there.
+  int occluded = 0, kept_by_own = 0, kept_by_both = 0;
+  const cv::Rect2d inner(square_s.x + 1.0, square_s.y + 1.0, square_s.width - 2.0, square_s.height - 2.0);
+  for (int y = 0; y < height; ++y) {
+    for (int x = 0; x < width; ++x) {
+      if (square.contains(cv::Point(x, y))) continue;
+      const cv::Point2d landing(39.5 + (x - 39.5) * 4.0 / 3.7, 29.5 + (y - 29.5) * 4.0 / 3.7);
+      if (!inner.contains(landing)) continue;
+      ++occluded;
+      kept_by_own += own.at<uchar>(y, x) != 0;
+      kept_by_both += both.at<uchar>(y, x) != 0;
+    }
+  }
+  ASSERT_GT(occluded, 50);
+  EXPECT_GT(kept_by_own, occluded / 10) << occluded;  // the splat's holes
+  EXPECT_EQ(kept_by_both, 0);
+  // What s sees is still visible: the whole square, and the plane away from it.
+  EXPECT_EQ(cv::countNonZero(both(square)), square.area());
+  EXPECT_EQ(cv::countNonZero(both(cv::Rect(0, 0, width, 8))), cv::countNonZero(own(cv::Rect(0, 0, width, 8))));
+  EXPECT_GT(cv::countNonZero(both(cv::Rect(0, 0, width, 8))), 0);
+  // A source depth of the wrong size is an input error.
+  const cv::Mat small(10, 10, CV_32FC1, cv::Scalar(1.0f));
+  EXPECT_THROW(ComputeVisibility(camera, depth_t, T_s_t, options, &small), InputError);
+}
+
 TEST(EdgeWeight, FlatIsOneAndEdgesAreSmall) {
   cv::Mat image(20, 20, CV_32FC1, cv::Scalar(0.3f));
   image.colRange(10, 20).setTo(0.9f);
@@ -306,6 +368,9 @@ TEST(EdgeWeight, FlatIsOneAndEdgesAreSmall) {
   ExpectInputError([&] { visibility.Check(); }, "visibility: depth_tolerance must be in [0, 1), got 1");
   visibility.depth_tolerance = -0.5;
   ExpectInputError([&] { visibility.Check(); }, "visibility: depth_tolerance must be in [0, 1), got -0.5");
+  visibility = VisibilityOptions();
+  visibility.source_depth_margin = -0.1;
+  ExpectInputError([&] { visibility.Check(); }, "visibility: source_depth_margin must be in [0, 1), got -0.1");
 }
 
 }  // namespace

@@ -84,6 +84,17 @@ struct StructureUpdateOptions {
   // measured, it holds the lateral poses but loses depth on the arc and
   // hand-held paths and costs a fifth more.
   bool joint_step_pose_pairs = false;
+  // Coarse-to-fine (issue 14): before the joint step at full resolution,
+  // UpdateDepthAndPoses runs the same step on the images, masks, edge
+  // weights and inverse depths box-downsampled by 2, 4, ... (this many
+  // levels, coarsest first; a level whose size does not divide is skipped)
+  // and adds each level's inverse-depth increments, bilinearly up-sampled,
+  // to the finer maps; the poses move at every level. A coarse grid moves a
+  // depth edge or a smooth region by more full-resolution pixels per step
+  // (a wider basin, faster TV propagation). HR pairs only: frames with the
+  // blurred pairs or the self-consistency term skip the coarse levels.
+  // 0: off.
+  int joint_coarse_levels = 0;
   // Blur as motion evidence (EstimatorOptions::blur_pose_evidence): the
   // self-consistency term's Jacobian in the poses (LinearizeBlurInPoses)
   // from at most this many of Psi_t's virtual cameras, evenly spread over
