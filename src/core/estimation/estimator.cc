@@ -941,8 +941,17 @@ void WindowSolver::UpdateAllPoses(int iteration, bool isolated, const std::vecto
   const double before = isolated ? TotalEnergy(iteration, "structure").total : 0.0;
   std::vector<PairMatching> pairs;
   HeldOperators held;
-  for (int t = 0; t < num_frames_; ++t)
-    AppendPairs(t, Neighbours(t, num_frames_, pose_radius), /*with_inputs=*/true, &pairs, &held);
+  // Pairs between two held poses would enter only held rows (their masks
+  // and terms are not formed: StructureUpdateOptions::skip_held_pose_work).
+  const int held_poses =
+      structure_options.skip_held_pose_work && !pose_prior_.any() ? options_.fixed_leading_poses : 0;
+  for (int t = 0; t < num_frames_; ++t) {
+    std::vector<int> sources = Neighbours(t, num_frames_, pose_radius);
+    if (t < held_poses) {
+      sources.erase(sources.begin(), std::lower_bound(sources.begin(), sources.end(), held_poses));
+    }
+    AppendPairs(t, sources, /*with_inputs=*/true, &pairs, &held);
+  }
   std::vector<SE3> updated = poses;
   const bool blur_evidence = joint_ && options_.blur_pose_evidence;
   const std::vector<BlurPoseTerm> blur_terms =

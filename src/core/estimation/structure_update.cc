@@ -805,12 +805,16 @@ class DepthNormalEquations {
 
   // `coupling_reference` (>= 0): the pairs' pose terms are formed too, and
   // the coupling of the pose column of that frame is left out (see
-  // couplings()).
+  // couplings()). `held_poses`: the leading frames whose pose increments
+  // the caller holds at zero; with a held reference, their columns and the
+  // pose terms of pairs between two of them are not formed (they multiply,
+  // or enter, only held increments: StructureUpdateOptions::
+  // skip_held_pose_work).
   DepthNormalEquations(const PinholeCamera& camera_hr, const std::vector<SE3>& T_world_cam,
                        const std::vector<cv::Mat>& latents, const std::vector<PairMatching>& pairs,
                        const SelfConsistencyLinearization* self, const cv::Mat& edge_weight,
                        double parallax_scale, const StructureUpdateOptions& options,
-                       int coupling_reference = kNoPoseCoupling)
+                       int coupling_reference = kNoPoseCoupling, int held_poses = 0)
       : camera_hr_(camera_hr),
         T_world_cam_(T_world_cam),
         latents_(latents),
@@ -820,6 +824,7 @@ class DepthNormalEquations {
         parallax_scale_(parallax_scale),
         options_(options),
         coupling_reference_(coupling_reference),
+        held_poses_(held_poses),
         width_(camera_hr.width),
         height_(camera_hr.height),
         c2_(parallax_scale * parallax_scale),
@@ -935,6 +940,18 @@ class DepthNormalEquations {
   };
 
   bool pose_coupling() const { return coupling_reference_ != kNoPoseCoupling; }
+  bool held(int frame) const { return frame < held_poses_; }
+  // Whether `frame`'s pose column is formed: not the reference's, nor, with
+  // a held reference, a held frame's (its increment and the reference's
+  // are both zero, so the column multiplies zero and its products land in
+  // held rows).
+  bool formed_column(int frame) const {
+    return frame != coupling_reference_ && !(held(frame) && held(coupling_reference_));
+  }
+  // Whether pair p's pose terms are formed: not between two held frames.
+  bool pose_terms_formed(const PairMatching& pair) const {
+    return pose_coupling() && !(held(pair.t) && held(pair.s));
+  }
 
   // The index in couplings_ of the pose column of `frame` (zero when new).
   size_t Column(int frame) {
@@ -948,7 +965,7 @@ class DepthNormalEquations {
   // eps_s's, leaving out the reference's (columns made first: pointers
   // into couplings_ last until it grows).
   CouplingTargets TargetsOf(const PairMatching& pair) {
-    const bool with_t = pair.t != coupling_reference_, with_s = pair.s != coupling_reference_;
+    const bool with_t = formed_column(pair.t), with_s = formed_column(pair.s);
     const size_t column_t = with_t ? Column(pair.t) : 0, column_s = with_s ? Column(pair.s) : 0;
     CouplingTargets targets;
     if (with_t) targets[0] = {&couplings_[column_t].images, 1.0f};
@@ -976,8 +993,8 @@ class DepthNormalEquations {
       PairState& state = states_[p];
       // HR pairs form their pose terms in one pass (HrPairPoseTerms), without
       // the pose Jacobian images.
-      const bool jacobian_images = pose_coupling() && pair.blur != nullptr;
-      const bool hr_pose_terms = pose_coupling() && !jacobian_images;
+      const bool jacobian_images = pose_terms_formed(pair) && pair.blur != nullptr;
+      const bool hr_pose_terms = pose_terms_formed(pair) && pair.blur == nullptr;
       const WarpLinearization lin = LinearizeWarpSampled(
           camera_hr_, inverse_depth, T_world_cam_[pair.t], T_world_cam_[pair.s], SourceImage(pair, latents_),
           jacobian_images ? &pose_jacobians : nullptr, hr_pose_terms ? &warped_gradients : nullptr);
@@ -1127,6 +1144,7 @@ class DepthNormalEquations {
   const double parallax_scale_;
   const StructureUpdateOptions& options_;
   const int coupling_reference_;  // kNoPoseCoupling: no pose terms
+  const int held_poses_;          // leading frames with held pose increments
   const int width_, height_;
   const double c2_;
   std::vector<PairState> states_;
@@ -1413,11 +1431,15 @@ std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr, const std::vec
   const std::vector<std::vector<int>> groups = GroupPairsByWarp(pairs);
   const int num_groups = static_cast<int>(groups.size());
   std::vector<PairNormalEquations> equations(num_groups);
+  // Groups between two fixed frames enter only fixed rows (AssemblePoseSystem
+  // leaves them out); a pose prior still reads their residuals.
+  const bool skip_fixed_pairs = options.skip_held_pose_work && !(prior != nullptr && prior->any());
   for (int iteration = 0; iteration < options.pose_iterations; ++iteration) {
     // Per group (in parallel): r(eps) = r0 - A (eps_t - eps_s), A^T W A and A^T W r0.
 #pragma omp parallel for schedule(dynamic, 1)
     for (int g = 0; g < num_groups; ++g) {
       const PairMatching& pair = pairs[groups[g].front()];
+      if (skip_fixed_pairs && pair.t < num_fixed && pair.s < num_fixed) continue;
       const SE3& T_world_t = (*T_world_cam)[pair.t];
       const SE3& T_world_s = (*T_world_cam)[pair.s];
       if (pair.blur != nullptr) {
@@ -1503,9 +1525,9 @@ class JointDepthPoseSystem::Impl {
     for (int t = 0; t < num_frames_; ++t) {
       if (frames[t].pairs.empty() && frames[t].self == nullptr) continue;  // D_t stays
       reference_[t] = ReferenceFrame(t);
-      systems_[t] = std::make_unique<DepthNormalEquations>(camera_hr, T_world_cam, latents, frames[t].pairs,
-                                                           frames[t].self, frames[t].edge_weight,
-                                                           parallax_scale, options, reference_[t]);
+      systems_[t] = std::make_unique<DepthNormalEquations>(
+          camera_hr, T_world_cam, latents, frames[t].pairs, frames[t].self, frames[t].edge_weight, parallax_scale,
+          options, reference_[t], options.skip_held_pose_work ? num_fixed_ : 0);
       if (prior_ != nullptr) systems_[t]->MeasureResiduals();
     }
   }

@@ -113,6 +113,16 @@ struct StructureUpdateOptions {
   // LinearizeBlurredPairInPoses, weight 1 each): I_t was fitted to B_t
   // through the current blur, which then holds the poses where they were.
   bool blur_pose_from_pairs = false;
+  // A pair whose two frames both have held poses (the `num_fixed` leading
+  // frames: the frames a stream's window shares with the previous one)
+  // enters only the held poses' rows and columns of the pose systems, which
+  // the held poses then zero. true: its pose terms are not formed (in the
+  // joint step its pose Jacobians and depth-pose couplings, in UpdatePoses
+  // its normal equations; the estimator does not match it in the pose
+  // update), unless a pose prior needs its residuals. Exact: the outputs are
+  // bit for bit those of false, which only the test that checks it uses
+  // (test/core/estimation/held_pose_work_test.cc).
+  bool skip_held_pose_work = true;
   int num_threads = 0;
   void Check() const;
 };
