@@ -1405,6 +1405,26 @@ void AddPosePriorNormalEquations(const PosePriorTerms& prior, const std::vector<
   }
 }
 
+namespace {
+
+// The pose prior's terms in the pose system of UpdatePoses, in units of the
+// pairs' mean absolute residual (AddPosePriorNormalEquations); none while no
+// pair has a residual.
+void AddPosePriorInPairUnits(const PosePriorTerms& prior, const std::vector<PairNormalEquations>& equations,
+                             const std::vector<SE3>& T_world_cam, int num_fixed, Eigen::MatrixXd* hessian,
+                             Eigen::VectorXd* gradient) {
+  double absolute = 0.0, values = 0.0;
+  for (const PairNormalEquations& eq : equations) {
+    absolute += eq.absolute_residuals;
+    values += eq.values;
+  }
+  if (values > 0.0) {
+    AddPosePriorNormalEquations(prior, T_world_cam, num_fixed, num_fixed, absolute / values, hessian, gradient);
+  }
+}
+
+}  // namespace
+
 std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr, const std::vector<cv::Mat>& inverse_depths,
                                   const std::vector<cv::Mat>& latents, const std::vector<PairMatching>& pairs,
                                   const StructureUpdateOptions& options, std::vector<SE3>* T_world_cam,
@@ -1466,15 +1486,7 @@ std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr, const std::vec
       damped(i, i) += options.pose_damping * hessian(i, i) + 1e-12;
     }
     if (prior != nullptr && prior->any()) {
-      double absolute = 0.0, values = 0.0;
-      for (const PairNormalEquations& eq : equations) {
-        absolute += eq.absolute_residuals;
-        values += eq.values;
-      }
-      if (values > 0.0) {
-        AddPosePriorNormalEquations(*prior, *T_world_cam, num_fixed, num_fixed, absolute / values, &damped,
-                                    &gradient);
-      }
+      AddPosePriorInPairUnits(*prior, equations, *T_world_cam, num_fixed, &damped, &gradient);
     }
     const Eigen::VectorXd step = damped.ldlt().solve(gradient);
     if (!step.allFinite()) break;
