@@ -1380,6 +1380,10 @@ void EstimatorOptions::Check() const {
   CheckAtLeast("fixed_leading_poses", fixed_leading_poses, 1);
   CheckAtLeast("held_leading_latents", held_leading_latents, 0);
   CheckAtLeast("carried_frames", carried_frames, 0);
+  CheckInRange("continued_joint_irls_iterations", continued_joint_irls_iterations, 0, 20);
+  CheckInRange("continued_joint_cg_iterations", continued_joint_cg_iterations, 0, 1000);
+  CheckInRange("continued_pose_iterations", continued_pose_iterations, 0, 100);
+  CheckInRange("continued_max_iterations", continued_max_iterations, -1, 100);
   CheckAtLeast("max_seconds", max_seconds, 0.0);
   CheckAbove("pose_prior_weight", pose_prior_weight, 0.0);
   CheckInRange("model_error_sigma", model_error_sigma, 1e-6, 1.0);

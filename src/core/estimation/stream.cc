@@ -251,6 +251,18 @@ bool AllOfSize(const std::vector<cv::Mat>& maps, const cv::Size& size, int chann
   return true;
 }
 
+// A continued window's own budget (EstimatorOptions::continued_*), where set.
+void ApplyContinuedBudget(EstimatorOptions* options) {
+  if (options->continued_joint_irls_iterations > 0) {
+    options->structure.joint_irls_iterations = options->continued_joint_irls_iterations;
+  }
+  if (options->continued_joint_cg_iterations > 0) {
+    options->structure.joint_cg_iterations = options->continued_joint_cg_iterations;
+  }
+  if (options->continued_pose_iterations > 0) options->structure.pose_iterations = options->continued_pose_iterations;
+  if (options->continued_max_iterations >= 0) options->max_iterations = options->continued_max_iterations;
+}
+
 }  // namespace
 
 StreamEstimator::StreamTie StreamEstimator::TieToStream(const InitialStructure& initial,
@@ -324,6 +336,7 @@ bool StreamEstimator::ContinueTrajectory(const EstimatorInput& input, const Shar
   held.fixed_leading_poses = num_shared;
   held.keep_input_gauge = true;
   held.structure.pose_damping = std::max(held.structure.pose_damping, kContinuedPoseDamping);
+  ApplyContinuedBudget(&held);
   // Operators of the previous window whose structure did not change are
   // used as they are; this window's are handed to the next.
   held.carried_frames = window_overlap_;

@@ -158,6 +158,17 @@ struct EstimatorOptions {
   // keep_input_gauge, in whose world the next window receives the
   // structure. 0: none.
   int carried_frames = 0;
+  // A continued stream window (StreamEstimator::Process with frames shared
+  // with the previous window, whose poses, depths and images start it warm):
+  // the joint depth + pose step's reweightings and CG steps per reweighting
+  // there, in place of structure.joint_irls_iterations /
+  // structure.joint_cg_iterations. 0: the same as in any window.
+  int continued_joint_irls_iterations = 0;
+  int continued_joint_cg_iterations = 0;
+  // ... the pose update's Gauss-Newton steps there (0: structure.pose_iterations)
+  int continued_pose_iterations = 0;
+  // ... and the iterations of Algorithm 1 there (-1: max_iterations).
+  int continued_max_iterations = -1;
   // Output gauge (docs/file_formats.md#monocular-scale). false: world = the
   // first camera, monocular scale such that the median scene depth of the
   // window is 1 unit. true: the world and scale of the structure given to
