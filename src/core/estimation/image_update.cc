@@ -20,53 +20,46 @@ size_t NumValues(const cv::Mat& m) {
   return m.total() * m.channels();
 }
 
-}  // namespace
-
-// Four interleaved partial sums (value i to sum i mod 4, the last n mod 4
-// values to sum 0, added as (s0 + s1) + (s2 + s3)): four independent chains
-// of double adds instead of one, which bounded the CG's reductions by the
-// add latency. Same values up to double rounding as one running sum.
-double CgDot(const cv::Mat& a, const cv::Mat& b, int threads) {
+// a . b and, with kSquare, a . a of n values: four interleaved partial sums
+// each (value i to sum i mod 4, the last n mod 4 values to sum 0, added as
+// (s0 + s1) + (s2 + s3)), i.e. four independent chains of double adds
+// instead of one, which bounded the CG's reductions by the add latency.
+// Same values up to double rounding as one running sum.
+template <bool kSquare>
+void InterleavedSums(const cv::Mat& a, const cv::Mat& b, int threads, double* ab, double* aa) {
   const float* pa = a.ptr<float>();
   const float* pb = b.ptr<float>();
   const long n = static_cast<long>(NumValues(a)), blocks = n / 4;
-  double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
-#pragma omp parallel for reduction(+ : s0, s1, s2, s3) num_threads(threads) schedule(static)
-  for (long k = 0; k < blocks; ++k) {
-    const long i = 4 * k;
-    s0 += static_cast<double>(pa[i]) * pb[i];
-    s1 += static_cast<double>(pa[i + 1]) * pb[i + 1];
-    s2 += static_cast<double>(pa[i + 2]) * pb[i + 2];
-    s3 += static_cast<double>(pa[i + 3]) * pb[i + 3];
-  }
-  for (long i = 4 * blocks; i < n; ++i) s0 += static_cast<double>(pa[i]) * pb[i];
-  return (s0 + s1) + (s2 + s3);
-}
-
-// (a . a, a . b) in one pass, each in the partial sums of CgDot.
-std::pair<double, double> CgSquaredNormAndDot(const cv::Mat& a, const cv::Mat& b, int threads) {
-  const float* pa = a.ptr<float>();
-  const float* pb = b.ptr<float>();
-  const long n = static_cast<long>(NumValues(a)), blocks = n / 4;
-  double aa0 = 0.0, aa1 = 0.0, aa2 = 0.0, aa3 = 0.0, ab0 = 0.0, ab1 = 0.0, ab2 = 0.0, ab3 = 0.0;
-#pragma omp parallel for reduction(+ : aa0, aa1, aa2, aa3, ab0, ab1, ab2, ab3) num_threads(threads) \
+  double ab0 = 0.0, ab1 = 0.0, ab2 = 0.0, ab3 = 0.0, aa0 = 0.0, aa1 = 0.0, aa2 = 0.0, aa3 = 0.0;
+  const auto add = [pa, pb](long i, double& ab_sum, double& aa_sum) {
+    ab_sum += static_cast<double>(pa[i]) * pb[i];
+    if (kSquare) aa_sum += static_cast<double>(pa[i]) * pa[i];
+  };
+#pragma omp parallel for reduction(+ : ab0, ab1, ab2, ab3, aa0, aa1, aa2, aa3) num_threads(threads) \
     schedule(static)
   for (long k = 0; k < blocks; ++k) {
-    const long i = 4 * k;
-    aa0 += static_cast<double>(pa[i]) * pa[i];
-    aa1 += static_cast<double>(pa[i + 1]) * pa[i + 1];
-    aa2 += static_cast<double>(pa[i + 2]) * pa[i + 2];
-    aa3 += static_cast<double>(pa[i + 3]) * pa[i + 3];
-    ab0 += static_cast<double>(pa[i]) * pb[i];
-    ab1 += static_cast<double>(pa[i + 1]) * pb[i + 1];
-    ab2 += static_cast<double>(pa[i + 2]) * pb[i + 2];
-    ab3 += static_cast<double>(pa[i + 3]) * pb[i + 3];
+    add(4 * k, ab0, aa0);
+    add(4 * k + 1, ab1, aa1);
+    add(4 * k + 2, ab2, aa2);
+    add(4 * k + 3, ab3, aa3);
   }
-  for (long i = 4 * blocks; i < n; ++i) {
-    aa0 += static_cast<double>(pa[i]) * pa[i];
-    ab0 += static_cast<double>(pa[i]) * pb[i];
-  }
-  return {(aa0 + aa1) + (aa2 + aa3), (ab0 + ab1) + (ab2 + ab3)};
+  for (long i = 4 * blocks; i < n; ++i) add(i, ab0, aa0);
+  *ab = (ab0 + ab1) + (ab2 + ab3);
+  if (aa != nullptr) *aa = (aa0 + aa1) + (aa2 + aa3);
+}
+
+}  // namespace
+
+double CgDot(const cv::Mat& a, const cv::Mat& b, int threads) {
+  double ab = 0.0;
+  InterleavedSums<false>(a, b, threads, &ab, nullptr);
+  return ab;
+}
+
+std::pair<double, double> CgSquaredNormAndDot(const cv::Mat& a, const cv::Mat& b, int threads) {
+  double ab = 0.0, aa = 0.0;
+  InterleavedSums<true>(a, b, threads, &ab, &aa);
+  return {aa, ab};
 }
 
 namespace {
