@@ -20,29 +20,49 @@ size_t NumValues(const cv::Mat& m) {
   return m.total() * m.channels();
 }
 
-double Dot(const cv::Mat& a, const cv::Mat& b, int threads) {
+// a . b and, with kSquare, a . a of n values: four interleaved partial sums
+// each (value i to sum i mod 4, the last n mod 4 values to sum 0, added as
+// (s0 + s1) + (s2 + s3)), i.e. four independent chains of double adds
+// instead of one, which bounded the CG's reductions by the add latency.
+// Same values up to double rounding as one running sum.
+template <bool kSquare>
+void InterleavedSums(const cv::Mat& a, const cv::Mat& b, int threads, double* ab, double* aa) {
   const float* pa = a.ptr<float>();
   const float* pb = b.ptr<float>();
-  const long n = static_cast<long>(NumValues(a));
-  double sum = 0.0;
-#pragma omp parallel for reduction(+ : sum) num_threads(threads) schedule(static)
-  for (long i = 0; i < n; ++i) sum += static_cast<double>(pa[i]) * pb[i];
-  return sum;
+  const long n = static_cast<long>(NumValues(a)), blocks = n / 4;
+  double ab0 = 0.0, ab1 = 0.0, ab2 = 0.0, ab3 = 0.0, aa0 = 0.0, aa1 = 0.0, aa2 = 0.0, aa3 = 0.0;
+  const auto add = [pa, pb](long i, double& ab_sum, double& aa_sum) {
+    ab_sum += static_cast<double>(pa[i]) * pb[i];
+    if (kSquare) aa_sum += static_cast<double>(pa[i]) * pa[i];
+  };
+#pragma omp parallel for reduction(+ : ab0, ab1, ab2, ab3, aa0, aa1, aa2, aa3) num_threads(threads) \
+    schedule(static)
+  for (long k = 0; k < blocks; ++k) {
+    add(4 * k, ab0, aa0);
+    add(4 * k + 1, ab1, aa1);
+    add(4 * k + 2, ab2, aa2);
+    add(4 * k + 3, ab3, aa3);
+  }
+  for (long i = 4 * blocks; i < n; ++i) add(i, ab0, aa0);
+  *ab = (ab0 + ab1) + (ab2 + ab3);
+  if (aa != nullptr) *aa = (aa0 + aa1) + (aa2 + aa3);
 }
 
-// (a . a, a . b) in one pass; each sum in the order Dot would take.
-std::pair<double, double> SquaredNormAndDot(const cv::Mat& a, const cv::Mat& b, int threads) {
-  const float* pa = a.ptr<float>();
-  const float* pb = b.ptr<float>();
-  const long n = static_cast<long>(NumValues(a));
-  double aa = 0.0, ab = 0.0;
-#pragma omp parallel for reduction(+ : aa, ab) num_threads(threads) schedule(static)
-  for (long i = 0; i < n; ++i) {
-    aa += static_cast<double>(pa[i]) * pa[i];
-    ab += static_cast<double>(pa[i]) * pb[i];
-  }
+}  // namespace
+
+double CgDot(const cv::Mat& a, const cv::Mat& b, int threads) {
+  double ab = 0.0;
+  InterleavedSums<false>(a, b, threads, &ab, nullptr);
+  return ab;
+}
+
+std::pair<double, double> CgSquaredNormAndDot(const cv::Mat& a, const cv::Mat& b, int threads) {
+  double ab = 0.0, aa = 0.0;
+  InterleavedSums<true>(a, b, threads, &ab, &aa);
   return {aa, ab};
 }
+
+namespace {
 
 // x += alpha * d and r -= alpha * q in one pass (each value as Axpy forms it).
 void StepSolutionAndResidual(double alpha, const cv::Mat& d, const cv::Mat& q, cv::Mat* x, cv::Mat* r,
@@ -348,19 +368,19 @@ int SolvePcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_normal,
   cv::Mat preconditioned, direction, normal_direction;
   apply_preconditioner(residual, &preconditioned);
   direction = preconditioned.clone();
-  auto [rr, rz] = SquaredNormAndDot(residual, preconditioned, threads);
+  auto [rr, rz] = CgSquaredNormAndDot(residual, preconditioned, threads);
   const double rr0 = rr;
   const double stop = relative_tolerance * relative_tolerance * rr0;
   int steps = 0;
   for (; steps < max_iterations && rr > stop && rr > 0.0; ++steps) {
     apply_normal(direction, &normal_direction);
-    const double dnd = Dot(direction, normal_direction, threads);
+    const double dnd = CgDot(direction, normal_direction, threads);
     if (!(dnd > 0.0) || !(rz > 0.0)) break;
     const double alpha = rz / dnd;
     StepSolutionAndResidual(alpha, direction, normal_direction, x, &residual, threads);
     apply_preconditioner(residual, &preconditioned);
     double rz_next = 0.0;
-    std::tie(rr, rz_next) = SquaredNormAndDot(residual, preconditioned, threads);
+    std::tie(rr, rz_next) = CgSquaredNormAndDot(residual, preconditioned, threads);
     const double beta = rz_next / rz;
     rz = rz_next;
     NextDirection(beta, preconditioned, &direction, threads);

@@ -28,20 +28,13 @@ constexpr float kInsideTolerance = 1e-4f;
 constexpr int kMaxLocalGrid = 4096;
 
 // y = A x for a row-major sparse A (CSR or row runs, see RowSpansOf) and
-// interleaved C-channel images.
+// interleaved C-channel images; each row in the partial sums of
+// GatherRowChains.
 template <int kChannels, typename Rows>
 void MultiplyFixed(const Rows& a, int rows, const float* x, float* y, int threads) {
 #pragma omp parallel for schedule(static) num_threads(threads)
   for (int r = 0; r < rows; ++r) {
-    float acc[kChannels] = {};
-    a.ForEachSpan(r, [&](const float* v, int column, int length) {
-      const float* px = x + static_cast<std::ptrdiff_t>(column) * kChannels;
-      for (int i = 0; i < length; ++i) {
-        for (int c = 0; c < kChannels; ++c) acc[c] += v[i] * px[i * kChannels + c];
-      }
-    });
-    float* py = y + static_cast<std::ptrdiff_t>(r) * kChannels;
-    for (int c = 0; c < kChannels; ++c) py[c] = acc[c];
+    GatherRowChains<kChannels>(a, r, x, y + static_cast<std::ptrdiff_t>(r) * kChannels);
   }
 }
 

@@ -62,13 +62,8 @@ void NormalProductRows(const Rows& a, int cols, const float* __restrict weight, 
     bool used = false;
     for (int c = 0; c < kChannels; ++c) used = used || w[c] != 0.0f;
     if (!used) continue;
-    float acc[kChannels] = {};
-    a.ForEachSpan(r, [&](const float* __restrict v, int column, int length) {
-      const float* __restrict px = x + static_cast<std::ptrdiff_t>(column) * kChannels;
-      for (int i = 0; i < length; ++i) {
-        for (int c = 0; c < kChannels; ++c) acc[c] += v[i] * px[i * kChannels + c];
-      }
-    });
+    float acc[kChannels];
+    GatherRowChains<kChannels>(a, r, x, acc);
     for (int c = 0; c < kChannels; ++c) acc[c] *= w[c];
     a.ForEachSpan(r, [&](const float* __restrict v, int column, int length) {
       float* __restrict po = out + static_cast<std::ptrdiff_t>(column) * kChannels;

@@ -3,6 +3,8 @@
 // copy, the Jacobi-preconditioned CG against plain CG and a direct solve.
 #include "deblur_sr_mvs/core/estimation/image_update.h"
 
+#include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <functional>
 #include <random>
@@ -168,14 +170,11 @@ TEST(JacobiPcg, StopsAtTheRelativeResidualOrTheCap) {
 
 // PCG as SolvePcg took its steps before its vector updates were fused:
 // x += alpha d and r -= alpha N d as two Axpy passes, d = z + beta d as
-// OpenCV's d *= beta then an Axpy; sums in double, in order.
+// OpenCV's d *= beta then an Axpy; sums in double as SolvePcg forms them
+// (CgDot, tested below).
 int UnfusedPcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply, const cv::Mat& inverse_diagonal,
                cv::Mat residual, int max_steps, cv::Mat* x) {
-  const auto dot = [](const cv::Mat& a, const cv::Mat& b) {
-    double sum = 0.0;
-    for (size_t i = 0; i < a.total(); ++i) sum += static_cast<double>(a.ptr<float>()[i]) * b.ptr<float>()[i];
-    return sum;
-  };
+  const auto dot = [](const cv::Mat& a, const cv::Mat& b) { return CgDot(a, b, 1); };
   const auto axpy = [](double alpha, const cv::Mat& in, cv::Mat* out) {
     const float a = static_cast<float>(alpha);
     for (size_t i = 0; i < in.total(); ++i) out->ptr<float>()[i] += a * in.ptr<float>()[i];
@@ -198,6 +197,38 @@ int UnfusedPcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply, const
     axpy(1.0, z, &direction);
   }
   return steps;
+}
+
+// The CG's sums: four interleaved partial sums in double, the n mod 4 last
+// values in the first, added as (s0 + s1) + (s2 + s3), bit for bit; the
+// one-pass pair equals the two sums; both within double rounding of the
+// exact sum.
+TEST(CgReductions, SumInFourInterleavedPartialSums) {
+  std::mt19937 rng(31);
+  std::uniform_real_distribution<float> value(-1.0f, 1.0f);
+  for (const int n : {0, 1, 3, 4, 5, 7, 8, 13, 1001, 30000}) {
+    cv::Mat a(std::max(n, 1), 1, CV_32FC1), b(std::max(n, 1), 1, CV_32FC1);
+    for (int i = 0; i < a.rows; ++i) {
+      a.at<float>(i) = value(rng);
+      b.at<float>(i) = value(rng);
+    }
+    if (n == 0) a = b = cv::Mat(0, 1, CV_32FC1);
+    double s[4] = {0.0, 0.0, 0.0, 0.0}, exact = 0.0, magnitude = 0.0;
+    for (int i = 0; i < n; ++i) {
+      const double term = static_cast<double>(a.at<float>(i)) * b.at<float>(i);
+      s[i < n - n % 4 ? i % 4 : 0] += term;
+      exact += term;  // products of floats are exact in double
+      magnitude += std::abs(term);
+    }
+    const double expected = (s[0] + s[1]) + (s[2] + s[3]);
+    const double got = CgDot(a, b, 1);
+    EXPECT_EQ(std::memcmp(&got, &expected, sizeof(got)), 0) << n;
+    EXPECT_NEAR(got, exact, (n + 2) * std::ldexp(1.0, -53) * magnitude) << n;
+    const auto [aa, ab] = CgSquaredNormAndDot(a, b, 1);
+    const double aa_expected = CgDot(a, a, 1);
+    EXPECT_EQ(std::memcmp(&aa, &aa_expected, sizeof(aa)), 0) << n;
+    EXPECT_EQ(std::memcmp(&ab, &got, sizeof(ab)), 0) << n;
+  }
 }
 
 // SolvePcg's fused vector updates (one pass for x and r, one for d) give

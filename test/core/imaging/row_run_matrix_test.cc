@@ -155,6 +155,72 @@ TEST_P(RowRunProducts, EqualTheCsrProductsBitForBitAndAreAdjoint) {
   EXPECT_NEAR(lhs, rhs, 1e-5 * std::abs(lhs));
 }
 
+// A x row by row as GatherRowChains defines it, written out from the CSR
+// arrays: tap i of a run of consecutive columns goes to partial sum i mod 4,
+// and the row is (s0 + s1) + (s2 + s3).
+cv::Mat ChainedProduct(const SparseMatrixRM& a, const cv::Mat& x, int channels) {
+  cv::Mat y = cv::Mat::zeros(static_cast<int>(a.rows()), 1, CV_32FC(channels));
+  const int* outer = a.outerIndexPtr();
+  const int* inner = a.innerIndexPtr();
+  const float* value = a.valuePtr();
+  for (int r = 0; r < a.rows(); ++r) {
+    float s[4][4] = {};
+    int position = 0;  // in the current run
+    for (int k = outer[r]; k < outer[r + 1]; ++k) {
+      if (k > outer[r] && inner[k] != inner[k - 1] + 1) position = 0;
+      for (int c = 0; c < channels; ++c) {
+        s[position % 4][c] += value[k] * x.ptr<float>()[inner[k] * channels + c];
+      }
+      ++position;
+    }
+    for (int c = 0; c < channels; ++c) {
+      y.ptr<float>()[r * channels + c] = (s[0][c] + s[1][c]) + (s[2][c] + s[3][c]);
+    }
+  }
+  return y;
+}
+
+// The gathers (A x; A^T W A x gathers the same way) sum in four partial sums
+// in the order above, bit for bit, over both layouts and 1-4 channels (3:
+// the 4-lane colour kernel over runs); against the exact sum they differ by
+// float rounding only.
+TEST(RowGather, SumsInFourPartialSumsOverTheRuns) {
+  for (int channels = 1; channels <= 4; ++channels) {
+    std::mt19937 rng(41 + channels);
+    const int rows = 300, cols = 1200;
+    const SparseMatrixRM csr = RandomRunOperator(rows, cols, &rng);
+    const RowRunMatrix runs = RowRunMatrix::FromCsr(csr);
+    const cv::Mat x = RandomValues(cols, channels, -1.0f, 1.0f, &rng);
+    const cv::Mat expected = ChainedProduct(csr, x, channels);
+    cv::Mat apply_csr, apply_runs;
+    MultiplySparse(csr, x, &apply_csr, 1);
+    MultiplySparse(runs, x, &apply_runs, 1);
+    EXPECT_TRUE(SameBits(apply_runs, expected)) << channels << " channels";
+    EXPECT_TRUE(SameBits(apply_csr, expected)) << channels << " channels";
+    int differs = 0;
+    for (int r = 0; r < rows; ++r) {
+      for (int c = 0; c < channels; ++c) {
+        double exact = 0.0, magnitude = 0.0;
+        const int taps = csr.outerIndexPtr()[r + 1] - csr.outerIndexPtr()[r];
+        for (SparseMatrixRM::InnerIterator it(csr, r); it; ++it) {
+          const double term = double(it.value()) * x.ptr<float>()[it.col() * channels + c];
+          exact += term;
+          magnitude += std::abs(term);
+        }
+        const float got = apply_runs.ptr<float>()[r * channels + c];
+        // A priori bound of a float sum: (taps + 3) unit roundoffs of the sum of |terms|.
+        EXPECT_NEAR(got, exact, (taps + 3) * std::ldexp(1.0, -24) * magnitude) << "row " << r << " channel " << c;
+        float single = 0.0f;  // one running sum
+        for (SparseMatrixRM::InnerIterator it(csr, r); it; ++it) {
+          single += it.value() * x.ptr<float>()[it.col() * channels + c];
+        }
+        differs += got != single;
+      }
+    }
+    EXPECT_GT(differs, 0) << "the four partial sums should round differently from one sum somewhere";
+  }
+}
+
 INSTANTIATE_TEST_SUITE_P(ChannelsAndThreads, RowRunProducts,
                          ::testing::Combine(::testing::Values(1, 2, 3, 4), ::testing::Values(1, 3)));
 

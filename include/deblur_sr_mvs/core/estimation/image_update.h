@@ -11,6 +11,7 @@
 #pragma once
 
 #include <functional>
+#include <utility>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -88,6 +89,14 @@ double TotalVariation(const cv::Mat& image);
 void AddWeightedLaplacian(const cv::Mat& x, const cv::Mat& v, double scale, cv::Mat* out, int threads);
 // out += scale * diag(D^T diag(v) D): the diagonal of the operator above.
 void AddWeightedLaplacianDiagonal(const cv::Mat& v, double scale, cv::Mat* out);
+
+// a . b of two float images of the same size (all channels), in double:
+// four interleaved partial sums (value i to sum i mod 4; the last n mod 4
+// values to sum 0), added as (s0 + s1) + (s2 + s3); with threads > 1 each
+// thread sums its share so. The CG's reductions (SolvePcg).
+double CgDot(const cv::Mat& a, const cv::Mat& b, int threads);
+// (a . a, a . b) in one pass, each summed as CgDot sums.
+std::pair<double, double> CgSquaredNormAndDot(const cv::Mat& a, const cv::Mat& b, int threads);
 
 // Preconditioned conjugate gradients on N x = b from the current *x, given
 // residual = b - N x there (consumed): at most max_iterations steps, stopping

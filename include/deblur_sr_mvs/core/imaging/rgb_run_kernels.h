@@ -3,13 +3,14 @@
 //
 // The colour products of the image update (Psi x, A^T W A x, A^T y, the
 // diagonal of A^T W A) spend most of their time in the per-tap scalar work of
-// three channels. Here a gather adds v * (r, g, b, next r) to a 4-lane sum
-// (the fourth lane is never used), and a scatter adds v * (a_r, a_g, a_b) to
-// the 3 * length contiguous outputs of a run as 4-lane vectors, four taps (12
-// values) at a time. Each output value still gets the same float multiply and
-// add, in the same tap order, as in the scalar kernels: the results are bit
-// for bit those of the scalar form (test RowRunProducts.*). GCC / Clang
-// vector extensions: portable, SSE2 on x86-64, NEON on ARM.
+// three channels. Here a gather adds v * (r, g, b, next r) to one of four
+// 4-lane partial sums (the fourth lane is never used; the partial sums are
+// those of GatherRowChains in row_run_matrix.h), and a scatter adds v * (a_r,
+// a_g, a_b) to the 3 * length contiguous outputs of a run as 4-lane vectors,
+// four taps (12 values) at a time. Each output value still gets the same
+// float multiply and add, in the same order, as in the scalar kernels: the
+// results are bit for bit those of the scalar form (test RowRunProducts.*).
+// GCC / Clang vector extensions: portable, SSE2 on x86-64, NEON on ARM.
 #pragma once
 
 #include <cstddef>
@@ -37,30 +38,46 @@ inline Float4 LoadPixel(const float* p) {
   return Float4{p[0], p[1], p[2], 0.0f};
 }
 
-// sum + sum_i v[i] * x(column + i) for one run, x an interleaved 3-channel
-// image of `cols` pixels; each lane's sum in tap order. The full 4-value
-// load reads the next pixel's first channel into the unused lane, except at
-// the image's last pixel.
-inline Float4 GatherRun(const float* __restrict v, const float* __restrict x, int column, int length,
-                        int cols, Float4 sum) {
+// sum_i v[i] * x(column + i) for one run added to the partial sums of
+// GatherRowChains (row_run_matrix.h): tap i to s[i mod 4], each lane in tap
+// order. x is an interleaved 3-channel image of `cols` pixels. The full
+// 4-value load reads the next pixel's first channel into the unused lane,
+// except at the image's last pixel.
+inline void GatherRun(const float* __restrict v, const float* __restrict x, int column, int length, int cols,
+                      Float4* __restrict s) {
   const float* __restrict px = x + static_cast<std::ptrdiff_t>(column) * 3;
   const int safe = column + length == cols ? length - 1 : length;
   int i = 0;
-  for (; i < safe; ++i) sum += v[i] * Load4(px + 3 * i);
-  for (; i < length; ++i) sum += v[i] * LoadPixel(px + 3 * i);
-  return sum;
+  for (; i + 4 <= safe; i += 4) {
+    s[0] += v[i] * Load4(px + 3 * i);
+    s[1] += v[i + 1] * Load4(px + 3 * (i + 1));
+    s[2] += v[i + 2] * Load4(px + 3 * (i + 2));
+    s[3] += v[i + 3] * Load4(px + 3 * (i + 3));
+  }
+  // At most four taps are left (three, or four when the last is the image's
+  // last pixel); tap i + k goes to chain k.
+  const auto tap = [&](int k) {
+    const float* p = px + 3 * (i + k);
+    return v[i + k] * (i + k < safe ? Load4(p) : LoadPixel(p));
+  };
+  const int tail = length - i;
+  if (tail > 0) s[0] += tap(0);
+  if (tail > 1) s[1] += tap(1);
+  if (tail > 2) s[2] += tap(2);
+  if (tail > 3) s[3] += tap(3);
 }
 
-// sum_k a(r, k) x(k) over row r (lanes 0-2; lane 3 is junk).
+// sum_k a(r, k) x(k) over row r (lanes 0-2; lane 3 is junk), in the four
+// partial sums of GatherRowChains and added as (s0 + s1) + (s2 + s3).
 inline Float4 GatherRow(const RunRowSpans& a, int r, const float* __restrict x, int cols) {
-  Float4 sum = {0.0f, 0.0f, 0.0f, 0.0f};
+  Float4 s[4] = {};
   const float* v = a.values + a.row_first_value[r];
   for (int run = a.row_first_run[r]; run < a.row_first_run[r + 1]; ++run) {
     const int length = a.run_length[run];
-    sum = GatherRun(v, x, a.run_first_column[run], length, cols, sum);
+    GatherRun(v, x, a.run_first_column[run], length, cols, s);
     v += length;
   }
-  return sum;
+  return (s[0] + s[1]) + (s[2] + s[3]);
 }
 
 // out(k) += f(a(r, k)) * s (channels 0-2) over row r, f the identity or

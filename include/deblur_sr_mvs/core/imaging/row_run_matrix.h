@@ -7,7 +7,8 @@
 // a row costs about 4.5 bytes per tap instead of 8 and a product reads the
 // latent image contiguously along each run. The values are kept in the order
 // of the taps, so a product over the runs does the same multiply-adds in the
-// same order as one over the CSR arrays (bit-identical results).
+// same order as one over the CSR arrays (bit-identical results; see
+// CsrRowSpans and GatherRowChains).
 #pragma once
 
 #include <cstddef>
@@ -70,15 +71,24 @@ class RowRunMatrix {
 // The rows of a matrix in either layout as spans of consecutive columns, for
 // product kernels written once for both: ForEachSpan(r, span) calls
 // span(values, first_column, length) for the taps of row r in their stored
-// order (a CSR tap is a span of one), so a kernel does the same
-// multiply-adds in the same order for both layouts.
+// order. Both layouts give the same spans: the runs of RowRunMatrix (a CSR
+// row is split where its columns stop being consecutive, and after
+// kMaxRunLength taps), so a kernel does the same multiply-adds in the same
+// order for both layouts.
 struct CsrRowSpans {
   const int* outer;
   const int* inner;
   const float* values;
+
   template <typename Span>
   void ForEachSpan(int r, const Span& span) const {
-    for (int k = outer[r]; k < outer[r + 1]; ++k) span(values + k, inner[k], 1);
+    const int end = outer[r + 1];
+    for (int k = outer[r]; k < end;) {
+      int next = k + 1;
+      while (next < end && next - k < RowRunMatrix::kMaxRunLength && inner[next] == inner[next - 1] + 1) ++next;
+      span(values + k, inner[k], next - k);
+      k = next;
+    }
   }
 };
 
@@ -98,6 +108,39 @@ struct RunRowSpans {
     }
   }
 };
+
+// The gathers of the products (A x, and the first half of A^T W A x) sum a
+// row's taps in kGatherChains partial sums: tap i of a span adds to partial
+// sum i mod kGatherChains, and the row's value is (s0 + s1) + (s2 + s3).
+// One running sum would make every tap wait for the previous tap's float
+// add (a latency-bound chain); four independent chains let the CPU overlap
+// them. The order is fixed by the spans, which both layouts share, so CSR
+// and row runs give the same values bit for bit; against one running sum
+// the values differ by float rounding only (RowGather.* tests).
+constexpr int kGatherChains = 4;
+static_assert(kGatherChains == 4, "the gathers' tails and final sums are written for four chains");
+
+// out[c] = sum_k a(r, k) x(k * kChannels + c), c < kChannels, in the
+// partial sums above.
+template <int kChannels, typename Rows>
+inline void GatherRowChains(const Rows& a, int r, const float* __restrict x, float* out) {
+  float s[kGatherChains][kChannels] = {};
+  a.ForEachSpan(r, [&](const float* __restrict v, int column, int length) {
+    const float* __restrict px = x + static_cast<std::ptrdiff_t>(column) * kChannels;
+    const auto add = [&](int chain, int i) {
+      for (int c = 0; c < kChannels; ++c) s[chain][c] += v[i] * px[i * kChannels + c];
+    };
+    int i = 0;
+    for (; i + kGatherChains <= length; i += kGatherChains) {
+      for (int k = 0; k < kGatherChains; ++k) add(k, i + k);
+    }
+    const int tail = length - i;
+    if (tail > 0) add(0, i);
+    if (tail > 1) add(1, i + 1);
+    if (tail > 2) add(2, i + 2);
+  });
+  for (int c = 0; c < kChannels; ++c) out[c] = (s[0][c] + s[1][c]) + (s[2][c] + s[3][c]);
+}
 
 // Throws InputError for an uncompressed CSR matrix.
 CsrRowSpans RowSpansOf(const SparseMatrixRM& a);
