@@ -122,6 +122,23 @@ void AddBlurPoseOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOption
       ->check(dsm::FlagInt());
 }
 
+// --depth-edge-radius and where the refinement applies.
+void AddDepthEdgeOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions* options) {
+  dsm::ToolCommandLine& cli = *command_line;
+  cli.add_option("--depth-edge-radius", options->depth_edges.radius_px,
+                 "edge-aware weighted median of the depth guided by the latent image: window radius "
+                 "(HR px; 0: off, the default)")
+      ->check(dsm::FlagInt());
+  cli.add_option("--depth-edge-sigma", options->depth_edges.sigma,
+                 "with --depth-edge-radius: colour distance scale of the guide weights (intensity in [0, 1])")
+      ->check(dsm::FlagNumber());
+  cli.add_flag("--depth-edge-before-structure,!--no-depth-edge-before-structure",
+               options->depth_edges.before_structure_update,
+               "with --depth-edge-radius: refine every depth before each structure update (default on)");
+  cli.add_flag("--depth-edge-on-output,!--no-depth-edge-on-output", options->depth_edges.on_output,
+               "with --depth-edge-radius: refine the output depth (default off)");
+}
+
 // --joint-depth-pose-step, its solver and its coarse-to-fine levels.
 void AddJointStepOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions* options) {
   dsm::ToolCommandLine& cli = *command_line;
@@ -182,6 +199,7 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
                "joint, --structure-matching both: the depth update matches the input pairs too (default "
                "on; off: restored pairs for depth, both kinds for poses)");
   AddJointStepOptions(&cli, options);
+  AddDepthEdgeOptions(&cli, options);
   AddBlurPoseOptions(&cli, options);
   cli.add_option("--structure-matching", flags->structure_matching, "both, restored or blurred")
       ->check(CLI::IsMember({"both", "restored", "blurred"}));

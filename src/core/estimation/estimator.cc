@@ -554,6 +554,7 @@ class WindowSolver {
   ImageUpdateOptions PhaseCounts(int iteration) const;
   void UpdateLatent(int t, const ImageUpdateOptions& phase_options);
   void UpdateEdgeWeight(int t);
+  void RefineAllDepthEdges();
   void UpdateFrameDepth(int t, int iteration, bool isolated, const std::vector<SE3>& poses,
                         const StructureUpdateOptions& structure_options);
   void UpdateAllPoses(int iteration, bool isolated, const std::vector<SE3>& poses,
@@ -727,6 +728,7 @@ EstimatorResult WindowSolver::Solve() {
   } else if (options_.max_iterations > 0) {
     RunJoint();
   }
+  if (options_.depth_edges.on_output) RefineAllDepthEdges();
   if (progress_) progress_(1.0, "done");
   return GaugedResult();
 }
@@ -849,6 +851,7 @@ void WindowSolver::StructurePhase(int iteration, bool isolated) {
   StructureUpdateOptions structure_options = options_.structure;
   structure_options.num_threads = threads_;
   if (cross_blurred_inputs()) BuildCrossBlurredInputs();
+  if (options_.depth_edges.before_structure_update) RefineAllDepthEdges();
   if (structure_options.joint_depth_pose_step && options_.update_poses) {
     UpdateDepthsAndPosesJointly(iteration, isolated, structure_options);
   } else {
@@ -864,6 +867,19 @@ void WindowSolver::StructurePhase(int iteration, bool isolated) {
   ++steps_done_;
   timer_.AddSince("structure update", begin);
   result_.energies.push_back(TotalEnergy(iteration, "structure"));
+}
+
+// Every D_t through the edge-aware weighted median guided by its current
+// latent image (EstimatorOptions::depth_edges; nothing when off).
+void WindowSolver::RefineAllDepthEdges() {
+  if (options_.depth_edges.radius_px <= 0) return;
+  const double begin = NowMs();
+  ForEachFrame([this](int t) {
+    cv::Mat refined = inverse_depth_[t].clone();
+    RefineDepthEdges(latents_[t], options_.depth_edges, &refined);
+    SetInverseDepth(t, refined);
+  });
+  timer_.AddSince("depth edge refinement", begin);
 }
 
 // D_t from the pairs (t <- s), s in N(t), and, for kBlurred, the
@@ -1389,6 +1405,7 @@ void EstimatorOptions::Check() const {
   structure.Check();
   visibility.Check();
   initializer.Check();
+  depth_edges.Check();
 }
 
 Estimator::Estimator(const EstimatorOptions& options) : options_(options) {
