@@ -127,16 +127,16 @@ void AddDepthEdgeOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptio
   dsm::ToolCommandLine& cli = *command_line;
   cli.add_option("--depth-edge-radius", options->depth_edges.radius_px,
                  "edge-aware weighted median of the depth guided by the latent image: window radius "
-                 "(HR px; 0: off, the default)")
+                 "(HR px; 0: off; default 8)")
       ->check(dsm::FlagInt());
   cli.add_option("--depth-edge-sigma", options->depth_edges.sigma,
                  "with --depth-edge-radius: colour distance scale of the guide weights (intensity in [0, 1])")
       ->check(dsm::FlagNumber());
   cli.add_flag("--depth-edge-before-structure,!--no-depth-edge-before-structure",
                options->depth_edges.before_structure_update,
-               "with --depth-edge-radius: refine every depth before each structure update (default on)");
+               "with --depth-edge-radius: refine every depth before each structure update (default off)");
   cli.add_flag("--depth-edge-on-output,!--no-depth-edge-on-output", options->depth_edges.on_output,
-               "with --depth-edge-radius: refine the output depth (default off)");
+               "with --depth-edge-radius: refine the output depth (default on)");
 }
 
 // --joint-depth-pose-step, its solver and its coarse-to-fine levels.

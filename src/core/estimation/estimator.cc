@@ -555,6 +555,7 @@ class WindowSolver {
   void UpdateLatent(int t, const ImageUpdateOptions& phase_options);
   void UpdateEdgeWeight(int t);
   void RefineAllDepthEdges();
+  bool RefineOutputDepthEdges() const;
   void UpdateFrameDepth(int t, int iteration, bool isolated, const std::vector<SE3>& poses,
                         const StructureUpdateOptions& structure_options);
   void UpdateAllPoses(int iteration, bool isolated, const std::vector<SE3>& poses,
@@ -728,7 +729,6 @@ EstimatorResult WindowSolver::Solve() {
   } else if (options_.max_iterations > 0) {
     RunJoint();
   }
-  if (options_.depth_edges.on_output) RefineAllDepthEdges();
   if (progress_) progress_(1.0, "done");
   return GaugedResult();
 }
@@ -867,6 +867,17 @@ void WindowSolver::StructurePhase(int iteration, bool isolated) {
   ++steps_done_;
   timer_.AddSince("structure update", begin);
   result_.energies.push_back(TotalEnergy(iteration, "structure"));
+}
+
+// Whether the output depth goes through the edge-aware weighted median
+// (EstimatorOptions::depth_edges), on the result's copy: the solver's state,
+// its energy and the operators stay those of the estimated D_t. Not in a
+// window that hands operators on (carried_frames, the stream): its next
+// window starts from the output depth, and the carried operators were built
+// with the unrefined one. A weighted median commutes with the monotone
+// depth = 1 / inverse depth, so the depth is filtered directly.
+bool WindowSolver::RefineOutputDepthEdges() const {
+  return options_.depth_edges.radius_px > 0 && options_.depth_edges.on_output && options_.carried_frames == 0;
 }
 
 // Every D_t through the edge-aware weighted median guided by its current
@@ -1260,6 +1271,7 @@ EstimatorResult WindowSolver::GaugedResult() {
       result_.T_world_cam.emplace_back(pose.rotation(), pose.translation() * rescale);
     }
     cv::Mat depth = frames_[t].depth_hr * rescale;
+    if (RefineOutputDepthEdges()) RefineDepthEdges(latents_[t], options_.depth_edges, &depth);
     result_.depth.push_back(depth);
     cv::Mat clamped;
     cv::min(cv::max(latents_[t], 0.0), 1.0, clamped);

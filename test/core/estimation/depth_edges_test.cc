@@ -9,6 +9,7 @@
 #include <gtest/gtest.h>
 
 #include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/estimation/estimator.h"
 
 namespace deblur_sr_mvs {
 namespace {
@@ -130,6 +131,10 @@ TEST(RefineDepthEdges, OffChangesNothingAndOptionsAreChecked) {
   DepthEdgeOptions bad = On(7);
   bad.sigma = 0.0;
   EXPECT_THROW(bad.Check(), InputError);
+  EstimatorOptions estimator;
+  EXPECT_NO_THROW(estimator.Check());
+  estimator.depth_edges.radius_px = -1;
+  EXPECT_THROW(estimator.Check(), InputError);
   cv::Mat wrong_size(10, 10, CV_32FC1, cv::Scalar(1.0f));
   EXPECT_THROW(RefineDepthEdges(guide, On(7), &wrong_size), InputError);
 }

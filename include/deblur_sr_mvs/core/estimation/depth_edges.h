@@ -26,22 +26,32 @@ namespace deblur_sr_mvs {
 
 struct DepthEdgeOptions {
   // Window radius of the weighted median (HR px); 0 turns the refinement
-  // off. It must exceed the width of the fattened band (the initialiser's
-  // patch radius times the scale, about 4 HR px at the defaults).
-  int radius_px = 0;
+  // off. It must be more than twice the width of the fattened band (the
+  // initialiser's patch radius times the scale, about 4 HR px at the
+  // defaults): the band's pixels need more background beyond the band than
+  // band in their window (test/core/estimation/depth_edges_test.cc). 8 was
+  // measured best with 7 and 10 on 8 sequences (BENCHMARKS.md, "Depth edges:
+  // a weighted median guided by the restored image").
+  int radius_px = 8;
   // Colour distance scale of the guide weights (intensity in [0, 1]).
   double sigma = 0.1;
-  // Where the estimator applies it: to every D_t at the start of each
-  // structure update, guided by the current latent I_t (joint: restored
-  // after the first image update; baseline: the bicubic input) ...
-  bool before_structure_update = true;
-  // ... and/or to the output depth, guided by the output latent images.
-  bool on_output = false;
+  // Where the estimator applies it: to the output depth, guided by the
+  // output latent images (joint: restored; baseline: the bicubic inputs), on
+  // the result's copy; not in a window that hands operators on to the next
+  // (EstimatorOptions::carried_frames > 0, the stream) ...
+  bool on_output = true;
+  // ... and/or to every D_t at the start of each structure update, guided
+  // by the current latent I_t. Off: the structure update spreads the depth
+  // again and the refined D_t fights the energy (joint depth 0.901x the
+  // baseline's instead of 0.909x, worse ATE and image PSNR; same section).
+  bool before_structure_update = false;
   void Check() const;  // throws InputError naming the bad value
 };
 
 // The weighted median above of `inverse_depth` (CV_32FC1) guided by `guide`
-// (CV_32FC1 or CV_32FC3, intensities in [0, 1], same size), in place.
+// (CV_32FC1 or CV_32FC3, intensities in [0, 1], same size), in place. The
+// median of a monotone function of the values is that function of their
+// median: a depth map can be passed as well.
 // Pixels whose inverse depth is not finite and positive neither vote nor
 // change. Off (radius_px 0): no change.
 void RefineDepthEdges(const cv::Mat& guide, const DepthEdgeOptions& options, cv::Mat* inverse_depth);
