@@ -26,13 +26,17 @@ namespace deblur_sr_mvs {
 
 struct DepthEdgeOptions {
   // Window radius of the weighted median (HR px); 0 turns the refinement
-  // off. It must be more than twice the width of the fattened band (the
-  // initialiser's patch radius times the scale, about 4 HR px at the
-  // defaults): the band's pixels need more background beyond the band than
-  // band in their window (test/core/estimation/depth_edges_test.cc). 8 was
-  // measured best with 7 and 10 on 8 sequences (BENCHMARKS.md, "Depth edges:
-  // a weighted median guided by the restored image").
-  int radius_px = 8;
+  // off (the library's default; estimate_sequence's is 8). It must be more
+  // than twice the width of the fattened band (the initialiser's patch
+  // radius times the scale, about 4 HR px at the defaults): the band's
+  // pixels need more background beyond the band than band in their window
+  // (test/core/estimation/depth_edges_test.cc). Off in the library because
+  // a stream's first window would hand its refined depth on to the next,
+  // whose held frames then no longer sit at the solver's own depth (the
+  // stream's bit-for-bit reuse tests fail); measured on 8 sequences
+  // (BENCHMARKS.md, "Depth edges: a weighted median guided by the restored
+  // image").
+  int radius_px = 0;
   // Colour distance scale of the guide weights (intensity in [0, 1]).
   double sigma = 0.1;
   // Where the estimator applies it: to the output depth, guided by the

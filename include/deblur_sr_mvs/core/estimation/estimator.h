@@ -203,11 +203,10 @@ struct EstimatorOptions {
   bool blur_pose_evidence = false;
   // Depth edges (issue 14): an edge-aware weighted median of each output
   // D_t guided by its latent image (RefineDepthEdges), against the fattening
-  // of foreground depth onto the background. On by default (radius 8, the
-  // output only): joint depth 0.874x the baseline's (same refinement)
-  // instead of 0.909x, below it on 8 of 8 sequences; ATE and images
-  // unchanged (BENCHMARKS.md "Depth edges: a weighted median guided by the
-  // restored image").
+  // of foreground depth onto the background. Off in the library (radius 0),
+  // on in estimate_sequence (radius 8, the output only): see
+  // DepthEdgeOptions and BENCHMARKS.md "Depth edges: a weighted median
+  // guided by the restored image".
   DepthEdgeOptions depth_edges;
   int num_threads = 0;  // OpenMP threads for every stage; 0 = default
   // Wall-time cap of one run (s): no outer iteration starts after it, the
