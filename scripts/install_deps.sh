@@ -7,7 +7,7 @@ set -euo pipefail
 
 core_pkgs=(cmake g++ make pkg-config libopencv-dev libeigen3-dev libceres-dev
            googletest libgtest-dev libyaml-cpp-dev nlohmann-json3-dev libcli11-dev
-           libopencv-video-dev ccache)
+           libopencv-video-dev libopencv-contrib-dev ccache)
 ros_pkgs=(catkin catkin-tools ros-core rosbash rospack-tools ros-message-generation
           ros-message-runtime libroscpp-dev librosconsole-dev libstd-msgs-dev
           libsensor-msgs-dev libgeometry-msgs-dev ros-std-msgs ros-sensor-msgs

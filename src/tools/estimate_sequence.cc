@@ -122,6 +122,27 @@ void AddBlurPoseOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOption
       ->check(dsm::FlagInt());
 }
 
+// The tool's --depth-edge-radius default (HR px; BENCHMARKS.md "Depth edges:
+// a weighted median guided by the restored image").
+constexpr int kToolDepthEdgeRadius = 8;
+
+// --depth-edge-radius and where the refinement applies.
+void AddDepthEdgeOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions* options) {
+  dsm::ToolCommandLine& cli = *command_line;
+  cli.add_option("--depth-edge-radius", options->depth_edges.radius_px,
+                 "edge-aware weighted median of the depth guided by the latent image: window radius "
+                 "(HR px; 0: off; default 8)")
+      ->check(dsm::FlagInt());
+  cli.add_option("--depth-edge-sigma", options->depth_edges.sigma,
+                 "with --depth-edge-radius: colour distance scale of the guide weights (intensity in [0, 1])")
+      ->check(dsm::FlagNumber());
+  cli.add_flag("--depth-edge-before-structure,!--no-depth-edge-before-structure",
+               options->depth_edges.before_structure_update,
+               "with --depth-edge-radius: refine every depth before each structure update (default off)");
+  cli.add_flag("--depth-edge-on-output,!--no-depth-edge-on-output", options->depth_edges.on_output,
+               "with --depth-edge-radius: refine the output depth (default on)");
+}
+
 // --joint-depth-pose-step, its solver and its coarse-to-fine levels.
 void AddJointStepOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions* options) {
   dsm::ToolCommandLine& cli = *command_line;
@@ -182,6 +203,7 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
                "joint, --structure-matching both: the depth update matches the input pairs too (default "
                "on; off: restored pairs for depth, both kinds for poses)");
   AddJointStepOptions(&cli, options);
+  AddDepthEdgeOptions(&cli, options);
   AddBlurPoseOptions(&cli, options);
   cli.add_option("--structure-matching", flags->structure_matching, "both, restored or blurred")
       ->check(CLI::IsMember({"both", "restored", "blurred"}));
@@ -427,6 +449,9 @@ dsm::Json PosePriorJson(const std::string& file, const dsm::PriorAlignment& alig
 int Run(int argc, char** argv) {
   Flags flags;
   dsm::EstimatorOptions options;
+  // The tool refines its output depth edges by default (the library's
+  // default is off: a stream window hands its depth on to the next).
+  options.depth_edges.radius_px = kToolDepthEdgeRadius;
   if (!ParseCommandLine(argc, argv, &flags, &options)) return 0;
 
   const auto start = std::chrono::steady_clock::now();

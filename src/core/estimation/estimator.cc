@@ -554,6 +554,8 @@ class WindowSolver {
   ImageUpdateOptions PhaseCounts(int iteration) const;
   void UpdateLatent(int t, const ImageUpdateOptions& phase_options);
   void UpdateEdgeWeight(int t);
+  void RefineAllDepthEdges();
+  bool RefineOutputDepthEdges() const;
   void UpdateFrameDepth(int t, int iteration, bool isolated, const std::vector<SE3>& poses,
                         const StructureUpdateOptions& structure_options);
   void UpdateAllPoses(int iteration, bool isolated, const std::vector<SE3>& poses,
@@ -849,6 +851,7 @@ void WindowSolver::StructurePhase(int iteration, bool isolated) {
   StructureUpdateOptions structure_options = options_.structure;
   structure_options.num_threads = threads_;
   if (cross_blurred_inputs()) BuildCrossBlurredInputs();
+  if (options_.depth_edges.before_structure_update) RefineAllDepthEdges();
   if (structure_options.joint_depth_pose_step && options_.update_poses) {
     UpdateDepthsAndPosesJointly(iteration, isolated, structure_options);
   } else {
@@ -864,6 +867,30 @@ void WindowSolver::StructurePhase(int iteration, bool isolated) {
   ++steps_done_;
   timer_.AddSince("structure update", begin);
   result_.energies.push_back(TotalEnergy(iteration, "structure"));
+}
+
+// Whether the output depth goes through the edge-aware weighted median
+// (EstimatorOptions::depth_edges), on the result's copy: the solver's state,
+// its energy and the operators stay those of the estimated D_t. Not in a
+// window that hands operators on (carried_frames, the stream): its next
+// window starts from the output depth, and the carried operators were built
+// with the unrefined one. A weighted median commutes with the monotone
+// depth = 1 / inverse depth, so the depth is filtered directly.
+bool WindowSolver::RefineOutputDepthEdges() const {
+  return options_.depth_edges.radius_px > 0 && options_.depth_edges.on_output && options_.carried_frames == 0;
+}
+
+// Every D_t through the edge-aware weighted median guided by its current
+// latent image (EstimatorOptions::depth_edges; nothing when off).
+void WindowSolver::RefineAllDepthEdges() {
+  if (options_.depth_edges.radius_px <= 0) return;
+  const double begin = NowMs();
+  ForEachFrame([this](int t) {
+    cv::Mat refined = inverse_depth_[t].clone();
+    RefineDepthEdges(latents_[t], options_.depth_edges, &refined);
+    SetInverseDepth(t, refined);
+  });
+  timer_.AddSince("depth edge refinement", begin);
 }
 
 // D_t from the pairs (t <- s), s in N(t), and, for kBlurred, the
@@ -1244,6 +1271,7 @@ EstimatorResult WindowSolver::GaugedResult() {
       result_.T_world_cam.emplace_back(pose.rotation(), pose.translation() * rescale);
     }
     cv::Mat depth = frames_[t].depth_hr * rescale;
+    if (RefineOutputDepthEdges()) RefineDepthEdges(latents_[t], options_.depth_edges, &depth);
     result_.depth.push_back(depth);
     cv::Mat clamped;
     cv::min(cv::max(latents_[t], 0.0), 1.0, clamped);
@@ -1393,6 +1421,7 @@ void EstimatorOptions::Check() const {
   structure.Check();
   visibility.Check();
   initializer.Check();
+  depth_edges.Check();
 }
 
 Estimator::Estimator(const EstimatorOptions& options) : options_(options) {

@@ -13,6 +13,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "deblur_sr_mvs/core/estimation/depth_edges.h"
 #include "deblur_sr_mvs/core/estimation/image_update.h"
 #include "deblur_sr_mvs/core/estimation/initializer.h"
 #include "deblur_sr_mvs/core/estimation/photometric.h"
@@ -211,6 +212,13 @@ struct EstimatorOptions {
   // 0.91x without; neither finds the arc's turn (BENCHMARKS.md "Blur as
   // motion evidence in the pose update").
   bool blur_pose_evidence = false;
+  // Depth edges (issue 14): an edge-aware weighted median of each output
+  // D_t guided by its latent image (RefineDepthEdges), against the fattening
+  // of foreground depth onto the background. Off in the library (radius 0),
+  // on in estimate_sequence (radius 8, the output only): see
+  // DepthEdgeOptions and BENCHMARKS.md "Depth edges: a weighted median
+  // guided by the restored image".
+  DepthEdgeOptions depth_edges;
   int num_threads = 0;  // OpenMP threads for every stage; 0 = default
   // Wall-time cap of one run (s): no outer iteration starts after it, the
   // last accepted state is returned and the cap is noted (0: no cap). Every
