@@ -122,10 +122,6 @@ void AddBlurPoseOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOption
       ->check(dsm::FlagInt());
 }
 
-// The tool's --depth-edge-radius default (HR px; BENCHMARKS.md "Depth edges:
-// a weighted median guided by the restored image").
-constexpr int kToolDepthEdgeRadius = 8;
-
 // --depth-edge-radius and where the refinement applies.
 void AddDepthEdgeOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions* options) {
   dsm::ToolCommandLine& cli = *command_line;
@@ -449,9 +445,6 @@ dsm::Json PosePriorJson(const std::string& file, const dsm::PriorAlignment& alig
 int Run(int argc, char** argv) {
   Flags flags;
   dsm::EstimatorOptions options;
-  // The tool refines its output depth edges by default (the library's
-  // default is off: a stream window hands its depth on to the next).
-  options.depth_edges.radius_px = kToolDepthEdgeRadius;
   if (!ParseCommandLine(argc, argv, &flags, &options)) return 0;
 
   const auto start = std::chrono::steady_clock::now();

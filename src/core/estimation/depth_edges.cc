@@ -8,6 +8,11 @@
 #include "deblur_sr_mvs/core/common/options_check.h"
 
 namespace deblur_sr_mvs {
+namespace {
+
+constexpr uint64 kDepthEdgeClusteringSeed = 0x5eed5eedULL;
+
+}  // namespace
 
 void DepthEdgeOptions::Check() const {
   CheckInRange("depth_edge_radius", radius_px, 0, 50);
@@ -37,9 +42,16 @@ void RefineDepthEdges(const cv::Mat& guide, const DepthEdgeOptions& options, cv:
       }
     }
   }
+  // The filter clusters a colour guide's values with cv::kmeans, which
+  // draws from OpenCV's global generator: seeded here, so that the same
+  // input gives the same depth (the generator's state is put back).
+  cv::RNG& generator = cv::theRNG();
+  const uint64 caller_state = generator.state;
+  generator.state = kDepthEdgeClusteringSeed;
   cv::Mat filtered;
   cv::ximgproc::weightedMedianFilter(guide8, source, filtered, options.radius_px, 255.0 * options.sigma,
                                      cv::ximgproc::WMF_EXP, any_invalid ? mask : cv::noArray());
+  generator.state = caller_state;
   filtered.copyTo(*inverse_depth, mask);
 }
 

@@ -1252,12 +1252,18 @@ std::shared_ptr<const OperatorCache::Entry> WindowSolver::Operator(int t, int so
 EstimatorResult WindowSolver::GaugedResult() {
   // Monocular scale: world = first camera, median scene depth of the window
   // 1 unit (docs/file_formats.md#monocular-scale), unless the input's gauge is kept.
+  // The output depth maps, refined at their edges where asked, before the gauge's scale.
+  std::vector<cv::Mat> depths;
+  for (int t = 0; t < num_frames_; ++t) {
+    depths.push_back(frames_[t].depth_hr);
+    if (!RefineOutputDepthEdges()) continue;
+    depths.back() = depths.back().clone();
+    RefineDepthEdges(latents_[t], options_.depth_edges, &depths.back());
+  }
   SE3 T_first_world;
   double rescale = 1.0;
   if (!options_.keep_input_gauge) {
     T_first_world = frames_[0].T_world_cam.Inverse();
-    std::vector<cv::Mat> depths;
-    for (const FrameStructure& frame : frames_) depths.push_back(frame.depth_hr);
     const double median = MedianDepth(depths);
     if (median > 0.0) rescale = 1.0 / median;
   }
@@ -1270,9 +1276,7 @@ EstimatorResult WindowSolver::GaugedResult() {
       const SE3 pose = T_first_world * frames_[t].T_world_cam;
       result_.T_world_cam.emplace_back(pose.rotation(), pose.translation() * rescale);
     }
-    cv::Mat depth = frames_[t].depth_hr * rescale;
-    if (RefineOutputDepthEdges()) RefineDepthEdges(latents_[t], options_.depth_edges, &depth);
-    result_.depth.push_back(depth);
+    result_.depth.push_back(depths[t] * rescale);
     cv::Mat clamped;
     cv::min(cv::max(latents_[t], 0.0), 1.0, clamped);
     result_.latent.push_back(clamped);

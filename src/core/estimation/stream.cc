@@ -107,11 +107,25 @@ std::string ProblemWithEstimate(const EstimatorResult& result, double max_step_r
 
 // ------------------------------------------------------------ StreamEstimator
 
+namespace {
+
+// The stream's estimator options: the output depth is not refined in the
+// estimator, so that the next window starts from the solver's own depth.
+EstimatorOptions WithoutOutputDepthEdges(EstimatorOptions options) {
+  options.depth_edges.on_output = false;
+  return options;
+}
+
+}  // namespace
+
 StreamEstimator::StreamEstimator(const EstimatorOptions& options)
-    : estimator_(options), prior_history_(options.initializer.pose_prior) {}
+    : estimator_(WithoutOutputDepthEdges(options)),
+      published_depth_edges_(options.depth_edges),
+      prior_history_(options.initializer.pose_prior) {}
 
 void StreamEstimator::SetOptions(const EstimatorOptions& options) {
-  estimator_ = Estimator(options);
+  estimator_ = Estimator(WithoutOutputDepthEdges(options));
+  published_depth_edges_ = options.depth_edges;
   estimator_.SetCancelFlag(cancel_);
   last_operators_.clear();
 }
@@ -177,7 +191,23 @@ WindowEstimate StreamEstimator::Process(const StreamWindow& window, const Pinhol
     StartSegment(input, progress, &estimate);
   }
   Remember(window, &estimate);
+  RefinePublishedDepthEdges(&estimate);
   return estimate;
+}
+
+void StreamEstimator::RefinePublishedDepthEdges(WindowEstimate* estimate) const {
+  EstimatorResult& result = estimate->result;
+  if (!result.depth_observable || !published_depth_edges_.on_output || published_depth_edges_.radius_px <= 0) return;
+  const int first = estimate->first_new;
+  const int last = static_cast<int>(std::min(result.depth.size(), result.latent.size()));
+  // One frame after the other: cv::ximgproc::weightedMedianFilter is not
+  // reentrant (concurrent calls corrupt the heap).
+  for (int i = first; i < last; ++i) {
+    if (result.depth[i].size() != result.latent[i].size()) continue;
+    cv::Mat refined = result.depth[i].clone();  // the remembered map stays the solver's
+    RefineDepthEdges(result.latent[i], published_depth_edges_, &refined);
+    result.depth[i] = refined;
+  }
 }
 
 StreamEstimator::SharedFrames StreamEstimator::SharedWithPrevious(const StreamWindow& window) const {

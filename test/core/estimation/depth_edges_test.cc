@@ -121,6 +121,29 @@ TEST(RefineDepthEdges, InvalidPixelsNeitherVoteNorChange) {
   EXPECT_EQ(inverse_depth.at<float>(20, 11), kNear);
 }
 
+// A colour guide with many colours (the filter clusters them with
+// cv::kmeans, which draws from OpenCV's global generator): the same input
+// gives the same depth, call after call, and the caller's generator state
+// is left as it was. With the generator unseeded, every later call on this
+// input differed from the first.
+TEST(RefineDepthEdges, SameInputGivesTheSameDepthAndTheGeneratorIsLeftAlone) {
+  cv::Mat guide(kHeight, kWidth, CV_32FC3);
+  cv::Mat inverse_depth(kHeight, kWidth, CV_32FC1);
+  cv::RNG fill(7);
+  fill.fill(guide, cv::RNG::UNIFORM, 0.0, 1.0);
+  fill.fill(inverse_depth, cv::RNG::UNIFORM, 0.5, 2.0);
+  cv::theRNG().state = 42;
+  cv::Mat first = inverse_depth.clone();
+  RefineDepthEdges(guide, On(8), &first);
+  EXPECT_EQ(cv::theRNG().state, 42u);
+  for (int call = 0; call < 3; ++call) {
+    cv::theRNG().next();
+    cv::Mat again = inverse_depth.clone();
+    RefineDepthEdges(guide, On(8), &again);
+    EXPECT_EQ(cv::norm(first, again, cv::NORM_INF), 0.0) << "call " << call;
+  }
+}
+
 TEST(RefineDepthEdges, OffChangesNothingAndOptionsAreChecked) {
   const cv::Mat guide = BarGuide(0, 32);
   cv::Mat inverse_depth = BarDepth(0, 36);

@@ -26,23 +26,22 @@ namespace deblur_sr_mvs {
 
 struct DepthEdgeOptions {
   // Window radius of the weighted median (HR px); 0 turns the refinement
-  // off (the library's default; estimate_sequence's is 8). It must be more
-  // than twice the width of the fattened band (the initialiser's patch
-  // radius times the scale, about 4 HR px at the defaults): the band's
-  // pixels need more background beyond the band than band in their window
-  // (test/core/estimation/depth_edges_test.cc). Off in the library because
-  // a stream's first window would hand its refined depth on to the next,
-  // whose held frames then no longer sit at the solver's own depth (the
-  // stream's bit-for-bit reuse tests fail); measured on 8 sequences
-  // (BENCHMARKS.md, "Depth edges: a weighted median guided by the restored
-  // image").
-  int radius_px = 0;
+  // off. It must be more than twice the width of the fattened band (the
+  // initialiser's patch radius times the scale, about 4 HR px at the
+  // defaults): the band's pixels need more background beyond the band than
+  // band in their window (test/core/estimation/depth_edges_test.cc).
+  // Measured on 8 sequences (BENCHMARKS.md, "Depth edges: a weighted median
+  // guided by the restored image"): radius 8 brings joint's depth below the
+  // baseline's on all 8.
+  int radius_px = 8;
   // Colour distance scale of the guide weights (intensity in [0, 1]).
   double sigma = 0.1;
   // Where the estimator applies it: to the output depth, guided by the
   // output latent images (joint: restored; baseline: the bicubic inputs), on
   // the result's copy; not in a window that hands operators on to the next
-  // (EstimatorOptions::carried_frames > 0, the stream) ...
+  // (EstimatorOptions::carried_frames > 0). A stream (StreamEstimator)
+  // refines the frames it publishes itself and hands the solver's own depth
+  // on to the next window ...
   bool on_output = true;
   // ... and/or to every D_t at the start of each structure update, guided
   // by the current latent I_t. Off: the structure update spreads the depth

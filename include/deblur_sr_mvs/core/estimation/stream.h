@@ -237,8 +237,13 @@ class StreamEstimator {
   void StartSegment(const EstimatorInput& input, const ProgressCallback& progress, WindowEstimate* estimate);
   // Marks the frames already returned and keeps this window's poses.
   void Remember(const StreamWindow& window, WindowEstimate* estimate);
+  // The depth edges of the frames this window publishes (first_new on),
+  // refined as EstimatorOptions::depth_edges asks, after Remember kept the
+  // solver's own depth for the next window.
+  void RefinePublishedDepthEdges(WindowEstimate* estimate) const;
 
-  Estimator estimator_;
+  Estimator estimator_;  // its options never refine the output depth (RefinePublishedDepthEdges does)
+  DepthEdgeOptions published_depth_edges_;  // the caller's EstimatorOptions::depth_edges
   const std::atomic<bool>* cancel_ = nullptr;
   std::map<uint64_t, SE3> last_poses_;        // the previous window's poses, by frame id
   std::map<uint64_t, cv::Mat> last_depths_;   // its depths (HR), when observable
