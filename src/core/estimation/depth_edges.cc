@@ -1,6 +1,7 @@
 #include "deblur_sr_mvs/core/estimation/depth_edges.h"
 
 #include <cmath>
+#include <mutex>
 
 #include <opencv2/ximgproc.hpp>
 
@@ -42,9 +43,14 @@ void RefineDepthEdges(const cv::Mat& guide, const DepthEdgeOptions& options, cv:
       }
     }
   }
+  // cv::ximgproc::weightedMedianFilter (OpenCV 4.6) is not reentrant: two
+  // calls at once in one process crash (two threads, 320x240). One call at a
+  // time, process-wide (streams of several nodelets share the process).
+  static std::mutex filter_mutex;
+  const std::lock_guard<std::mutex> lock(filter_mutex);
   // The filter clusters a colour guide's values with cv::kmeans, which
-  // draws from OpenCV's global generator: seeded here, so that the same
-  // input gives the same depth (the generator's state is put back).
+  // draws from OpenCV's generator: seeded here, so that the same input
+  // gives the same depth (the generator's state is put back).
   cv::RNG& generator = cv::theRNG();
   const uint64 caller_state = generator.state;
   generator.state = kDepthEdgeClusteringSeed;

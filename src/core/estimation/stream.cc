@@ -200,8 +200,7 @@ void StreamEstimator::RefinePublishedDepthEdges(WindowEstimate* estimate) const 
   if (!result.depth_observable || !published_depth_edges_.on_output || published_depth_edges_.radius_px <= 0) return;
   const int first = estimate->first_new;
   const int last = static_cast<int>(std::min(result.depth.size(), result.latent.size()));
-  // One frame after the other: cv::ximgproc::weightedMedianFilter is not
-  // reentrant (concurrent calls corrupt the heap).
+  // One frame after the other: RefineDepthEdges runs one call at a time.
   for (int i = first; i < last; ++i) {
     if (result.depth[i].size() != result.latent[i].size()) continue;
     cv::Mat refined = result.depth[i].clone();  // the remembered map stays the solver's

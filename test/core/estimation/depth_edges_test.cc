@@ -5,6 +5,8 @@
 
 #include <cmath>
 #include <limits>
+#include <thread>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -142,6 +144,30 @@ TEST(RefineDepthEdges, SameInputGivesTheSameDepthAndTheGeneratorIsLeftAlone) {
     RefineDepthEdges(guide, On(8), &again);
     EXPECT_EQ(cv::norm(first, again, cv::NORM_INF), 0.0) << "call " << call;
   }
+}
+
+// Two threads refining at once (e.g. the streams of two nodelets in one
+// process): OpenCV's filter is not reentrant, and without the refinement's
+// lock this crashed. Each thread gets the depth a lone call gives.
+TEST(RefineDepthEdges, ConcurrentCallsGiveTheDepthOfALoneCall) {
+  cv::Mat guide(120, 160, CV_32FC3);
+  cv::Mat inverse_depth(120, 160, CV_32FC1);
+  cv::RNG fill(11);
+  fill.fill(guide, cv::RNG::UNIFORM, 0.0, 1.0);
+  fill.fill(inverse_depth, cv::RNG::UNIFORM, 0.5, 2.0);
+  cv::Mat alone = inverse_depth.clone();
+  RefineDepthEdges(guide, On(8), &alone);
+  std::vector<cv::Mat> results(2);
+  auto refine = [&](int which) {
+    for (int call = 0; call < 5; ++call) {
+      results[which] = inverse_depth.clone();
+      RefineDepthEdges(guide, On(8), &results[which]);
+    }
+  };
+  std::thread first(refine, 0), second(refine, 1);
+  first.join();
+  second.join();
+  for (const cv::Mat& result : results) EXPECT_EQ(cv::norm(alone, result, cv::NORM_INF), 0.0);
 }
 
 TEST(RefineDepthEdges, OffChangesNothingAndOptionsAreChecked) {
