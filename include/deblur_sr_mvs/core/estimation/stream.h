@@ -171,6 +171,8 @@ class StreamEstimator {
   explicit StreamEstimator(const EstimatorOptions& options);
   // New estimator options from the next window on.
   void SetOptions(const EstimatorOptions& options);
+  // The window estimator's options: the caller's, except that
+  // depth_edges.on_output is off (the stream refines what it publishes).
   const EstimatorOptions& options() const { return estimator_.options(); }
   void SetCancelFlag(const std::atomic<bool>* flag);
   // Frames the next window shares with this one (StreamOptions::
