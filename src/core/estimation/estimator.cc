@@ -872,10 +872,11 @@ void WindowSolver::StructurePhase(int iteration, bool isolated) {
 // Whether the output depth goes through the edge-aware weighted median
 // (EstimatorOptions::depth_edges), on the result's copy: the solver's state,
 // its energy and the operators stay those of the estimated D_t. Not in a
-// window that hands operators on (carried_frames, the stream): its next
-// window starts from the output depth, and the carried operators were built
-// with the unrefined one. A weighted median commutes with the monotone
-// depth = 1 / inverse depth, so the depth is filtered directly.
+// window that hands operators on (carried_frames): those were built with
+// the unrefined depth, which the next window must receive to use them. (A
+// stream also turns it off here and refines what it publishes.) A weighted
+// median commutes with the monotone depth = 1 / inverse depth, so the depth
+// is filtered directly.
 bool WindowSolver::RefineOutputDepthEdges() const {
   return options_.depth_edges.radius_px > 0 && options_.depth_edges.on_output && options_.carried_frames == 0;
 }

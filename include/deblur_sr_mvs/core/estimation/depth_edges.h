@@ -39,7 +39,8 @@ struct DepthEdgeOptions {
   // Where the estimator applies it: to the output depth, guided by the
   // output latent images (joint: restored; baseline: the bicubic inputs), on
   // the result's copy; not in a window that hands operators on to the next
-  // (EstimatorOptions::carried_frames > 0). A stream (StreamEstimator)
+  // (EstimatorOptions::carried_frames > 0: they match the unrefined depth).
+  // A stream (StreamEstimator) turns this off in its window estimator,
   // refines the frames it publishes itself and hands the solver's own depth
   // on to the next window ...
   bool on_output = true;

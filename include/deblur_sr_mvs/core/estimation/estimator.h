@@ -214,10 +214,9 @@ struct EstimatorOptions {
   bool blur_pose_evidence = false;
   // Depth edges (issue 14): an edge-aware weighted median of each output
   // D_t guided by its latent image (RefineDepthEdges), against the fattening
-  // of foreground depth onto the background. Off in the library (radius 0),
-  // on in estimate_sequence (radius 8, the output only): see
-  // DepthEdgeOptions and BENCHMARKS.md "Depth edges: a weighted median
-  // guided by the restored image".
+  // of foreground depth onto the background. On (radius 8, the output
+  // only; a stream refines the frames it publishes): see DepthEdgeOptions
+  // and BENCHMARKS.md "Depth edges on in the library and the node".
   DepthEdgeOptions depth_edges;
   int num_threads = 0;  // OpenMP threads for every stage; 0 = default
   // Wall-time cap of one run (s): no outer iteration starts after it, the
