@@ -37,8 +37,8 @@ void WarpIntoTarget(const PinholeCamera& camera_hr, const cv::Mat& depth_t, cons
 
 // The weight map exp(-d / (2 h^2)) of the warped image against I_t (d: the
 // patch mean of the channel-mean squared difference), times `inside`.
-void PatchWeight(const cv::Mat& latent_t, const cv::Mat& warped, const cv::Mat& inside, int patch_px, double h,
-                 cv::Mat* squared, cv::Mat* weight) {
+void PatchWeight(const cv::Mat& latent_t, const cv::Mat& warped, const cv::Mat& inside, int patch_px,
+                 double h, cv::Mat* squared, cv::Mat* weight) {
   cv::subtract(warped, latent_t, *squared);
   cv::multiply(*squared, *squared, *squared);
   if (squared->channels() > 1) {
@@ -46,7 +46,8 @@ void PatchWeight(const cv::Mat& latent_t, const cv::Mat& warped, const cv::Mat& 
   } else {
     squared->copyTo(*weight);
   }
-  cv::boxFilter(*weight, *weight, -1, cv::Size(patch_px, patch_px), cv::Point(-1, -1), true, cv::BORDER_REFLECT);
+  cv::boxFilter(*weight, *weight, -1, cv::Size(patch_px, patch_px), cv::Point(-1, -1), true,
+                cv::BORDER_REFLECT);
   *weight *= -1.0 / (2.0 * h * h);
   cv::exp(*weight, *weight);
   cv::multiply(*weight, inside, *weight);
@@ -63,7 +64,8 @@ void TemporalFusionOptions::Check() const {
 }
 
 std::vector<cv::Mat> FuseRestoredImages(const PinholeCamera& camera_hr, const std::vector<cv::Mat>& latents,
-                                        const std::vector<cv::Mat>& depths, const std::vector<SE3>& T_world_cam,
+                                        const std::vector<cv::Mat>& depths,
+                                        const std::vector<SE3>& T_world_cam,
                                         const TemporalFusionOptions& options, int first_fused) {
   const int n = static_cast<int>(latents.size());
   if (static_cast<int>(depths.size()) != n || static_cast<int>(T_world_cam.size()) != n) {

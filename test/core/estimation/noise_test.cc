@@ -16,6 +16,18 @@
 namespace deblur_sr_mvs {
 namespace {
 
+// The sequence of the added-error tests: Dolls lateral, 240x180, 5 frames,
+// Gaussian noise of `sigma` gray levels on the LR frames.
+Sequence DollsWithNoise(const std::string& name, int sigma) {
+  return SynthesizedSequence(
+      name, "Dolls",
+      "--frames 5 --subframes 100 --hr-width 240 --hr-height 180 --seed 1 --noise " + std::to_string(sigma));
+}
+
+double MseOfPsnr(double psnr) {
+  return 255.0 * 255.0 * std::pow(10.0, -psnr / 10.0);
+}
+
 // Gaussian noise of sigma 2 gray levels on the LR frames (a well-lit 8-bit
 // sensor; the reference level).
 TEST(Noise, RestoredBeatsBicubicByFiveDecibelsAtSigmaTwo) {
@@ -59,11 +71,10 @@ TEST(Noise, RestoredBeatsBicubicByFiveDecibelsAtSigmaTwo) {
 // whose error is dominated by the blur; the test bounds the amplification
 // measured on this sequence.
 TEST(Noise, AddedErrorAtSigmaTwoIsBounded) {
-  const std::string flags = "--frames 5 --subframes 100 --hr-width 240 --hr-height 180 --seed 1 --noise ";
   double mse_restored[2], mse_bicubic[2];
   const int sigmas[2] = {0, 2};
   for (int i = 0; i < 2; ++i) {
-    const Sequence sequence = SynthesizedSequence("noise_added", "Dolls", flags + std::to_string(sigmas[i]));
+    const Sequence sequence = DollsWithNoise("noise_added", sigmas[i]);
     ASSERT_TRUE(sequence.ground_truth.has_value());
     const EstimatorInput input = InputOf(sequence);
     EstimatorOptions options;
@@ -71,9 +82,8 @@ TEST(Noise, AddedErrorAtSigmaTwoIsBounded) {
     const EstimatorResult result = Estimator(options).Run(input);
     std::vector<cv::Mat> bicubic;
     for (const cv::Mat& image : input.images) bicubic.push_back(UpsampleBicubic(image, 2));
-    const auto mse = [](double psnr) { return 255.0 * 255.0 * std::pow(10.0, -psnr / 10.0); };
-    mse_restored[i] = mse(MeanPsnr(result.latent, sequence.ground_truth->latent));
-    mse_bicubic[i] = mse(MeanPsnr(bicubic, sequence.ground_truth->latent));
+    mse_restored[i] = MseOfPsnr(MeanPsnr(result.latent, sequence.ground_truth->latent));
+    mse_bicubic[i] = MseOfPsnr(MeanPsnr(bicubic, sequence.ground_truth->latent));
   }
   const double added_restored = std::sqrt(std::max(0.0, mse_restored[1] - mse_restored[0]));
   const double added_bicubic = std::sqrt(std::max(0.0, mse_bicubic[1] - mse_bicubic[0]));
@@ -93,19 +103,15 @@ TEST(Noise, AddedErrorAtSigmaTwoIsBounded) {
 // and leaves depth and poses as they were (it runs after them).
 // BENCHMARKS.md "Temporal fusion of the restored images".
 TEST(Noise, TemporalFusionLowersTheAddedError) {
-  const std::string flags = "--frames 5 --subframes 100 --hr-width 240 --hr-height 180 --seed 1 --noise ";
-  const auto mse = [](double psnr) { return 255.0 * 255.0 * std::pow(10.0, -psnr / 10.0); };
   double psnr[2][2];  // [sigma 0, 2][off, on]
-  const int sigmas[2] = {0, 2};
   for (int i = 0; i < 2; ++i) {
-    const Sequence sequence = SynthesizedSequence("noise_fusion", "Dolls", flags + std::to_string(sigmas[i]));
+    const Sequence sequence = DollsWithNoise("noise_fusion", 2 * i);
     ASSERT_TRUE(sequence.ground_truth.has_value());
-    const EstimatorInput input = InputOf(sequence);
-    EstimatorOptions options;
-    options.max_iterations = 1;
-    const EstimatorResult fused = Estimator(options).Run(input);
-    options.fusion.radius = 0;
-    const EstimatorResult plain = Estimator(options).Run(input);
+    EstimatorOptions one_iteration;
+    one_iteration.max_iterations = 1;
+    const EstimatorResult fused = Estimator(one_iteration).Run(InputOf(sequence));
+    one_iteration.fusion.radius = 0;
+    const EstimatorResult plain = Estimator(one_iteration).Run(InputOf(sequence));
     psnr[i][0] = MeanPsnr(plain.latent, sequence.ground_truth->latent);
     psnr[i][1] = MeanPsnr(fused.latent, sequence.ground_truth->latent);
     ASSERT_EQ(fused.depth.size(), plain.depth.size());
@@ -117,10 +123,11 @@ TEST(Noise, TemporalFusionLowersTheAddedError) {
       EXPECT_LT((fused.T_world_cam[t].rotation() - plain.T_world_cam[t].rotation()).norm(), 1e-9);
     }
   }
-  const double added_plain = std::sqrt(std::max(0.0, mse(psnr[1][0]) - mse(psnr[0][0])));
-  const double added_fused = std::sqrt(std::max(0.0, mse(psnr[1][1]) - mse(psnr[0][1])));
+  const double added_plain = std::sqrt(std::max(0.0, MseOfPsnr(psnr[1][0]) - MseOfPsnr(psnr[0][0])));
+  const double added_fused = std::sqrt(std::max(0.0, MseOfPsnr(psnr[1][1]) - MseOfPsnr(psnr[0][1])));
   std::printf(
-      "without fusion: %.2f dB at sigma 0, %.2f dB at sigma 2, adds %.2f gray levels; with: %.2f dB, %.2f dB, "
+      "without fusion: %.2f dB at sigma 0, %.2f dB at sigma 2, adds %.2f gray levels; with: %.2f dB, %.2f "
+      "dB, "
       "adds %.2f\n",
       psnr[0][0], psnr[1][0], added_plain, psnr[0][1], psnr[1][1], added_fused);
   EXPECT_GE(psnr[0][1], psnr[0][0]);

@@ -6,6 +6,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <functional>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -82,8 +83,8 @@ TEST(TemporalFusion, AveragesTheIndependentNoiseOfRegisteredFrames) {
 
 TEST(TemporalFusion, NoiseFreeRegisteredFramesStayAsTheyAre) {
   const PlaneWindow window = MakeWindow(5, 0.0, 3);
-  const std::vector<cv::Mat> fused =
-      FuseRestoredImages(kCamera, window.clean, window.depths, window.T_world_cam, TemporalFusionOptions(), 0);
+  const std::vector<cv::Mat> fused = FuseRestoredImages(kCamera, window.clean, window.depths,
+                                                        window.T_world_cam, TemporalFusionOptions(), 0);
   EXPECT_LT(InteriorRms(fused[2], window.clean[2]), 0.5 / 255.0);
 }
 
@@ -94,8 +95,8 @@ TEST(TemporalFusion, ANeighbourThatShowsSomethingElseIsLeftOut) {
   window.noisy[0] = 1.0 - window.clean[0];
   window.noisy[1] = window.clean[1];
   window.noisy[2] = 1.0 - window.clean[2];
-  const std::vector<cv::Mat> fused =
-      FuseRestoredImages(kCamera, window.noisy, window.depths, window.T_world_cam, TemporalFusionOptions(), 0);
+  const std::vector<cv::Mat> fused = FuseRestoredImages(kCamera, window.noisy, window.depths,
+                                                        window.T_world_cam, TemporalFusionOptions(), 0);
   EXPECT_LT(InteriorRms(fused[1], window.clean[1]), 1.0 / 255.0);
 }
 
@@ -104,8 +105,8 @@ TEST(TemporalFusion, PixelsWithoutADepthOrOutsideTheNeighboursKeepTheirValue) {
   window.depths[1].colRange(0, 10).setTo(std::nanf(""));
   window.T_world_cam[0] = SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(10.0, 0.0, 0.0));  // far away
   window.T_world_cam[2] = SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(-10.0, 0.0, 0.0));
-  const std::vector<cv::Mat> fused =
-      FuseRestoredImages(kCamera, window.noisy, window.depths, window.T_world_cam, TemporalFusionOptions(), 0);
+  const std::vector<cv::Mat> fused = FuseRestoredImages(kCamera, window.noisy, window.depths,
+                                                        window.T_world_cam, TemporalFusionOptions(), 0);
   EXPECT_EQ(cv::norm(fused[1], window.noisy[1], cv::NORM_INF), 0.0);
 }
 
@@ -115,8 +116,8 @@ TEST(TemporalFusion, RadiusZeroAndHeldFramesChangeNothing) {
   off.radius = 0;
   const std::vector<cv::Mat> copies =
       FuseRestoredImages(kCamera, window.noisy, window.depths, window.T_world_cam, off, 0);
-  const std::vector<cv::Mat> held =
-      FuseRestoredImages(kCamera, window.noisy, window.depths, window.T_world_cam, TemporalFusionOptions(), 2);
+  const std::vector<cv::Mat> held = FuseRestoredImages(kCamera, window.noisy, window.depths,
+                                                       window.T_world_cam, TemporalFusionOptions(), 2);
   for (int t = 0; t < 4; ++t) {
     EXPECT_EQ(cv::norm(copies[t], window.noisy[t], cv::NORM_INF), 0.0);
     if (t < 2) {
@@ -127,16 +128,16 @@ TEST(TemporalFusion, RadiusZeroAndHeldFramesChangeNothing) {
 }
 
 TEST(TemporalFusion, OptionsAreChecked) {
-  TemporalFusionOptions options;
-  EXPECT_NO_THROW(options.Check());
-  options.patch_px = 4;
-  EXPECT_THROW(options.Check(), InputError);
-  options = TemporalFusionOptions();
-  options.radius = -1;
-  EXPECT_THROW(options.Check(), InputError);
-  options = TemporalFusionOptions();
-  options.distance_scale = 0.0;
-  EXPECT_THROW(options.Check(), InputError);
+  EXPECT_NO_THROW(TemporalFusionOptions().Check());
+  const std::vector<std::function<void(TemporalFusionOptions*)>> breakers = {
+      [](TemporalFusionOptions* o) { o->patch_px = 4; },           // even
+      [](TemporalFusionOptions* o) { o->radius = -1; },            // negative
+      [](TemporalFusionOptions* o) { o->distance_scale = 0.0; }};  // no scale
+  for (const auto& make_bad : breakers) {
+    TemporalFusionOptions options;
+    make_bad(&options);
+    EXPECT_THROW(options.Check(), InputError);
+  }
 }
 
 }  // namespace

@@ -14,11 +14,11 @@
 #include <opencv2/core.hpp>
 
 #include "deblur_sr_mvs/core/estimation/depth_edges.h"
-#include "deblur_sr_mvs/core/estimation/temporal_fusion.h"
 #include "deblur_sr_mvs/core/estimation/image_update.h"
 #include "deblur_sr_mvs/core/estimation/initializer.h"
 #include "deblur_sr_mvs/core/estimation/photometric.h"
 #include "deblur_sr_mvs/core/estimation/structure_update.h"
+#include "deblur_sr_mvs/core/estimation/temporal_fusion.h"
 #include "deblur_sr_mvs/core/geometry/camera.h"
 #include "deblur_sr_mvs/core/geometry/frame_types.h"
 #include "deblur_sr_mvs/core/geometry/se3.h"

@@ -55,7 +55,8 @@ struct TemporalFusionOptions {
 // but still lend them to the others. Returns the fused images (new Mats; the
 // inputs are not changed). radius 0: copies of the inputs.
 std::vector<cv::Mat> FuseRestoredImages(const PinholeCamera& camera_hr, const std::vector<cv::Mat>& latents,
-                                        const std::vector<cv::Mat>& depths, const std::vector<SE3>& T_world_cam,
+                                        const std::vector<cv::Mat>& depths,
+                                        const std::vector<SE3>& T_world_cam,
                                         const TemporalFusionOptions& options, int first_fused);
 
 }  // namespace deblur_sr_mvs
