@@ -139,6 +139,24 @@ void AddDepthEdgeOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptio
                "with --depth-edge-radius: refine the output depth (default on)");
 }
 
+// --fusion-*: the temporal fusion of the output images.
+void AddFusionOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions* options) {
+  dsm::ToolCommandLine& cli = *command_line;
+  cli.add_option("--fusion-radius", options->fusion.radius,
+                 "joint: fuse each restored image with those of the frames up to N away, warped by the final "
+                 "depth and poses (0: off; default 2)")
+      ->check(dsm::FlagInt());
+  cli.add_option("--fusion-scale", options->fusion.distance_scale,
+                 "with --fusion-radius: the patch weight's distance scale h (intensity "
+                 "in [0, 1]; default 0.051, 13 gray levels)")
+      ->check(dsm::FlagNumber());
+  cli.add_option("--fusion-patch", options->fusion.patch_px,
+                 "with --fusion-radius: side of the patch of the weight (odd, px; default 5)")
+      ->check(dsm::FlagInt());
+  cli.add_flag("--fusion-between-updates,!--no-fusion-between-updates", options->fusion.between_updates,
+               "with --fusion-radius: also fuse the restored images before each structure update (default off)");
+}
+
 // --joint-depth-pose-step, its solver and its coarse-to-fine levels.
 void AddJointStepOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions* options) {
   dsm::ToolCommandLine& cli = *command_line;
@@ -200,6 +218,7 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
                "on; off: restored pairs for depth, both kinds for poses)");
   AddJointStepOptions(&cli, options);
   AddDepthEdgeOptions(&cli, options);
+  AddFusionOptions(&cli, options);
   AddBlurPoseOptions(&cli, options);
   cli.add_option("--structure-matching", flags->structure_matching, "both, restored or blurred")
       ->check(CLI::IsMember({"both", "restored", "blurred"}));

@@ -589,6 +589,8 @@ class WindowSolver {
   template <typename Body>
   void ForEachFrame(const Body& body);
   EstimatorResult GaugedResult();
+  std::vector<cv::Mat> OutputLatents(const std::vector<cv::Mat>& depths);
+  void FuseBetweenUpdates();
 
   bool blurred_matching() const {
     return joint_ && options_.structure_matching == StructureMatching::kBlurred;
@@ -746,6 +748,7 @@ void WindowSolver::RunJoint() {
   for (int iteration = 1; iteration <= options_.max_iterations; ++iteration) {
     if (OutOfTime(iteration - 1)) break;
     const Snapshot before = TakeSnapshot();
+    FuseBetweenUpdates();
     StructurePhase(iteration, /*isolated=*/false);
     ImagePhase(iteration + 1);
     if (result_.energies.back().total <= accepted) {
@@ -1278,8 +1281,10 @@ EstimatorResult WindowSolver::GaugedResult() {
       result_.T_world_cam.emplace_back(pose.rotation(), pose.translation() * rescale);
     }
     result_.depth.push_back(depths[t] * rescale);
+  }
+  for (const cv::Mat& latent : OutputLatents(depths)) {
     cv::Mat clamped;
-    cv::min(cv::max(latents_[t], 0.0), 1.0, clamped);
+    cv::min(cv::max(latent, 0.0), 1.0, clamped);
     result_.latent.push_back(clamped);
   }
   result_.timings = timer_.timings();
@@ -1289,6 +1294,38 @@ EstimatorResult WindowSolver::GaugedResult() {
                                               std::max(0, num_frames_ - options_.carried_frames));
   }
   return std::move(result_);
+}
+
+// The output images: the restored latents, fused across time in joint mode
+// (EstimatorOptions::fusion), with the output depth maps `depths` and the
+// solver's poses (one gauge for both).
+std::vector<cv::Mat> WindowSolver::OutputLatents(const std::vector<cv::Mat>& depths) {
+  if (!joint_ || options_.fusion.radius <= 0) return latents_;
+  const double begin = NowMs();
+  std::vector<SE3> T_world_cam;
+  for (const FrameStructure& frame : frames_) T_world_cam.push_back(frame.T_world_cam);
+  std::vector<cv::Mat> fused =
+      FuseRestoredImages(camera_hr_, latents_, depths, T_world_cam, options_.fusion, options_.held_leading_latents);
+  timer_.AddSince("temporal fusion", begin);
+  return fused;
+}
+
+// TemporalFusionOptions::between_updates: the restored images fused before
+// each structure update (which then matches them, and the next image update
+// starts from them), with the solver's current depth.
+void WindowSolver::FuseBetweenUpdates() {
+  if (!options_.fusion.between_updates || options_.fusion.radius <= 0) return;
+  const double begin = NowMs();
+  std::vector<cv::Mat> depths;
+  std::vector<SE3> T_world_cam;
+  for (const FrameStructure& frame : frames_) {
+    depths.push_back(frame.depth_hr);
+    T_world_cam.push_back(frame.T_world_cam);
+  }
+  latents_ =
+      FuseRestoredImages(camera_hr_, latents_, depths, T_world_cam, options_.fusion, options_.held_leading_latents);
+  for (int t = options_.held_leading_latents; t < num_frames_; ++t) UpdateEdgeWeight(t);
+  timer_.AddSince("temporal fusion", begin);
 }
 
 // Counts, sizes and camera of RunFromStructure's input.
@@ -1427,6 +1464,7 @@ void EstimatorOptions::Check() const {
   visibility.Check();
   initializer.Check();
   depth_edges.Check();
+  fusion.Check();
 }
 
 Estimator::Estimator(const EstimatorOptions& options) : options_(options) {

@@ -18,6 +18,7 @@
 #include "deblur_sr_mvs/core/estimation/initializer.h"
 #include "deblur_sr_mvs/core/estimation/photometric.h"
 #include "deblur_sr_mvs/core/estimation/structure_update.h"
+#include "deblur_sr_mvs/core/estimation/temporal_fusion.h"
 #include "deblur_sr_mvs/core/geometry/camera.h"
 #include "deblur_sr_mvs/core/geometry/frame_types.h"
 #include "deblur_sr_mvs/core/geometry/se3.h"
@@ -218,6 +219,16 @@ struct EstimatorOptions {
   // only; a stream refines the frames it publishes): see DepthEdgeOptions
   // and BENCHMARKS.md "Depth edges on in the library and the node".
   DepthEdgeOptions depth_edges;
+  // Temporal fusion of the output images (issue 12, noise): joint mode
+  // fuses each restored I_t with its neighbours' restored images warped
+  // into t by the final depth and poses (FuseRestoredImages), after the
+  // last image update and the output depth (depth, poses and energies are
+  // unchanged).
+  // Not the held leading latents (a stream's, already fused). On by default
+  // in the library, so in the node too (it runs this Estimator): see
+  // TemporalFusionOptions and BENCHMARKS.md "Temporal fusion of the
+  // restored images". radius 0 turns it off.
+  TemporalFusionOptions fusion;
   int num_threads = 0;  // OpenMP threads for every stage; 0 = default
   // Wall-time cap of one run (s): no outer iteration starts after it, the
   // last accepted state is returned and the cap is noted (0: no cap). Every
