@@ -5,7 +5,6 @@
 #include <limits>
 
 #include <opencv2/imgproc.hpp>
-#include <opencv2/ximgproc.hpp>
 
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/common/options_check.h"
@@ -53,7 +52,7 @@ SweepPlanes PlanesOf(const cv::Mat& inverse_depth, const DepthSweepOptions& opti
 
 // The homography that maps t's pixel x, on the plane of inverse depth rho,
 // into s: K R K^-1 + rho K t e3^T (eq:warpingFunction for a fronto-parallel
-// plane), as cv::warpPerspective's inverse map.
+// plane): t's pixel x is seen at H x in s.
 cv::Matx33d PlaneHomography(const PixelTransfer& transfer, double rho) {
   cv::Matx33d h;
   for (int r = 0; r < 3; ++r) {
@@ -63,22 +62,64 @@ cv::Matx33d PlaneHomography(const PixelTransfer& transfer, double rho) {
   return h;
 }
 
-// Colour-averaged |reference - warped|, capped at `truncation`; where the
-// warp left the source image (NaN): `truncation`. Added to *sum.
-void AddTruncatedDifference(const cv::Mat& reference, const cv::Mat& warped, float truncation, cv::Mat* sum) {
-  const int channels = reference.channels();
-  const float inv_channels = 1.0f / channels;
-  for (int y = 0; y < reference.rows; ++y) {
+// Colour-averaged |reference(x) - source(H x)|, capped at `truncation`, added
+// to *sum; where H x falls outside the source (or behind it): `truncation`.
+// Coordinates of a row first (a loop the compiler vectorises), then the
+// bilinear reads.
+template <int kChannels>
+void AddPlaneDifference(const cv::Mat& reference, const cv::Mat& source, const cv::Matx33d& homography,
+                        float truncation, std::vector<float>* scratch, cv::Mat* sum) {
+  const int width = reference.cols, height = reference.rows;
+  const float max_x = static_cast<float>(width - 1), max_y = static_cast<float>(height - 1);
+  scratch->resize(static_cast<size_t>(3) * width);
+  float* su = scratch->data();
+  float* sv = su + width;
+  float* ok = sv + width;
+  const float h0 = static_cast<float>(homography(0, 0)), h3 = static_cast<float>(homography(1, 0));
+  const float h6 = static_cast<float>(homography(2, 0));
+  const size_t stride = source.step1();
+  for (int y = 0; y < height; ++y) {
+    const float bx = static_cast<float>(homography(0, 1) * y + homography(0, 2));
+    const float by = static_cast<float>(homography(1, 1) * y + homography(1, 2));
+    const float bz = static_cast<float>(homography(2, 1) * y + homography(2, 2));
+#pragma omp simd
+    for (int x = 0; x < width; ++x) {
+      const float xf = static_cast<float>(x);
+      const float z = h6 * xf + bz;
+      const float inv_z = 1.0f / z;
+      const float u = (h0 * xf + bx) * inv_z, v = (h3 * xf + by) * inv_z;
+      const bool inside = (z > 1e-9f) & (u >= 0.0f) & (v >= 0.0f) & (u <= max_x) & (v <= max_y);
+      ok[x] = inside ? 1.0f : 0.0f;
+      su[x] = inside ? u : 0.0f;
+      sv[x] = inside ? v : 0.0f;
+    }
     const float* a = reference.ptr<float>(y);
-    const float* b = warped.ptr<float>(y);
     float* out = sum->ptr<float>(y);
-    for (int x = 0; x < reference.cols; ++x) {
+    for (int x = 0; x < width; ++x) {
+      if (ok[x] == 0.0f) {
+        out[x] += truncation;
+        continue;
+      }
+      const int x0 = std::min(static_cast<int>(su[x]), width - 2), y0 = std::min(static_cast<int>(sv[x]), height - 2);
+      const float fx = su[x] - x0, fy = sv[x] - y0;
+      const float* s0 = source.ptr<float>(y0) + x0 * kChannels;
       float difference = 0.0f;
-      for (int c = 0; c < channels; ++c) difference += std::abs(a[x * channels + c] - b[x * channels + c]);
-      difference *= inv_channels;
-      out[x] += difference < truncation ? difference : truncation;  // NaN: truncation
+      for (int c = 0; c < kChannels; ++c) {
+        const float top = s0[c] + fx * (s0[c + kChannels] - s0[c]);
+        const float bottom = s0[c + stride] + fx * (s0[c + stride + kChannels] - s0[c + stride]);
+        difference += std::abs(a[x * kChannels + c] - (top + fy * (bottom - top)));
+      }
+      out[x] += std::min(difference * (1.0f / kChannels), truncation);
     }
   }
+}
+
+// The guide of the aggregation: the image, in gray.
+cv::Mat GrayGuide(const cv::Mat& image) {
+  if (image.channels() == 1) return image.clone();
+  cv::Mat gray;
+  cv::cvtColor(image, gray, cv::COLOR_BGR2GRAY);
+  return gray;
 }
 
 // Running best plane per pixel and the costs of the planes either side of it
@@ -143,21 +184,75 @@ struct BestPlane {
   }
 };
 
+// The guided filter of a cost slice p with a gray guide I (He et al., PAMI
+// 2013): per window the linear model q = a I + b that fits p best (a
+// regularised by eps), averaged over the windows that cover a pixel. The
+// guide's statistics are computed once per frame; a call costs four box
+// filters.
+class GuidedAggregation {
+ public:
+  GuidedAggregation(const cv::Mat& guide, int radius, double eps) : guide_(guide), window_(2 * radius + 1, 2 * radius + 1) {
+    Box(guide_, &mean_guide_);
+    cv::Mat square = guide_.mul(guide_);
+    Box(square, &inverse_variance_);
+    for (int y = 0; y < guide_.rows; ++y) {
+      const float* mean = mean_guide_.ptr<float>(y);
+      float* value = inverse_variance_.ptr<float>(y);
+      for (int x = 0; x < guide_.cols; ++x) {
+        value[x] = 1.0f / std::max(value[x] - mean[x] * mean[x] + static_cast<float>(eps), 1e-12f);
+      }
+    }
+  }
+
+  void Filter(const cv::Mat& p, cv::Mat* q) {
+    Box(p, &mean_p_);
+    cv::multiply(guide_, p, product_);
+    Box(product_, &mean_product_);
+    a_.create(p.size(), CV_32FC1);
+    b_.create(p.size(), CV_32FC1);
+    for (int y = 0; y < p.rows; ++y) {
+      const float* mean_i = mean_guide_.ptr<float>(y);
+      const float* inverse = inverse_variance_.ptr<float>(y);
+      const float* mean_p = mean_p_.ptr<float>(y);
+      const float* mean_ip = mean_product_.ptr<float>(y);
+      float* a = a_.ptr<float>(y);
+      float* b = b_.ptr<float>(y);
+      for (int x = 0; x < p.cols; ++x) {
+        a[x] = (mean_ip[x] - mean_i[x] * mean_p[x]) * inverse[x];
+        b[x] = mean_p[x] - a[x] * mean_i[x];
+      }
+    }
+    Box(a_, &mean_a_);
+    Box(b_, &mean_b_);
+    q->create(p.size(), CV_32FC1);
+    for (int y = 0; y < p.rows; ++y) {
+      const float* i = guide_.ptr<float>(y);
+      const float* a = mean_a_.ptr<float>(y);
+      const float* b = mean_b_.ptr<float>(y);
+      float* out = q->ptr<float>(y);
+      for (int x = 0; x < p.cols; ++x) out[x] = a[x] * i[x] + b[x];
+    }
+  }
+
+ private:
+  void Box(const cv::Mat& in, cv::Mat* out) const {
+    cv::boxFilter(in, *out, CV_32F, window_, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
+  }
+  const cv::Mat guide_;
+  const cv::Size window_;
+  cv::Mat mean_guide_, inverse_variance_, mean_p_, product_, mean_product_, a_, b_, mean_a_, mean_b_;
+};
+
 // The sweep's per-plane cost: each side's (earlier / later sources) mean
 // truncated difference, aggregated by the guided filter, the smaller side.
 class PlaneCost {
  public:
   PlaneCost(const std::vector<cv::Mat>& images, const PinholeCamera& camera, const std::vector<SE3>& T_world_cam,
             int t, const std::vector<int>& sources, const DepthSweepOptions& options)
-      : images_(images), t_(t), truncation_(static_cast<float>(options.cost_truncation)) {
-    cv::Mat guide;
-    if (images[t].channels() == 3) {
-      cv::cvtColor(images[t], guide, cv::COLOR_BGR2GRAY);
-    } else {
-      guide = images[t];
-    }
-    filter_ = cv::ximgproc::createGuidedFilter(guide, options.aggregation_radius_px,
-                                               options.aggregation_eps);
+      : images_(images),
+        t_(t),
+        truncation_(static_cast<float>(options.cost_truncation)),
+        filter_(GrayGuide(images[t]), options.aggregation_radius_px, options.aggregation_eps) {
     for (int s : sources) {
       const int side = s < t ? 0 : 1;
       sources_[side].push_back(s);
@@ -174,12 +269,16 @@ class PlaneCost {
       side_sum_.create(size, CV_32FC1);
       side_sum_.setTo(0.0f);
       for (size_t k = 0; k < sources_[side].size(); ++k) {
-        cv::warpPerspective(images_[sources_[side][k]], warped_, PlaneHomography(transfers_[side][k], rho), size,
-                            cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT, cv::Scalar::all(kNaN));
-        AddTruncatedDifference(images_[t_], warped_, truncation_, &side_sum_);
+        const cv::Mat& source = images_[sources_[side][k]];
+        const cv::Matx33d homography = PlaneHomography(transfers_[side][k], rho);
+        if (source.channels() == 3) {
+          AddPlaneDifference<3>(images_[t_], source, homography, truncation_, &row_, &side_sum_);
+        } else {
+          AddPlaneDifference<1>(images_[t_], source, homography, truncation_, &row_, &side_sum_);
+        }
       }
       side_sum_ *= 1.0 / sources_[side].size();
-      filter_->filter(side_sum_, aggregated_);
+      filter_.Filter(side_sum_, &aggregated_);
       if (first) {
         aggregated_.copyTo(*cost);
         first = false;
@@ -193,10 +292,11 @@ class PlaneCost {
   const std::vector<cv::Mat>& images_;
   const int t_;
   const float truncation_;
-  cv::Ptr<cv::ximgproc::GuidedFilter> filter_;
+  GuidedAggregation filter_;
   std::vector<int> sources_[2];
   std::vector<PixelTransfer> transfers_[2];
-  cv::Mat side_sum_, warped_, aggregated_;
+  cv::Mat side_sum_, aggregated_;
+  std::vector<float> row_;
 };
 
 // The sweep's outcome per pixel: the best plane's refined inverse depth,

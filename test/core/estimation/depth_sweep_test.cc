@@ -53,7 +53,7 @@ cv::Vec3f Texture(double x, double y, double cell, uint32_t seed, float base) {
 struct Scene {
   double half_width = 0.2;
   double half_height = 0.2;
-  bool InForeground(double X, double Y) const { return std::abs(X) <= half_width && std::abs(Y) <= half_height; }
+  bool InForeground(double X, double Y) const { return std::abs(X) < half_width && std::abs(Y) < half_height; }
 };
 
 // The image of a camera at (centre_x, 0, 0) looking along +Z, rendered with
@@ -140,7 +140,8 @@ TEST(DepthSweep, PutsAFattenedEdgeBackOntoTheObject) {
     band_back += back;
     if (!back) ADD_FAILURE() << p << ": " << swept.at<float>(p);
   }
-  // Of 224 band pixels every one goes back onto the background.
+  // Of 224 band pixels every one goes back onto the background (with a
+  // nearly unguided aggregation, eps 1, 12 of them keep the foreground's).
   EXPECT_EQ(band_back, static_cast<int>(band.size()));
   // Away from the image border (where a source does not see the pixel) and
   // from the band, the correct depth stays within 5 %.
@@ -157,10 +158,11 @@ TEST(DepthSweep, PutsAFattenedEdgeBackOntoTheObject) {
 }
 
 TEST(DepthSweep, KeepsAThinStructureThin) {
-  // A 4-px bar (columns 46-49: 0.0375 m at 80 px / m, its edges on pixel
-  // centres) whose inverse depth came out 9 px wide (columns 43-51).
+  // A 4-px bar (columns 46-49: 0.05 m at 80 px / m, its edges between
+  // pixels, so that no pixel is mixed) whose inverse depth came out 9 px
+  // wide (columns 43-51).
   Scene scene;
-  scene.half_width = 1.5 / 80.0;
+  scene.half_width = 2.0 / 80.0;
   const Views views = ThreeViews(scene);
   const cv::Mat truth = TrueInverseDepth(scene);
   cv::Mat fattened = truth.clone();
@@ -169,24 +171,15 @@ TEST(DepthSweep, KeepsAThinStructureThin) {
   }
   cv::Mat swept = fattened.clone();
   SweepInverseDepth(views.images, Camera(), views.T_world_cam, 1, {0, 2}, Options(), &swept);
-  int next_to_bar = 0;
+  // Every pixel of the fattened columns ends at its true depth: the bar
+  // keeps its depth (the aggregation does not erase it) and the fattening
+  // beside it is gone.
   for (int v = 20; v <= 43; ++v) {
     for (int u = 43; u <= 51; ++u) {
-      const bool ok = Near(swept.at<float>(v, u), truth.at<float>(v, u));
-      if (u >= 46 && u <= 49) {
-        // The bar keeps its depth: the aggregation does not erase it.
-        EXPECT_TRUE(ok) << "(" << u << ", " << v << "): " << swept.at<float>(v, u);
-      } else if (u == 45 || u == 50) {
-        next_to_bar += !ok;  // a pixel that shares windows with the bar
-      } else {
-        // Two or more pixels off the bar, the fattening is gone.
-        EXPECT_TRUE(ok) << "(" << u << ", " << v << "): " << swept.at<float>(v, u);
-      }
+      EXPECT_TRUE(Near(swept.at<float>(v, u), truth.at<float>(v, u)))
+          << "(" << u << ", " << v << "): " << swept.at<float>(v, u) << " against " << truth.at<float>(v, u);
     }
   }
-  // At the defaults 3 of the 48 pixels right beside the bar keep the bar's
-  // depth (they were 48 before); most go back.
-  EXPECT_LT(next_to_bar, 24);
 }
 
 TEST(DepthSweep, NoSourcesOrUnknownDepthChangeNothing) {

@@ -10,7 +10,7 @@
 // I_t against its neighbours' I_s warped through fronto-parallel planes
 // (eq:warpingFunction at the current poses) over the frame's whole inverse-
 // depth range, and aggregates every plane's cost with a guided filter
-// (He et al., PAMI 2013; cv::ximgproc::guidedFilter) guided by I_t, so that a
+// (He et al., PAMI 2013) guided by I_t (in gray), so that a
 // window does not mix the costs of the two sides of an image edge. The
 // per-pixel cost of a plane is the smaller of the aggregated costs of the
 // earlier and of the later neighbours (a band that one side cannot see is
@@ -46,7 +46,7 @@ struct DepthSweepOptions {
   int aggregation_radius_px = 3;
   double aggregation_eps = 1e-4;
   // Per-neighbour cap of the colour-averaged |difference| (occlusion).
-  double cost_truncation = 0.15;
+  double cost_truncation = 0.05;
   // A pixel keeps its inverse depth where the sweep's best plane lies within
   // this many plane steps of it; 0: every pixel takes the sweep's.
   double keep_steps = 2.0;
