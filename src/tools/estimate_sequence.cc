@@ -144,7 +144,7 @@ void AddDepthSweepOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOpti
   dsm::ToolCommandLine& cli = *command_line;
   cli.add_flag("--depth-sweep,!--no-depth-sweep", options->depth_sweep.on_output,
                "joint mode: re-sweep the output depth over the restored images (plane sweep, guided-filter "
-               "cost aggregation) where it disagrees with the solver's (default off)");
+               "cost aggregation) where it clearly disagrees with the solver's (default on)");
   cli.add_option("--depth-sweep-planes", options->depth_sweep.num_planes,
                  "with --depth-sweep: inverse-depth planes over each frame's range")
       ->check(dsm::FlagInt());

@@ -221,9 +221,11 @@ struct EstimatorOptions {
   DepthEdgeOptions depth_edges;
   // Depth re-sweep (issue 14): joint mode's output D_t re-estimated by a
   // plane sweep over the restored images with guided-filter cost
-  // aggregation where it disagrees with the solver's (SweepInverseDepth),
-  // before the depth-edge median; the output only, not in a window that
-  // carries operators. See DepthSweepOptions.
+  // aggregation where it clearly disagrees with the solver's
+  // (SweepInverseDepth), before the depth-edge median; the output only, not
+  // in a window that carries operators nor in a stream. On by default
+  // (crop depth 0.874x -> 0.799x the baseline's on 8 sequences, +8 % CPU):
+  // see DepthSweepOptions.
   DepthSweepOptions depth_sweep;
   int num_threads = 0;  // OpenMP threads for every stage; 0 = default
   // Wall-time cap of one run (s): no outer iteration starts after it, the
