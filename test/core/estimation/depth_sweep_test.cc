@@ -12,6 +12,7 @@
 
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/estimation/estimator.h"
+#include "deblur_sr_mvs/core/estimation/stream.h"
 
 namespace deblur_sr_mvs {
 namespace {
@@ -215,6 +216,16 @@ TEST(DepthSweep, CheckRejectsBadOptions) {
   EstimatorOptions estimator;
   estimator.depth_sweep.keep_steps = -1.0;
   EXPECT_THROW(estimator.Check(), InputError);
+}
+
+TEST(DepthSweep, OnInTheEstimatorOffInAStream) {
+  const EstimatorOptions options;
+  EXPECT_TRUE(options.depth_sweep.on_output);
+  // A stream hands its window's depth on to the next window: its window
+  // estimator does not re-sweep (nor refine), the caller's options aside.
+  const StreamEstimator stream(options);
+  EXPECT_FALSE(stream.options().depth_sweep.on_output);
+  EXPECT_FALSE(stream.options().depth_edges.on_output);
 }
 
 }  // namespace
