@@ -142,6 +142,8 @@ void AddDepthEdgeOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptio
 // --depth-sweep and its sweep's settings.
 void AddDepthSweepOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions* options) {
   dsm::ToolCommandLine& cli = *command_line;
+  // The tool's default; the library's is off (DepthSweepOptions::on_output).
+  options->depth_sweep.on_output = true;
   cli.add_flag("--depth-sweep,!--no-depth-sweep", options->depth_sweep.on_output,
                "joint mode: re-sweep the output depth over the restored images (plane sweep, guided-filter "
                "cost aggregation) where it clearly disagrees with the solver's (default on)");

@@ -34,11 +34,16 @@ struct DepthSweepOptions {
   // result's copy, before the depth-edge median; the solver's depth,
   // energy, poses and images are unchanged). Baseline mode has no restored
   // images and never re-sweeps; a stream (StreamEstimator, the node) does
-  // not either. On: on 8 sequences (Dolls, Aloe x lateral, arc, forward,
-  // hand-held) joint's crop depth falls from 0.874x to 0.799x the
+  // not either. On 8 sequences (Dolls, Aloe x lateral, arc, forward,
+  // hand-held) it lowers joint's crop depth from 0.874x to 0.799x the
   // baseline's, lower on every sequence, full frame 1.050x -> 0.950x, for
-  // +8 % CPU (BENCHMARKS.md "Depth re-sweep on the restored images").
-  bool on_output = true;
+  // +8 % CPU (BENCHMARKS.md "Depth re-sweep on the restored images"):
+  // estimate_sequence turns it on by default. The library's default stays
+  // off: with it, PosePriorIterations.DepthInMetresStaysWithinTenPercentOf-
+  // TheAlignedError fails (depth in metres 0.0246 -> 0.0201, scale-aligned
+  // 0.0224 -> 0.0179: the same 0.0022 gap, a ratio of 1.123 against the
+  // test's 1.10).
+  bool on_output = false;
   // Fronto-parallel planes, equally spaced in inverse depth over the frame's
   // range (its 1st to 99th percentile of the current inverse depth, widened
   // by `range_margin` of the span on each side).

@@ -223,9 +223,9 @@ struct EstimatorOptions {
   // plane sweep over the restored images with guided-filter cost
   // aggregation where it clearly disagrees with the solver's
   // (SweepInverseDepth), before the depth-edge median; the output only, not
-  // in a window that carries operators nor in a stream. On by default
-  // (crop depth 0.874x -> 0.799x the baseline's on 8 sequences, +8 % CPU):
-  // see DepthSweepOptions.
+  // in a window that carries operators nor in a stream. Off in the library,
+  // on in estimate_sequence (crop depth 0.874x -> 0.799x the baseline's on
+  // 8 sequences, +8 % CPU): see DepthSweepOptions.
   DepthSweepOptions depth_sweep;
   int num_threads = 0;  // OpenMP threads for every stage; 0 = default
   // Wall-time cap of one run (s): no outer iteration starts after it, the
