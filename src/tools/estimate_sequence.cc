@@ -157,6 +157,40 @@ void AddFusionOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions*
                "with --fusion-radius: also fuse the restored images before each structure update (default off)");
 }
 
+// --depth-sweep and its sweep's settings.
+void AddDepthSweepOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions* options) {
+  dsm::ToolCommandLine& cli = *command_line;
+  // The tool's default; the library's is off (DepthSweepOptions::on_output).
+  options->depth_sweep.on_output = true;
+  cli.add_flag("--depth-sweep,!--no-depth-sweep", options->depth_sweep.on_output,
+               "joint mode: re-sweep the output depth over the restored images (plane sweep, guided-filter "
+               "cost aggregation) where it clearly disagrees with the solver's (default on)");
+  cli.add_option("--depth-sweep-planes", options->depth_sweep.num_planes,
+                 "with --depth-sweep: inverse-depth planes over each frame's range")
+      ->check(dsm::FlagInt());
+  cli.add_option("--depth-sweep-radius", options->depth_sweep.aggregation_radius_px,
+                 "with --depth-sweep: guided-filter radius of the cost aggregation (HR px)")
+      ->check(dsm::FlagInt());
+  cli.add_option("--depth-sweep-eps", options->depth_sweep.aggregation_eps,
+                 "with --depth-sweep: guided-filter regularisation (intensity^2)")
+      ->check(dsm::FlagNumber());
+  cli.add_option("--depth-sweep-truncation", options->depth_sweep.cost_truncation,
+                 "with --depth-sweep: per-neighbour cost cap (mean |difference|)")
+      ->check(dsm::FlagNumber());
+  cli.add_option("--depth-sweep-keep-steps", options->depth_sweep.keep_steps,
+                 "with --depth-sweep: keep the solver's depth within this many plane steps of the sweep's")
+      ->check(dsm::FlagNumber());
+  cli.add_option("--depth-sweep-min-gain", options->depth_sweep.min_cost_gain,
+                 "with --depth-sweep: keep the solver's depth unless the sweep's cost is lower by this fraction")
+      ->check(dsm::FlagNumber());
+  cli.add_option("--depth-sweep-downsample", options->depth_sweep.downsample,
+                 "with --depth-sweep: sweep on the images downsampled by this factor (1: HR)")
+      ->check(dsm::FlagInt());
+  cli.add_option("--depth-sweep-neighbours", options->depth_sweep.neighbour_radius,
+                 "with --depth-sweep: match each frame against the frames within this distance")
+      ->check(dsm::FlagInt());
+}
+
 // --joint-depth-pose-step, its solver and its coarse-to-fine levels.
 void AddJointStepOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions* options) {
   dsm::ToolCommandLine& cli = *command_line;
@@ -219,6 +253,7 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   AddJointStepOptions(&cli, options);
   AddDepthEdgeOptions(&cli, options);
   AddFusionOptions(&cli, options);
+  AddDepthSweepOptions(&cli, options);
   AddBlurPoseOptions(&cli, options);
   cli.add_option("--structure-matching", flags->structure_matching, "both, restored or blurred")
       ->check(CLI::IsMember({"both", "restored", "blurred"}));

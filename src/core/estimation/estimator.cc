@@ -556,6 +556,7 @@ class WindowSolver {
   void UpdateEdgeWeight(int t);
   void RefineAllDepthEdges();
   bool RefineOutputDepthEdges() const;
+  std::vector<cv::Mat> OutputDepths();
   void UpdateFrameDepth(int t, int iteration, bool isolated, const std::vector<SE3>& poses,
                         const StructureUpdateOptions& structure_options);
   void UpdateAllPoses(int iteration, bool isolated, const std::vector<SE3>& poses,
@@ -882,6 +883,27 @@ void WindowSolver::StructurePhase(int iteration, bool isolated) {
 // is filtered directly.
 bool WindowSolver::RefineOutputDepthEdges() const {
   return options_.depth_edges.radius_px > 0 && options_.depth_edges.on_output && options_.carried_frames == 0;
+}
+
+// The output D_t: the solver's, or in joint mode with the re-sweep
+// (EstimatorOptions::depth_sweep) copies re-swept against the neighbours'
+// restored images at the current poses. Not in a window that hands
+// operators on (RefineOutputDepthEdges says why).
+std::vector<cv::Mat> WindowSolver::OutputDepths() {
+  std::vector<cv::Mat> depths(num_frames_);
+  for (int t = 0; t < num_frames_; ++t) depths[t] = frames_[t].depth_hr;
+  if (!joint_ || !options_.depth_sweep.on_output || options_.carried_frames > 0) return depths;
+  const double begin = NowMs();
+  std::vector<SE3> poses(num_frames_);
+  for (int t = 0; t < num_frames_; ++t) poses[t] = frames_[t].T_world_cam;
+  ForEachFrame([this, &poses, &depths](int t) {
+    cv::Mat inverse_depth = inverse_depth_[t].clone();
+    const std::vector<int> sources = Neighbours(t, num_frames_, options_.depth_sweep.neighbour_radius);
+    SweepInverseDepth(latents_, camera_hr_, poses, t, sources, options_.depth_sweep, &inverse_depth);
+    depths[t] = DepthFromInverse(inverse_depth);
+  });
+  timer_.AddSince("depth re-sweep", begin);
+  return depths;
 }
 
 // Every D_t through the edge-aware weighted median guided by its current
@@ -1257,12 +1279,11 @@ EstimatorResult WindowSolver::GaugedResult() {
   // Monocular scale: world = first camera, median scene depth of the window
   // 1 unit (docs/file_formats.md#monocular-scale), unless the input's gauge is kept.
   // The output depth maps, refined at their edges where asked, before the gauge's scale.
-  std::vector<cv::Mat> depths;
+  std::vector<cv::Mat> depths = OutputDepths();
   for (int t = 0; t < num_frames_; ++t) {
-    depths.push_back(frames_[t].depth_hr);
     if (!RefineOutputDepthEdges()) continue;
-    depths.back() = depths.back().clone();
-    RefineDepthEdges(latents_[t], options_.depth_edges, &depths.back());
+    depths[t] = depths[t].clone();
+    RefineDepthEdges(latents_[t], options_.depth_edges, &depths[t]);
   }
   SE3 T_first_world;
   double rescale = 1.0;
@@ -1465,6 +1486,7 @@ void EstimatorOptions::Check() const {
   initializer.Check();
   depth_edges.Check();
   fusion.Check();
+  depth_sweep.Check();
 }
 
 Estimator::Estimator(const EstimatorOptions& options) : options_(options) {

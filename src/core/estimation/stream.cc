@@ -110,9 +110,11 @@ std::string ProblemWithEstimate(const EstimatorResult& result, double max_step_r
 namespace {
 
 // The stream's estimator options: the output depth is not refined in the
-// estimator, so that the next window starts from the solver's own depth.
+// estimator, so that the next window starts from the solver's own depth; nor
+// re-swept (EstimatorOptions::depth_sweep): a stream does not re-sweep.
 EstimatorOptions WithoutOutputDepthEdges(EstimatorOptions options) {
   options.depth_edges.on_output = false;
+  options.depth_sweep.on_output = false;
   return options;
 }
 

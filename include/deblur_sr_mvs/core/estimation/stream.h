@@ -172,7 +172,8 @@ class StreamEstimator {
   // New estimator options from the next window on.
   void SetOptions(const EstimatorOptions& options);
   // The window estimator's options: the caller's, except that
-  // depth_edges.on_output is off (the stream refines what it publishes).
+  // depth_edges.on_output is off (the stream refines what it publishes) and
+  // depth_sweep.on_output is off (a stream does not re-sweep).
   const EstimatorOptions& options() const { return estimator_.options(); }
   void SetCancelFlag(const std::atomic<bool>* flag);
   // Frames the next window shares with this one (StreamOptions::
