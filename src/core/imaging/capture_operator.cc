@@ -380,6 +380,7 @@ struct PixelScratch {
   std::vector<float> grid_values;
   std::vector<float> scatter;  // fallback for huge footprints
   std::vector<int> touched;
+  std::vector<float> touched_values;
 
   explicit PixelScratch(const AssemblyContext& context)
       : depth(context.samples),
@@ -485,7 +486,7 @@ TapBox BoundTaps(const AssemblyContext& context, const PixelScratch& scratch) {
 // negative) without branches, and the non-zero cells are kept by a
 // branch-free compaction.
 void MergeTapsInGrid(const AssemblyContext& context, const TapBox& box, PixelScratch* scratch,
-                     std::vector<int>* columns, std::vector<float>* values) {
+                     RowRunMatrix::RowBlock* block) {
   const int grid_width = box.Width();
   const int grid_height = box.Height();
   const int stride = grid_width + 1;  // in cells
@@ -517,14 +518,12 @@ void MergeTapsInGrid(const AssemblyContext& context, const TapBox& box, PixelScr
       count += value != 0.0f ? 1 : 0;
     }
   }
-  columns->insert(columns->end(), out_columns, out_columns + count);
-  values->insert(values->end(), out_values, out_values + count);
+  block->AppendRow(out_columns, out_values, count);
 }
 
 // Merges the taps of a footprint too large for a local grid (extreme blur)
 // through an image-sized scatter array and a sort of the touched columns.
-void MergeTapsScattered(const AssemblyContext& context, PixelScratch* scratch, std::vector<int>* columns,
-                        std::vector<float>* values) {
+void MergeTapsScattered(const AssemblyContext& context, PixelScratch* scratch, RowRunMatrix::RowBlock* block) {
   const int hr_width = context.hr_width;
   const float sample_weight = context.sample_weight;
   std::vector<float>& scatter = scratch->scatter;
@@ -546,25 +545,24 @@ void MergeTapsScattered(const AssemblyContext& context, PixelScratch* scratch, s
     add(index + hr_width + 1, fx * wy1);
   }
   std::sort(touched.begin(), touched.end());
+  std::vector<float>& touched_values = scratch->touched_values;
+  touched_values.clear();
   for (int index : touched) {
-    columns->push_back(index);
-    values->push_back(scatter[index]);
+    touched_values.push_back(scatter[index]);
     scatter[index] = 0.0f;
   }
+  block->AppendRow(touched.data(), touched_values.data(), static_cast<int>(touched.size()));
   touched.clear();
 }
 
-// The rows [first_row, last_row) of Psi (LR rows) into one thread's CSR
-// pieces: per LR pixel, the taps of its scale^2 HR pixels for every virtual
-// camera, merged into one sparse row; its coverage and non-zero count.
+// The rows [first_row, last_row) of Psi (LR rows) into one thread's block
+// of row runs: per LR pixel, the taps of its scale^2 HR pixels for every
+// virtual camera, merged into one sparse row; and its coverage.
 void AssembleRows(const AssemblyContext& context, int first_row, int last_row, std::vector<float>* coverage,
-                  std::vector<int>* row_nnz, std::vector<int>* columns, std::vector<float>* values) {
+                  RowRunMatrix::RowBlock* block) {
   const int scale = context.scale;
   const int lr_width = context.lr_width;
-  columns->clear();
-  values->clear();
-  columns->reserve(static_cast<size_t>(last_row - first_row) * lr_width * 64);
-  values->reserve(columns->capacity());
+  block->Clear();
   PixelScratch scratch(context);
   for (int lr_y = first_row; lr_y < last_row; ++lr_y) {
     for (int lr_x = 0; lr_x < lr_width; ++lr_x) {
@@ -578,13 +576,11 @@ void AssembleRows(const AssemblyContext& context, int first_row, int last_row, s
       }
       const TapBox box = BoundTaps(context, scratch);
       (*coverage)[row] = 1.0f - static_cast<float>(misses) / context.samples_per_pixel;
-      const size_t row_start = columns->size();
       if (box.Width() * box.Height() <= kMaxLocalGrid) {
-        MergeTapsInGrid(context, box, &scratch, columns, values);
+        MergeTapsInGrid(context, box, &scratch, block);
       } else {
-        MergeTapsScattered(context, &scratch, columns, values);
+        MergeTapsScattered(context, &scratch, block);
       }
-      (*row_nnz)[row] = static_cast<int>(columns->size() - row_start);
     }
   }
 }
@@ -794,30 +790,20 @@ void CaptureOperatorBuilder::Assemble(const CaptureGeometry& geometry, const Vir
   op->hr_size_ = cv::Size(context.hr_width, context.hr_height);
   op->num_threads_ = threads;
   op->coverage_.assign(lr_pixels, 1.0f);
-  // Each thread assembles a contiguous block of LR rows into its own CSR
-  // pieces; the blocks are concatenated in order afterwards.
-  block_columns_.resize(std::max<size_t>(block_columns_.size(), threads));
-  block_values_.resize(std::max<size_t>(block_values_.size(), threads));
-  row_nnz_.assign(lr_pixels, 0);
+  // Each thread assembles a contiguous block of LR rows into its own row
+  // runs; the blocks are concatenated in order afterwards.
+  blocks_.resize(std::max<size_t>(blocks_.size(), threads));
   const int lr_height = context.lr_height;
 #pragma omp parallel num_threads(threads)
   {
     const int thread = omp_get_thread_num();
     const int first_row = static_cast<int>(static_cast<long long>(lr_height) * thread / threads);
     const int last_row = static_cast<int>(static_cast<long long>(lr_height) * (thread + 1) / threads);
-    AssembleRows(context, first_row, last_row, &op->coverage_, &row_nnz_, &block_columns_[thread],
-                 &block_values_[thread]);
+    AssembleRows(context, first_row, last_row, &op->coverage_, &blocks_[thread]);
   }
-  std::vector<const int*> piece_columns;
-  std::vector<const float*> piece_values;
-  std::vector<size_t> piece_sizes;
-  for (int t = 0; t < threads; ++t) {
-    piece_columns.push_back(block_columns_[t].data());
-    piece_values.push_back(block_values_[t].data());
-    piece_sizes.push_back(block_columns_[t].size());
-  }
-  op->forward_ = RowRunMatrix::FromPieces(context.hr_width * context.hr_height, row_nnz_, piece_columns,
-                                          piece_values, piece_sizes);
+  std::vector<const RowRunMatrix::RowBlock*> blocks;
+  for (int t = 0; t < threads; ++t) blocks.push_back(&blocks_[t]);
+  op->forward_ = RowRunMatrix::FromBlocks(context.hr_width * context.hr_height, blocks);
   timings_.assembly_ms = NowMs() - stage_start;
   const double adjoint_start = NowMs();
   if (options_.transposed_copy) {

@@ -103,6 +103,55 @@ TEST(RowRunMatrix, FromPiecesEqualsFromTheConcatenatedCsr) {
                InputError);
 }
 
+// The capture-operator builder's form: rows appended one at a time to
+// blocks of consecutive rows (one block empty, one row longer than a run
+// may be) give the matrix of FromPieces over the same CSR arrays bit for
+// bit: the same runs (maximal, split at kMaxRunLength), row offsets and
+// values.
+TEST(RowRunMatrix, FromBlocksEqualsFromPiecesBitForBit) {
+  std::mt19937 rng(7);
+  const int long_row = RowRunMatrix::kMaxRunLength + 500;
+  const int cols = long_row + 40;
+  SparseMatrixRM csr = RandomRunOperator(90, cols, &rng);
+  // Row 40 becomes one span longer than a run (plus a separate tap).
+  std::vector<Eigen::Triplet<float>> taps;
+  for (int r = 0; r < csr.rows(); ++r) {
+    if (r == 40) continue;
+    for (SparseMatrixRM::InnerIterator it(csr, r); it; ++it) taps.emplace_back(r, it.col(), it.value());
+  }
+  for (int c = 10; c < 10 + long_row; ++c) taps.emplace_back(40, c, 0.5f + c % 3);
+  taps.emplace_back(40, cols - 1, 3.0f);
+  csr.setFromTriplets(taps.begin(), taps.end());
+  csr.makeCompressed();
+  const int* outer = csr.outerIndexPtr();
+  std::vector<RowRunMatrix::RowBlock> blocks(3);
+  blocks[0].AppendRow(csr.innerIndexPtr(), csr.valuePtr(), 0);  // reused: cleared below
+  for (RowRunMatrix::RowBlock& block : blocks) block.Clear();
+  const int split = 50;  // rows [0, 50) in block 0, none in block 1, the rest in block 2
+  for (int r = 0; r < csr.rows(); ++r) {
+    blocks[r < split ? 0 : 2].AppendRow(csr.innerIndexPtr() + outer[r], csr.valuePtr() + outer[r],
+                                        outer[r + 1] - outer[r]);
+  }
+  EXPECT_EQ(blocks[0].rows(), split);
+  EXPECT_EQ(blocks[1].rows(), 0);
+  const RowRunMatrix built = RowRunMatrix::FromBlocks(cols, {&blocks[0], &blocks[1], &blocks[2]});
+  const RowRunMatrix reference = RowRunMatrix::FromCsr(csr);
+  ASSERT_EQ(built.rows(), reference.rows());
+  ASSERT_EQ(built.cols(), reference.cols());
+  ASSERT_EQ(built.runs(), reference.runs());
+  ASSERT_EQ(built.nonZeros(), reference.nonZeros());
+  EXPECT_GT(reference.runs(), csr.rows());  // several runs per row, the long one split
+  const size_t rows1 = static_cast<size_t>(built.rows()) + 1;
+  EXPECT_EQ(std::memcmp(built.row_first_value(), reference.row_first_value(), sizeof(int) * rows1), 0);
+  EXPECT_EQ(std::memcmp(built.row_first_run(), reference.row_first_run(), sizeof(int) * rows1), 0);
+  EXPECT_EQ(std::memcmp(built.run_first_column(), reference.run_first_column(), sizeof(int) * built.runs()),
+            0);
+  EXPECT_EQ(std::memcmp(built.run_length(), reference.run_length(), sizeof(uint16_t) * built.runs()), 0);
+  EXPECT_EQ(std::memcmp(built.values(), reference.values(), sizeof(float) * built.nonZeros()), 0);
+  // A column past the matrix is refused.
+  EXPECT_THROW(RowRunMatrix::FromBlocks(cols - 1, {&blocks[0], &blocks[1], &blocks[2]}), InputError);
+}
+
 class RowRunProducts : public ::testing::TestWithParam<std::tuple<int, int>> {};
 
 // A^T W A x, A^T y, diag(A^T W A) and A x over the runs equal the same
