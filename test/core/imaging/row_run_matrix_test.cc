@@ -3,6 +3,7 @@
 // the CSR arrays (the layout changes the memory traffic, not the arithmetic).
 #include "deblur_sr_mvs/core/imaging/row_run_matrix.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <random>
@@ -272,6 +273,61 @@ TEST(RowGather, SumsInFourPartialSumsOverTheRuns) {
 
 INSTANTIATE_TEST_SUITE_P(ChannelsAndThreads, RowRunProducts,
                          ::testing::Combine(::testing::Values(1, 2, 3, 4), ::testing::Values(1, 3)));
+
+class L1ReweightPassTest : public ::testing::TestWithParam<int> {};
+
+// The image update's fused reweighting (one pass over the rows) gives, bit
+// for bit, what the separate passes give one after the other on one thread:
+// A x (MultiplySparse), A x - b, the L1 weights scale / max(|r|, eps) (0
+// outside the mask), diag(A^T W A) and A^T (-(W r)) added to what the
+// outputs held. 1-4 channels (3: the colour kernels).
+TEST_P(L1ReweightPassTest, EqualsTheSeparatePassesBitForBit) {
+  const int channels = GetParam();
+  std::mt19937 rng(29 + channels);
+  const int rows = 500, cols = 1600;
+  const RowRunMatrix a = RowRunMatrix::FromCsr(RandomRunOperator(rows, cols, &rng));
+  const cv::Mat x = RandomValues(cols, channels, -1.0f, 1.0f, &rng);
+  const cv::Mat b = RandomValues(rows, channels, -2.0f, 2.0f, &rng);
+  cv::Mat mask(rows, 1, CV_8UC1);
+  for (int r = 0; r < rows; ++r) mask.at<uchar>(r) = r % 9 == 4 ? 0 : 255;
+  const cv::Mat diagonal0 = RandomValues(cols, channels, 0.0f, 1.0f, &rng);
+  const cv::Mat adjoint0 = RandomValues(cols, channels, -1.0f, 1.0f, &rng);
+  const double scale = 0.7, epsilon = 1e-3;
+  for (const cv::Mat& used : {mask, cv::Mat()}) {
+    // The separate passes.
+    cv::Mat ax, residual_ref, weight_ref, temp;
+    MultiplySparse(a, x, &ax, 1);
+    residual_ref = ax - b;
+    weight_ref.create(b.size(), b.type());
+    for (int r = 0; r < rows; ++r) {
+      for (int c = 0; c < channels; ++c) {
+        const float value = residual_ref.ptr<float>()[r * channels + c];
+        weight_ref.ptr<float>()[r * channels + c] =
+            used.empty() || used.at<uchar>(r) != 0
+                ? static_cast<float>(scale / std::max<double>(std::abs(value), epsilon))
+                : 0.0f;
+      }
+    }
+    cv::Mat diagonal_ref = diagonal0.clone(), adjoint_ref = adjoint0.clone();
+    AddWeightedNormalDiagonal(a, weight_ref, &diagonal_ref, 1);
+    cv::multiply(residual_ref, weight_ref, temp, -1.0);
+    AddAdjointProduct(a, temp, &adjoint_ref, 1);
+    // The fused pass.
+    cv::Mat residual, weight, diagonal = diagonal0.clone(), adjoint = adjoint0.clone();
+    L1ReweightPass(a, x, b, used, scale, epsilon, &residual, &weight, &diagonal, &adjoint);
+    EXPECT_TRUE(SameBits(residual, residual_ref));
+    EXPECT_TRUE(SameBits(weight, weight_ref));
+    EXPECT_TRUE(SameBits(diagonal, diagonal_ref));
+    EXPECT_TRUE(SameBits(adjoint, adjoint_ref));
+    EXPECT_FALSE(SameBits(adjoint, adjoint0));  // it added something
+  }
+  cv::Mat residual, weight, diagonal = diagonal0.clone(), adjoint = adjoint0.clone();
+  EXPECT_THROW(L1ReweightPass(a, x, b, cv::Mat(rows + 1, 1, CV_8UC1, cv::Scalar(255)), scale, epsilon, &residual,
+                              &weight, &diagonal, &adjoint),
+               InputError);
+}
+
+INSTANTIATE_TEST_SUITE_P(Channels, L1ReweightPassTest, ::testing::Values(1, 2, 3, 4));
 
 }  // namespace
 }  // namespace deblur_sr_mvs
