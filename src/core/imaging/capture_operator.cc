@@ -393,9 +393,28 @@ struct PixelScratch {
         grid_values(kMaxLocalGrid) {}
 };
 
+// Bounding box of the taps (the top-left taps of the bilinear stencils; the
+// right and bottom taps are added by Include()).
+struct TapBox {
+  int min_x, max_x, min_y, max_y;
+  int Width() const { return max_x - min_x + 1; }
+  int Height() const { return max_y - min_y + 1; }
+  // The empty box of an image.
+  static TapBox Empty(const AssemblyContext& context) { return {context.hr_width, -1, context.hr_height, -1}; }
+  // The box of the taps whose top-left taps span `top_left`.
+  void Include(const TapBox& top_left) {
+    min_x = std::min(min_x, top_left.min_x);
+    max_x = std::max(max_x, top_left.max_x + 1);
+    min_y = std::min(min_y, top_left.min_y);
+    max_y = std::max(max_y, top_left.max_y + 1);
+  }
+};
+
 // The taps of HR pixel (x, y) for every virtual camera, written at `offset`
-// of the scratch; returns how many samples missed the source image.
-inline int WarpHrPixel(const AssemblyContext& context, int x, int y, int offset, PixelScratch* scratch) {
+// of the scratch, and the box of their top-left taps (`top_left`, grown);
+// returns how many samples missed the source image.
+inline int WarpHrPixel(const AssemblyContext& context, int x, int y, int offset, PixelScratch* scratch,
+                       TapBox* top_left) {
   const int samples = context.samples;
   const float* base0 = &context.row_bases[(static_cast<size_t>(y) * 3 + 0) * samples];
   const float* base1 = base0 + samples;
@@ -426,7 +445,8 @@ inline int WarpHrPixel(const AssemblyContext& context, int x, int y, int offset,
   const float* __restrict c_t1 = context.t1.data() + set_offset;
   const float* __restrict c_t2 = context.t2.data() + set_offset;
   int misses = 0;
-#pragma omp simd reduction(+ : misses)
+  int min_x = top_left->min_x, max_x = top_left->max_x, min_y = top_left->min_y, max_y = top_left->max_y;
+#pragma omp simd reduction(+ : misses) reduction(min : min_x, min_y) reduction(max : max_x, max_y)
   for (int m = 0; m < samples; ++m) {
     const float d = depth_m[m];
     const float z = d * (c_h6[m] * xf + base2[m]) + c_t2[m];
@@ -452,29 +472,13 @@ inline int WarpHrPixel(const AssemblyContext& context, int x, int y, int offset,
     out_y[m] = iy;
     out_fx[m] = fx;
     out_fy[m] = fy;
+    min_x = std::min(min_x, ix);
+    max_x = std::max(max_x, ix);
+    min_y = std::min(min_y, iy);
+    max_y = std::max(max_y, iy);
   }
+  *top_left = {min_x, max_x, min_y, max_y};
   return misses;
-}
-
-// Bounding box of the taps, the right and bottom taps of the bilinear stencil
-// included.
-struct TapBox {
-  int min_x, max_x, min_y, max_y;
-  int Width() const { return max_x - min_x + 1; }
-  int Height() const { return max_y - min_y + 1; }
-};
-
-TapBox BoundTaps(const AssemblyContext& context, const PixelScratch& scratch) {
-  TapBox box{context.hr_width, -1, context.hr_height, -1};
-  for (int k = 0; k < context.samples_per_pixel; ++k) {
-    box.min_x = std::min(box.min_x, scratch.tap_x[k]);
-    box.max_x = std::max(box.max_x, scratch.tap_x[k]);
-    box.min_y = std::min(box.min_y, scratch.tap_y[k]);
-    box.max_y = std::max(box.max_y, scratch.tap_y[k]);
-  }
-  ++box.max_x;
-  ++box.max_y;
-  return box;
 }
 
 // Merges the taps in a local dense grid. Each sample adds its four bilinear
@@ -568,13 +572,15 @@ void AssembleRows(const AssemblyContext& context, int first_row, int last_row, s
     for (int lr_x = 0; lr_x < lr_width; ++lr_x) {
       const int row = lr_y * lr_width + lr_x;
       int misses = 0;
+      TapBox top_left = TapBox::Empty(context);
       for (int sub_y = 0; sub_y < scale; ++sub_y) {
         for (int sub_x = 0; sub_x < scale; ++sub_x) {
           misses += WarpHrPixel(context, lr_x * scale + sub_x, lr_y * scale + sub_y,
-                                (sub_y * scale + sub_x) * context.samples, &scratch);
+                                (sub_y * scale + sub_x) * context.samples, &scratch, &top_left);
         }
       }
-      const TapBox box = BoundTaps(context, scratch);
+      TapBox box = TapBox::Empty(context);
+      box.Include(top_left);
       (*coverage)[row] = 1.0f - static_cast<float>(misses) / context.samples_per_pixel;
       if (box.Width() * box.Height() <= kMaxLocalGrid) {
         MergeTapsInGrid(context, box, &scratch, block);
