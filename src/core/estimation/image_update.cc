@@ -298,7 +298,8 @@ class ReweightedImageSystem {
       for (size_t k = 0; k < terms_.size(); ++k) {
         const LinearL1Term& term = terms_[k];
         L1ReweightPass(term.op->matrix(), image, *term.observation, term.mask, term.weight,
-                       options_.residual_epsilon, &states_[k].residual, &states_[k].weight, &diagonal_, residual);
+                       options_.residual_epsilon, &states_[k].residual, &states_[k].weight, &diagonal_,
+                       residual);
       }
     } else {
       for (size_t k = 0; k < terms_.size(); ++k) ReweightTerm(terms_[k], image, &states_[k]);

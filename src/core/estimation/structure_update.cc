@@ -671,7 +671,8 @@ WarpLinearization LinearizeWarpSampled(const PinholeCamera& camera_hr, const cv:
     lin.valid.at<uchar>(y, x) = 0;
     std::fill_n(lin.warped.ptr<float>(y) + x * channels, channels, 0.0f);
     std::fill_n(lin.d_inverse_depth.ptr<float>(y) + x * channels, channels, 0.0f);
-    if (warped_gradients != nullptr) std::fill_n(warped_gradients->ptr<float>(y) + x * 2 * channels, 2 * channels, 0.0f);
+    if (warped_gradients != nullptr)
+      std::fill_n(warped_gradients->ptr<float>(y) + x * 2 * channels, 2 * channels, 0.0f);
     if (pose_jacobians == nullptr) return;
     for (cv::Mat& j : *pose_jacobians) std::fill_n(j.ptr<float>(y) + x * channels, channels, 0.0f);
   };

@@ -400,7 +400,9 @@ struct TapBox {
   int Width() const { return max_x - min_x + 1; }
   int Height() const { return max_y - min_y + 1; }
   // The empty box of an image.
-  static TapBox Empty(const AssemblyContext& context) { return {context.hr_width, -1, context.hr_height, -1}; }
+  static TapBox Empty(const AssemblyContext& context) {
+    return {context.hr_width, -1, context.hr_height, -1};
+  }
   // The box of the taps whose top-left taps span `top_left`.
   void Include(const TapBox& top_left) {
     min_x = std::min(min_x, top_left.min_x);
@@ -527,7 +529,8 @@ void MergeTapsInGrid(const AssemblyContext& context, const TapBox& box, PixelScr
 
 // Merges the taps of a footprint too large for a local grid (extreme blur)
 // through an image-sized scatter array and a sort of the touched columns.
-void MergeTapsScattered(const AssemblyContext& context, PixelScratch* scratch, RowRunMatrix::RowBlock* block) {
+void MergeTapsScattered(const AssemblyContext& context, PixelScratch* scratch,
+                        RowRunMatrix::RowBlock* block) {
   const int hr_width = context.hr_width;
   const float sample_weight = context.sample_weight;
   std::vector<float>& scatter = scratch->scatter;

@@ -3,8 +3,8 @@
 #include <omp.h>
 
 #include <algorithm>
-#include <cmath>
 #include <array>
+#include <cmath>
 #include <cstddef>
 #include <string>
 #include <type_traits>
@@ -267,8 +267,8 @@ inline void L1RowWeights(const L1Reweighting& l1, int r, const float* ax, float*
 }
 
 template <int kChannels>
-void L1ReweightRows(const RunRowSpans& a, int rows, int cols, const float* __restrict x, const L1Reweighting& l1,
-                    float* __restrict diagonal, float* __restrict adjoint) {
+void L1ReweightRows(const RunRowSpans& a, int rows, int cols, const float* __restrict x,
+                    const L1Reweighting& l1, float* __restrict diagonal, float* __restrict adjoint) {
   for (int r = 0; r < rows; ++r) {
     float ax[kChannels], y[kChannels];
     if constexpr (kChannels == 3) {
@@ -335,8 +335,9 @@ void AddWeightedNormalDiagonal(const SparseMatrixRM& a, const cv::Mat& weight, c
   WeightedNormalDiagonal(a, weight, out, threads);
 }
 
-void L1ReweightPass(const RowRunMatrix& a, const cv::Mat& x, const cv::Mat& b, const cv::Mat& mask, double scale,
-                    double epsilon, cv::Mat* residual, cv::Mat* weight, cv::Mat* diagonal, cv::Mat* adjoint) {
+void L1ReweightPass(const RowRunMatrix& a, const cv::Mat& x, const cv::Mat& b, const cv::Mat& mask,
+                    double scale, double epsilon, cv::Mat* residual, cv::Mat* weight, cv::Mat* diagonal,
+                    cv::Mat* adjoint) {
   const int channels = x.channels();
   CheckGrid(x, a.cols(), channels, "the input");
   CheckGrid(*diagonal, a.cols(), channels, "the diagonal");
@@ -349,8 +350,12 @@ void L1ReweightPass(const RowRunMatrix& a, const cv::Mat& x, const cv::Mat& b, c
   }
   residual->create(b.size(), b.type());
   weight->create(b.size(), b.type());
-  const L1Reweighting l1{observed.ptr<float>(), used.empty() ? nullptr : used.ptr<uchar>(), scale, epsilon,
-                         residual->ptr<float>(), weight->ptr<float>()};
+  const L1Reweighting l1{observed.ptr<float>(),
+                         used.empty() ? nullptr : used.ptr<uchar>(),
+                         scale,
+                         epsilon,
+                         residual->ptr<float>(),
+                         weight->ptr<float>()};
   Dispatch<L1ReweightPassOf>(channels, a, x.ptr<float>(), l1, diagonal->ptr<float>(), adjoint->ptr<float>());
 }
 

@@ -148,7 +148,8 @@ RowRunMatrix RowRunMatrix::FromBlocks(int cols, const std::vector<const RowBlock
         throw InputError("row-run matrix: a column index is outside the matrix");
       }
     }
-    std::copy(block->run_first_column_.begin(), block->run_first_column_.end(), m.run_first_column_.begin() + run);
+    std::copy(block->run_first_column_.begin(), block->run_first_column_.end(),
+              m.run_first_column_.begin() + run);
     std::copy(block->run_length_.begin(), block->run_length_.end(), m.run_length_.begin() + run);
     std::copy(block->values_.begin(), block->values_.end(), m.values_.begin() + value);
     int block_run = 0;

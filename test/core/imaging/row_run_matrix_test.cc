@@ -322,8 +322,8 @@ TEST_P(L1ReweightPassTest, EqualsTheSeparatePassesBitForBit) {
     EXPECT_FALSE(SameBits(adjoint, adjoint0));  // it added something
   }
   cv::Mat residual, weight, diagonal = diagonal0.clone(), adjoint = adjoint0.clone();
-  EXPECT_THROW(L1ReweightPass(a, x, b, cv::Mat(rows + 1, 1, CV_8UC1, cv::Scalar(255)), scale, epsilon, &residual,
-                              &weight, &diagonal, &adjoint),
+  EXPECT_THROW(L1ReweightPass(a, x, b, cv::Mat(rows + 1, 1, CV_8UC1, cv::Scalar(255)), scale, epsilon,
+                              &residual, &weight, &diagonal, &adjoint),
                InputError);
 }
 

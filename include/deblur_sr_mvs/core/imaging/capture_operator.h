@@ -234,7 +234,7 @@ class CaptureOperatorBuilder {
   Timings timings_;
   CaptureOperatorOptions options_;
   VirtualDepths own_depths_;                     // D_tau_m when not shared
-  std::vector<RowRunMatrix::RowBlock> blocks_;  // per-thread row runs
+  std::vector<RowRunMatrix::RowBlock> blocks_;   // per-thread row runs
 };
 
 // Convenience: one operator with a temporary builder.

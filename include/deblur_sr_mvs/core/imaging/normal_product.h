@@ -48,7 +48,8 @@ void AddWeightedNormalDiagonal(const SparseMatrixRM& a, const cv::Mat& weight, c
 // MultiplySparse, the subtraction, the weighting and the one-thread
 // AddWeightedNormalDiagonal and AddAdjointProduct give one after the other
 // (test L1ReweightPass.EqualsTheSeparatePassesBitForBit).
-void L1ReweightPass(const RowRunMatrix& a, const cv::Mat& x, const cv::Mat& b, const cv::Mat& mask, double scale,
-                    double epsilon, cv::Mat* residual, cv::Mat* weight, cv::Mat* diagonal, cv::Mat* adjoint);
+void L1ReweightPass(const RowRunMatrix& a, const cv::Mat& x, const cv::Mat& b, const cv::Mat& mask,
+                    double scale, double epsilon, cv::Mat* residual, cv::Mat* weight, cv::Mat* diagonal,
+                    cv::Mat* adjoint);
 
 }  // namespace deblur_sr_mvs
