@@ -317,20 +317,14 @@ void CheckCaptureGeometry(const CaptureGeometry& geometry, int scale) {
 // shutter has one set of M warps; a rolling shutter one set per LR row
 // (`transfers` and `depth` hold sets * M entries, set-major).
 struct AssemblyContext {
-  // The per-sample arrays are padded to a multiple of this many samples (the
-  // vector width of WarpHrPixel's loop), so that the loop has no scalar
-  // remainder; a padding lane repeats sample 0 of its set.
-  static constexpr int kLanes = 4;
   int hr_width = 0, hr_height = 0, lr_width = 0, lr_height = 0;
   int scale = 1, samples = 1, samples_per_pixel = 1;
-  int padded_samples = kLanes;  // samples rounded up to a multiple of kLanes
-  bool per_row = false;         // one set of warps per LR row (rolling shutter)
+  bool per_row = false;  // one set of warps per LR row (rolling shutter)
   float sample_weight = 1.0f;
   float max_u = 0.0f, max_v = 0.0f;
-  std::vector<const float*> virtual_depth;    // D_tau_m, row-major HR, [set * padded_samples + m]
-  std::vector<float> h0, h3, h6, t0, t1, t2;  // [set * padded_samples + m]
-  std::vector<float> row_bases;               // [(y * 3 + k) * padded_samples + m]
-  std::vector<int> real_lane;                 // [m]: 1 for a sample, 0 for padding
+  std::vector<const float*> virtual_depth;    // D_tau_m, row-major HR, [set * samples + m]
+  std::vector<float> h0, h3, h6, t0, t1, t2;  // [set * samples + m]
+  std::vector<float> row_bases;               // [(y * 3 + k) * samples + m]
 
   AssemblyContext(const PinholeCamera& camera, int scale_in, int samples_in,
                   const std::vector<PixelTransferF>& transfers, const std::vector<const cv::Mat*>& depth)
@@ -341,35 +335,33 @@ struct AssemblyContext {
         scale(scale_in),
         samples(samples_in),
         samples_per_pixel(samples_in * scale_in * scale_in),
-        padded_samples((samples_in + kLanes - 1) / kLanes * kLanes),
         per_row(static_cast<int>(transfers.size()) != samples_in),
         sample_weight(1.0f / static_cast<float>(samples_in * scale_in * scale_in)),
         max_u(static_cast<float>(camera.width - 1)),
         max_v(static_cast<float>(camera.height - 1)),
-        row_bases(static_cast<size_t>(camera.height) * 3 * padded_samples),
-        real_lane(padded_samples, 0) {
-    const size_t sets = transfers.size() / samples;
-    const size_t padded = sets * padded_samples;
-    for (auto* array : {&h0, &h3, &h6, &t0, &t1, &t2}) array->resize(padded);
-    virtual_depth.resize(padded);
-    for (size_t i = 0; i < padded; ++i) {
-      const size_t set = i / padded_samples, m = i % padded_samples;
-      const size_t source = set * samples + (m < static_cast<size_t>(samples) ? m : 0);
-      virtual_depth[i] = depth[source]->ptr<float>();
-      h0[i] = transfers[source].h[0];
-      h3[i] = transfers[source].h[3];
-      h6[i] = transfers[source].h[6];
-      t0[i] = transfers[source].t[0];
-      t1[i] = transfers[source].t[1];
-      t2[i] = transfers[source].t[2];
+        virtual_depth(transfers.size()),
+        h0(transfers.size()),
+        h3(transfers.size()),
+        h6(transfers.size()),
+        t0(transfers.size()),
+        t1(transfers.size()),
+        t2(transfers.size()),
+        row_bases(static_cast<size_t>(camera.height) * 3 * samples_in) {
+    for (size_t i = 0; i < transfers.size(); ++i) {
+      virtual_depth[i] = depth[i]->ptr<float>();
+      h0[i] = transfers[i].h[0];
+      h3[i] = transfers[i].h[3];
+      h6[i] = transfers[i].h[6];
+      t0[i] = transfers[i].t[0];
+      t1[i] = transfers[i].t[1];
+      t2[i] = transfers[i].t[2];
     }
-    std::fill(real_lane.begin(), real_lane.begin() + samples, 1);
     for (int y = 0; y < hr_height; ++y) {
       const int set = SetOfRow(y);
-      for (int m = 0; m < padded_samples; ++m) {
+      for (int m = 0; m < samples; ++m) {
         float base[3];
-        transfers[set * samples + (m < samples ? m : 0)].RowBase(static_cast<float>(y), base);
-        for (int k = 0; k < 3; ++k) row_bases[(static_cast<size_t>(y) * 3 + k) * padded_samples + m] = base[k];
+        transfers[set * samples + m].RowBase(static_cast<float>(y), base);
+        for (int k = 0; k < 3; ++k) row_bases[(static_cast<size_t>(y) * 3 + k) * samples + m] = base[k];
       }
     }
   }
@@ -390,14 +382,12 @@ struct PixelScratch {
   std::vector<int> touched;
   std::vector<float> touched_values;
 
-  // The tap arrays have room for the padding lanes of the last HR pixel
-  // (WarpHrPixel writes padded_samples lanes at each pixel's offset).
   explicit PixelScratch(const AssemblyContext& context)
-      : depth(context.padded_samples),
-        tap_x(context.samples_per_pixel + AssemblyContext::kLanes),
-        tap_y(context.samples_per_pixel + AssemblyContext::kLanes),
-        frac_x(context.samples_per_pixel + AssemblyContext::kLanes),
-        frac_y(context.samples_per_pixel + AssemblyContext::kLanes),
+      : depth(context.samples),
+        tap_x(context.samples_per_pixel),
+        tap_y(context.samples_per_pixel),
+        frac_x(context.samples_per_pixel),
+        frac_y(context.samples_per_pixel),
         cells(4 * (2 * kMaxLocalGrid + 2)),
         grid_columns(kMaxLocalGrid),
         grid_values(kMaxLocalGrid) {}
@@ -424,19 +414,15 @@ struct TapBox {
 
 // The taps of HR pixel (x, y) for every virtual camera, written at `offset`
 // of the scratch, and the box of their top-left taps (`top_left`, grown);
-// returns how many samples missed the source image. The loop runs over the
-// padded samples: a padding lane repeats sample 0 (the same taps, so the box
-// is the same), is not counted as a miss, and writes past the pixel's
-// samples, where the next pixel's taps (or the scratch's slack) go.
+// returns how many samples missed the source image.
 inline int WarpHrPixel(const AssemblyContext& context, int x, int y, int offset, PixelScratch* scratch,
                        TapBox* top_left) {
-  const int samples = context.padded_samples;
+  const int samples = context.samples;
   const float* base0 = &context.row_bases[(static_cast<size_t>(y) * 3 + 0) * samples];
   const float* base1 = base0 + samples;
   const float* base2 = base1 + samples;
   const size_t pixel = static_cast<size_t>(y) * context.hr_width + x;
   const size_t set_offset = static_cast<size_t>(context.SetOfRow(y)) * samples;
-  const int* __restrict real_lane = context.real_lane.data();
   const float* const* virtual_depth = context.virtual_depth.data() + set_offset;
   for (int m = 0; m < samples; ++m) scratch->depth[m] = virtual_depth[m][pixel];
   int* out_x = scratch->tap_x.data() + offset;
@@ -475,7 +461,7 @@ inline int WarpHrPixel(const AssemblyContext& context, int x, int y, int offset,
     v = usable ? v : yf;
     const bool inside = usable & (u >= -kInsideTolerance) & (v >= -kInsideTolerance) &
                         (u <= max_u + kInsideTolerance) & (v <= max_v + kInsideTolerance);
-    misses += inside ? 0 : real_lane[m];
+    misses += inside ? 0 : 1;
     u = std::min(std::max(u, 0.0f), max_u);
     v = std::min(std::max(v, 0.0f), max_v);
     const int ix = std::min(static_cast<int>(u), hr_width - 2);
