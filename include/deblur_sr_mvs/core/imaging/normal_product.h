@@ -47,7 +47,7 @@ void AddWeightedNormalDiagonal(const SparseMatrixRM& a, const cv::Mat& weight, c
 // `adjoint` have one pixel per column of A. Every value is bit for bit what
 // MultiplySparse, the subtraction, the weighting and the one-thread
 // AddWeightedNormalDiagonal and AddAdjointProduct give one after the other
-// (test L1ReweightPass.EqualsTheSeparatePassesBitForBit).
+// (test L1ReweightPassTest.EqualsTheSeparatePassesBitForBit).
 void L1ReweightPass(const RowRunMatrix& a, const cv::Mat& x, const cv::Mat& b, const cv::Mat& mask,
                     double scale, double epsilon, cv::Mat* residual, cv::Mat* weight, cv::Mat* diagonal,
                     cv::Mat* adjoint);
