@@ -283,28 +283,36 @@ class ReweightedImageSystem {
                         int threads)
       : terms_(terms), options_(options), threads_(threads), states_(terms.size()) {}
 
-  // W_k, V and the Jacobi diagonal diag(N) at `image`; keeps A_k x - b_k.
-  void Reweight(const cv::Mat& image) {
-    for (size_t k = 0; k < terms_.size(); ++k) ReweightTerm(terms_[k], image, &states_[k]);
+  // W_k, V and the Jacobi diagonal diag(N) at `image`, and `residual` =
+  // rhs - N x there: sum_k A_k^T W_k (b_k - A_k x) - lambda_i D^T V D x.
+  // On one thread each term takes one pass over its rows (L1ReweightPass:
+  // A_k x, W_k, and the term's shares of the diagonal and the residual,
+  // bit for bit the separate passes below, which more threads take).
+  void Reweight(const cv::Mat& image, cv::Mat* residual) {
     TvWeights(image, options_.tv_epsilon, &tv_weights_);
     diagonal_.create(image.size(), image.type());
     diagonal_.setTo(0.0);
-    for (size_t k = 0; k < terms_.size(); ++k) {
-      AddWeightedNormalDiagonal(terms_[k].op->matrix(), states_[k].weight, &diagonal_, threads_);
+    residual->create(image.size(), image.type());
+    residual->setTo(0.0);
+    if (threads_ == 1) {
+      for (size_t k = 0; k < terms_.size(); ++k) {
+        const LinearL1Term& term = terms_[k];
+        L1ReweightPass(term.op->matrix(), image, *term.observation, term.mask, term.weight,
+                       options_.residual_epsilon, &states_[k].residual, &states_[k].weight, &diagonal_,
+                       residual);
+      }
+    } else {
+      for (size_t k = 0; k < terms_.size(); ++k) ReweightTerm(terms_[k], image, &states_[k]);
+      for (size_t k = 0; k < terms_.size(); ++k) {
+        AddWeightedNormalDiagonal(terms_[k].op->matrix(), states_[k].weight, &diagonal_, threads_);
+      }
+      for (size_t k = 0; k < terms_.size(); ++k) {
+        cv::multiply(states_[k].residual, states_[k].weight, temp_lr_, -1.0);
+        AddAdjointProduct(terms_[k].op->matrix(), temp_lr_, residual, threads_);
+      }
     }
     if (options_.lambda_i > 0.0) AddWeightedLaplacianDiagonal(tv_weights_, options_.lambda_i, &diagonal_);
     InverseDiagonal(diagonal_, &inverse_diagonal_);
-  }
-
-  // rhs - N x at the image x of the last Reweight, from the residuals
-  // A_k x - b_k it kept: sum_k A_k^T W_k (b_k - A_k x) - lambda_i D^T V D x.
-  void InitialResidual(const cv::Mat& image, cv::Mat* residual) {
-    residual->create(image.size(), image.type());
-    residual->setTo(0.0);
-    for (size_t k = 0; k < terms_.size(); ++k) {
-      cv::multiply(states_[k].residual, states_[k].weight, temp_lr_, -1.0);
-      AddAdjointProduct(terms_[k].op->matrix(), temp_lr_, residual, threads_);
-    }
     if (options_.lambda_i > 0.0)
       AddWeightedLaplacian(image, tv_weights_, -options_.lambda_i, residual, threads_);
   }
@@ -550,8 +558,7 @@ ImageUpdateStats UpdateImage(const std::vector<LinearL1Term>& terms, const Image
   const long terms_count = static_cast<long>(terms.size());
   cv::Mat residual;
   for (int irls = 0; irls < options.irls_iterations; ++irls) {
-    system.Reweight(*image);
-    system.InitialResidual(*image, &residual);
+    system.Reweight(*image, &residual);
     const int steps = SolvePcg(apply_normal, precondition, residual, options.cg_iterations,
                                options.cg_tolerance, threads, image);
     ++stats.reweightings;

@@ -656,15 +656,26 @@ WarpLinearization LinearizeWarpSampled(const PinholeCamera& camera_hr, const cv:
                                        std::vector<cv::Mat>* pose_jacobians, cv::Mat* warped_gradients) {
   const int channels = latent_s.channels();
   const int width = camera_hr.width, height = camera_hr.height;
+  // The outputs are not cleared first: every pixel is written, zeros
+  // where the warp is not valid (WriteInvalid).
   WarpLinearization lin;
-  lin.warped = cv::Mat::zeros(height, width, latent_s.type());
-  lin.d_inverse_depth = cv::Mat::zeros(height, width, latent_s.type());
-  lin.valid = cv::Mat::zeros(height, width, CV_8UC1);
+  lin.warped.create(height, width, latent_s.type());
+  lin.d_inverse_depth.create(height, width, latent_s.type());
+  lin.valid.create(height, width, CV_8UC1);
   if (pose_jacobians != nullptr) {
     pose_jacobians->assign(6, cv::Mat());
-    for (cv::Mat& j : *pose_jacobians) j = cv::Mat::zeros(height, width, latent_s.type());
+    for (cv::Mat& j : *pose_jacobians) j.create(height, width, latent_s.type());
   }
-  if (warped_gradients != nullptr) *warped_gradients = cv::Mat::zeros(height, width, CV_32FC(2 * channels));
+  if (warped_gradients != nullptr) warped_gradients->create(height, width, CV_32FC(2 * channels));
+  const auto write_invalid = [&](int x, int y) {
+    lin.valid.at<uchar>(y, x) = 0;
+    std::fill_n(lin.warped.ptr<float>(y) + x * channels, channels, 0.0f);
+    std::fill_n(lin.d_inverse_depth.ptr<float>(y) + x * channels, channels, 0.0f);
+    if (warped_gradients != nullptr)
+      std::fill_n(warped_gradients->ptr<float>(y) + x * 2 * channels, 2 * channels, 0.0f);
+    if (pose_jacobians == nullptr) return;
+    for (cv::Mat& j : *pose_jacobians) std::fill_n(j.ptr<float>(y) + x * channels, channels, 0.0f);
+  };
   cv::Mat gx, gy;
   Gradients(latent_s, &gx, &gy);
   const PairWarp warp(camera_hr, T_world_t, T_world_s);
@@ -674,7 +685,10 @@ WarpLinearization LinearizeWarpSampled(const PinholeCamera& camera_hr, const cv:
     std::vector<float> value(channels), grad_x(channels), grad_y(channels);
     for (int x = 0; x < width; ++x) {
       double u, v, du, dv;
-      if (!warp.Project(x, y, rho_row[x], &u, &v, &du, &dv)) continue;
+      if (!warp.Project(x, y, rho_row[x], &u, &v, &du, &dv)) {
+        write_invalid(x, y);
+        continue;
+      }
       lin.valid.at<uchar>(y, x) = 255;
       SampleBilinear(latent_s, static_cast<float>(u), static_cast<float>(v), value.data());
       SampleBilinear(gx, static_cast<float>(u), static_cast<float>(v), grad_x.data());

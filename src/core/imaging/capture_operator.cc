@@ -380,6 +380,7 @@ struct PixelScratch {
   std::vector<float> grid_values;
   std::vector<float> scatter;  // fallback for huge footprints
   std::vector<int> touched;
+  std::vector<float> touched_values;
 
   explicit PixelScratch(const AssemblyContext& context)
       : depth(context.samples),
@@ -392,9 +393,30 @@ struct PixelScratch {
         grid_values(kMaxLocalGrid) {}
 };
 
+// Bounding box of the taps (the top-left taps of the bilinear stencils; the
+// right and bottom taps are added by Include()).
+struct TapBox {
+  int min_x, max_x, min_y, max_y;
+  int Width() const { return max_x - min_x + 1; }
+  int Height() const { return max_y - min_y + 1; }
+  // The empty box of an image.
+  static TapBox Empty(const AssemblyContext& context) {
+    return {context.hr_width, -1, context.hr_height, -1};
+  }
+  // The box of the taps whose top-left taps span `top_left`.
+  void Include(const TapBox& top_left) {
+    min_x = std::min(min_x, top_left.min_x);
+    max_x = std::max(max_x, top_left.max_x + 1);
+    min_y = std::min(min_y, top_left.min_y);
+    max_y = std::max(max_y, top_left.max_y + 1);
+  }
+};
+
 // The taps of HR pixel (x, y) for every virtual camera, written at `offset`
-// of the scratch; returns how many samples missed the source image.
-inline int WarpHrPixel(const AssemblyContext& context, int x, int y, int offset, PixelScratch* scratch) {
+// of the scratch, and the box of their top-left taps (`top_left`, grown);
+// returns how many samples missed the source image.
+inline int WarpHrPixel(const AssemblyContext& context, int x, int y, int offset, PixelScratch* scratch,
+                       TapBox* top_left) {
   const int samples = context.samples;
   const float* base0 = &context.row_bases[(static_cast<size_t>(y) * 3 + 0) * samples];
   const float* base1 = base0 + samples;
@@ -425,7 +447,8 @@ inline int WarpHrPixel(const AssemblyContext& context, int x, int y, int offset,
   const float* __restrict c_t1 = context.t1.data() + set_offset;
   const float* __restrict c_t2 = context.t2.data() + set_offset;
   int misses = 0;
-#pragma omp simd reduction(+ : misses)
+  int min_x = top_left->min_x, max_x = top_left->max_x, min_y = top_left->min_y, max_y = top_left->max_y;
+#pragma omp simd reduction(+ : misses) reduction(min : min_x, min_y) reduction(max : max_x, max_y)
   for (int m = 0; m < samples; ++m) {
     const float d = depth_m[m];
     const float z = d * (c_h6[m] * xf + base2[m]) + c_t2[m];
@@ -451,29 +474,13 @@ inline int WarpHrPixel(const AssemblyContext& context, int x, int y, int offset,
     out_y[m] = iy;
     out_fx[m] = fx;
     out_fy[m] = fy;
+    min_x = std::min(min_x, ix);
+    max_x = std::max(max_x, ix);
+    min_y = std::min(min_y, iy);
+    max_y = std::max(max_y, iy);
   }
+  *top_left = {min_x, max_x, min_y, max_y};
   return misses;
-}
-
-// Bounding box of the taps, the right and bottom taps of the bilinear stencil
-// included.
-struct TapBox {
-  int min_x, max_x, min_y, max_y;
-  int Width() const { return max_x - min_x + 1; }
-  int Height() const { return max_y - min_y + 1; }
-};
-
-TapBox BoundTaps(const AssemblyContext& context, const PixelScratch& scratch) {
-  TapBox box{context.hr_width, -1, context.hr_height, -1};
-  for (int k = 0; k < context.samples_per_pixel; ++k) {
-    box.min_x = std::min(box.min_x, scratch.tap_x[k]);
-    box.max_x = std::max(box.max_x, scratch.tap_x[k]);
-    box.min_y = std::min(box.min_y, scratch.tap_y[k]);
-    box.max_y = std::max(box.max_y, scratch.tap_y[k]);
-  }
-  ++box.max_x;
-  ++box.max_y;
-  return box;
 }
 
 // Merges the taps in a local dense grid. Each sample adds its four bilinear
@@ -485,7 +492,7 @@ TapBox BoundTaps(const AssemblyContext& context, const PixelScratch& scratch) {
 // negative) without branches, and the non-zero cells are kept by a
 // branch-free compaction.
 void MergeTapsInGrid(const AssemblyContext& context, const TapBox& box, PixelScratch* scratch,
-                     std::vector<int>* columns, std::vector<float>* values) {
+                     RowRunMatrix::RowBlock* block) {
   const int grid_width = box.Width();
   const int grid_height = box.Height();
   const int stride = grid_width + 1;  // in cells
@@ -517,14 +524,13 @@ void MergeTapsInGrid(const AssemblyContext& context, const TapBox& box, PixelScr
       count += value != 0.0f ? 1 : 0;
     }
   }
-  columns->insert(columns->end(), out_columns, out_columns + count);
-  values->insert(values->end(), out_values, out_values + count);
+  block->AppendRow(out_columns, out_values, count);
 }
 
 // Merges the taps of a footprint too large for a local grid (extreme blur)
 // through an image-sized scatter array and a sort of the touched columns.
-void MergeTapsScattered(const AssemblyContext& context, PixelScratch* scratch, std::vector<int>* columns,
-                        std::vector<float>* values) {
+void MergeTapsScattered(const AssemblyContext& context, PixelScratch* scratch,
+                        RowRunMatrix::RowBlock* block) {
   const int hr_width = context.hr_width;
   const float sample_weight = context.sample_weight;
   std::vector<float>& scatter = scratch->scatter;
@@ -546,45 +552,44 @@ void MergeTapsScattered(const AssemblyContext& context, PixelScratch* scratch, s
     add(index + hr_width + 1, fx * wy1);
   }
   std::sort(touched.begin(), touched.end());
+  std::vector<float>& touched_values = scratch->touched_values;
+  touched_values.clear();
   for (int index : touched) {
-    columns->push_back(index);
-    values->push_back(scatter[index]);
+    touched_values.push_back(scatter[index]);
     scatter[index] = 0.0f;
   }
+  block->AppendRow(touched.data(), touched_values.data(), static_cast<int>(touched.size()));
   touched.clear();
 }
 
-// The rows [first_row, last_row) of Psi (LR rows) into one thread's CSR
-// pieces: per LR pixel, the taps of its scale^2 HR pixels for every virtual
-// camera, merged into one sparse row; its coverage and non-zero count.
+// The rows [first_row, last_row) of Psi (LR rows) into one thread's block
+// of row runs: per LR pixel, the taps of its scale^2 HR pixels for every
+// virtual camera, merged into one sparse row; and its coverage.
 void AssembleRows(const AssemblyContext& context, int first_row, int last_row, std::vector<float>* coverage,
-                  std::vector<int>* row_nnz, std::vector<int>* columns, std::vector<float>* values) {
+                  RowRunMatrix::RowBlock* block) {
   const int scale = context.scale;
   const int lr_width = context.lr_width;
-  columns->clear();
-  values->clear();
-  columns->reserve(static_cast<size_t>(last_row - first_row) * lr_width * 64);
-  values->reserve(columns->capacity());
+  block->Clear();
   PixelScratch scratch(context);
   for (int lr_y = first_row; lr_y < last_row; ++lr_y) {
     for (int lr_x = 0; lr_x < lr_width; ++lr_x) {
       const int row = lr_y * lr_width + lr_x;
       int misses = 0;
+      TapBox top_left = TapBox::Empty(context);
       for (int sub_y = 0; sub_y < scale; ++sub_y) {
         for (int sub_x = 0; sub_x < scale; ++sub_x) {
           misses += WarpHrPixel(context, lr_x * scale + sub_x, lr_y * scale + sub_y,
-                                (sub_y * scale + sub_x) * context.samples, &scratch);
+                                (sub_y * scale + sub_x) * context.samples, &scratch, &top_left);
         }
       }
-      const TapBox box = BoundTaps(context, scratch);
+      TapBox box = TapBox::Empty(context);
+      box.Include(top_left);
       (*coverage)[row] = 1.0f - static_cast<float>(misses) / context.samples_per_pixel;
-      const size_t row_start = columns->size();
       if (box.Width() * box.Height() <= kMaxLocalGrid) {
-        MergeTapsInGrid(context, box, &scratch, columns, values);
+        MergeTapsInGrid(context, box, &scratch, block);
       } else {
-        MergeTapsScattered(context, &scratch, columns, values);
+        MergeTapsScattered(context, &scratch, block);
       }
-      (*row_nnz)[row] = static_cast<int>(columns->size() - row_start);
     }
   }
 }
@@ -794,30 +799,20 @@ void CaptureOperatorBuilder::Assemble(const CaptureGeometry& geometry, const Vir
   op->hr_size_ = cv::Size(context.hr_width, context.hr_height);
   op->num_threads_ = threads;
   op->coverage_.assign(lr_pixels, 1.0f);
-  // Each thread assembles a contiguous block of LR rows into its own CSR
-  // pieces; the blocks are concatenated in order afterwards.
-  block_columns_.resize(std::max<size_t>(block_columns_.size(), threads));
-  block_values_.resize(std::max<size_t>(block_values_.size(), threads));
-  row_nnz_.assign(lr_pixels, 0);
+  // Each thread assembles a contiguous block of LR rows into its own row
+  // runs; the blocks are concatenated in order afterwards.
+  blocks_.resize(std::max<size_t>(blocks_.size(), threads));
   const int lr_height = context.lr_height;
 #pragma omp parallel num_threads(threads)
   {
     const int thread = omp_get_thread_num();
     const int first_row = static_cast<int>(static_cast<long long>(lr_height) * thread / threads);
     const int last_row = static_cast<int>(static_cast<long long>(lr_height) * (thread + 1) / threads);
-    AssembleRows(context, first_row, last_row, &op->coverage_, &row_nnz_, &block_columns_[thread],
-                 &block_values_[thread]);
+    AssembleRows(context, first_row, last_row, &op->coverage_, &blocks_[thread]);
   }
-  std::vector<const int*> piece_columns;
-  std::vector<const float*> piece_values;
-  std::vector<size_t> piece_sizes;
-  for (int t = 0; t < threads; ++t) {
-    piece_columns.push_back(block_columns_[t].data());
-    piece_values.push_back(block_values_[t].data());
-    piece_sizes.push_back(block_columns_[t].size());
-  }
-  op->forward_ = RowRunMatrix::FromPieces(context.hr_width * context.hr_height, row_nnz_, piece_columns,
-                                          piece_values, piece_sizes);
+  std::vector<const RowRunMatrix::RowBlock*> blocks;
+  for (int t = 0; t < threads; ++t) blocks.push_back(&blocks_[t]);
+  op->forward_ = RowRunMatrix::FromBlocks(context.hr_width * context.hr_height, blocks);
   timings_.assembly_ms = NowMs() - stage_start;
   const double adjoint_start = NowMs();
   if (options_.transposed_copy) {

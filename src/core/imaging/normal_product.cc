@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cmath>
 #include <cstddef>
 #include <string>
 #include <type_traits>
@@ -237,6 +238,75 @@ void WeightedNormalDiagonal(const Matrix& a, const cv::Mat& weight, cv::Mat* out
   Dispatch<NormalDiagonalPass>(channels, a, weight.ptr<float>(), out->ptr<float>(), ResolveThreads(threads));
 }
 
+// The rows of L1ReweightPass: per row, (A x)_r by the gather of Psi x
+// (MultiplySparse: GatherRow for colour row runs, else GatherRowChains),
+// then the row's residual and weights, then the row's scatters as
+// NormalDiagonalRows and AdjointRows do them (the colour kernels for 3
+// channels, the scalar loops otherwise).
+struct L1Reweighting {
+  const float* b;
+  const uchar* mask;  // one per row; nullptr: every row
+  double scale, epsilon;
+  float* residual;
+  float* weight;
+};
+
+// Row r's residual, weights and adjoint factors -(w r) of L1ReweightPass.
+template <int kChannels>
+inline void L1RowWeights(const L1Reweighting& l1, int r, const float* ax, float* y) {
+  const bool used = l1.mask == nullptr || l1.mask[r] != 0;
+  const std::ptrdiff_t i0 = static_cast<std::ptrdiff_t>(r) * kChannels;
+  for (int c = 0; c < kChannels; ++c) {
+    const float residual = ax[c] - l1.b[i0 + c];
+    const float w =
+        used ? static_cast<float>(l1.scale / std::max<double>(std::abs(residual), l1.epsilon)) : 0.0f;
+    l1.residual[i0 + c] = residual;
+    l1.weight[i0 + c] = w;
+    y[c] = -(residual * w);
+  }
+}
+
+template <int kChannels>
+void L1ReweightRows(const RunRowSpans& a, int rows, int cols, const float* __restrict x,
+                    const L1Reweighting& l1, float* __restrict diagonal, float* __restrict adjoint) {
+  for (int r = 0; r < rows; ++r) {
+    float ax[kChannels], y[kChannels];
+    if constexpr (kChannels == 3) {
+      const rgb_runs::Float4 sum = rgb_runs::GatherRow(a, r, x, cols);
+      for (int c = 0; c < 3; ++c) ax[c] = sum[c];
+    } else {
+      GatherRowChains<kChannels>(a, r, x, ax);
+    }
+    L1RowWeights<kChannels>(l1, r, ax, y);
+    const float* w = l1.weight + static_cast<std::ptrdiff_t>(r) * kChannels;
+    if constexpr (kChannels == 3) {
+      rgb_runs::ScatterRow</*kSquare=*/true>(a, r, rgb_runs::Float4{w[0], w[1], w[2], 0.0f}, diagonal);
+      rgb_runs::ScatterRow(a, r, rgb_runs::Float4{y[0], y[1], y[2], 0.0f}, adjoint);
+    } else {
+      a.ForEachSpan(r, [&](const float* __restrict v, int column, int length) {
+        float* __restrict pd = diagonal + static_cast<std::ptrdiff_t>(column) * kChannels;
+        float* __restrict pa = adjoint + static_cast<std::ptrdiff_t>(column) * kChannels;
+        for (int i = 0; i < length; ++i) {
+          const float squared = v[i] * v[i];
+          for (int c = 0; c < kChannels; ++c) pd[i * kChannels + c] += squared * w[c];
+        }
+        for (int i = 0; i < length; ++i) {
+          for (int c = 0; c < kChannels; ++c) pa[i * kChannels + c] += v[i] * y[c];
+        }
+      });
+    }
+  }
+}
+
+template <int kChannels>
+struct L1ReweightPassOf {
+  static void Run(const RowRunMatrix& a, const float* x, const L1Reweighting& l1, float* diagonal,
+                  float* adjoint) {
+    L1ReweightRows<kChannels>(RowSpansOf(a), static_cast<int>(a.rows()), static_cast<int>(a.cols()), x, l1,
+                              diagonal, adjoint);
+  }
+};
+
 }  // namespace
 
 void AddWeightedNormalProduct(const RowRunMatrix& a, const cv::Mat& weight, const cv::Mat& x, cv::Mat* out,
@@ -263,6 +333,30 @@ void AddWeightedNormalDiagonal(const RowRunMatrix& a, const cv::Mat& weight, cv:
 
 void AddWeightedNormalDiagonal(const SparseMatrixRM& a, const cv::Mat& weight, cv::Mat* out, int threads) {
   WeightedNormalDiagonal(a, weight, out, threads);
+}
+
+void L1ReweightPass(const RowRunMatrix& a, const cv::Mat& x, const cv::Mat& b, const cv::Mat& mask,
+                    double scale, double epsilon, cv::Mat* residual, cv::Mat* weight, cv::Mat* diagonal,
+                    cv::Mat* adjoint) {
+  const int channels = x.channels();
+  CheckGrid(x, a.cols(), channels, "the input");
+  CheckGrid(*diagonal, a.cols(), channels, "the diagonal");
+  CheckGrid(*adjoint, a.cols(), channels, "the adjoint");
+  const cv::Mat observed = b.isContinuous() ? b : b.clone();
+  CheckGrid(observed, a.rows(), channels, "the observation");
+  const cv::Mat used = mask.empty() || mask.isContinuous() ? mask : mask.clone();
+  if (!used.empty() && (used.type() != CV_8UC1 || static_cast<long>(used.total()) != a.rows())) {
+    throw InputError("normal product: the mask does not match the operator");
+  }
+  residual->create(b.size(), b.type());
+  weight->create(b.size(), b.type());
+  const L1Reweighting l1{observed.ptr<float>(),
+                         used.empty() ? nullptr : used.ptr<uchar>(),
+                         scale,
+                         epsilon,
+                         residual->ptr<float>(),
+                         weight->ptr<float>()};
+  Dispatch<L1ReweightPassOf>(channels, a, x.ptr<float>(), l1, diagonal->ptr<float>(), adjoint->ptr<float>());
 }
 
 }  // namespace deblur_sr_mvs

@@ -103,6 +103,70 @@ RowRunMatrix RowRunMatrix::FromPieces(int cols, const std::vector<int>& row_taps
   return m;
 }
 
+void RowRunMatrix::RowBlock::Clear() {
+  row_runs_.clear();
+  run_first_column_.clear();
+  run_length_.clear();
+  values_.clear();
+}
+
+void RowRunMatrix::RowBlock::AppendRow(const int* columns, const float* values, int taps) {
+  const size_t runs_before = run_first_column_.size();
+  ForEachRun(columns, 0, static_cast<size_t>(std::max(taps, 0)), [&](int first_column, int length) {
+    run_first_column_.push_back(first_column);
+    run_length_.push_back(static_cast<uint16_t>(length));
+  });
+  row_runs_.push_back(static_cast<int>(run_first_column_.size() - runs_before));
+  if (taps > 0) values_.insert(values_.end(), values, values + taps);
+}
+
+RowRunMatrix RowRunMatrix::FromBlocks(int cols, const std::vector<const RowBlock*>& blocks) {
+  size_t rows = 0, runs = 0, taps = 0;
+  for (const RowBlock* block : blocks) {
+    rows += block->row_runs_.size();
+    runs += block->run_first_column_.size();
+    taps += block->values_.size();
+  }
+  if (taps > static_cast<size_t>(std::numeric_limits<int>::max()) ||
+      runs > static_cast<size_t>(std::numeric_limits<int>::max())) {
+    throw InputError("row-run matrix: more than 2^31 - 1 non-zeros or runs");
+  }
+  RowRunMatrix m;
+  m.rows_ = static_cast<int>(rows);
+  m.cols_ = cols;
+  m.row_first_value_.resize(rows + 1);
+  m.row_first_run_.resize(rows + 1);
+  m.run_first_column_.resize(runs);
+  m.run_length_.resize(runs);
+  m.values_.resize(taps);
+  int row = 0, run = 0, value = 0;
+  for (const RowBlock* block : blocks) {
+    const int block_runs = static_cast<int>(block->run_first_column_.size());
+    for (int k = 0; k < block_runs; ++k) {
+      const int first_column = block->run_first_column_[k];
+      if (first_column < 0 || first_column + block->run_length_[k] > cols) {
+        throw InputError("row-run matrix: a column index is outside the matrix");
+      }
+    }
+    std::copy(block->run_first_column_.begin(), block->run_first_column_.end(),
+              m.run_first_column_.begin() + run);
+    std::copy(block->run_length_.begin(), block->run_length_.end(), m.run_length_.begin() + run);
+    std::copy(block->values_.begin(), block->values_.end(), m.values_.begin() + value);
+    int block_run = 0;
+    for (int row_runs : block->row_runs_) {
+      m.row_first_value_[row] = value;
+      m.row_first_run_[row] = run;
+      for (int k = 0; k < row_runs; ++k) value += block->run_length_[block_run + k];
+      block_run += row_runs;
+      run += row_runs;
+      ++row;
+    }
+  }
+  m.row_first_value_[rows] = value;
+  m.row_first_run_[rows] = run;
+  return m;
+}
+
 SparseMatrixRM RowRunMatrix::ToCsr() const {
   SparseMatrixRM csr(rows_, cols_);
   csr.resizeNonZeros(nonZeros());

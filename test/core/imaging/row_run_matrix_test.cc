@@ -3,6 +3,7 @@
 // the CSR arrays (the layout changes the memory traffic, not the arithmetic).
 #include "deblur_sr_mvs/core/imaging/row_run_matrix.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <random>
@@ -101,6 +102,55 @@ TEST(RowRunMatrix, FromPiecesEqualsFromTheConcatenatedCsr) {
   EXPECT_THROW(RowRunMatrix::FromPieces(300, row_taps, {csr.innerIndexPtr()}, {csr.valuePtr()},
                                         {static_cast<size_t>(csr.nonZeros())}),
                InputError);
+}
+
+// The capture-operator builder's form: rows appended one at a time to
+// blocks of consecutive rows (one block empty, one row longer than a run
+// may be) give the matrix of FromPieces over the same CSR arrays bit for
+// bit: the same runs (maximal, split at kMaxRunLength), row offsets and
+// values.
+TEST(RowRunMatrix, FromBlocksEqualsFromPiecesBitForBit) {
+  std::mt19937 rng(7);
+  const int long_row = RowRunMatrix::kMaxRunLength + 500;
+  const int cols = long_row + 40;
+  SparseMatrixRM csr = RandomRunOperator(90, cols, &rng);
+  // Row 40 becomes one span longer than a run (plus a separate tap).
+  std::vector<Eigen::Triplet<float>> taps;
+  for (int r = 0; r < csr.rows(); ++r) {
+    if (r == 40) continue;
+    for (SparseMatrixRM::InnerIterator it(csr, r); it; ++it) taps.emplace_back(r, it.col(), it.value());
+  }
+  for (int c = 10; c < 10 + long_row; ++c) taps.emplace_back(40, c, 0.5f + c % 3);
+  taps.emplace_back(40, cols - 1, 3.0f);
+  csr.setFromTriplets(taps.begin(), taps.end());
+  csr.makeCompressed();
+  const int* outer = csr.outerIndexPtr();
+  std::vector<RowRunMatrix::RowBlock> blocks(3);
+  blocks[0].AppendRow(csr.innerIndexPtr(), csr.valuePtr(), 0);  // reused: cleared below
+  for (RowRunMatrix::RowBlock& block : blocks) block.Clear();
+  const int split = 50;  // rows [0, 50) in block 0, none in block 1, the rest in block 2
+  for (int r = 0; r < csr.rows(); ++r) {
+    blocks[r < split ? 0 : 2].AppendRow(csr.innerIndexPtr() + outer[r], csr.valuePtr() + outer[r],
+                                        outer[r + 1] - outer[r]);
+  }
+  EXPECT_EQ(blocks[0].rows(), split);
+  EXPECT_EQ(blocks[1].rows(), 0);
+  const RowRunMatrix built = RowRunMatrix::FromBlocks(cols, {&blocks[0], &blocks[1], &blocks[2]});
+  const RowRunMatrix reference = RowRunMatrix::FromCsr(csr);
+  ASSERT_EQ(built.rows(), reference.rows());
+  ASSERT_EQ(built.cols(), reference.cols());
+  ASSERT_EQ(built.runs(), reference.runs());
+  ASSERT_EQ(built.nonZeros(), reference.nonZeros());
+  EXPECT_GT(reference.runs(), csr.rows());  // several runs per row, the long one split
+  const size_t rows1 = static_cast<size_t>(built.rows()) + 1;
+  EXPECT_EQ(std::memcmp(built.row_first_value(), reference.row_first_value(), sizeof(int) * rows1), 0);
+  EXPECT_EQ(std::memcmp(built.row_first_run(), reference.row_first_run(), sizeof(int) * rows1), 0);
+  EXPECT_EQ(std::memcmp(built.run_first_column(), reference.run_first_column(), sizeof(int) * built.runs()),
+            0);
+  EXPECT_EQ(std::memcmp(built.run_length(), reference.run_length(), sizeof(uint16_t) * built.runs()), 0);
+  EXPECT_EQ(std::memcmp(built.values(), reference.values(), sizeof(float) * built.nonZeros()), 0);
+  // A column past the matrix is refused.
+  EXPECT_THROW(RowRunMatrix::FromBlocks(cols - 1, {&blocks[0], &blocks[1], &blocks[2]}), InputError);
 }
 
 class RowRunProducts : public ::testing::TestWithParam<std::tuple<int, int>> {};
@@ -223,6 +273,61 @@ TEST(RowGather, SumsInFourPartialSumsOverTheRuns) {
 
 INSTANTIATE_TEST_SUITE_P(ChannelsAndThreads, RowRunProducts,
                          ::testing::Combine(::testing::Values(1, 2, 3, 4), ::testing::Values(1, 3)));
+
+class L1ReweightPassTest : public ::testing::TestWithParam<int> {};
+
+// The image update's fused reweighting (one pass over the rows) gives, bit
+// for bit, what the separate passes give one after the other on one thread:
+// A x (MultiplySparse), A x - b, the L1 weights scale / max(|r|, eps) (0
+// outside the mask), diag(A^T W A) and A^T (-(W r)) added to what the
+// outputs held. 1-4 channels (3: the colour kernels).
+TEST_P(L1ReweightPassTest, EqualsTheSeparatePassesBitForBit) {
+  const int channels = GetParam();
+  std::mt19937 rng(29 + channels);
+  const int rows = 500, cols = 1600;
+  const RowRunMatrix a = RowRunMatrix::FromCsr(RandomRunOperator(rows, cols, &rng));
+  const cv::Mat x = RandomValues(cols, channels, -1.0f, 1.0f, &rng);
+  const cv::Mat b = RandomValues(rows, channels, -2.0f, 2.0f, &rng);
+  cv::Mat mask(rows, 1, CV_8UC1);
+  for (int r = 0; r < rows; ++r) mask.at<uchar>(r) = r % 9 == 4 ? 0 : 255;
+  const cv::Mat diagonal0 = RandomValues(cols, channels, 0.0f, 1.0f, &rng);
+  const cv::Mat adjoint0 = RandomValues(cols, channels, -1.0f, 1.0f, &rng);
+  const double scale = 0.7, epsilon = 1e-3;
+  for (const cv::Mat& used : {mask, cv::Mat()}) {
+    // The separate passes.
+    cv::Mat ax, residual_ref, weight_ref, temp;
+    MultiplySparse(a, x, &ax, 1);
+    residual_ref = ax - b;
+    weight_ref.create(b.size(), b.type());
+    for (int r = 0; r < rows; ++r) {
+      for (int c = 0; c < channels; ++c) {
+        const float value = residual_ref.ptr<float>()[r * channels + c];
+        weight_ref.ptr<float>()[r * channels + c] =
+            used.empty() || used.at<uchar>(r) != 0
+                ? static_cast<float>(scale / std::max<double>(std::abs(value), epsilon))
+                : 0.0f;
+      }
+    }
+    cv::Mat diagonal_ref = diagonal0.clone(), adjoint_ref = adjoint0.clone();
+    AddWeightedNormalDiagonal(a, weight_ref, &diagonal_ref, 1);
+    cv::multiply(residual_ref, weight_ref, temp, -1.0);
+    AddAdjointProduct(a, temp, &adjoint_ref, 1);
+    // The fused pass.
+    cv::Mat residual, weight, diagonal = diagonal0.clone(), adjoint = adjoint0.clone();
+    L1ReweightPass(a, x, b, used, scale, epsilon, &residual, &weight, &diagonal, &adjoint);
+    EXPECT_TRUE(SameBits(residual, residual_ref));
+    EXPECT_TRUE(SameBits(weight, weight_ref));
+    EXPECT_TRUE(SameBits(diagonal, diagonal_ref));
+    EXPECT_TRUE(SameBits(adjoint, adjoint_ref));
+    EXPECT_FALSE(SameBits(adjoint, adjoint0));  // it added something
+  }
+  cv::Mat residual, weight, diagonal = diagonal0.clone(), adjoint = adjoint0.clone();
+  EXPECT_THROW(L1ReweightPass(a, x, b, cv::Mat(rows + 1, 1, CV_8UC1, cv::Scalar(255)), scale, epsilon,
+                              &residual, &weight, &diagonal, &adjoint),
+               InputError);
+}
+
+INSTANTIATE_TEST_SUITE_P(Channels, L1ReweightPassTest, ::testing::Values(1, 2, 3, 4));
 
 }  // namespace
 }  // namespace deblur_sr_mvs

@@ -234,9 +234,7 @@ class CaptureOperatorBuilder {
   Timings timings_;
   CaptureOperatorOptions options_;
   VirtualDepths own_depths_;                     // D_tau_m when not shared
-  std::vector<std::vector<int>> block_columns_;  // per-thread CSR pieces
-  std::vector<std::vector<float>> block_values_;
-  std::vector<int> row_nnz_;
+  std::vector<RowRunMatrix::RowBlock> blocks_;   // per-thread row runs
 };
 
 // Convenience: one operator with a temporary builder.

@@ -34,4 +34,22 @@ void AddAdjointProduct(const SparseMatrixRM& a, const cv::Mat& y, cv::Mat* out, 
 void AddWeightedNormalDiagonal(const RowRunMatrix& a, const cv::Mat& weight, cv::Mat* out, int threads);
 void AddWeightedNormalDiagonal(const SparseMatrixRM& a, const cv::Mat& weight, cv::Mat* out, int threads);
 
+// One IRLS reweighting of an L1 data term |A x - b| in ONE pass over the
+// rows of A (each row's taps are read once, for its gather and its two
+// scatters, instead of once per pass), on one thread. Per observed value:
+//   residual = (A x) - b,
+//   weight = mask ? scale / max(|residual|, epsilon) : 0 (in double, stored
+//            as float; an empty mask: every value),
+// and, added over the rows,
+//   diagonal += diag(A^T diag(weight) A)   (AddWeightedNormalDiagonal),
+//   adjoint  += A^T (-(weight .* residual)) (AddAdjointProduct).
+// `residual` and `weight` take b's shape (CV_32FC(C)); `x`, `diagonal` and
+// `adjoint` have one pixel per column of A. Every value is bit for bit what
+// MultiplySparse, the subtraction, the weighting and the one-thread
+// AddWeightedNormalDiagonal and AddAdjointProduct give one after the other
+// (test L1ReweightPassTest.EqualsTheSeparatePassesBitForBit).
+void L1ReweightPass(const RowRunMatrix& a, const cv::Mat& x, const cv::Mat& b, const cv::Mat& mask,
+                    double scale, double epsilon, cv::Mat* residual, cv::Mat* weight, cv::Mat* diagonal,
+                    cv::Mat* adjoint);
+
 }  // namespace deblur_sr_mvs

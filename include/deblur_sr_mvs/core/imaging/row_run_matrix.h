@@ -38,6 +38,30 @@ class RowRunMatrix {
                                  const std::vector<const int*>& piece_columns,
                                  const std::vector<const float*>& piece_values,
                                  const std::vector<size_t>& piece_sizes);
+  // Rows appended one at a time (a builder's block of consecutive rows, e.g.
+  // one thread's): each row's columns are split into runs as FromPieces
+  // splits them (maximal spans of consecutive columns, at most
+  // kMaxRunLength long), so that FromBlocks gives FromPieces' matrix bit for
+  // bit without a column array of the whole block. Keeps its capacity
+  // across Clear() (a builder reuses it from build to build).
+  class RowBlock {
+   public:
+    void Clear();
+    // Appends a row of `taps` taps; its columns must increase.
+    void AppendRow(const int* columns, const float* values, int taps);
+    int rows() const { return static_cast<int>(row_runs_.size()); }
+
+   private:
+    friend class RowRunMatrix;
+    std::vector<int> row_runs_;  // per row
+    std::vector<int> run_first_column_;
+    std::vector<uint16_t> run_length_;
+    std::vector<float> values_;
+  };
+  // The rows of the blocks in order (block b's after block b - 1's); throws
+  // InputError for a run outside [0, cols).
+  static RowRunMatrix FromBlocks(int cols, const std::vector<const RowBlock*>& blocks);
+
   // The same matrix in CSR form (for callers that need Eigen or a transpose).
   SparseMatrixRM ToCsr() const;
 
