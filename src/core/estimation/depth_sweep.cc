@@ -5,6 +5,7 @@
 #include <limits>
 
 #include <opencv2/imgproc.hpp>
+#include <opencv2/ximgproc.hpp>
 
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/common/options_check.h"
@@ -185,62 +186,18 @@ struct BestPlane {
 };
 
 // The guided filter of a cost slice p with a gray guide I (He et al., PAMI
-// 2013): per window the linear model q = a I + b that fits p best (a
-// regularised by eps), averaged over the windows that cover a pixel. The
-// guide's statistics are computed once per frame; a call costs four box
-// filters.
+// 2013; cv::ximgproc): per window the linear model q = a I + b that fits p
+// best (a regularised by eps), averaged over the windows that cover a
+// pixel. The guide's statistics are computed once per frame, when the
+// filter is made.
 class GuidedAggregation {
  public:
-  GuidedAggregation(const cv::Mat& guide, int radius, double eps) : guide_(guide), window_(2 * radius + 1, 2 * radius + 1) {
-    Box(guide_, &mean_guide_);
-    cv::Mat square = guide_.mul(guide_);
-    Box(square, &inverse_variance_);
-    for (int y = 0; y < guide_.rows; ++y) {
-      const float* mean = mean_guide_.ptr<float>(y);
-      float* value = inverse_variance_.ptr<float>(y);
-      for (int x = 0; x < guide_.cols; ++x) {
-        value[x] = 1.0f / std::max(value[x] - mean[x] * mean[x] + static_cast<float>(eps), 1e-12f);
-      }
-    }
-  }
-
-  void Filter(const cv::Mat& p, cv::Mat* q) {
-    Box(p, &mean_p_);
-    cv::multiply(guide_, p, product_);
-    Box(product_, &mean_product_);
-    a_.create(p.size(), CV_32FC1);
-    b_.create(p.size(), CV_32FC1);
-    for (int y = 0; y < p.rows; ++y) {
-      const float* mean_i = mean_guide_.ptr<float>(y);
-      const float* inverse = inverse_variance_.ptr<float>(y);
-      const float* mean_p = mean_p_.ptr<float>(y);
-      const float* mean_ip = mean_product_.ptr<float>(y);
-      float* a = a_.ptr<float>(y);
-      float* b = b_.ptr<float>(y);
-      for (int x = 0; x < p.cols; ++x) {
-        a[x] = (mean_ip[x] - mean_i[x] * mean_p[x]) * inverse[x];
-        b[x] = mean_p[x] - a[x] * mean_i[x];
-      }
-    }
-    Box(a_, &mean_a_);
-    Box(b_, &mean_b_);
-    q->create(p.size(), CV_32FC1);
-    for (int y = 0; y < p.rows; ++y) {
-      const float* i = guide_.ptr<float>(y);
-      const float* a = mean_a_.ptr<float>(y);
-      const float* b = mean_b_.ptr<float>(y);
-      float* out = q->ptr<float>(y);
-      for (int x = 0; x < p.cols; ++x) out[x] = a[x] * i[x] + b[x];
-    }
-  }
+  GuidedAggregation(const cv::Mat& guide, int radius, double eps)
+      : filter_(cv::ximgproc::createGuidedFilter(guide, radius, eps)) {}
+  void Filter(const cv::Mat& p, cv::Mat* q) { filter_->filter(p, *q, CV_32F); }
 
  private:
-  void Box(const cv::Mat& in, cv::Mat* out) const {
-    cv::boxFilter(in, *out, CV_32F, window_, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
-  }
-  const cv::Mat guide_;
-  const cv::Size window_;
-  cv::Mat mean_guide_, inverse_variance_, mean_p_, product_, mean_product_, a_, b_, mean_a_, mean_b_;
+  cv::Ptr<cv::ximgproc::GuidedFilter> filter_;
 };
 
 // The sweep's per-plane cost: each side's (earlier / later sources) mean
