@@ -112,7 +112,7 @@ namespace {
 // The stream's estimator options: the output depth is not refined in the
 // estimator, so that the next window starts from the solver's own depth; nor
 // re-swept (EstimatorOptions::depth_sweep): a stream does not re-sweep.
-EstimatorOptions WithoutOutputDepthEdges(EstimatorOptions options) {
+EstimatorOptions WithoutOutputDepthRefinement(EstimatorOptions options) {
   options.depth_edges.on_output = false;
   options.depth_sweep.on_output = false;
   return options;
@@ -121,12 +121,12 @@ EstimatorOptions WithoutOutputDepthEdges(EstimatorOptions options) {
 }  // namespace
 
 StreamEstimator::StreamEstimator(const EstimatorOptions& options)
-    : estimator_(WithoutOutputDepthEdges(options)),
+    : estimator_(WithoutOutputDepthRefinement(options)),
       published_depth_edges_(options.depth_edges),
       prior_history_(options.initializer.pose_prior) {}
 
 void StreamEstimator::SetOptions(const EstimatorOptions& options) {
-  estimator_ = Estimator(WithoutOutputDepthEdges(options));
+  estimator_ = Estimator(WithoutOutputDepthRefinement(options));
   published_depth_edges_ = options.depth_edges;
   estimator_.SetCancelFlag(cancel_);
   last_operators_.clear();
