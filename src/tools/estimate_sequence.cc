@@ -163,7 +163,7 @@ void AddMultiFrameDataOptions(dsm::ToolCommandLine* command_line, dsm::Estimator
   dsm::MultiFrameDataOptions& pass = options->multi_frame_data;
   cli.add_option("--multi-frame-weight", pass.relative_weight,
                  "joint: re-solve each restored image with its agreeing neighbours' matching terms at this "
-                 "fraction of lambda_s (0: off; default 0)")
+                 "fraction of lambda_s (0: off; default 1)")
       ->check(dsm::FlagNumber());
   cli.add_option("--multi-frame-radius", pass.radius,
                  "with --multi-frame-weight: the neighbours taken, frames up to N away (default 1)")
@@ -172,6 +172,8 @@ void AddMultiFrameDataOptions(dsm::ToolCommandLine* command_line, dsm::Estimator
                  "with --multi-frame-weight: a neighbour pixel agrees where its patch RMS residual is at most "
                  "this times the expected one (default 2)")
       ->check(dsm::FlagNumber());
+  cli.add_flag("--multi-frame-skip-first,!--no-multi-frame-skip-first", pass.skip_first_frame,
+               "with --multi-frame-weight: leave frame 0 (its blur path extrapolated) out of the pass (default on)");
   cli.add_option("--multi-frame-irls", pass.irls_iterations,
                  "with --multi-frame-weight: the pass's reweightings (default 2)")
       ->check(dsm::FlagInt());

@@ -1342,15 +1342,17 @@ void WindowSolver::MultiFrameDataPass() {
   if (options_.multi_frame_data.relative_weight <= 0.0) return;
   const double begin = NowMs();
   ForEachFrame([this](int t) {
-    if (t >= options_.held_leading_latents) UpdateLatentFromFrames(t);
+    const bool skipped = options_.multi_frame_data.skip_first_frame && t == 0;
+    if (t >= options_.held_leading_latents && !skipped) UpdateLatentFromFrames(t);
   });
   timer_.AddSince("multi-frame data pass", begin);
 }
 
-// One I_t of the pass: eq:imgUpdate's terms (the self term lambda_s, each
-// neighbour s within multi_frame_data.radius weight 1 where it is visible),
-// plus relative_weight x lambda_s on the neighbour's pixels that agree with
-// Psi_s I_t (MultiFrameAgreementMask at the expected residual).
+// One I_t of the pass: the self term lambda_s of eq:imgUpdate and, for each
+// neighbour s within multi_frame_data.radius, its matching term at
+// relative_weight x lambda_s (at least 1, eq:imgUpdate's weight) on the
+// pixels that agree with Psi_s I_t (MultiFrameAgreementMask at the expected
+// residual); B_0 with skip_first_frame keeps weight 1 where it is visible.
 void WindowSolver::UpdateLatentFromFrames(int t) {
   const MultiFrameDataOptions& pass = options_.multi_frame_data;
   const double expected = std::hypot(options_.model_error_sigma, std::max(options_.noise_sigma, 0.0));
@@ -1361,12 +1363,18 @@ void WindowSolver::UpdateLatentFromFrames(int t) {
   cv::Mat predicted;
   for (int s : Neighbours(t, num_frames_, pass.radius)) {
     held.push_back(Operator(s, t));
+    if (pass.skip_first_frame && s == 0) {  // B_0 keeps the weight of eq:imgUpdate
+      terms.push_back({&held.back()->op, &observations_[s], held.back()->mask, 1.0});
+      continue;
+    }
     held.back()->op.Apply(latents_[t], &predicted);
     agreeing.push_back(MultiFrameAgreementMask(predicted, observations_[s], held.back()->mask,
                                                pass.agreement_scale * expected, pass.patch_px));
-    terms.push_back({&held.back()->op, &observations_[s], held.back()->mask, 1.0});
+    // One term per neighbour: the disagreeing pixels are left out rather
+    // than kept at weight 1 (1/30 of the self term's weight) in a second
+    // term, which would stream the operator twice per product.
     terms.push_back({&held.back()->op, &observations_[s], agreeing.back(),
-                     pass.relative_weight * options_.lambda_s});
+                     std::max(1.0, pass.relative_weight * options_.lambda_s)});
   }
   held.push_back(Operator(t, t));
   terms.push_back({&held.back()->op, &observations_[t], cv::Mat(), options_.lambda_s});

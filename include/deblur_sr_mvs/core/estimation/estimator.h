@@ -235,7 +235,8 @@ struct EstimatorOptions {
   // restored I_t after the last image update, with the final depth and
   // poses, its agreeing neighbours' matching terms raised towards lambda_s
   // (MultiFrameDataOptions), before the temporal fusion; depth, poses and
-  // energies are unchanged. relative_weight 0 (default) turns it off.
+  // energies are unchanged. On by default (relative_weight 1; 0 turns it
+  // off): BENCHMARKS.md "Multi-frame evidence in the last image pass".
   MultiFrameDataOptions multi_frame_data;
   // Depth re-sweep (issue 14): joint mode's output D_t re-estimated by a
   // plane sweep over the restored images with guided-filter cost
