@@ -28,6 +28,16 @@ double MseOfPsnr(double psnr) {
   return 255.0 * 255.0 * std::pow(10.0, -psnr / 10.0);
 }
 
+// Bit for bit the same depth maps and poses.
+void ExpectSameDepthAndPoses(const EstimatorResult& a, const EstimatorResult& b) {
+  ASSERT_EQ(a.depth.size(), b.depth.size());
+  for (size_t t = 0; t < b.depth.size(); ++t) {
+    EXPECT_EQ(cv::norm(a.depth[t], b.depth[t], cv::NORM_INF), 0.0);
+    EXPECT_EQ((a.T_world_cam[t].translation() - b.T_world_cam[t].translation()).norm(), 0.0);
+    EXPECT_EQ((a.T_world_cam[t].rotation() - b.T_world_cam[t].rotation()).norm(), 0.0);
+  }
+}
+
 // Gaussian noise of sigma 2 gray levels on the LR frames (a well-lit 8-bit
 // sensor; the reference level).
 TEST(Noise, RestoredBeatsBicubicByFiveDecibelsAtSigmaTwo) {
@@ -118,13 +128,7 @@ TEST(Noise, TemporalFusionLowersTheAddedError) {
     const EstimatorResult plain = Estimator(one_iteration).Run(InputOf(sequence));
     psnr[i][0] = MeanPsnr(plain.latent, sequence.ground_truth->latent);
     psnr[i][1] = MeanPsnr(fused.latent, sequence.ground_truth->latent);
-    ASSERT_EQ(fused.depth.size(), plain.depth.size());
-    for (size_t t = 0; t < plain.depth.size(); ++t) {
-      // Bit for bit: the fusion runs after depth and poses.
-      EXPECT_EQ(cv::norm(fused.depth[t], plain.depth[t], cv::NORM_INF), 0.0);
-      EXPECT_EQ((fused.T_world_cam[t].translation() - plain.T_world_cam[t].translation()).norm(), 0.0);
-      EXPECT_EQ((fused.T_world_cam[t].rotation() - plain.T_world_cam[t].rotation()).norm(), 0.0);
-    }
+    ExpectSameDepthAndPoses(fused, plain);  // the fusion runs after depth and poses
   }
   const double added_plain = std::sqrt(std::max(0.0, MseOfPsnr(psnr[1][0]) - MseOfPsnr(psnr[0][0])));
   const double added_fused = std::sqrt(std::max(0.0, MseOfPsnr(psnr[1][1]) - MseOfPsnr(psnr[0][1])));
@@ -158,12 +162,7 @@ TEST(Noise, MultiFrameDataPassLowersTheAddedError) {
     const EstimatorResult pass = Estimator(options).Run(InputOf(sequence));
     psnr[i][0] = MeanPsnr(plain.latent, sequence.ground_truth->latent);
     psnr[i][1] = MeanPsnr(pass.latent, sequence.ground_truth->latent);
-    ASSERT_EQ(pass.depth.size(), plain.depth.size());
-    for (size_t t = 0; t < plain.depth.size(); ++t) {
-      EXPECT_EQ(cv::norm(pass.depth[t], plain.depth[t], cv::NORM_INF), 0.0);
-      EXPECT_EQ((pass.T_world_cam[t].translation() - plain.T_world_cam[t].translation()).norm(), 0.0);
-      EXPECT_EQ((pass.T_world_cam[t].rotation() - plain.T_world_cam[t].rotation()).norm(), 0.0);
-    }
+    ExpectSameDepthAndPoses(pass, plain);  // the pass runs after depth and poses
   }
   const double added_plain = std::sqrt(std::max(0.0, MseOfPsnr(psnr[1][0]) - MseOfPsnr(psnr[0][0])));
   const double added_pass = std::sqrt(std::max(0.0, MseOfPsnr(psnr[1][1]) - MseOfPsnr(psnr[0][1])));
