@@ -157,6 +157,28 @@ void AddFusionOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions*
                "with --fusion-radius: also fuse the restored images before each structure update (default off)");
 }
 
+// --multi-frame-*: the multi-frame data pass after the last image update.
+void AddMultiFrameDataOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions* options) {
+  dsm::ToolCommandLine& cli = *command_line;
+  dsm::MultiFrameDataOptions& pass = options->multi_frame_data;
+  cli.add_option("--multi-frame-weight", pass.relative_weight,
+                 "joint: re-solve each restored image with its agreeing neighbours' matching terms at this "
+                 "fraction of lambda_s (0: off; default 1)")
+      ->check(dsm::FlagNumber());
+  cli.add_option("--multi-frame-radius", pass.radius,
+                 "with --multi-frame-weight: the neighbours taken, frames up to N away (default 1)")
+      ->check(dsm::FlagInt());
+  cli.add_option("--multi-frame-agreement", pass.agreement_scale,
+                 "with --multi-frame-weight: a neighbour pixel agrees where its patch RMS residual is at most "
+                 "this times the expected one (default 2)")
+      ->check(dsm::FlagNumber());
+  cli.add_flag("--multi-frame-skip-first,!--no-multi-frame-skip-first", pass.skip_first_frame,
+               "with --multi-frame-weight: leave frame 0 (its blur path extrapolated) out of the pass (default on)");
+  cli.add_option("--multi-frame-irls", pass.irls_iterations,
+                 "with --multi-frame-weight: the pass's reweightings (default 2)")
+      ->check(dsm::FlagInt());
+}
+
 // --depth-sweep and its sweep's settings.
 void AddDepthSweepOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions* options) {
   dsm::ToolCommandLine& cli = *command_line;
@@ -253,6 +275,7 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   AddJointStepOptions(&cli, options);
   AddDepthEdgeOptions(&cli, options);
   AddFusionOptions(&cli, options);
+  AddMultiFrameDataOptions(&cli, options);
   AddDepthSweepOptions(&cli, options);
   AddBlurPoseOptions(&cli, options);
   cli.add_option("--structure-matching", flags->structure_matching, "both, restored or blurred")

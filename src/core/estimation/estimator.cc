@@ -591,6 +591,8 @@ class WindowSolver {
   void ForEachFrame(const Body& body);
   EstimatorResult GaugedResult();
   std::vector<cv::Mat> OutputLatents(const std::vector<cv::Mat>& depths);
+  void MultiFrameDataPass();
+  void UpdateLatentFromFrames(int t);
   void FuseBetweenUpdates();
 
   bool blurred_matching() const {
@@ -1321,6 +1323,7 @@ EstimatorResult WindowSolver::GaugedResult() {
 // (EstimatorOptions::fusion), with the output depth maps `depths` and the
 // solver's poses (one gauge for both).
 std::vector<cv::Mat> WindowSolver::OutputLatents(const std::vector<cv::Mat>& depths) {
+  if (joint_) MultiFrameDataPass();
   if (!joint_ || options_.fusion.radius <= 0) return latents_;
   const double begin = NowMs();
   std::vector<SE3> T_world_cam;
@@ -1329,6 +1332,61 @@ std::vector<cv::Mat> WindowSolver::OutputLatents(const std::vector<cv::Mat>& dep
       FuseRestoredImages(camera_hr_, latents_, depths, T_world_cam, options_.fusion, options_.held_leading_latents);
   timer_.AddSince("temporal fusion", begin);
   return fused;
+}
+
+// EstimatorOptions::multi_frame_data: each I_t (not the held leading ones)
+// re-solved from its current value with its agreeing neighbours' matching
+// terms raised towards lambda_s (MultiFrameDataOptions), with the solver's
+// final depth and poses; after the output depth, which it does not change.
+void WindowSolver::MultiFrameDataPass() {
+  if (options_.multi_frame_data.relative_weight <= 0.0) return;
+  const double begin = NowMs();
+  ForEachFrame([this](int t) {
+    const bool skipped = options_.multi_frame_data.skip_first_frame && t == 0;
+    if (t >= options_.held_leading_latents && !skipped) UpdateLatentFromFrames(t);
+  });
+  timer_.AddSince("multi-frame data pass", begin);
+}
+
+// One I_t of the pass: the self term lambda_s of eq:imgUpdate and, for each
+// neighbour s within multi_frame_data.radius, its matching term at
+// relative_weight x lambda_s (at least 1, eq:imgUpdate's weight) on the
+// pixels that agree with Psi_s I_t (MultiFrameAgreementMask at the expected
+// residual); B_0 with skip_first_frame keeps weight 1 where it is visible.
+void WindowSolver::UpdateLatentFromFrames(int t) {
+  const MultiFrameDataOptions& pass = options_.multi_frame_data;
+  const double expected = std::hypot(options_.model_error_sigma, std::max(options_.noise_sigma, 0.0));
+  std::vector<LinearL1Term> terms;
+  HeldOperators held;
+  std::vector<cv::Mat> agreeing;
+  agreeing.reserve(2 * pass.radius);
+  cv::Mat predicted;
+  for (int s : Neighbours(t, num_frames_, pass.radius)) {
+    held.push_back(Operator(s, t));
+    if (pass.skip_first_frame && s == 0) {  // B_0 keeps the weight of eq:imgUpdate
+      terms.push_back({&held.back()->op, &observations_[s], held.back()->mask, 1.0});
+      continue;
+    }
+    held.back()->op.Apply(latents_[t], &predicted);
+    agreeing.push_back(MultiFrameAgreementMask(predicted, observations_[s], held.back()->mask,
+                                               pass.agreement_scale * expected, pass.patch_px));
+    // One term per neighbour: the disagreeing pixels are left out rather
+    // than kept at weight 1 (1/30 of the self term's weight) in a second
+    // term, which would stream the operator twice per product.
+    terms.push_back({&held.back()->op, &observations_[s], agreeing.back(),
+                     std::max(1.0, pass.relative_weight * options_.lambda_s)});
+  }
+  held.push_back(Operator(t, t));
+  terms.push_back({&held.back()->op, &observations_[t], cv::Mat(), options_.lambda_s});
+  ImageUpdateOptions image_options = options_.image;
+  image_options.irls_iterations = pass.irls_iterations;
+  image_options.cg_iterations = pass.cg_iterations;
+  image_options.num_threads = 1;
+  const ImageUpdateStats stats = UpdateImage(terms, image_options, &latents_[t]);
+  std::lock_guard<std::mutex> lock(work_mutex_);
+  result_.image_work.reweightings += stats.reweightings;
+  result_.image_work.cg_steps += stats.cg_steps;
+  result_.image_work.operator_passes += stats.operator_passes;
 }
 
 // TemporalFusionOptions::between_updates: the restored images fused before
@@ -1486,6 +1544,7 @@ void EstimatorOptions::Check() const {
   initializer.Check();
   depth_edges.Check();
   fusion.Check();
+  multi_frame_data.Check();
   depth_sweep.Check();
 }
 
@@ -1610,6 +1669,7 @@ EstimatorResult Estimator::RunFromStructure(const EstimatorInput& input, const s
   const double noise_sigma =
       options_.noise_sigma >= 0.0 ? options_.noise_sigma : EstimateNoiseSigma(input.images);
   noise_aware.image = NoiseAwareImageOptions(options_, noise_sigma);
+  noise_aware.noise_sigma = noise_sigma;  // the multi-frame data pass's agreement threshold
   WindowSolver solver(noise_aware, threads, input, depth_hr, T_world_cam, cancel_, progress);
   EstimatorResult result = solver.Solve();
   result.noise_sigma = noise_sigma;

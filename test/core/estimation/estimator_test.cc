@@ -124,11 +124,16 @@ TEST(Estimator, StructureUpdateImprovesDegradedStructure) {
   // update is the last (it gives the output images) and follows no
   // refinement phase, so it runs the full counts (the refinement and final
   // counts are for the phases after a refinement).
+  // The multi-frame data pass (on by default) adds its reweightings for
+  // every frame but frame 0.
   const int frames = static_cast<int>(sequence.frames.size());
   const ImageUpdateOptions& image = options.image;
-  EXPECT_EQ(result.image_work.reweightings, frames * (image.first_irls_iterations + image.irls_iterations));
+  const MultiFrameDataOptions& pass = options.multi_frame_data;
+  EXPECT_EQ(result.image_work.reweightings,
+            frames * (image.first_irls_iterations + image.irls_iterations) + (frames - 1) * pass.irls_iterations);
   EXPECT_LE(result.image_work.cg_steps,
-            frames * (image.first_irls_iterations + image.irls_iterations) * image.cg_iterations);
+            frames * (image.first_irls_iterations + image.irls_iterations) * image.cg_iterations +
+                (frames - 1) * pass.irls_iterations * pass.cg_iterations);
   for (const StageTiming& s : result.timings) std::printf("  %s: %.2f s\n", s.stage.c_str(), s.seconds);
 }
 
@@ -228,14 +233,19 @@ TEST(EstimatorSchedule, ImagePhasesRunTheFirstRefinementAndFinalCounts) {
   options.image.final_cg_iterations = 4;
   const EstimatorResult result =
       Estimator(options).RunFromStructure(InputOf(sequence), sequence.ground_truth->depth, poses);
+  // Plus the multi-frame data pass after the last phase (on by default;
+  // every frame but frame 0).
   const int frames = static_cast<int>(sequence.frames.size());
-  EXPECT_EQ(result.image_work.reweightings, frames * (3 + 1 + 2));
-  EXPECT_LE(result.image_work.cg_steps, frames * (3 * options.image.cg_iterations + 1 * 2 + 2 * 4));
+  const MultiFrameDataOptions& pass = options.multi_frame_data;
+  const int pass_reweightings = (frames - 1) * pass.irls_iterations;
+  EXPECT_EQ(result.image_work.reweightings, frames * (3 + 1 + 2) + pass_reweightings);
+  EXPECT_LE(result.image_work.cg_steps, frames * (3 * options.image.cg_iterations + 1 * 2 + 2 * 4) +
+                                            pass_reweightings * pass.cg_iterations);
   // Two phases: the second is last right after the first: the full counts.
   options.max_iterations = 2;
   const EstimatorResult two =
       Estimator(options).RunFromStructure(InputOf(sequence), sequence.ground_truth->depth, poses);
-  EXPECT_EQ(two.image_work.reweightings, frames * (3 + options.image.irls_iterations));
+  EXPECT_EQ(two.image_work.reweightings, frames * (3 + options.image.irls_iterations) + pass_reweightings);
 }
 
 TEST(EstimatorSafety, TimeCapStopsBetweenIterationsAndSaysSo) {

@@ -19,6 +19,7 @@
 #include "deblur_sr_mvs/core/estimation/initializer.h"
 #include "deblur_sr_mvs/core/estimation/photometric.h"
 #include "deblur_sr_mvs/core/estimation/structure_update.h"
+#include "deblur_sr_mvs/core/estimation/multi_frame_data.h"
 #include "deblur_sr_mvs/core/estimation/temporal_fusion.h"
 #include "deblur_sr_mvs/core/geometry/camera.h"
 #include "deblur_sr_mvs/core/geometry/frame_types.h"
@@ -230,6 +231,13 @@ struct EstimatorOptions {
   // TemporalFusionOptions and BENCHMARKS.md "Temporal fusion of the
   // restored images". radius 0 turns it off.
   TemporalFusionOptions fusion;
+  // Multi-frame data pass (issue 12, noise): joint mode re-solves each
+  // restored I_t after the last image update, with the final depth and
+  // poses, its agreeing neighbours' matching terms raised towards lambda_s
+  // (MultiFrameDataOptions), before the temporal fusion; depth, poses and
+  // energies are unchanged. On by default (relative_weight 1; 0 turns it
+  // off): BENCHMARKS.md "Multi-frame evidence in the last image pass".
+  MultiFrameDataOptions multi_frame_data;
   // Depth re-sweep (issue 14): joint mode's output D_t re-estimated by a
   // plane sweep over the restored images with guided-filter cost
   // aggregation where it clearly disagrees with the solver's
