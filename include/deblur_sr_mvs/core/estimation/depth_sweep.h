@@ -44,6 +44,13 @@ struct DepthSweepOptions {
   // 0.0224 -> 0.0179: the same 0.0022 gap, a ratio of 1.123 against the
   // test's 1.10).
   bool on_output = false;
+  // Whether the estimator also re-sweeps the solver's own D_t (joint mode)
+  // before the last `before_last_structure_updates` structure updates of
+  // Algorithm 1, so that the structure update (depth and poses) continues
+  // from the swept depth and the image update that follows judges it (a
+  // rise in energy undoes the iteration, as for any structure update).
+  // 0: never. Not in a window that carries operators nor in a stream.
+  int before_last_structure_updates = 0;
   // Fronto-parallel planes, equally spaced in inverse depth over the frame's
   // range (its 1st to 99th percentile of the current inverse depth, widened
   // by `range_margin` of the span on each side).
