@@ -945,10 +945,14 @@ bool WindowSolver::SweepsSolverDepths(int iteration) const {
          options_.held_leading_latents == 0;
 }
 
-// Every solver D_t replaced by its re-swept copy (SweptInverseDepths).
+// Every solver D_t replaced by its re-swept copy (SweptInverseDepths),
+// through the depth-edge median where that is on (DepthEdgeOptions).
 void WindowSolver::SweepSolverDepths() {
-  const std::vector<cv::Mat> swept = SweptInverseDepths();
-  for (int t = 0; t < num_frames_; ++t) SetInverseDepth(t, swept[t]);
+  std::vector<cv::Mat> swept = SweptInverseDepths();
+  for (int t = 0; t < num_frames_; ++t) {
+    if (options_.depth_edges.radius_px > 0) RefineDepthEdges(latents_[t], options_.depth_edges, &swept[t]);
+    SetInverseDepth(t, swept[t]);
+  }
 }
 
 // Every D_t through the edge-aware weighted median guided by its current

@@ -49,12 +49,14 @@ struct DepthSweepOptions {
   // Algorithm 1, so that the structure update (depth and poses) continues
   // from the swept depth and the image update that follows judges it (a
   // rise in energy undoes the iteration, as for any structure update).
-  // An iteration from the swept depth that raises the energy is run again
+  // The swept map goes through the depth-edge median first where that is on
+  // (DepthEdgeOptions::radius_px > 0). An iteration from the swept depth
+  // that raises the energy is run again
   // from the solver's depth. 0: never. Not in a window that carries
   // operators nor in a stream. Measured, not adopted (BENCHMARKS.md "The
-  // re-sweep inside the joint iterations"): at 2, crop depth 0.799x ->
-  // 0.784x the baseline's on 8 sequences, but ATE 0.849x -> 0.867x and above
-  // the baseline on lateral / Aloe, +29 % CPU.
+  // re-sweep inside the joint iterations"): at 2 (with the median), crop
+  // depth 0.799x -> 0.778x the baseline's on 8 sequences, but ATE 0.849x ->
+  // 0.861x and above the baseline on lateral / Aloe, +37 % CPU (loaded).
   int before_last_structure_updates = 0;
   // Fronto-parallel planes, equally spaced in inverse depth over the frame's
   // range (its 1st to 99th percentile of the current inverse depth, widened
