@@ -208,6 +208,9 @@ void AddDepthSweepOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOpti
   cli.add_option("--depth-sweep-downsample", options->depth_sweep.downsample,
                  "with --depth-sweep: sweep on the images downsampled by this factor (1: HR)")
       ->check(dsm::FlagInt());
+  cli.add_option("--depth-sweep-before-last", options->depth_sweep.before_last_structure_updates,
+                 "joint mode: also re-sweep the solver's depth before the last N structure updates (0: never)")
+      ->check(dsm::FlagInt());
   cli.add_option("--depth-sweep-neighbours", options->depth_sweep.neighbour_radius,
                  "with --depth-sweep: match each frame against the frames within this distance")
       ->check(dsm::FlagInt());

@@ -332,6 +332,7 @@ void DepthSweepOptions::Check() const {
   CheckInRange("depth_sweep_min_cost_gain", min_cost_gain, 0.0, 0.99);
   CheckInRange("depth_sweep_neighbour_radius", neighbour_radius, 1, 5);
   CheckInRange("depth_sweep_downsample", downsample, 1, 4);
+  CheckInRange("depth_sweep_before_last_structure_updates", before_last_structure_updates, 0, 1000);
 }
 
 void SweepInverseDepth(const std::vector<cv::Mat>& images, const PinholeCamera& camera,

@@ -545,6 +545,7 @@ class WindowSolver {
 
   // ---- The three schedules.
   void RunJoint();
+  bool TryJointIteration(int iteration, bool sweep, double* accepted);
   void RunBaseline();
   void RunImagesOnly();
 
@@ -555,6 +556,9 @@ class WindowSolver {
   void UpdateLatent(int t, const ImageUpdateOptions& phase_options);
   void UpdateEdgeWeight(int t);
   void RefineAllDepthEdges();
+  bool SweepsSolverDepths(int iteration) const;
+  void SweepSolverDepths();
+  std::vector<cv::Mat> SweptInverseDepths();
   bool RefineOutputDepthEdges() const;
   std::vector<cv::Mat> OutputDepths();
   void UpdateFrameDepth(int t, int iteration, bool isolated, const std::vector<SE3>& poses,
@@ -579,7 +583,7 @@ class WindowSolver {
 
   // ---- Accept / undo.
   Snapshot TakeSnapshot() const;
-  void Undo(int iteration, const Snapshot& snapshot);
+  void Undo(int iteration, const Snapshot& snapshot, bool stop = true);
 
   // ---- Guards and bookkeeping.
   bool OutOfTime(int iterations_done);
@@ -743,7 +747,9 @@ EstimatorResult WindowSolver::Solve() {
 // that match the final structure). A structure update whose following image
 // update does not lower the energy is undone, with the images, and the
 // iterations stop: the recorded energy after each kept iteration never
-// increases.
+// increases. An iteration that started from the re-swept depth
+// (DepthSweepOptions::before_last_structure_updates) and raised the energy
+// is undone and run again from the solver's own depth.
 void WindowSolver::RunJoint() {
   ImagePhase(1);
   RequireFiniteEnergy("after the first image update");
@@ -751,16 +757,28 @@ void WindowSolver::RunJoint() {
   for (int iteration = 1; iteration <= options_.max_iterations; ++iteration) {
     if (OutOfTime(iteration - 1)) break;
     const Snapshot before = TakeSnapshot();
-    FuseBetweenUpdates();
-    StructurePhase(iteration, /*isolated=*/false);
-    ImagePhase(iteration + 1);
-    if (result_.energies.back().total <= accepted) {
-      accepted = result_.energies.back().total;
-      continue;
+    const bool sweep = SweepsSolverDepths(iteration);
+    if (TryJointIteration(iteration, sweep, &accepted)) continue;
+    if (sweep) {
+      Undo(iteration, before, /*stop=*/false);
+      if (TryJointIteration(iteration, /*sweep=*/false, &accepted)) continue;
     }
     Undo(iteration, before);
     break;
   }
+}
+
+// One iteration of RunJoint: (the re-sweep of the solver's depth,) the
+// structure update and the image update that judges it; true (and
+// *accepted updated) when the energy did not rise above *accepted.
+bool WindowSolver::TryJointIteration(int iteration, bool sweep, double* accepted) {
+  FuseBetweenUpdates();
+  if (sweep) SweepSolverDepths();
+  StructurePhase(iteration, /*isolated=*/false);
+  ImagePhase(iteration + 1);
+  if (!(result_.energies.back().total <= *accepted)) return false;
+  *accepted = result_.energies.back().total;
+  return true;
 }
 
 // Baseline: the images stay the bicubic inputs; only the structure moves.
@@ -895,17 +913,48 @@ std::vector<cv::Mat> WindowSolver::OutputDepths() {
   std::vector<cv::Mat> depths(num_frames_);
   for (int t = 0; t < num_frames_; ++t) depths[t] = frames_[t].depth_hr;
   if (!joint_ || !options_.depth_sweep.on_output || options_.carried_frames > 0) return depths;
+  const std::vector<cv::Mat> swept = SweptInverseDepths();
+  for (int t = 0; t < num_frames_; ++t) depths[t] = DepthFromInverse(swept[t]);
+  return depths;
+}
+
+// Copies of every solver D_t (inverse depth) re-swept against the
+// neighbours' current latent images at the current poses
+// (SweepInverseDepth, EstimatorOptions::depth_sweep).
+std::vector<cv::Mat> WindowSolver::SweptInverseDepths() {
   const double begin = NowMs();
   std::vector<SE3> poses(num_frames_);
   for (int t = 0; t < num_frames_; ++t) poses[t] = frames_[t].T_world_cam;
-  ForEachFrame([this, &poses, &depths](int t) {
-    cv::Mat inverse_depth = inverse_depth_[t].clone();
+  std::vector<cv::Mat> swept(num_frames_);
+  ForEachFrame([this, &poses, &swept](int t) {
+    swept[t] = inverse_depth_[t].clone();
     const std::vector<int> sources = Neighbours(t, num_frames_, options_.depth_sweep.neighbour_radius);
-    SweepInverseDepth(latents_, camera_hr_, poses, t, sources, options_.depth_sweep, &inverse_depth);
-    depths[t] = DepthFromInverse(inverse_depth);
+    SweepInverseDepth(latents_, camera_hr_, poses, t, sources, options_.depth_sweep, &swept[t]);
   });
   timer_.AddSince("depth re-sweep", begin);
-  return depths;
+  return swept;
+}
+
+// DepthSweepOptions::before_last_structure_updates: whether the solver's own
+// D_t is re-swept before structure update `iteration` (one of the last ones
+// of max_iterations), so that the structure update continues from it
+// (RunJoint judges the iteration by the energy after the next image
+// update). Not in a window that hands operators on, nor over held leading
+// latents (a stream's).
+bool WindowSolver::SweepsSolverDepths(int iteration) const {
+  const int last = options_.depth_sweep.before_last_structure_updates;
+  return last > 0 && iteration > options_.max_iterations - last && options_.carried_frames == 0 &&
+         options_.held_leading_latents == 0;
+}
+
+// Every solver D_t replaced by its re-swept copy (SweptInverseDepths),
+// through the depth-edge median where that is on (DepthEdgeOptions).
+void WindowSolver::SweepSolverDepths() {
+  std::vector<cv::Mat> swept = SweptInverseDepths();
+  for (int t = 0; t < num_frames_; ++t) {
+    if (options_.depth_edges.radius_px > 0) RefineDepthEdges(latents_[t], options_.depth_edges, &swept[t]);
+    SetInverseDepth(t, swept[t]);
+  }
 }
 
 // Every D_t through the edge-aware weighted median guided by its current
@@ -1229,8 +1278,9 @@ WindowSolver::Snapshot WindowSolver::TakeSnapshot() const {
 }
 
 // Back to `snapshot` after an iteration that raised (or lost) the energy;
-// records the restored energy and says so in the notes.
-void WindowSolver::Undo(int iteration, const Snapshot& snapshot) {
+// records the restored energy and says so in the notes (`stop`: the
+// iterations stop; else the iteration runs again without the re-sweep).
+void WindowSolver::Undo(int iteration, const Snapshot& snapshot, bool stop) {
   latents_ = snapshot.latents;
   edge_weight_ = snapshot.edge_weight;
   for (int t = 0; t < num_frames_; ++t) {
@@ -1242,7 +1292,8 @@ void WindowSolver::Undo(int iteration, const Snapshot& snapshot) {
   result_.energies.push_back(restored);
   result_.notes.push_back("iteration " + std::to_string(iteration) +
                           (std::isfinite(rejected) ? " raised the energy" : " lost the energy (not finite)") +
-                          ": undone, iterations stopped");
+                          (stop ? ": undone, iterations stopped"
+                                : " from the re-swept depth: undone, run again from the solver's depth"));
 }
 
 // The time cap (options.max_seconds): true, with a note, once it is past.

@@ -44,6 +44,20 @@ struct DepthSweepOptions {
   // 0.0224 -> 0.0179: the same 0.0022 gap, a ratio of 1.123 against the
   // test's 1.10).
   bool on_output = false;
+  // Whether the estimator also re-sweeps the solver's own D_t (joint mode)
+  // before the last `before_last_structure_updates` structure updates of
+  // Algorithm 1, so that the structure update (depth and poses) continues
+  // from the swept depth and the image update that follows judges it (a
+  // rise in energy undoes the iteration, as for any structure update).
+  // The swept map goes through the depth-edge median first where that is on
+  // (DepthEdgeOptions::radius_px > 0). An iteration from the swept depth
+  // that raises the energy is run again
+  // from the solver's depth. 0: never. Not in a window that carries
+  // operators nor in a stream. Measured, not adopted (BENCHMARKS.md "The
+  // re-sweep inside the joint iterations"): at 2 (with the median), crop
+  // depth 0.799x -> 0.778x the baseline's on 8 sequences, but ATE 0.849x ->
+  // 0.861x and above the baseline on lateral / Aloe, +37 % CPU (loaded).
+  int before_last_structure_updates = 0;
   // Fronto-parallel planes, equally spaced in inverse depth over the frame's
   // range (its 1st to 99th percentile of the current inverse depth, widened
   // by `range_margin` of the span on each side).
