@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -107,6 +108,41 @@ TEST(Noise, AddedErrorAtSigmaTwoIsBounded) {
   EXPECT_LT(added_restored, 7.5);
 }
 
+// A stage that runs after depth and poses, off and on: the image PSNR of
+// Dolls at sigma 0 and 2 ([sigma 0, 2][off, on]), one iteration on one thread
+// (two threads may sum in another order between runs: poses ~1e-9 apart,
+// and the depth-edge median can then pick another depth at a pixel, which
+// would hide what the stage changes), depth and poses checked bit for bit.
+struct StageOffAndOn {
+  double psnr[2][2];
+  // The RMS error (gray levels) that sigma 2 adds, off (0) or on (1).
+  double Added(int on) const {
+    return std::sqrt(std::max(0.0, MseOfPsnr(psnr[1][on]) - MseOfPsnr(psnr[0][on])));
+  }
+};
+
+StageOffAndOn RunStageOffAndOn(const std::string& name, const std::function<void(EstimatorOptions*)>& turn_off) {
+  StageOffAndOn runs{};
+  for (int i = 0; i < 2; ++i) {
+    const Sequence sequence = DollsWithNoise(name, 2 * i);
+    EXPECT_TRUE(sequence.ground_truth.has_value());
+    if (!sequence.ground_truth) return runs;
+    EstimatorOptions options;
+    options.max_iterations = 1;
+    options.num_threads = 1;
+    const EstimatorResult on = Estimator(options).Run(InputOf(sequence));
+    turn_off(&options);
+    const EstimatorResult off = Estimator(options).Run(InputOf(sequence));
+    runs.psnr[i][0] = MeanPsnr(off.latent, sequence.ground_truth->latent);
+    runs.psnr[i][1] = MeanPsnr(on.latent, sequence.ground_truth->latent);
+    ExpectSameDepthAndPoses(on, off);  // the stage runs after depth and poses
+  }
+  std::printf("%s: off %.2f dB at sigma 0, %.2f dB at sigma 2, adds %.2f gray levels; on: %.2f dB, %.2f dB, adds %.2f\n",
+              name.c_str(), runs.psnr[0][0], runs.psnr[1][0], runs.Added(0), runs.psnr[0][1], runs.psnr[1][1],
+              runs.Added(1));
+  return runs;
+}
+
 // The temporal fusion of the output images (EstimatorOptions::fusion, on by
 // default) against the same runs without it (radius 0): the neighbours'
 // restored images carry independent noise, so fusing them lowers the error
@@ -114,33 +150,11 @@ TEST(Noise, AddedErrorAtSigmaTwoIsBounded) {
 // and leaves depth and poses as they were (it runs after them).
 // BENCHMARKS.md "Temporal fusion of the restored images".
 TEST(Noise, TemporalFusionLowersTheAddedError) {
-  double psnr[2][2];  // [sigma 0, 2][off, on]
-  for (int i = 0; i < 2; ++i) {
-    const Sequence sequence = DollsWithNoise("noise_fusion", 2 * i);
-    ASSERT_TRUE(sequence.ground_truth.has_value());
-    EstimatorOptions one_iteration;
-    one_iteration.max_iterations = 1;
-    // One thread: two runs with two threads may differ in the order of the
-    // threads' sums (poses ~1e-9 apart, and the depth-edge median can then
-    // pick another depth at a pixel), which would hide what fusion changes.
-    one_iteration.num_threads = 1;
-    const EstimatorResult fused = Estimator(one_iteration).Run(InputOf(sequence));
-    one_iteration.fusion.radius = 0;
-    const EstimatorResult plain = Estimator(one_iteration).Run(InputOf(sequence));
-    psnr[i][0] = MeanPsnr(plain.latent, sequence.ground_truth->latent);
-    psnr[i][1] = MeanPsnr(fused.latent, sequence.ground_truth->latent);
-    ExpectSameDepthAndPoses(fused, plain);  // the fusion runs after depth and poses
-  }
-  const double added_plain = std::sqrt(std::max(0.0, MseOfPsnr(psnr[1][0]) - MseOfPsnr(psnr[0][0])));
-  const double added_fused = std::sqrt(std::max(0.0, MseOfPsnr(psnr[1][1]) - MseOfPsnr(psnr[0][1])));
-  std::printf(
-      "without fusion: %.2f dB at sigma 0, %.2f dB at sigma 2, adds %.2f gray levels; with: %.2f dB, %.2f "
-      "dB, "
-      "adds %.2f\n",
-      psnr[0][0], psnr[1][0], added_plain, psnr[0][1], psnr[1][1], added_fused);
-  EXPECT_GE(psnr[0][1], psnr[0][0]);
-  EXPECT_GT(psnr[1][1], psnr[1][0]);
-  EXPECT_LT(added_fused, added_plain);
+  const StageOffAndOn runs =
+      RunStageOffAndOn("noise_fusion", [](EstimatorOptions* options) { options->fusion.radius = 0; });
+  EXPECT_GE(runs.psnr[0][1], runs.psnr[0][0]);
+  EXPECT_GT(runs.psnr[1][1], runs.psnr[1][0]);
+  EXPECT_LT(runs.Added(1), runs.Added(0));
 }
 
 // The multi-frame data pass (EstimatorOptions::multi_frame_data) against the
@@ -150,30 +164,11 @@ TEST(Noise, TemporalFusionLowersTheAddedError) {
 // (within 0.1 dB), and leaves depth and poses as they were (it runs after
 // them). BENCHMARKS.md "Multi-frame evidence in the last image pass".
 TEST(Noise, MultiFrameDataPassLowersTheAddedError) {
-  double psnr[2][2];  // [sigma 0, 2][off, on]
-  for (int i = 0; i < 2; ++i) {
-    const Sequence sequence = DollsWithNoise("noise_multi_frame", 2 * i);
-    ASSERT_TRUE(sequence.ground_truth.has_value());
-    EstimatorOptions options;
-    options.max_iterations = 1;
-    options.num_threads = 1;  // as in TemporalFusionLowersTheAddedError
-    options.multi_frame_data.relative_weight = 0.0;
-    const EstimatorResult plain = Estimator(options).Run(InputOf(sequence));
-    options.multi_frame_data.relative_weight = 1.0;
-    const EstimatorResult pass = Estimator(options).Run(InputOf(sequence));
-    psnr[i][0] = MeanPsnr(plain.latent, sequence.ground_truth->latent);
-    psnr[i][1] = MeanPsnr(pass.latent, sequence.ground_truth->latent);
-    ExpectSameDepthAndPoses(pass, plain);  // the pass runs after depth and poses
-  }
-  const double added_plain = std::sqrt(std::max(0.0, MseOfPsnr(psnr[1][0]) - MseOfPsnr(psnr[0][0])));
-  const double added_pass = std::sqrt(std::max(0.0, MseOfPsnr(psnr[1][1]) - MseOfPsnr(psnr[0][1])));
-  std::printf(
-      "without the pass: %.2f dB at sigma 0, %.2f dB at sigma 2, adds %.2f gray levels; with: %.2f dB, "
-      "%.2f dB, adds %.2f\n",
-      psnr[0][0], psnr[1][0], added_plain, psnr[0][1], psnr[1][1], added_pass);
-  EXPECT_GT(psnr[0][1], psnr[0][0] - 0.1);
-  EXPECT_GT(psnr[1][1], psnr[1][0]);
-  EXPECT_LT(added_pass, added_plain);
+  const StageOffAndOn runs = RunStageOffAndOn(
+      "noise_multi_frame", [](EstimatorOptions* options) { options->multi_frame_data.relative_weight = 0.0; });
+  EXPECT_GT(runs.psnr[0][1], runs.psnr[0][0] - 0.1);
+  EXPECT_GT(runs.psnr[1][1], runs.psnr[1][0]);
+  EXPECT_LT(runs.Added(1), runs.Added(0));
 }
 
 // The weight rule: unchanged without noise, growing as the residual's scale.
