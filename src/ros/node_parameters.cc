@@ -153,6 +153,7 @@ NodeParameters WithConfig(const NodeParameters& params, const EstimatorConfig& c
   updated.estimator.lambda_s = config.lambda_s;
   updated.estimator.structure.lambda_d = config.lambda_d;
   updated.estimator.image.lambda_i = config.lambda_i;
+  updated.estimator.multi_frame_data.relative_weight = config.multi_frame_weight;
   updated.points_stride = config.points_stride;
   updated.Check();
   return updated;
@@ -168,6 +169,7 @@ EstimatorConfig ConfigOf(const NodeParameters& params) {
   config.lambda_s = params.estimator.lambda_s;
   config.lambda_d = params.estimator.structure.lambda_d;
   config.lambda_i = params.estimator.image.lambda_i;
+  config.multi_frame_weight = params.estimator.multi_frame_data.relative_weight;
   config.points_stride = params.points_stride;
   return config;
 }

@@ -301,6 +301,9 @@ TEST(NodeParameters, ChecksEveryValue) {
             "pose_prior_frame '" + bad.world_frame + "' must differ from world_frame and camera_frame");
   bad.pose_prior_frame = "odom";
   EXPECT_EQ(CheckMessage(bad), "");
+  bad = params;
+  bad.estimator.multi_frame_data.relative_weight = -1.0;
+  EXPECT_EQ(CheckMessage(bad), "multi_frame_weight must be >= 0, got -1");
 }
 
 TEST(NodeParameters, ReconfigureAppliesTuningOrNothing) {
@@ -309,8 +312,11 @@ TEST(NodeParameters, ReconfigureAppliesTuningOrNothing) {
   EstimatorConfig config = ConfigOf(params);
   config.lambda_i = 0.3;
   config.window_size = 8;
+  config.multi_frame_weight = 0.0;  // the pass off
   const NodeParameters updated = WithConfig(params, config);
   EXPECT_DOUBLE_EQ(updated.estimator.image.lambda_i, 0.3);
+  EXPECT_DOUBLE_EQ(updated.estimator.multi_frame_data.relative_weight, 0.0);
+  EXPECT_DOUBLE_EQ(ConfigOf(updated).multi_frame_weight, 0.0);
   EXPECT_EQ(updated.stream.window_size, 8);
   config.window_overlap = 8;  // not < window_size
   EXPECT_THROW(WithConfig(params, config), InputError);

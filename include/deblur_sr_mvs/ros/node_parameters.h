@@ -110,6 +110,7 @@ void ForEachParameter(Params& params, Visitor&& visit) {
   visit("lambda_s", params.estimator.lambda_s);
   visit("lambda_d", params.estimator.structure.lambda_d);
   visit("lambda_i", params.estimator.image.lambda_i);
+  visit("multi_frame_weight", params.estimator.multi_frame_data.relative_weight);
   visit("threads", params.estimator.num_threads);
   visit("max_window_seconds", params.estimator.max_seconds);
   visit("gain_compensation", params.estimator.gain_compensation);

@@ -8,7 +8,7 @@
 namespace deblur_sr_mvs {
 
 void MultiFrameDataOptions::Check() const {
-  CheckAtLeast("multi_frame_data: relative_weight", relative_weight, 0.0);
+  CheckAtLeast("multi_frame_weight", relative_weight, 0.0);
   CheckInRange("multi_frame_data: radius", radius, 1, 10);
   CheckAbove("multi_frame_data: agreement_scale", agreement_scale, 0.0);
   CheckAtLeast("multi_frame_data: patch_px", patch_px, 1);
