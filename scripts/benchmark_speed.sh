@@ -4,7 +4,7 @@
 # current synthesize_sequence) 10-frame 320x240 -> 640x480 sequences and runs
 # the reference estimate_sequence, then the current one, on each, one right
 # after the other, with default parameters. Prints a Markdown table: wall
-# time and peak RSS of both, the ratio old/new, PSNR / depth rel. error / ATE
+# time, CPU seconds (user + sys; CPU / wall = cores busy) and peak RSS of both, the ratio old/new, PSNR / depth rel. error / ATE
 # of both (current evaluate_sequence: accuracy must not move) and the top
 # stages of report.json's stage_seconds.
 #
@@ -98,7 +98,7 @@ estimate() {
   rm -rf "$3"
   local profiler=()
   [ -n "$DSM_SPEED_PERF" ] && profiler=(perf record -F 99 -o "$3.perf.data" --)
-  /usr/bin/time -f "%e %M" -o "$3.time" "${profiler[@]}" "$work/bin/$1/estimate_sequence" --input "$2" \
+  /usr/bin/time -f "%e %U %S %M" -o "$3.time" "${profiler[@]}" "$work/bin/$1/estimate_sequence" --input "$2" \
     --output "$3" --quiet "${extra_args[@]}" >"$3.log" 2>&1 ||
     { echo "failed: $(tail -n 1 "$3.log")" >"$3.failed"; return 0; }
   "$work/bin/new/evaluate_sequence" --result "$3" --sequence "$2" --json "$3.eval.json" >/dev/null
@@ -117,11 +117,11 @@ def run(which):
     out = os.path.join(folder, which)
     if os.path.exists(out + ".failed"):
         return None
-    wall, rss_kib = open(out + ".time").read().split()[-2:]
+    wall, user, system, rss_kib = open(out + ".time").read().split()[-4:]
     mean = json.load(open(out + ".eval.json"))["mean"]
     stages = json.load(open(os.path.join(out, "report.json")))["stage_seconds"]
     top = sorted(stages.items(), key=lambda kv: -kv[1])[:4]
-    return dict(wall=float(wall), rss=int(rss_kib) / 2**20, mean=mean,
+    return dict(wall=float(wall), cpu=float(user) + float(system), rss=int(rss_kib) / 2**20, mean=mean,
                 stages=", ".join("%s %.1f" % (k, v) for k, v in top))
 def num(v, fmt):
     return "n/a" if v is None else fmt % v
@@ -134,8 +134,9 @@ if old is None or new is None:
     sys.exit(0)
 def pair(key, fmt):
     return "%s / %s" % (num(old["mean"].get(key), fmt), num(new["mean"].get(key), fmt))
-print("| %s | %.1f | %.1f | **%.2fx** | %.2f / %.2f | %s | %s | %s | %s | %s |" % (
-    label, old["wall"], new["wall"], old["wall"] / new["wall"], old["rss"], new["rss"],
+print("| %s | %.1f | %.1f | **%.2fx** | %.1f / %.1f | %.2f / %.2f | %.2f / %.2f | %s | %s | %s | %s | %s |" % (
+    label, old["wall"], new["wall"], old["wall"] / new["wall"], old["cpu"], new["cpu"],
+    old["cpu"] / old["wall"], new["cpu"] / new["wall"], old["rss"], new["rss"],
     pair("image_psnr_db", "%.2f"), pair("depth_relative_error", "%.4f"), pair("ate_rmse", "%.5f"),
     old["stages"], new["stages"]))
 PY
@@ -145,8 +146,8 @@ dsm_benchmark_header
 echo "Reference $reference_hash (reads sensor.yaml: $reference_reads_sensor) against $current_commit;" \
   "$frames frames, HR ${width}x${height} (LR = HR / 2), defaults${DSM_SPEED_ARGS:+ + $DSM_SPEED_ARGS}; work: $work"
 echo
-echo "| Sequence | Wall old (s) | Wall new (s) | Old / new | Peak RSS old / new (GiB) | PSNR old / new (dB) | Depth rel. old / new | ATE old / new | Top stages old (s) | Top stages new (s) |"
-echo "|---|---:|---:|---:|---:|---:|---:|---:|---|---|"
+echo "| Sequence | Wall old (s) | Wall new (s) | Old / new | CPU old / new (s) | Cores busy old / new | Peak RSS old / new (GiB) | PSNR old / new (dB) | Depth rel. old / new | ATE old / new | Top stages old (s) | Top stages new (s) |"
+echo "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---|"
 for name in $sequences; do
   dir="$work/$name"
   mkdir -p "$dir"
