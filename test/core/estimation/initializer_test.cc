@@ -595,6 +595,56 @@ TEST(InitializerTest, LateralPathKeepsThePriorTowardsNoRotation) {
   EXPECT_NE(result.summary.find("): no turn"), std::string::npos) << result.summary;
 }
 
+// InitializerOptions::dense_fixation_test: where it keeps no turn, the
+// output is the default's (the second depth stage only decides; the bundle
+// adjustment's threads reorder sums at the 1e-16 level, hence 1e-12).
+TEST(InitializerTest, DenseTurnTestKeepsTheLateralPathsStructure) {
+  const Sequence& sequence = DollsSequence();
+  InitializerOptions options;
+  options.dense_fixation_test = true;
+  const InitialStructure dense =
+      InitializeStructure(FloatImages(sequence), sequence.calibration.camera, sequence.frames, options);
+  const InitialStructure& plain = DollsResult();
+  std::printf("%s\n", dense.summary.c_str());
+  EXPECT_NE(dense.summary.find("dense turn test"), std::string::npos) << dense.summary;
+  EXPECT_NE(dense.summary.find("): no turn\ngauge"), std::string::npos) << dense.summary;
+  ASSERT_EQ(dense.T_world_cam.size(), plain.T_world_cam.size());
+  for (size_t t = 0; t < plain.T_world_cam.size(); ++t) {
+    EXPECT_LT((dense.T_world_cam[t].Matrix() - plain.T_world_cam[t].Matrix()).norm(), 1e-12) << t;
+    EXPECT_LT(cv::norm(dense.depth_lr[t], plain.depth_lr[t], cv::NORM_INF), 1e-5) << t;
+  }
+}
+
+// An arc around a scene of little depth range (Aloe, the fixation point
+// twice the median depth away, noise 1): the tracks leave the turn open,
+// the dense depths' data cost decides it.
+TEST(InitializerTest, DenseTurnTestFindsTheArcTurnThatTheTracksLeaveOpen) {
+  SynthesisOptions synthesis;
+  synthesis.path = CameraPathType::kArc;
+  synthesis.num_frames = 6;
+  synthesis.subframes = 60;
+  synthesis.noise_sigma = 1.0;
+  const StereoScene scene = LoadMiddleburyScene(std::string(DSM_SOURCE_DIR) + "/data/middlebury/Aloe");
+  const Sequence sequence = SynthesizeSequence(scene, synthesis).sequence;
+  const std::vector<cv::Mat> images = FloatImages(sequence);
+  const PinholeCamera& camera = sequence.calibration.camera;
+  const InitialStructure plain = InitializeStructure(images, camera, sequence.frames, InitializerOptions());
+  InitializerOptions options;
+  options.dense_fixation_test = true;
+  const InitialStructure dense = InitializeStructure(images, camera, sequence.frames, options);
+  const double plain_error = MeanRotationErrorDeg(sequence, plain);
+  const double dense_error = MeanRotationErrorDeg(sequence, dense);
+  const double plain_depth = MeanDepthError(plain.depth_lr, sequence);
+  const double dense_depth = MeanDepthError(dense.depth_lr, sequence);
+  std::printf("%s\nmean rotation error %.3f deg (tracks only: %.3f deg), depth rel. error %.4f (%.4f)\n",
+              dense.summary.c_str(), dense_error, plain_error, dense_depth, plain_depth);
+  EXPECT_NE(plain.summary.find("): no turn"), std::string::npos) << plain.summary;
+  EXPECT_NE(dense.summary.find("dense turn test"), std::string::npos) << dense.summary;
+  EXPECT_NE(dense.summary.find("): turn kept"), std::string::npos) << dense.summary;
+  EXPECT_LT(dense_error, 0.5 * plain_error);
+  EXPECT_LT(dense_depth, plain_depth);
+}
+
 TEST(InitializerTest, BadOptionsAndInputsGiveInputError) {
   auto expect_bad = [](const std::function<void(InitializerOptions*)>& change, const std::string& field) {
     InitializerOptions options;
@@ -624,6 +674,10 @@ TEST(InitializerTest, BadOptionsAndInputsGiveInputError) {
              "initializer: rotation_prior_px must be > 0, got 0");
   expect_bad([](InitializerOptions* o) { o->ba_loss_px = std::nan(""); },
              "initializer: ba_loss_px must be > 0, got nan");
+  expect_bad([](InitializerOptions* o) { o->dense_test_block_px = 0; },
+             "initializer: dense_test_block_px must be >= 1, got 0");
+  expect_bad([](InitializerOptions* o) { o->dense_test_z = 0.0; },
+             "initializer: dense_test_z must be > 0, got 0");
   expect_bad([](InitializerOptions* o) { o->pose_prior_position_sigma = -0.01; },
              "initializer: pose_prior_position_sigma must be >= 0, got -0.01");
   expect_bad([](InitializerOptions* o) { o->pose_prior_rotation_sigma_deg = std::nan(""); },
