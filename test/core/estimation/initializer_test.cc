@@ -480,19 +480,40 @@ double MeanRotationErrorDeg(const Sequence& sequence, const InitialStructure& re
   return sum / (result.T_world_cam.size() - 1);
 }
 
-TEST(InitializerTest, ArcPathTurnIsNotTakenForSidewaysMotion) {
-  const Sequence& sequence = ArcSequence();
+// The default initialisation of `sequence` and one with `change` applied to
+// its options, with their mean rotation errors (deg) and depth rel. errors.
+struct InitialisationPair {
+  InitialStructure plain, changed;
+  double plain_rotation = 0.0, changed_rotation = 0.0, plain_depth = 0.0, changed_depth = 0.0;
+};
+
+InitialisationPair InitialiseTwice(const Sequence& sequence,
+                                   const std::function<void(InitializerOptions*)>& change) {
   const std::vector<cv::Mat> images = FloatImages(sequence);
   const PinholeCamera& camera = sequence.calibration.camera;
-  const InitialStructure fixation =
-      InitializeStructure(images, camera, sequence.frames, InitializerOptions());
-  InitializerOptions towards_no_rotation;
-  towards_no_rotation.fixation_prior = false;
-  const InitialStructure still = InitializeStructure(images, camera, sequence.frames, towards_no_rotation);
-  const double error = MeanRotationErrorDeg(sequence, fixation);
-  const double still_error = MeanRotationErrorDeg(sequence, still);
-  const double depth_error = MeanDepthError(fixation.depth_lr, sequence);
-  const double still_depth_error = MeanDepthError(still.depth_lr, sequence);
+  InitialisationPair pair;
+  pair.plain = InitializeStructure(images, camera, sequence.frames, InitializerOptions());
+  InitializerOptions options;
+  change(&options);
+  pair.changed = InitializeStructure(images, camera, sequence.frames, options);
+  pair.plain_rotation = MeanRotationErrorDeg(sequence, pair.plain);
+  pair.changed_rotation = MeanRotationErrorDeg(sequence, pair.changed);
+  pair.plain_depth = MeanDepthError(pair.plain.depth_lr, sequence);
+  pair.changed_depth = MeanDepthError(pair.changed.depth_lr, sequence);
+  return pair;
+}
+
+TEST(InitializerTest, ArcPathTurnIsNotTakenForSidewaysMotion) {
+  const Sequence& sequence = ArcSequence();
+  const InitialisationPair pair =
+      InitialiseTwice(sequence, [](InitializerOptions* towards_no_rotation) {
+        towards_no_rotation->fixation_prior = false;
+      });
+  const InitialStructure& fixation = pair.plain;
+  const double error = pair.plain_rotation;
+  const double still_error = pair.changed_rotation;
+  const double depth_error = pair.plain_depth;
+  const double still_depth_error = pair.changed_depth;
   std::printf(
       "%s\nmean rotation error %.3f deg (prior towards no rotation: %.3f deg), depth rel. error "
       "%.4f (%.4f)\n",
@@ -626,21 +647,22 @@ TEST(InitializerTest, DenseTurnTestFindsTheArcTurnThatTheTracksLeaveOpen) {
   synthesis.noise_sigma = 1.0;
   const StereoScene scene = LoadMiddleburyScene(std::string(DSM_SOURCE_DIR) + "/data/middlebury/Aloe");
   const Sequence sequence = SynthesizeSequence(scene, synthesis).sequence;
-  const std::vector<cv::Mat> images = FloatImages(sequence);
-  const PinholeCamera& camera = sequence.calibration.camera;
-  const InitialStructure plain = InitializeStructure(images, camera, sequence.frames, InitializerOptions());
-  InitializerOptions options;
-  options.dense_fixation_test = true;
-  const InitialStructure dense = InitializeStructure(images, camera, sequence.frames, options);
-  const double plain_error = MeanRotationErrorDeg(sequence, plain);
-  const double dense_error = MeanRotationErrorDeg(sequence, dense);
-  const double plain_depth = MeanDepthError(plain.depth_lr, sequence);
-  const double dense_depth = MeanDepthError(dense.depth_lr, sequence);
+  const InitialisationPair pair =
+      InitialiseTwice(sequence, [](InitializerOptions* options) { options->dense_fixation_test = true; });
+  const InitialStructure& plain = pair.plain;
+  const InitialStructure& dense = pair.changed;
+  const double plain_error = pair.plain_rotation;
+  const double dense_error = pair.changed_rotation;
+  const double plain_depth = pair.plain_depth;
+  const double dense_depth = pair.changed_depth;
   std::printf("%s\nmean rotation error %.3f deg (tracks only: %.3f deg), depth rel. error %.4f (%.4f)\n",
               dense.summary.c_str(), dense_error, plain_error, dense_depth, plain_depth);
   EXPECT_NE(plain.summary.find("): no turn"), std::string::npos) << plain.summary;
   EXPECT_NE(dense.summary.find("dense turn test"), std::string::npos) << dense.summary;
   EXPECT_NE(dense.summary.find("): turn kept"), std::string::npos) << dense.summary;
+  // Measured: the tracks' gain 11.7 sigma^2 (bound 46.9), the dense test's
+  // 3.44 standard errors (bound 3.09; data cost -1.65 %): mean rotation error
+  // 0.581 deg (tracks only 2.350), depth rel. error 0.0297 (0.0656).
   EXPECT_LT(dense_error, 0.5 * plain_error);
   EXPECT_LT(dense_depth, plain_depth);
 }
