@@ -2317,7 +2317,9 @@ void DepthPass(const DepthLevel& level, int pass, double span,
               options.theta_start * span * span, options.theta_end * span * span,
               pass == 0 ? nullptr : &(*u)[t], &ws);
     const double tv_end = NowMs();
-    if (solution_cost != nullptr) SolutionDataCost(planes, level.width, level.height, ws, &(*solution_cost)[t]);
+    if (solution_cost != nullptr) {
+      SolutionDataCost(planes, level.width, level.height, ws, &(*solution_cost)[t]);
+    }
 #pragma omp critical(initializer_timers)
     {
       timings->cost_thread_ms += tv_start - sweep_start;
@@ -2613,7 +2615,8 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
   AdjustToPosePrior(camera_lr, options, threads, frames, T_prior_cam, tracking.tracks, &structure, &summary);
   std::vector<cv::Mat> data_cost;
   InitialStructure result = DenseStructure(images, camera_lr, frames, tracking.tracks, options, threads,
-                                           readout_time, &structure, &summary, &data_cost);
+                                           readout_time, &structure, &summary,
+                                           rejected_turn ? &data_cost : nullptr);
   if (rejected_turn) {
     std::ostringstream turn_summary;
     std::vector<cv::Mat> turn_cost;
