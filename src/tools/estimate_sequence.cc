@@ -93,6 +93,17 @@ void AddPosePriorOptions(dsm::ToolCommandLine* command_line, Flags* flags, dsm::
                  "with --pose-prior: standard deviation of its orientations (degrees) in the bundle "
                  "adjustment; 0: its orientations only align the output (default 0.1)")
       ->check(dsm::FlagNumber(0.0));
+  cli.add_option("--fixation-test-z", options->initializer.fixation_test_z,
+                 "initialisation: one-sided normal quantile of the test that keeps a turning camera's "
+                 "rotation prior (a turn towards a fixation point) against the prior of no turn (default 6)")
+      ->check(dsm::FlagNumber(1e-12));
+  cli.add_flag("--dense-fixation-test,!--no-dense-fixation-test", options->initializer.dense_fixation_test,
+               "initialisation: where the tracks reject a turning camera, decide the turn again by the "
+               "dense depths' data cost of both solutions (a second depth stage; default off)");
+  cli.add_option("--dense-fixation-test-z", options->initializer.dense_test_z,
+                 "with --dense-fixation-test: standard errors by which the turn must lower the dense data "
+                 "cost (default 3.09, the 0.1 % level)")
+      ->check(dsm::FlagNumber(1e-12));
   cli.add_flag("--pose-prior-iterations,!--no-pose-prior-iterations", options->pose_prior_in_iterations,
                "with --pose-prior: the joint iterations' pose steps keep its centres and orientations as "
                "terms with the same sigmas (default on)");

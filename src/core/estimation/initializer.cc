@@ -44,6 +44,7 @@
 #include <memory>
 #include <optional>
 #include <sstream>
+#include <utility>
 
 #include <ceres/ceres.h>
 #include <ceres/rotation.h>
@@ -1202,7 +1203,8 @@ double MedianPointDepth(const SparseStructure& structure) {
 // error of the solution kept.
 double SelectFixationTurn(const PinholeCamera& camera, const InitializerOptions& options, int threads,
                           const std::vector<Track>& tracks, double rms, SparseStructure* structure,
-                          int* num_observations, std::ostringstream* summary) {
+                          int* num_observations, std::ostringstream* summary,
+                          std::optional<SparseStructure>* rejected_turn) {
   if (!options.fixation_prior || structure->T_cam_world.size() < 3) return rms;
   SparseStructure turning = *structure;
   turning.fit_turn_rate = true;
@@ -1230,7 +1232,10 @@ double SelectFixationTurn(const PinholeCamera& camera, const InitializerOptions&
                   "by %.1f sigma^2 (sigma %.3f px; chi-square(1) bound %.1f): ",
                   1.0 / (turning.turn_rate * median_depth), gain, std::sqrt(sigma2), bound)
            << (turns ? "kept\n" : "no turn\n");
-  if (!turns) return rms;
+  if (!turns) {
+    if (turning.turn_rate != 0.0) *rejected_turn = std::move(turning);
+    return rms;
+  }
   *structure = turning;
   *num_observations = turning_observations;
   return turning_rms;
@@ -1747,6 +1752,8 @@ void InitializerOptions::Check() const {
   CheckAbove(prefix + "ba_loss_px", ba_loss_px, 0.0);
   CheckAbove(prefix + "rotation_prior_px", rotation_prior_px, 0.0);
   CheckAbove(prefix + "fixation_test_z", fixation_test_z, 0.0);
+  CheckAtLeast(prefix + "dense_test_block_px", dense_test_block_px, 1);
+  CheckAbove(prefix + "dense_test_z", dense_test_z, 0.0);
   CheckAtLeast(prefix + "ba_max_iterations", ba_max_iterations, 0);
   CheckAtLeast(prefix + "pose_prior_position_sigma", pose_prior_position_sigma, 0.0);
   CheckAtLeast(prefix + "pose_prior_rotation_sigma_deg", pose_prior_rotation_sigma_deg, 0.0);
@@ -1937,7 +1944,8 @@ SE3 PredictPose(const SparseStructure& structure, const std::vector<char>& has_p
 // as frames are added, then all together. The poses are those of
 // mid-exposure (T_cam_world) in the pair's gauge.
 SparseStructure SparseStage(const PinholeCamera& camera_lr, const InitializerOptions& options, int threads,
-                            int num_frames, std::vector<Track>* tracks, std::ostringstream* summary) {
+                            int num_frames, std::vector<Track>* tracks, std::ostringstream* summary,
+                            std::optional<SparseStructure>* rejected_turn) {
   double stage_ms = NowMs();
   SparseStructure structure;
   structure.T_cam_world.assign(num_frames, SE3());
@@ -1961,7 +1969,8 @@ SparseStructure SparseStage(const PinholeCamera& camera_lr, const InitializerOpt
   stage_ms = NowMs();
   int observations = 0;
   double rms = BundleAdjust(camera_lr, options, threads, *tracks, &structure, &observations);
-  rms = SelectFixationTurn(camera_lr, options, threads, *tracks, rms, &structure, &observations, summary);
+  rms = SelectFixationTurn(camera_lr, options, threads, *tracks, rms, &structure, &observations, summary,
+                           rejected_turn);
   *summary << Format("bundle adjustment: %.0f points, %.0f observations, rms %.3f px; %.1f ms\n",
                      structure.points_world.size(), observations, rms, NowMs() - stage_ms);
   return structure;
@@ -2259,6 +2268,20 @@ struct DepthTimings {
   double blur_ms = 0.0, sweep_ms = 0.0, cost_thread_ms = 0.0, tv_thread_ms = 0.0;
 };
 
+// Data term of eq:initializationScene at the TV-L1 solution ws.u (the
+// sampled hypothesis nearest to it), per pixel of one frame.
+void SolutionDataCost(const PlaneSet& planes, int width, int height, const DepthWorkspace& ws,
+                      cv::Mat* cost_map) {
+  const int L = planes.planes;
+  cost_map->create(height, width, CV_32FC1);
+  float* out = cost_map->ptr<float>();
+  for (int pixel = 0; pixel < width * height; ++pixel) {
+    const float plane = (ws.u[pixel] - (*planes.base)[pixel]) / planes.step + planes.centre;
+    const int nearest = std::min(std::max(static_cast<int>(std::lround(plane)), 0), L - 1);
+    out[pixel] = ws.cost[static_cast<size_t>(pixel) * L + nearest];
+  }
+}
+
 // One pass over every frame (in parallel): the cost volume of the pass's
 // hypotheses (the whole range at pass 0, else a band of `span` around the
 // up-sampled estimate), TV-L1, and the depth that follows. u[t] and depth[t]
@@ -2266,7 +2289,8 @@ struct DepthTimings {
 void DepthPass(const DepthLevel& level, int pass, double span,
                const std::vector<std::vector<NeighbourImages>>& pairs, const DepthRanges& ranges,
                const InitializerOptions& options, int threads, std::vector<DepthWorkspace>* workspaces,
-               std::vector<std::vector<float>>* u, std::vector<cv::Mat>* depth, DepthTimings* timings) {
+               std::vector<std::vector<float>>* u, std::vector<cv::Mat>* depth, DepthTimings* timings,
+               std::vector<cv::Mat>* solution_cost) {
   const int num_frames = static_cast<int>(depth->size());
   const std::vector<float> zero_base(static_cast<size_t>(level.width) * level.height, 0.0f);
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
@@ -2293,6 +2317,9 @@ void DepthPass(const DepthLevel& level, int pass, double span,
               options.theta_start * span * span, options.theta_end * span * span,
               pass == 0 ? nullptr : &(*u)[t], &ws);
     const double tv_end = NowMs();
+    if (solution_cost != nullptr) {
+      SolutionDataCost(planes, level.width, level.height, ws, &(*solution_cost)[t]);
+    }
 #pragma omp critical(initializer_timers)
     {
       timings->cost_thread_ms += tv_start - sweep_start;
@@ -2313,7 +2340,7 @@ std::vector<cv::Mat> DepthStage(const std::vector<cv::Mat>& images, const Pinhol
                                 const std::vector<FrameRecord>& frames, const std::vector<SE3>& T_world_cam,
                                 const std::vector<SE3>& T_world_mid, const DepthRanges& ranges,
                                 const InitializerOptions& options, int threads, double readout_time,
-                                std::ostringstream* summary) {
+                                std::ostringstream* summary, std::vector<cv::Mat>* solution_cost = nullptr) {
   const int num_frames = static_cast<int>(images.size());
   const int width = camera_lr.width;
   const int height = camera_lr.height;
@@ -2345,7 +2372,9 @@ std::vector<cv::Mat> DepthStage(const std::vector<cv::Mat>& images, const Pinhol
       span =
           2.0 * options.refine_band * span / ((pass == 1 ? options.num_planes : options.refine_planes) - 1);
     }
-    DepthPass(level, pass, span, pairs, ranges, options, threads, &workspaces, &u, &depth, &timings);
+    if (solution_cost != nullptr) solution_cost->resize(num_frames);
+    DepthPass(level, pass, span, pairs, ranges, options, threads, &workspaces, &u, &depth, &timings,
+              solution_cost);
     timings.sweep_ms += NowMs() - stage_ms;
     *summary << Format(
         "depth pass %.0f: %.0fx%.0f px, %.0f hypotheses over %.4f of the "
@@ -2497,6 +2526,70 @@ RotationOnlyMotion EstimateRotationOnlyMotionUnguarded(const std::vector<cv::Mat
   return result;
 }
 
+// Paired comparison of two solutions' data costs on the same frames' grids
+// (before minus after): the per-pixel differences are averaged over blocks
+// of block x block px and over the frames (a block location is one sample:
+// neighbouring pixels share patches and blur, and the frames see the same
+// scene), and the mean of the samples is compared with its standard error.
+struct DataCostComparison {
+  double mean = 0.0;      // mean difference per pixel
+  double relative = 0.0;  // mean / mean cost before
+  double z = 0.0;         // mean / its standard error
+  int blocks = 0;
+};
+
+DataCostComparison CompareDataCosts(const std::vector<cv::Mat>& before, const std::vector<cv::Mat>& after,
+                                    int block) {
+  DataCostComparison result;
+  if (before.empty() || before.size() != after.size()) return result;
+  const int width = before[0].cols, height = before[0].rows;
+  const int bx = std::max(1, width / block), by = std::max(1, height / block);
+  std::vector<double> sums(static_cast<size_t>(bx) * by, 0.0);
+  double total_before = 0.0, count = 0.0;
+  for (size_t t = 0; t < before.size(); ++t) {
+    for (int y = 0; y < by * block && y < height; ++y) {
+      const float* b = before[t].ptr<float>(y);
+      const float* a = after[t].ptr<float>(y);
+      for (int x = 0; x < bx * block && x < width; ++x) {
+        sums[static_cast<size_t>(y / block) * bx + x / block] += b[x] - a[x];
+        total_before += b[x];
+        count += 1.0;
+      }
+    }
+  }
+  const double per_sample = count / sums.size();
+  double mean = 0.0, squares = 0.0;
+  for (double& sum : sums) {
+    sum /= per_sample;
+    mean += sum;
+  }
+  mean /= sums.size();
+  for (double sum : sums) squares += (sum - mean) * (sum - mean);
+  const double n = static_cast<double>(sums.size());
+  const double standard_error = std::sqrt(squares / std::max(1.0, n - 1.0) / n);
+  result.mean = mean;
+  result.relative = total_before > 0.0 ? mean * count / total_before : 0.0;
+  result.z = standard_error > 0.0 ? mean / standard_error : 0.0;
+  result.blocks = static_cast<int>(n);
+  return result;
+}
+
+// Poses at shutter close and dense depths (stage 4) of a bundle-adjusted
+// structure; the data cost of the depths' solution per pixel in `data_cost`.
+InitialStructure DenseStructure(const std::vector<cv::Mat>& images, const PinholeCamera& camera_lr,
+                                const std::vector<FrameRecord>& frames, const std::vector<Track>& tracks,
+                                const InitializerOptions& options, int threads, double readout_time,
+                                SparseStructure* structure, std::ostringstream* summary,
+                                std::vector<cv::Mat>* data_cost) {
+  InitialStructure result;
+  std::vector<SE3> T_world_mid;
+  MoveToShutterClose(frames, structure, &result.T_world_cam, &T_world_mid, summary);
+  const DepthRanges ranges = ComputeDepthRanges(tracks, *structure, result.T_world_cam, options);
+  result.depth_lr = DepthStage(images, camera_lr, frames, result.T_world_cam, T_world_mid, ranges, options,
+                               threads, readout_time, summary, data_cost);
+  return result;
+}
+
 InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images_lr,
                                               const PinholeCamera& camera_lr,
                                               const std::vector<FrameRecord>& frames,
@@ -2509,19 +2602,37 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
   const std::vector<cv::Mat>& images = window.images;
   const int num_frames = static_cast<int>(images_lr.size());
   const int threads = window.threads;
-  InitialStructure result;
+  std::optional<SparseStructure> rejected_turn;
   SparseStructure structure =
-      SparseStage(camera_lr, options, threads, num_frames, &tracking.tracks, &summary);
+      SparseStage(camera_lr, options, threads, num_frames, &tracking.tracks, &summary, &rejected_turn);
+  const bool has_prior =
+      std::any_of(T_prior_cam.begin(), T_prior_cam.end(), [](const auto& T) { return T.has_value(); });
+  if (!options.dense_fixation_test || readout_time > 0.0 || has_prior) rejected_turn.reset();
   if (readout_time > 0.0) {
     CorrectRollingShutter(camera_lr, options, threads, frames, readout_time, &tracking.tracks, &structure,
                           &summary);
   }
   AdjustToPosePrior(camera_lr, options, threads, frames, T_prior_cam, tracking.tracks, &structure, &summary);
-  std::vector<SE3> T_world_mid;
-  MoveToShutterClose(frames, &structure, &result.T_world_cam, &T_world_mid, &summary);
-  const DepthRanges ranges = ComputeDepthRanges(tracking.tracks, structure, result.T_world_cam, options);
-  result.depth_lr = DepthStage(images, camera_lr, frames, result.T_world_cam, T_world_mid, ranges, options,
-                               threads, readout_time, &summary);
+  std::vector<cv::Mat> data_cost;
+  InitialStructure result = DenseStructure(images, camera_lr, frames, tracking.tracks, options, threads,
+                                           readout_time, &structure, &summary,
+                                           rejected_turn ? &data_cost : nullptr);
+  if (rejected_turn) {
+    std::ostringstream turn_summary;
+    std::vector<cv::Mat> turn_cost;
+    InitialStructure turned = DenseStructure(images, camera_lr, frames, tracking.tracks, options, threads,
+                                             readout_time, &*rejected_turn, &turn_summary, &turn_cost);
+    const DataCostComparison gain = CompareDataCosts(data_cost, turn_cost, options.dense_test_block_px);
+    const bool keep_turn = gain.z > options.dense_test_z;
+    summary << Format("dense turn test: the turn lowers the depths' data cost by %.3g %% (%.4g per pixel; "
+                      "%.2f standard errors over %.0f blocks, bound %.2f): ",
+                      100.0 * gain.relative, gain.mean, gain.z, gain.blocks, options.dense_test_z)
+            << (keep_turn ? "turn kept\n" : "no turn\n");
+    if (keep_turn) {
+      summary << turn_summary.str();
+      result = std::move(turned);
+    }
+  }
   NormaliseGauge(&result, &summary);
   summary << Format("total: %.1f ms", NowMs() - start_ms);
   result.summary = summary.str();

@@ -65,6 +65,24 @@ struct InitializerOptions {
   // of z = 6 is 47. false: the prior is always towards no rotation.
   bool fixation_prior = true;
   double fixation_test_z = 6.0;
+  // Where the tracks reject the turn (the test above), decide it again by
+  // the dense images: the depths of stage 4 are computed for both solutions
+  // (no turn, and the turn the free kappa fitted), and the turn is kept when
+  // it lowers the data cost of eq:initializationScene at the depths'
+  // solution by more than dense_test_z standard errors: a paired test of
+  // the per-pixel costs, averaged over blocks of dense_test_block_px and
+  // over the frames (one sample per block location). A turn traded for a
+  // bend of the inverse depths leaves a vertical image displacement of order
+  // angle * x * y / f that no depth explains; the tracks' correlated errors
+  // hide it, the dense matching sees it at every pixel. Costs a second depth
+  // stage where it runs. Not with a rolling shutter or a pose prior (their
+  // adjustments decide the turn).
+  bool dense_fixation_test = false;
+  int dense_test_block_px = 16;  // LR px; > the matching patch and the blur
+  // One-sided normal quantile of that test: 3.09 is the 0.1 % level. The
+  // blocks make the samples nearly independent, so it is the usual level
+  // (the track test's 6 allows for errors that persist along a track).
+  double dense_test_z = 3.09;
 
   // --- Pose prior (InitializeStructure's T_prior_cam: wheel odometry, VIO,
   // motion capture; docs/file_formats.md#monocular-scale). The bundle-
