@@ -3,6 +3,8 @@
 
 #include <omp.h>
 
+#include <cstdlib>  // defines __GLIBC__ on glibc
+
 #if defined(__GLIBC__)
 #include <malloc.h>
 #endif
