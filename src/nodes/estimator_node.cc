@@ -3,7 +3,10 @@
 #include <nodelet/loader.h>
 #include <ros/ros.h>
 
+#include "deblur_sr_mvs/core/common/runtime.h"
+
 int main(int argc, char** argv) {
+  deblur_sr_mvs::KeepFreedMemoryForReuse();  // the estimator's buffers stay in the heap
   ros::init(argc, argv, "deblur_sr_mvs");
   nodelet::Loader loader(false);  // no nodelet-manager services
   const nodelet::M_string remappings(ros::names::getRemappings());

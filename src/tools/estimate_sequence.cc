@@ -23,6 +23,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/common/runtime.h"
 #include "deblur_sr_mvs/core/estimation/depth_confidence.h"
 #include "deblur_sr_mvs/core/estimation/estimator.h"
 #include "deblur_sr_mvs/core/estimation/exposure_estimation.h"
@@ -588,5 +589,6 @@ int Run(int argc, char** argv) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  deblur_sr_mvs::KeepFreedMemoryForReuse();
   return deblur_sr_mvs::ToolMain("estimate_sequence", Run, argc, argv);
 }
