@@ -593,9 +593,11 @@ class WindowSolver {
   std::shared_ptr<const OperatorCache::Entry> Operator(int t, int source);
   template <typename Body>
   void ForEachFrame(const Body& body);
+  template <typename Body>
+  void ForEachTask(int count, const Body& body);
   EstimatorResult GaugedResult();
+  void RefineOutputDepthsDuringFramePass(std::vector<cv::Mat>* depths);
   std::vector<cv::Mat> OutputLatents(const std::vector<cv::Mat>& depths);
-  void MultiFrameDataPass();
   void UpdateLatentFromFrames(int t);
   void FuseBetweenUpdates();
 
@@ -650,14 +652,21 @@ class WindowSolver {
 // OpenMP region).
 template <typename Body>
 void WindowSolver::ForEachFrame(const Body& body) {
-  const int num_frames = num_frames_, threads = threads_;
+  ForEachTask(num_frames_, body);
+}
+
+// Runs body(task) for task = 0 .. count - 1 on `threads_` threads, in that
+// order of start (dynamic schedule); exceptions as ForEachFrame.
+template <typename Body>
+void WindowSolver::ForEachTask(int count, const Body& body) {
+  const int threads = threads_;
   std::exception_ptr error;
   std::mutex error_mutex;
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
-  for (int t = 0; t < num_frames; ++t) {
+  for (int task = 0; task < count; ++task) {
     try {
       ThrowIfCancelled();
-      body(t);
+      body(task);
     } catch (...) {
       std::lock_guard<std::mutex> lock(error_mutex);
       if (!error) error = std::current_exception();
@@ -1006,14 +1015,15 @@ void WindowSolver::UpdateDepthsAndPosesJointly(int iteration, bool isolated,
   const double before = isolated ? TotalEnergy(iteration, "structure").total : 0.0;
   std::vector<FrameDepthTerms> terms(num_frames_);
   std::vector<SelfConsistencyLinearization> selves(num_frames_);
-  HeldOperators held;
+  std::vector<HeldOperators> held(num_frames_);
   std::vector<SE3> poses(num_frames_);
   std::vector<cv::Mat> inverse_depths(num_frames_), saved_depths = inverse_depth_;
-  for (int t = 0; t < num_frames_; ++t) {
+  // Frame by frame in parallel (the pairs' masks are a visibility test each).
+  ForEachFrame([&](int t) {
     const std::vector<int> sources = structure_options.joint_step_pose_pairs
                                          ? Neighbours(t, num_frames_, PoseRadius())
                                          : neighbours_[t];
-    AppendPairs(t, sources, options_.depth_input_pairs, &terms[t].pairs, &held);
+    AppendPairs(t, sources, options_.depth_input_pairs, &terms[t].pairs, &held[t]);
     if (blurred_matching()) {
       selves[t] = SelfConsistencyOf(t);
       terms[t].self = &selves[t];
@@ -1021,7 +1031,7 @@ void WindowSolver::UpdateDepthsAndPosesJointly(int iteration, bool isolated,
     terms[t].edge_weight = edge_weight_[t];
     poses[t] = frames_[t].T_world_cam;
     inverse_depths[t] = inverse_depth_[t].clone();
-  }
+  });
   const std::vector<SE3> saved_poses = poses;
   const double begin = NowMs();
   UpdateDepthAndPoses(camera_hr_, latents_, terms, ParallaxScale(), structure_options,
@@ -1043,18 +1053,24 @@ void WindowSolver::UpdateAllPoses(int iteration, bool isolated, const std::vecto
   const int pose_radius = PoseRadius();
   Report(double(num_frames_) / (num_frames_ + 1), "iteration " + std::to_string(iteration) + ": poses");
   const double before = isolated ? TotalEnergy(iteration, "structure").total : 0.0;
-  std::vector<PairMatching> pairs;
-  HeldOperators held;
+  std::vector<std::vector<PairMatching>> frame_pairs(num_frames_);
+  std::vector<HeldOperators> held(num_frames_);
   // Pairs between two held poses would enter only held rows (their masks
   // and terms are not formed: StructureUpdateOptions::skip_held_pose_work).
   const int held_poses =
       structure_options.skip_held_pose_work && !pose_prior_.any() ? options_.fixed_leading_poses : 0;
-  for (int t = 0; t < num_frames_; ++t) {
+  // Frame by frame in parallel (the pairs' masks are a visibility test
+  // each), then in frame order.
+  ForEachFrame([&](int t) {
     std::vector<int> sources = Neighbours(t, num_frames_, pose_radius);
     if (t < held_poses) {
       sources.erase(sources.begin(), std::lower_bound(sources.begin(), sources.end(), held_poses));
     }
-    AppendPairs(t, sources, /*with_inputs=*/true, &pairs, &held);
+    AppendPairs(t, sources, /*with_inputs=*/true, &frame_pairs[t], &held[t]);
+  });
+  std::vector<PairMatching> pairs;
+  for (std::vector<PairMatching>& frame : frame_pairs) {
+    for (PairMatching& pair : frame) pairs.push_back(std::move(pair));
   }
   std::vector<SE3> updated = poses;
   const bool blur_evidence = joint_ && options_.blur_pose_evidence;
@@ -1333,11 +1349,7 @@ EstimatorResult WindowSolver::GaugedResult() {
   // 1 unit (docs/file_formats.md#monocular-scale), unless the input's gauge is kept.
   // The output depth maps, refined at their edges where asked, before the gauge's scale.
   std::vector<cv::Mat> depths = OutputDepths();
-  for (int t = 0; t < num_frames_; ++t) {
-    if (!RefineOutputDepthEdges()) continue;
-    depths[t] = depths[t].clone();
-    RefineDepthEdges(latents_[t], options_.depth_edges, &depths[t]);
-  }
+  RefineOutputDepthsDuringFramePass(&depths);
   SE3 T_first_world;
   double rescale = 1.0;
   if (!options_.keep_input_gauge) {
@@ -1374,7 +1386,6 @@ EstimatorResult WindowSolver::GaugedResult() {
 // (EstimatorOptions::fusion), with the output depth maps `depths` and the
 // solver's poses (one gauge for both).
 std::vector<cv::Mat> WindowSolver::OutputLatents(const std::vector<cv::Mat>& depths) {
-  if (joint_) MultiFrameDataPass();
   if (!joint_ || options_.fusion.radius <= 0) return latents_;
   const double begin = NowMs();
   std::vector<SE3> T_world_cam;
@@ -1385,18 +1396,38 @@ std::vector<cv::Mat> WindowSolver::OutputLatents(const std::vector<cv::Mat>& dep
   return fused;
 }
 
-// EstimatorOptions::multi_frame_data: each I_t (not the held leading ones)
+// The output depths through the edge-aware weighted median where that is
+// on (RefineOutputDepthEdges), guided by the latent images before the
+// multi-frame data pass, and in joint mode that pass
+// (EstimatorOptions::multi_frame_data: each I_t, not the held leading ones,
 // re-solved from its current value with its agreeing neighbours' matching
-// terms raised towards lambda_s (MultiFrameDataOptions), with the solver's
-// final depth and poses; after the output depth, which it does not change.
-void WindowSolver::MultiFrameDataPass() {
-  if (options_.multi_frame_data.relative_weight <= 0.0) return;
+// terms raised towards lambda_s, MultiFrameDataOptions, with the solver's
+// final depth and poses, which it does not change). The two do not read
+// each other's results, so they run side by side: the weighted median runs
+// one call at a time process-wide (RefineDepthEdges), so it is task 0, one
+// thread's, frame after frame, while the other threads start the pass
+// (task 1 + t: frame t); the median's guides are copies of the latents
+// taken before the pass. Each result is the one of the two in sequence
+// (the timer's "multi-frame data pass" now covers both).
+void WindowSolver::RefineOutputDepthsDuringFramePass(std::vector<cv::Mat>* depths) {
+  const bool refine = RefineOutputDepthEdges();
+  const bool pass = joint_ && options_.multi_frame_data.relative_weight > 0.0;
+  if (!refine && !pass) return;
   const double begin = NowMs();
-  ForEachFrame([this](int t) {
+  const std::vector<cv::Mat> guides = refine && pass ? CloneAll(latents_) : latents_;
+  ForEachTask(1 + num_frames_, [this, refine, pass, depths, &guides](int task) {
+    if (task == 0) {
+      for (int t = 0; refine && t < num_frames_; ++t) {
+        (*depths)[t] = (*depths)[t].clone();
+        RefineDepthEdges(guides[t], options_.depth_edges, &(*depths)[t]);
+      }
+      return;
+    }
+    const int t = task - 1;
     const bool skipped = options_.multi_frame_data.skip_first_frame && t == 0;
-    if (t >= options_.held_leading_latents && !skipped) UpdateLatentFromFrames(t);
+    if (pass && t >= options_.held_leading_latents && !skipped) UpdateLatentFromFrames(t);
   });
-  timer_.AddSince("multi-frame data pass", begin);
+  if (pass) timer_.AddSince("multi-frame data pass", begin);
 }
 
 // One I_t of the pass: the self term lambda_s of eq:imgUpdate and, for each

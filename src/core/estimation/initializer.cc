@@ -1625,6 +1625,7 @@ void BuildBlurredPairs(const std::vector<cv::Mat>& images, const PinholeCamera& 
   capture_options.samples = options.capture_samples;
   capture_options.reproject_depth = options.capture_reproject_depth;
   capture_options.num_threads = threads;
+  capture_options.transposed_copy = false;  // only Psi is applied (no adjoint): the copy was unused
   CaptureOperatorBuilder builder(capture_options);
   CaptureOperator op;
   const std::vector<double> stamps = FrameStamps(frames);

@@ -136,9 +136,11 @@ RowRunMatrix RowRunMatrix::FromBlocks(int cols, const std::vector<const RowBlock
   m.cols_ = cols;
   m.row_first_value_.resize(rows + 1);
   m.row_first_run_.resize(rows + 1);
-  m.run_first_column_.resize(runs);
-  m.run_length_.resize(runs);
-  m.values_.resize(taps);
+  // Reserved and appended block by block: not zero-filled first (these are
+  // operator-sized, and a fresh block of memory would be touched twice).
+  m.run_first_column_.reserve(runs);
+  m.run_length_.reserve(runs);
+  m.values_.reserve(taps);
   int row = 0, run = 0, value = 0;
   for (const RowBlock* block : blocks) {
     const int block_runs = static_cast<int>(block->run_first_column_.size());
@@ -148,10 +150,10 @@ RowRunMatrix RowRunMatrix::FromBlocks(int cols, const std::vector<const RowBlock
         throw InputError("row-run matrix: a column index is outside the matrix");
       }
     }
-    std::copy(block->run_first_column_.begin(), block->run_first_column_.end(),
-              m.run_first_column_.begin() + run);
-    std::copy(block->run_length_.begin(), block->run_length_.end(), m.run_length_.begin() + run);
-    std::copy(block->values_.begin(), block->values_.end(), m.values_.begin() + value);
+    m.run_first_column_.insert(m.run_first_column_.end(), block->run_first_column_.begin(),
+                               block->run_first_column_.end());
+    m.run_length_.insert(m.run_length_.end(), block->run_length_.begin(), block->run_length_.end());
+    m.values_.insert(m.values_.end(), block->values_.begin(), block->values_.end());
     int block_run = 0;
     for (int row_runs : block->row_runs_) {
       m.row_first_value_[row] = value;
