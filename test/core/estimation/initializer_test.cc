@@ -667,6 +667,47 @@ TEST(InitializerTest, DenseTurnTestFindsTheArcTurnThatTheTracksLeaveOpen) {
   EXPECT_LT(dense_depth, plain_depth);
 }
 
+// InitializerOptions::flow_fixation_test: where it keeps no turn, the
+// output is the default's (the flow only decides).
+TEST(InitializerTest, FlowTurnTestKeepsTheLateralPathsStructure) {
+  const Sequence& sequence = DollsSequence();
+  InitializerOptions options;
+  options.flow_fixation_test = true;
+  const InitialStructure flow =
+      InitializeStructure(FloatImages(sequence), sequence.calibration.camera, sequence.frames, options);
+  const InitialStructure& plain = DollsResult();
+  std::printf("%s\n", flow.summary.c_str());
+  EXPECT_NE(flow.summary.find("flow turn test"), std::string::npos) << flow.summary;
+  EXPECT_NE(flow.summary.find("): no turn\nposes moved"), std::string::npos) << flow.summary;
+  ASSERT_EQ(flow.T_world_cam.size(), plain.T_world_cam.size());
+  for (size_t t = 0; t < plain.T_world_cam.size(); ++t) {
+    EXPECT_LT((flow.T_world_cam[t].Matrix() - plain.T_world_cam[t].Matrix()).norm(), 1e-12) << t;
+    EXPECT_LT(cv::norm(flow.depth_lr[t], plain.depth_lr[t], cv::NORM_INF), 1e-5) << t;
+  }
+}
+
+// The arc of DenseTurnTestFindsTheArcTurnThatTheTracksLeaveOpen, decided by
+// the dense flow's epipolar distances.
+TEST(InitializerTest, FlowTurnTestFindsTheArcTurnThatTheTracksLeaveOpen) {
+  SynthesisOptions synthesis;
+  synthesis.path = CameraPathType::kArc;
+  synthesis.num_frames = 6;
+  synthesis.subframes = 60;
+  synthesis.noise_sigma = 1.0;
+  const StereoScene scene = LoadMiddleburyScene(std::string(DSM_SOURCE_DIR) + "/data/middlebury/Aloe");
+  const Sequence sequence = SynthesizeSequence(scene, synthesis).sequence;
+  const InitialisationPair pair =
+      InitialiseTwice(sequence, [](InitializerOptions* options) { options->flow_fixation_test = true; });
+  std::printf("%s\nmean rotation error %.3f deg (tracks only: %.3f deg), depth rel. error %.4f (%.4f)\n",
+              pair.changed.summary.c_str(), pair.changed_rotation, pair.plain_rotation, pair.changed_depth,
+              pair.plain_depth);
+  EXPECT_NE(pair.plain.summary.find("): no turn"), std::string::npos) << pair.plain.summary;
+  EXPECT_NE(pair.changed.summary.find("flow turn test"), std::string::npos) << pair.changed.summary;
+  EXPECT_NE(pair.changed.summary.find("): turn kept"), std::string::npos) << pair.changed.summary;
+  EXPECT_LT(pair.changed_rotation, 0.5 * pair.plain_rotation);
+  EXPECT_LT(pair.changed_depth, pair.plain_depth);
+}
+
 TEST(InitializerTest, BadOptionsAndInputsGiveInputError) {
   auto expect_bad = [](const std::function<void(InitializerOptions*)>& change, const std::string& field) {
     InitializerOptions options;
