@@ -2661,12 +2661,14 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
     rejected_turn.reset();
   }
   if (rejected_turn && options.flow_fixation_test) {
+    const double test_ms = NowMs();
     const DataCostComparison gain =
         CompareFlowEpipolarDistances(window.gray, camera_lr, options, structure, *rejected_turn);
     const bool keep_turn = gain.z > options.dense_test_z;
     summary << Format("flow turn test: the turn lowers the flow's epipolar distances by %.3g %% (%.4g px; "
-                      "%.2f standard errors over %.0f blocks, bound %.2f): ",
-                      100.0 * gain.relative, gain.mean, gain.z, gain.blocks, options.dense_test_z)
+                      "%.2f standard errors over %.0f blocks, bound %.2f; %.1f ms): ",
+                      100.0 * gain.relative, gain.mean, gain.z, gain.blocks, options.dense_test_z,
+                      NowMs() - test_ms)
             << (keep_turn ? "turn kept\n" : "no turn\n");
     if (keep_turn) structure = std::move(*rejected_turn);
     rejected_turn.reset();
