@@ -101,9 +101,13 @@ void AddPosePriorOptions(dsm::ToolCommandLine* command_line, Flags* flags, dsm::
   cli.add_flag("--dense-fixation-test,!--no-dense-fixation-test", options->initializer.dense_fixation_test,
                "initialisation: where the tracks reject a turning camera, decide the turn again by the "
                "dense depths' data cost of both solutions (a second depth stage; default off)");
+  cli.add_flag("--flow-fixation-test,!--no-flow-fixation-test", options->initializer.flow_fixation_test,
+               "initialisation: where the tracks reject a turning camera, decide the turn again by the "
+               "epipolar distances of a dense optical flow under both solutions (replaces "
+               "--dense-fixation-test; default off)");
   cli.add_option("--dense-fixation-test-z", options->initializer.dense_test_z,
-                 "with --dense-fixation-test: standard errors by which the turn must lower the dense data "
-                 "cost (default 3.09, the 0.1 % level)")
+                 "with --dense-fixation-test or --flow-fixation-test: standard errors by which the turn must "
+                 "lower the dense data cost or the flow's epipolar distances (default 3.09, the 0.1 % level)")
       ->check(dsm::FlagNumber(1e-12));
   cli.add_flag("--pose-prior-iterations,!--no-pose-prior-iterations", options->pose_prior_in_iterations,
                "with --pose-prior: the joint iterations' pose steps keep its centres and orientations as "

@@ -2575,6 +2575,56 @@ DataCostComparison CompareDataCosts(const std::vector<cv::Mat>& before, const st
   return result;
 }
 
+// Distance (LR px) of each flow end point x + flow(x) in frame s from the
+// epipolar line of x (frame t's pixel) under a structure's mid-exposure
+// poses; 0 where the end point leaves the image (no sample); capped at
+// `cap` (flow failures: occlusions, textureless areas).
+cv::Mat EpipolarDistances(const PinholeCamera& camera, const SparseStructure& structure, int t, int s,
+                          const cv::Mat& flow, double cap) {
+  const SE3 T_s_t = structure.T_cam_world[s] * structure.T_cam_world[t].Inverse();
+  const Eigen::Vector3d b = T_s_t.translation();
+  Eigen::Matrix3d b_cross;
+  b_cross << 0.0, -b.z(), b.y(), b.z(), 0.0, -b.x(), -b.y(), b.x(), 0.0;
+  const Eigen::Matrix3d K_inv = camera.K().inverse();
+  const Eigen::Matrix3d fundamental = K_inv.transpose() * b_cross * T_s_t.rotation() * K_inv;
+  cv::Mat distance(flow.rows, flow.cols, CV_32FC1, cv::Scalar(0.0f));
+  for (int y = 0; y < flow.rows; ++y) {
+    const cv::Point2f* f = flow.ptr<cv::Point2f>(y);
+    float* d = distance.ptr<float>(y);
+    for (int x = 0; x < flow.cols; ++x) {
+      const double u = x + f[x].x, v = y + f[x].y;
+      if (!std::isfinite(u) || !std::isfinite(v) || !camera.InImage(u, v)) continue;
+      const Eigen::Vector3d line = fundamental * Eigen::Vector3d(x, y, 1.0);
+      const double norm = std::hypot(line.x(), line.y());
+      if (!(norm > 0.0)) continue;
+      d[x] = static_cast<float>(std::min(cap, std::abs(line.dot(Eigen::Vector3d(u, v, 1.0))) / norm));
+    }
+  }
+  return distance;
+}
+
+// InitializerOptions::flow_fixation_test: the epipolar distances of a dense
+// flow of the pairs t -> t+1, t -> t+2 under the structure without the turn
+// against those under the turn, compared as CompareDataCosts compares costs.
+DataCostComparison CompareFlowEpipolarDistances(const std::vector<cv::Mat>& gray,
+                                                const PinholeCamera& camera, const InitializerOptions& options,
+                                                const SparseStructure& still, const SparseStructure& turned) {
+  std::vector<cv::Mat> before, after;
+  cv::Ptr<cv::DISOpticalFlow> dis = cv::DISOpticalFlow::create(cv::DISOpticalFlow::PRESET_MEDIUM);
+  std::vector<cv::Mat> gray8(gray.size());
+  for (size_t t = 0; t < gray.size(); ++t) gray[t].convertTo(gray8[t], CV_8UC1, 255.0);
+  cv::Mat flow;
+  const int num_frames = static_cast<int>(gray.size());
+  for (int step = 1; step <= 2; ++step) {
+    for (int t = 0; t + step < num_frames; ++t) {
+      dis->calc(gray8[t], gray8[t + step], flow);
+      before.push_back(EpipolarDistances(camera, still, t, t + step, flow, options.pnp_threshold_px));
+      after.push_back(EpipolarDistances(camera, turned, t, t + step, flow, options.pnp_threshold_px));
+    }
+  }
+  return CompareDataCosts(before, after, options.dense_test_block_px);
+}
+
 // Poses at shutter close and dense depths (stage 4) of a bundle-adjusted
 // structure; the data cost of the depths' solution per pixel in `data_cost`.
 InitialStructure DenseStructure(const std::vector<cv::Mat>& images, const PinholeCamera& camera_lr,
@@ -2608,7 +2658,22 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
       SparseStage(camera_lr, options, threads, num_frames, &tracking.tracks, &summary, &rejected_turn);
   const bool has_prior =
       std::any_of(T_prior_cam.begin(), T_prior_cam.end(), [](const auto& T) { return T.has_value(); });
-  if (!options.dense_fixation_test || readout_time > 0.0 || has_prior) rejected_turn.reset();
+  if (!(options.dense_fixation_test || options.flow_fixation_test) || readout_time > 0.0 || has_prior) {
+    rejected_turn.reset();
+  }
+  if (rejected_turn && options.flow_fixation_test) {
+    const double test_ms = NowMs();
+    const DataCostComparison gain =
+        CompareFlowEpipolarDistances(window.gray, camera_lr, options, structure, *rejected_turn);
+    const bool keep_turn = gain.z > options.dense_test_z;
+    summary << Format("flow turn test: the turn lowers the flow's epipolar distances by %.3g %% (%.4g px; "
+                      "%.2f standard errors over %.0f blocks, bound %.2f; %.1f ms): ",
+                      100.0 * gain.relative, gain.mean, gain.z, gain.blocks, options.dense_test_z,
+                      NowMs() - test_ms)
+            << (keep_turn ? "turn kept\n" : "no turn\n");
+    if (keep_turn) structure = std::move(*rejected_turn);
+    rejected_turn.reset();
+  }
   if (readout_time > 0.0) {
     CorrectRollingShutter(camera_lr, options, threads, frames, readout_time, &tracking.tracks, &structure,
                           &summary);

@@ -616,30 +616,45 @@ TEST(InitializerTest, LateralPathKeepsThePriorTowardsNoRotation) {
   EXPECT_NE(result.summary.find("): no turn"), std::string::npos) << result.summary;
 }
 
-// InitializerOptions::dense_fixation_test: where it keeps no turn, the
-// output is the default's (the second depth stage only decides; the bundle
-// adjustment's threads reorder sums at the 1e-16 level, hence 1e-12).
-TEST(InitializerTest, DenseTurnTestKeepsTheLateralPathsStructure) {
+// With a turn test that keeps no turn the output is the default's (the test
+// only decides; the bundle adjustment's threads reorder sums at the 1e-16
+// level, hence 1e-12). `next`: the summary line after the test's.
+void ExpectTheLateralPathsStructure(const std::function<void(InitializerOptions*)>& change,
+                                    const std::string& test_name, const std::string& next) {
   const Sequence& sequence = DollsSequence();
   InitializerOptions options;
-  options.dense_fixation_test = true;
-  const InitialStructure dense =
+  change(&options);
+  const InitialStructure tested =
       InitializeStructure(FloatImages(sequence), sequence.calibration.camera, sequence.frames, options);
   const InitialStructure& plain = DollsResult();
-  std::printf("%s\n", dense.summary.c_str());
-  EXPECT_NE(dense.summary.find("dense turn test"), std::string::npos) << dense.summary;
-  EXPECT_NE(dense.summary.find("): no turn\ngauge"), std::string::npos) << dense.summary;
-  ASSERT_EQ(dense.T_world_cam.size(), plain.T_world_cam.size());
+  std::printf("%s\n", tested.summary.c_str());
+  EXPECT_NE(tested.summary.find(test_name), std::string::npos) << tested.summary;
+  EXPECT_NE(tested.summary.find("): no turn\n" + next), std::string::npos) << tested.summary;
+  ASSERT_EQ(tested.T_world_cam.size(), plain.T_world_cam.size());
   for (size_t t = 0; t < plain.T_world_cam.size(); ++t) {
-    EXPECT_LT((dense.T_world_cam[t].Matrix() - plain.T_world_cam[t].Matrix()).norm(), 1e-12) << t;
-    EXPECT_LT(cv::norm(dense.depth_lr[t], plain.depth_lr[t], cv::NORM_INF), 1e-5) << t;
+    EXPECT_LT((tested.T_world_cam[t].Matrix() - plain.T_world_cam[t].Matrix()).norm(), 1e-12) << t;
+    EXPECT_LT(cv::norm(tested.depth_lr[t], plain.depth_lr[t], cv::NORM_INF), 1e-5) << t;
   }
 }
 
+// InitializerOptions::dense_fixation_test (a second depth stage only decides).
+TEST(InitializerTest, DenseTurnTestKeepsTheLateralPathsStructure) {
+  ExpectTheLateralPathsStructure([](InitializerOptions* o) { o->dense_fixation_test = true; },
+                                 "dense turn test", "gauge");
+}
+
+// InitializerOptions::flow_fixation_test (the flow only decides).
+TEST(InitializerTest, FlowTurnTestKeepsTheLateralPathsStructure) {
+  ExpectTheLateralPathsStructure([](InitializerOptions* o) { o->flow_fixation_test = true; }, "flow turn test",
+                                 "poses moved");
+}
+
 // An arc around a scene of little depth range (Aloe, the fixation point
-// twice the median depth away, noise 1): the tracks leave the turn open,
-// the dense depths' data cost decides it.
-TEST(InitializerTest, DenseTurnTestFindsTheArcTurnThatTheTracksLeaveOpen) {
+// twice the median depth away, noise 1): the tracks leave the turn open, a
+// turn test decides it. Returns the test's summary and errors, beside the
+// default's.
+InitialisationPair ArcTurnTest(const std::function<void(InitializerOptions*)>& change,
+                               const std::string& test_name) {
   SynthesisOptions synthesis;
   synthesis.path = CameraPathType::kArc;
   synthesis.num_frames = 6;
@@ -647,24 +662,35 @@ TEST(InitializerTest, DenseTurnTestFindsTheArcTurnThatTheTracksLeaveOpen) {
   synthesis.noise_sigma = 1.0;
   const StereoScene scene = LoadMiddleburyScene(std::string(DSM_SOURCE_DIR) + "/data/middlebury/Aloe");
   const Sequence sequence = SynthesizeSequence(scene, synthesis).sequence;
-  const InitialisationPair pair =
-      InitialiseTwice(sequence, [](InitializerOptions* options) { options->dense_fixation_test = true; });
-  const InitialStructure& plain = pair.plain;
-  const InitialStructure& dense = pair.changed;
-  const double plain_error = pair.plain_rotation;
-  const double dense_error = pair.changed_rotation;
-  const double plain_depth = pair.plain_depth;
-  const double dense_depth = pair.changed_depth;
+  InitialisationPair pair = InitialiseTwice(sequence, change);
   std::printf("%s\nmean rotation error %.3f deg (tracks only: %.3f deg), depth rel. error %.4f (%.4f)\n",
-              dense.summary.c_str(), dense_error, plain_error, dense_depth, plain_depth);
-  EXPECT_NE(plain.summary.find("): no turn"), std::string::npos) << plain.summary;
-  EXPECT_NE(dense.summary.find("dense turn test"), std::string::npos) << dense.summary;
-  EXPECT_NE(dense.summary.find("): turn kept"), std::string::npos) << dense.summary;
+              pair.changed.summary.c_str(), pair.changed_rotation, pair.plain_rotation, pair.changed_depth,
+              pair.plain_depth);
+  EXPECT_NE(pair.plain.summary.find("): no turn"), std::string::npos) << pair.plain.summary;
+  EXPECT_NE(pair.changed.summary.find(test_name), std::string::npos) << pair.changed.summary;
+  EXPECT_NE(pair.changed.summary.find("): turn kept"), std::string::npos) << pair.changed.summary;
+  return pair;
+}
+
+TEST(InitializerTest, DenseTurnTestFindsTheArcTurnThatTheTracksLeaveOpen) {
+  const InitialisationPair pair =
+      ArcTurnTest([](InitializerOptions* o) { o->dense_fixation_test = true; }, "dense turn test");
   // Measured: the tracks' gain 11.7 sigma^2 (bound 46.9), the dense test's
   // 3.44 standard errors (bound 3.09; data cost -1.65 %): mean rotation error
   // 0.581 deg (tracks only 2.350), depth rel. error 0.0297 (0.0656).
-  EXPECT_LT(dense_error, 0.5 * plain_error);
-  EXPECT_LT(dense_depth, plain_depth);
+  EXPECT_LT(pair.changed_rotation, 0.5 * pair.plain_rotation);
+  EXPECT_LT(pair.changed_depth, pair.plain_depth);
+}
+
+// The same arc decided by the dense flow's epipolar distances.
+TEST(InitializerTest, FlowTurnTestFindsTheArcTurnThatTheTracksLeaveOpen) {
+  const InitialisationPair pair =
+      ArcTurnTest([](InitializerOptions* o) { o->flow_fixation_test = true; }, "flow turn test");
+  // Measured: the flow test's 4.39 standard errors (bound 3.09; epipolar
+  // distances -4.99 %): mean rotation error 0.581 deg (tracks only 2.350),
+  // depth rel. error 0.0297 (0.0656), the dense test's turn.
+  EXPECT_LT(pair.changed_rotation, 0.5 * pair.plain_rotation);
+  EXPECT_LT(pair.changed_depth, pair.plain_depth);
 }
 
 TEST(InitializerTest, BadOptionsAndInputsGiveInputError) {

@@ -78,6 +78,20 @@ struct InitializerOptions {
   // stage where it runs. Not with a rolling shutter or a pose prior (their
   // adjustments decide the turn).
   bool dense_fixation_test = false;
+  // The same decision by evidence that no depth can absorb, and without a
+  // second depth stage: where the tracks reject the turn, a dense optical
+  // flow (OpenCV's DIS) of every pair t -> t+1, t -> t+2 of the LR frames is
+  // compared with both solutions' epipolar geometry (mid-exposure poses, as
+  // the tracks'); the distance of each flow end point from its epipolar line
+  // does not depend on the depths, so the bas-relief bend that hides the
+  // turn from the depth stage cannot hide it here, and a turn's vertical
+  // displacement (~ angle * x * y / f) enters linearly, not as a cost's
+  // square. The turn is kept when it lowers the mean distance (capped at
+  // pnp_threshold_px) by more than dense_test_z standard errors (blocks of
+  // dense_test_block_px, one sample per block location, as above).
+  // Replaces dense_fixation_test where both are set. Not with a rolling
+  // shutter or a pose prior.
+  bool flow_fixation_test = false;
   int dense_test_block_px = 16;  // LR px; > the matching patch and the blur
   // One-sided normal quantile of that test: 3.09 is the 0.1 % level. The
   // blocks make the samples nearly independent, so it is the usual level
