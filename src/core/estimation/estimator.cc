@@ -561,6 +561,7 @@ class WindowSolver {
   std::vector<cv::Mat> SweptInverseDepths();
   bool RefineOutputDepthEdges() const;
   std::vector<cv::Mat> OutputDepths();
+  std::vector<cv::Mat> ConsistentOutputDepths(const std::vector<cv::Mat>& depths);
   void UpdateFrameDepth(int t, int iteration, bool isolated, const std::vector<SE3>& poses,
                         const StructureUpdateOptions& structure_options);
   void UpdateAllPoses(int iteration, bool isolated, const std::vector<SE3>& poses,
@@ -1345,6 +1346,10 @@ EstimatorResult WindowSolver::GaugedResult() {
     const double median = MedianDepth(depths);
     if (median > 0.0) rescale = 1.0 / median;
   }
+  // After the gauge's scale (from the unfused depth, so that the poses are
+  // the same with and without it): the consistency between neighbouring
+  // depth maps, on the result's copies.
+  depths = ConsistentOutputDepths(depths);
   for (int t = 0; t < num_frames_; ++t) {
     if (options_.keep_input_gauge) {
       // Bit for bit (no re-orthonormalisation): the next window of a stream
@@ -1368,6 +1373,23 @@ EstimatorResult WindowSolver::GaugedResult() {
                                               std::max(0, num_frames_ - options_.carried_frames));
   }
   return std::move(result_);
+}
+
+// EstimatorOptions::depth_consistency: the output depth maps `depths` made
+// consistent with their neighbours' (FuseNeighbourDepths) at the solver's
+// poses; not in a window that hands operators on (RefineOutputDepthEdges
+// says why), nor over a stream's held leading frames.
+std::vector<cv::Mat> WindowSolver::ConsistentOutputDepths(const std::vector<cv::Mat>& depths) {
+  if (options_.depth_consistency.radius <= 0 || options_.carried_frames > 0 ||
+      options_.held_leading_latents > 0) {
+    return depths;
+  }
+  const double begin = NowMs();
+  std::vector<SE3> T_world_cam;
+  for (const FrameStructure& frame : frames_) T_world_cam.push_back(frame.T_world_cam);
+  std::vector<cv::Mat> fused = FuseNeighbourDepths(camera_hr_, depths, T_world_cam, options_.depth_consistency);
+  timer_.AddSince("depth consistency", begin);
+  return fused;
 }
 
 // The output images: the restored latents, fused across time in joint mode
@@ -1595,6 +1617,7 @@ void EstimatorOptions::Check() const {
   initializer.Check();
   depth_edges.Check();
   fusion.Check();
+  depth_consistency.Check();
   multi_frame_data.Check();
   depth_sweep.Check();
 }
