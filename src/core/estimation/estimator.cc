@@ -1348,8 +1348,9 @@ EstimatorResult WindowSolver::GaugedResult() {
   }
   // After the gauge's scale (from the unfused depth, so that the poses are
   // the same with and without it): the consistency between neighbouring
-  // depth maps, on the result's copies.
-  depths = ConsistentOutputDepths(depths);
+  // depth maps, on the result's copies; the output images below are fused
+  // with the depth before it, so that they are the same with and without it.
+  const std::vector<cv::Mat> consistent = ConsistentOutputDepths(depths);
   for (int t = 0; t < num_frames_; ++t) {
     if (options_.keep_input_gauge) {
       // Bit for bit (no re-orthonormalisation): the next window of a stream
@@ -1359,7 +1360,7 @@ EstimatorResult WindowSolver::GaugedResult() {
       const SE3 pose = T_first_world * frames_[t].T_world_cam;
       result_.T_world_cam.emplace_back(pose.rotation(), pose.translation() * rescale);
     }
-    result_.depth.push_back(depths[t] * rescale);
+    result_.depth.push_back(consistent[t] * rescale);
   }
   for (const cv::Mat& latent : OutputLatents(depths)) {
     cv::Mat clamped;
