@@ -175,7 +175,7 @@ void AddDepthConsistencyOptions(dsm::ToolCommandLine* command_line, dsm::Estimat
   dsm::DepthConsistencyOptions& consistency = options->depth_consistency;
   cli.add_option("--depth-consistency-radius", consistency.radius,
                  "replace each output depth by the mean (in inverse depth) of it and the depths of the frames "
-                 "up to N away that agree with it (0: off; default 2)")
+                 "up to N away that agree with it (0: off; default 0; 2 measured)")
       ->check(dsm::FlagInt());
   cli.add_option("--depth-consistency-tolerance", consistency.tolerance,
                  "with --depth-consistency-radius: relative inverse-depth difference up to which a neighbour "

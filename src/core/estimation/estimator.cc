@@ -1339,18 +1339,19 @@ EstimatorResult WindowSolver::GaugedResult() {
     depths[t] = depths[t].clone();
     RefineDepthEdges(latents_[t], options_.depth_edges, &depths[t]);
   }
+  // The consistency between neighbouring depth maps, on the result's
+  // copies, before the gauge's scale: the published depth keeps the median
+  // of 1 unit (so the poses' scale follows it, by a common factor); the
+  // output images below are fused with the depth before it, so that they
+  // are the same with and without it.
+  const std::vector<cv::Mat> consistent = ConsistentOutputDepths(depths);
   SE3 T_first_world;
   double rescale = 1.0;
   if (!options_.keep_input_gauge) {
     T_first_world = frames_[0].T_world_cam.Inverse();
-    const double median = MedianDepth(depths);
+    const double median = MedianDepth(consistent);
     if (median > 0.0) rescale = 1.0 / median;
   }
-  // After the gauge's scale (from the unfused depth, so that the poses are
-  // the same with and without it): the consistency between neighbouring
-  // depth maps, on the result's copies; the output images below are fused
-  // with the depth before it, so that they are the same with and without it.
-  const std::vector<cv::Mat> consistent = ConsistentOutputDepths(depths);
   for (int t = 0; t < num_frames_; ++t) {
     if (options_.keep_input_gauge) {
       // Bit for bit (no re-orthonormalisation): the next window of a stream

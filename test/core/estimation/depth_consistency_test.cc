@@ -198,7 +198,7 @@ TEST(DepthConsistency, TheFramesOrderDoesNotMatter) {
 
 TEST(DepthConsistency, OptionsCheck) {
   EXPECT_NO_THROW(DepthConsistencyOptions().Check());
-  EXPECT_EQ(DepthConsistencyOptions().radius, 2);  // on by default (BENCHMARKS.md)
+  EXPECT_EQ(DepthConsistencyOptions().radius, 0);  // off by default (depth_consistency.h says why)
   EXPECT_NO_THROW(On(10, 1.0).Check());
   EXPECT_THROW(On(-1, 0.05).Check(), InputError);
   EXPECT_THROW(On(11, 0.05).Check(), InputError);

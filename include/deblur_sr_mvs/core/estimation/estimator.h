@@ -238,9 +238,9 @@ struct EstimatorOptions {
   // (DepthConsistencyOptions), after the output depth's edge refinement and
   // the gauge's scale; poses and images are unchanged. Both modes (it uses
   // only depth and poses). Not in a window that hands operators on, nor over
-  // a stream's held frames (the node's stream does not apply it). On by
-  // default (radius 2); radius 0 turns it off: BENCHMARKS.md "Consistency
-  // between neighbouring depth maps".
+  // a stream's held frames (StreamEstimator, so the node, turns it off). Off by
+  // default (radius 0; DepthConsistencyOptions::radius says why): BENCHMARKS.md
+  // "Consistency between neighbouring depth maps".
   DepthConsistencyOptions depth_consistency;
   // Multi-frame data pass (issue 12, noise): joint mode re-solves each
   // restored I_t after the last image update, with the final depth and
