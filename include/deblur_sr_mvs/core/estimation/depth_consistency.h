@@ -52,9 +52,9 @@ struct DepthConsistencyOptions {
   // in advance) it lowered the depth rel. error on 16 sequences it was not
   // tuned on (crop 0.977x, lower on 15 of 16; full frame 0.975x, 16 of 16;
   // BENCHMARKS.md "Consistency between neighbouring depth maps"), but with a
-  // pose prior the depth in metres then lies 1.101x the scale-aligned error,
-  // beyond the 1.10x of PosePriorIterations.DepthInMetresStaysWithinTenPercent
-  // OfTheAlignedError (the aligned error falls, the metric one does not).
+  // pose prior the depth in metres then lies 1.101x the scale-aligned error
+  // (1.099x without it), beyond the 1.10x of PosePriorIterations.
+  // DepthInMetresStaysWithinTenPercentOfTheAlignedError.
   int radius = 0;
   // Relative tolerance on the inverse depth for a candidate to count (see
   // above): 0.05 admits 5 % disagreement (0.02 gained less on the 8-sequence
