@@ -173,6 +173,24 @@ void AddFusionOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions*
                "with --fusion-radius: also fuse the restored images before each structure update (default off)");
 }
 
+// --depth-consistency-*: the consistency between neighbouring depth maps.
+void AddDepthConsistencyOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions* options) {
+  dsm::ToolCommandLine& cli = *command_line;
+  dsm::DepthConsistencyOptions& consistency = options->depth_consistency;
+  cli.add_option("--depth-consistency-radius", consistency.radius,
+                 "replace each output depth by the mean (in inverse depth) of it and the depths of the frames "
+                 "up to N away that agree with it (0: off; default 0; 2 measured)")
+      ->check(dsm::FlagInt());
+  cli.add_option("--depth-consistency-tolerance", consistency.tolerance,
+                 "with --depth-consistency-radius: relative inverse-depth difference up to which a neighbour "
+                 "agrees (default 0.05)")
+      ->check(dsm::FlagNumber());
+  cli.add_flag_callback(
+      "--depth-consistency-median",
+      [&consistency] { consistency.combination = dsm::DepthConsistencyOptions::Combination::kMedian; },
+      "with --depth-consistency-radius: the median of the agreeing depths instead of their mean");
+}
+
 // --multi-frame-*: the multi-frame data pass after the last image update.
 void AddMultiFrameDataOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions* options) {
   dsm::ToolCommandLine& cli = *command_line;
@@ -294,6 +312,7 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   AddJointStepOptions(&cli, options);
   AddDepthEdgeOptions(&cli, options);
   AddFusionOptions(&cli, options);
+  AddDepthConsistencyOptions(&cli, options);
   AddMultiFrameDataOptions(&cli, options);
   AddDepthSweepOptions(&cli, options);
   AddBlurPoseOptions(&cli, options);

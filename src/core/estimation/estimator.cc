@@ -561,6 +561,7 @@ class WindowSolver {
   std::vector<cv::Mat> SweptInverseDepths();
   bool RefineOutputDepthEdges() const;
   std::vector<cv::Mat> OutputDepths();
+  std::vector<cv::Mat> ConsistentOutputDepths(const std::vector<cv::Mat>& depths);
   void UpdateFrameDepth(int t, int iteration, bool isolated, const std::vector<SE3>& poses,
                         const StructureUpdateOptions& structure_options);
   void UpdateAllPoses(int iteration, bool isolated, const std::vector<SE3>& poses,
@@ -1350,11 +1351,17 @@ EstimatorResult WindowSolver::GaugedResult() {
   // The output depth maps, refined at their edges where asked, before the gauge's scale.
   std::vector<cv::Mat> depths = OutputDepths();
   RefineOutputDepthsDuringFramePass(&depths);
+  // The consistency between neighbouring depth maps, on the result's
+  // copies, before the gauge's scale: the published depth keeps the median
+  // of 1 unit (so the poses' scale follows it, by a common factor); the
+  // output images below are fused with the depth before it, so that they
+  // are the same with and without it.
+  const std::vector<cv::Mat> consistent = ConsistentOutputDepths(depths);
   SE3 T_first_world;
   double rescale = 1.0;
   if (!options_.keep_input_gauge) {
     T_first_world = frames_[0].T_world_cam.Inverse();
-    const double median = MedianDepth(depths);
+    const double median = MedianDepth(consistent);
     if (median > 0.0) rescale = 1.0 / median;
   }
   for (int t = 0; t < num_frames_; ++t) {
@@ -1366,7 +1373,7 @@ EstimatorResult WindowSolver::GaugedResult() {
       const SE3 pose = T_first_world * frames_[t].T_world_cam;
       result_.T_world_cam.emplace_back(pose.rotation(), pose.translation() * rescale);
     }
-    result_.depth.push_back(depths[t] * rescale);
+    result_.depth.push_back(consistent[t] * rescale);
   }
   for (const cv::Mat& latent : OutputLatents(depths)) {
     cv::Mat clamped;
@@ -1380,6 +1387,23 @@ EstimatorResult WindowSolver::GaugedResult() {
                                               std::max(0, num_frames_ - options_.carried_frames));
   }
   return std::move(result_);
+}
+
+// EstimatorOptions::depth_consistency: the output depth maps `depths` made
+// consistent with their neighbours' (FuseNeighbourDepths) at the solver's
+// poses; not in a window that hands operators on (RefineOutputDepthEdges
+// says why), nor over a stream's held leading frames.
+std::vector<cv::Mat> WindowSolver::ConsistentOutputDepths(const std::vector<cv::Mat>& depths) {
+  if (options_.depth_consistency.radius <= 0 || options_.carried_frames > 0 ||
+      options_.held_leading_latents > 0) {
+    return depths;
+  }
+  const double begin = NowMs();
+  std::vector<SE3> T_world_cam;
+  for (const FrameStructure& frame : frames_) T_world_cam.push_back(frame.T_world_cam);
+  std::vector<cv::Mat> fused = FuseNeighbourDepths(camera_hr_, depths, T_world_cam, options_.depth_consistency);
+  timer_.AddSince("depth consistency", begin);
+  return fused;
 }
 
 // The output images: the restored latents, fused across time in joint mode
@@ -1626,6 +1650,7 @@ void EstimatorOptions::Check() const {
   initializer.Check();
   depth_edges.Check();
   fusion.Check();
+  depth_consistency.Check();
   multi_frame_data.Check();
   depth_sweep.Check();
 }

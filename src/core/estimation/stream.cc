@@ -112,9 +112,11 @@ namespace {
 // The stream's estimator options: the output depth is not refined in the
 // estimator, so that the next window starts from the solver's own depth; nor
 // re-swept (EstimatorOptions::depth_sweep): a stream does not re-sweep,
-// neither the output nor inside the iterations.
+// neither the output nor inside the iterations; nor made consistent across
+// frames (EstimatorOptions::depth_consistency, not measured in a stream).
 EstimatorOptions WithoutOutputDepthRefinement(EstimatorOptions options) {
   options.depth_edges.on_output = false;
+  options.depth_consistency.radius = 0;
   options.depth_sweep.on_output = false;
   options.depth_sweep.before_last_structure_updates = 0;
   return options;

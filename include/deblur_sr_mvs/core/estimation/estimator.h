@@ -13,6 +13,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "deblur_sr_mvs/core/estimation/depth_consistency.h"
 #include "deblur_sr_mvs/core/estimation/depth_edges.h"
 #include "deblur_sr_mvs/core/estimation/depth_sweep.h"
 #include "deblur_sr_mvs/core/estimation/image_update.h"
@@ -231,6 +232,16 @@ struct EstimatorOptions {
   // TemporalFusionOptions and BENCHMARKS.md "Temporal fusion of the
   // restored images". radius 0 turns it off.
   TemporalFusionOptions fusion;
+  // Consistency between the depth maps of neighbouring frames (issue 14):
+  // each output D_t replaced, where neighbours' depth maps agree with it
+  // within a tolerance, by the mean of the agreeing inverse depths
+  // (DepthConsistencyOptions), after the output depth's edge refinement and
+  // the gauge's scale; poses and images are unchanged. Both modes (it uses
+  // only depth and poses). Not in a window that hands operators on, nor over
+  // a stream's held frames (StreamEstimator, so the node, turns it off). Off by
+  // default (radius 0; DepthConsistencyOptions::radius says why): BENCHMARKS.md
+  // "Consistency between neighbouring depth maps".
+  DepthConsistencyOptions depth_consistency;
   // Multi-frame data pass (issue 12, noise): joint mode re-solves each
   // restored I_t after the last image update, with the final depth and
   // poses, its agreeing neighbours' matching terms raised towards lambda_s
