@@ -177,9 +177,13 @@ void AddFusionOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions*
 void AddDepthConsistencyOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions* options) {
   dsm::ToolCommandLine& cli = *command_line;
   dsm::DepthConsistencyOptions& consistency = options->depth_consistency;
+  // The tool's default; the library's is off (DepthConsistencyOptions::radius 0),
+  // as for the output re-sweep: with a pose prior the stage lowers the
+  // scale-aligned depth error but not the error in metres.
+  consistency.radius = 2;
   cli.add_option("--depth-consistency-radius", consistency.radius,
                  "replace each output depth by the mean (in inverse depth) of it and the depths of the frames "
-                 "up to N away that agree with it (0: off; default 0; 2 measured)")
+                 "up to N away that agree with it (0: off; default 2)")
       ->check(dsm::FlagInt());
   cli.add_option("--depth-consistency-tolerance", consistency.tolerance,
                  "with --depth-consistency-radius: relative inverse-depth difference up to which a neighbour "
