@@ -648,12 +648,30 @@ void StructureUpdateOptions::Check() const {
 
 namespace {
 
+// The central-difference gradients of one image (Gradients), made once for
+// every linearisation that warps it while it does not change.
+struct ImageGradients {
+  const cv::Mat* image = nullptr;
+  cv::Mat gx, gy;
+};
+
+// The entry of `gradients` for `image` (by address); nullptr if none.
+const ImageGradients* FindGradients(const std::vector<ImageGradients>* gradients, const cv::Mat* image) {
+  if (gradients == nullptr) return nullptr;
+  for (const ImageGradients& entry : *gradients) {
+    if (entry.image == image) return &entry;
+  }
+  return nullptr;
+}
+
 // LinearizeWarp, and with `warped_gradients` the source's gradients at the
 // warp (HR, 2C channels: g_x of channel c at 2c, g_y at 2c + 1; zero where
-// the warp is not valid), for the pose terms of HR pairs.
+// the warp is not valid), for the pose terms of HR pairs. `known` (optional):
+// latent_s's gradients, already made (the same values Gradients gives).
 WarpLinearization LinearizeWarpSampled(const PinholeCamera& camera_hr, const cv::Mat& inverse_depth_t,
                                        const SE3& T_world_t, const SE3& T_world_s, const cv::Mat& latent_s,
-                                       std::vector<cv::Mat>* pose_jacobians, cv::Mat* warped_gradients) {
+                                       std::vector<cv::Mat>* pose_jacobians, cv::Mat* warped_gradients,
+                                       const ImageGradients* known = nullptr) {
   const int channels = latent_s.channels();
   const int width = camera_hr.width, height = camera_hr.height;
   // The outputs are not cleared first: every pixel is written, zeros
@@ -676,8 +694,10 @@ WarpLinearization LinearizeWarpSampled(const PinholeCamera& camera_hr, const cv:
     if (pose_jacobians == nullptr) return;
     for (cv::Mat& j : *pose_jacobians) std::fill_n(j.ptr<float>(y) + x * channels, channels, 0.0f);
   };
-  cv::Mat gx, gy;
-  Gradients(latent_s, &gx, &gy);
+  cv::Mat made_gx, made_gy;
+  if (known == nullptr) Gradients(latent_s, &made_gx, &made_gy);
+  const cv::Mat& gx = known != nullptr ? known->gx : made_gx;
+  const cv::Mat& gy = known != nullptr ? known->gy : made_gy;
   const PairWarp warp(camera_hr, T_world_t, T_world_s);
 #pragma omp parallel for schedule(static)
   for (int y = 0; y < height; ++y) {
@@ -858,6 +878,12 @@ class DepthNormalEquations {
     FormDiagonal();
   }
 
+  // From now on Linearize reads the sources' gradients from `gradients`
+  // (made by the caller from the same images, which must not change while
+  // this system lives) where they have an entry, instead of making them per
+  // pair and reweighting.
+  void UseSourceGradients(const std::vector<ImageGradients>* gradients) { source_gradients_ = gradients; }
+
   // Frees the scratch images of Linearize (kept otherwise for the next one).
   void ReleaseScratch() {
     squared_.release();
@@ -1009,9 +1035,11 @@ class DepthNormalEquations {
       // the pose Jacobian images.
       const bool jacobian_images = pose_terms_formed(pair) && pair.blur != nullptr;
       const bool hr_pose_terms = pose_terms_formed(pair) && pair.blur == nullptr;
+      const cv::Mat& source = SourceImage(pair, latents_);
       const WarpLinearization lin = LinearizeWarpSampled(
-          camera_hr_, inverse_depth, T_world_cam_[pair.t], T_world_cam_[pair.s], SourceImage(pair, latents_),
-          jacobian_images ? &pose_jacobians : nullptr, hr_pose_terms ? &warped_gradients : nullptr);
+          camera_hr_, inverse_depth, T_world_cam_[pair.t], T_world_cam_[pair.s], source,
+          jacobian_images ? &pose_jacobians : nullptr, hr_pose_terms ? &warped_gradients : nullptr,
+          FindGradients(source_gradients_, &source));
       Predict(pair, lin.warped, &predicted_);
       const cv::Mat residual = *pair.observation - predicted_;
       cv::Mat weight;
@@ -1170,6 +1198,7 @@ class DepthNormalEquations {
   cv::Mat data_rhs_;                               // the pairs' share of the rhs
   cv::Mat squared_, expanded_, predicted_, back_;  // scratch
   double damping_ = 0.0;
+  const std::vector<ImageGradients>* source_gradients_ = nullptr;  // see UseSourceGradients
   bool measure_residuals_ = false;
   double absolute_residuals_ = 0.0, residual_values_ = 0.0;  // of the pairs, with measure_residuals_
 };
@@ -1556,6 +1585,7 @@ class JointDepthPoseSystem::Impl {
           options, reference_[t], options.skip_held_pose_work ? num_fixed_ : 0);
       if (prior_ != nullptr) systems_[t]->MeasureResiduals();
     }
+    MakeSourceGradients(latents);
   }
 
   int num_values() const { return num_frames_ * pixels_ + 6 * num_frames_; }
@@ -1712,6 +1742,27 @@ class JointDepthPoseSystem::Impl {
     return systems_[t] ? systems_[t]->couplings() : kNone;
   }
 
+  // The gradients of every image the pairs warp, once for the system's
+  // life (the latents and the pairs' sources do not change in a joint step;
+  // each pair and reweighting made them anew before), in parallel.
+  void MakeSourceGradients(const std::vector<cv::Mat>& latents) {
+    for (int t = 0; t < num_frames_; ++t) {
+      if (!systems_[t]) continue;
+      for (const PairMatching& pair : frames_[t].pairs) {
+        const cv::Mat* source = &SourceImage(pair, latents);
+        if (FindGradients(&source_gradients_, source) == nullptr) source_gradients_.push_back({source, {}, {}});
+      }
+    }
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads_)
+    for (int i = 0; i < static_cast<int>(source_gradients_.size()); ++i) {
+      ImageGradients& entry = source_gradients_[i];
+      Gradients(*entry.image, &entry.gx, &entry.gy);
+    }
+    for (const auto& system : systems_) {
+      if (system) system->UseSourceGradients(&source_gradients_);
+    }
+  }
+
   // A held frame among t and the frames its pairs match, else t.
   int ReferenceFrame(int t) const {
     if (t < num_fixed_) return t;
@@ -1863,21 +1914,35 @@ class JointDepthPoseSystem::Impl {
   // the gauge projection), factorised; N_pp alone if S is not positive.
   void FormReducedCameraSystem() {
     const int n = 6 * num_frames_;
-    Eigen::MatrixXd reduced = pose_normal_;
-    cv::Mat scaled(size_, CV_32FC(6));
+    // Frame t's products of its stored columns a, b (in the order a, b), the
+    // frames in parallel; summed below frame by frame in order (the sums of
+    // one thread).
+    std::vector<std::vector<Eigen::Matrix<double, 6, 6>>> products(num_frames_);
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads_)
     for (int t = 0; t < num_frames_; ++t) {
-      const int r = reference_[t];
-      for (const PoseColumn& a : Couplings(t)) {
+      const std::vector<PoseColumn>& couplings = Couplings(t);
+      if (couplings.empty()) continue;
+      cv::Mat scaled(size_, CV_32FC(6));
+      for (const PoseColumn& a : couplings) {
         const float* diagonal = systems_[t]->diagonal().ptr<float>();
         const float* in = a.images.ptr<float>();
         float* out = scaled.ptr<float>();
         for (int i = 0; i < pixels_; ++i) {
           for (int j = 0; j < 6; ++j) out[6 * i + j] = in[6 * i + j] / diagonal[i];
         }
-        for (const PoseColumn& b : Couplings(t)) {
+        for (const PoseColumn& b : couplings) products[t].push_back(CouplingProduct(scaled, b.images));
+      }
+    }
+    Eigen::MatrixXd reduced = pose_normal_;
+    for (int t = 0; t < num_frames_; ++t) {
+      const int r = reference_[t];
+      const std::vector<PoseColumn>& couplings = Couplings(t);
+      size_t next = 0;
+      for (const PoseColumn& a : couplings) {
+        for (const PoseColumn& b : couplings) {
           // The product of the stored columns a, b and, through the
           // reference's column -sum of them, its rows and columns.
-          const Eigen::Matrix<double, 6, 6> product = CouplingProduct(scaled, b.images);
+          const Eigen::Matrix<double, 6, 6>& product = products[t][next++];
           reduced.block<6, 6>(6 * a.frame, 6 * b.frame) -= product;
           reduced.block<6, 6>(6 * r, 6 * b.frame) += product;
           reduced.block<6, 6>(6 * a.frame, 6 * r) += product;
@@ -1918,6 +1983,7 @@ class JointDepthPoseSystem::Impl {
   const cv::Size size_;
   const int threads_;
   std::vector<std::unique_ptr<DepthNormalEquations>> systems_;  // nullptr: a frame without terms
+  std::vector<ImageGradients> source_gradients_;                 // of every image the pairs warp
   std::vector<int> reference_;        // per frame t: the pose column its couplings leave out
   Eigen::MatrixXd pose_normal_;       // N_pp (damped)
   Eigen::VectorXd pose_rhs_, gauge_;  // gauge_: unit, empty if none

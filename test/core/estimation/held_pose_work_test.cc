@@ -3,11 +3,15 @@
 // window) enters only the held poses' rows of the pose systems, so its pose
 // terms are not formed. The joint depth + pose step, the pose update and a
 // continued stream window give the same results bit for bit with and
-// without the saving.
+// without the saving. The joint step's other exact savings (the sources'
+// gradients made once per step, the reduced camera system's products formed
+// frame by frame in parallel) keep its results too: the same bits on one and
+// two threads, and with shared or separate source images.
 #include <cstring>
 #include <vector>
 
 #include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
 
 #include "../support/test_sequences.h"
 #include "deblur_sr_mvs/core/estimation/estimator.h"
@@ -85,6 +89,88 @@ struct FourFrames {
 };
 
 constexpr int kHeldPoses = 2;
+
+// Terms() and, per pair, a second HR pair that warps another image pair
+// (`sources`[s] into `sources`[t], as the inputs' pairs do); `copies`: each
+// such pair reads its own copy of the source image (a source shared by
+// several pairs then has one entry per pair in the step's gradients).
+std::vector<FrameDepthTerms> TermsWithSources(const FourFrames& scene, const std::vector<cv::Mat>& sources,
+                                              bool copies, std::vector<cv::Mat>* copied) {
+  std::vector<FrameDepthTerms> terms = scene.Terms();
+  copied->clear();
+  copied->reserve(64);  // pointers into it stay valid
+  for (FrameDepthTerms& frame : terms) {
+    const std::vector<PairMatching> restored = frame.pairs;
+    for (PairMatching pair : restored) {
+      pair.observation = &sources[pair.t];
+      if (copies) {
+        copied->push_back(sources[pair.s].clone());
+        pair.source = &copied->back();
+      } else {
+        pair.source = &sources[pair.s];
+      }
+      frame.pairs.push_back(pair);
+    }
+  }
+  return terms;
+}
+
+// The joint step from the perturbed start with `threads` threads.
+void JointStep(const FourFrames& scene, const std::vector<FrameDepthTerms>& terms, int threads,
+               std::vector<SE3>* poses, std::vector<cv::Mat>* rho) {
+  StructureUpdateOptions options;
+  options.num_threads = threads;
+  scene.Perturb(poses, rho);
+  UpdateDepthAndPoses(scene.camera, scene.images, terms, scene.camera.fx * 0.06, options, 1, poses, rho);
+}
+
+// Gray versions of the frames' images, a little brighter: the second image pair.
+std::vector<cv::Mat> SecondImages(const FourFrames& scene) {
+  std::vector<cv::Mat> sources;
+  for (const cv::Mat& image : scene.images) {
+    cv::Mat gray;
+    cv::cvtColor(image, gray, cv::COLOR_BGR2GRAY);
+    cv::Mat colour;
+    cv::merge(std::vector<cv::Mat>(3, gray * 0.9 + 0.05), colour);
+    sources.push_back(colour);
+  }
+  return sources;
+}
+
+TEST(JointStepThreads, OneAndTwoThreadsGiveTheSameBits) {
+  const FourFrames scene;
+  const std::vector<cv::Mat> sources = SecondImages(scene);
+  std::vector<cv::Mat> copied;
+  const std::vector<FrameDepthTerms> terms = TermsWithSources(scene, sources, false, &copied);
+  std::vector<std::vector<SE3>> poses(2);
+  std::vector<std::vector<cv::Mat>> rho(2);
+  for (int threads : {1, 2}) JointStep(scene, terms, threads, &poses[threads - 1], &rho[threads - 1]);
+  std::vector<SE3> start;
+  std::vector<cv::Mat> start_rho;
+  scene.Perturb(&start, &start_rho);
+  for (int f = 0; f < 4; ++f) {
+    EXPECT_TRUE(SamePose(poses[0][f], poses[1][f])) << "pose " << f;
+    EXPECT_TRUE(SameBits(rho[0][f], rho[1][f])) << "inverse depth " << f;
+    EXPECT_FALSE(SameBits(rho[1][f], start_rho[f])) << "the step moved inverse depth " << f;
+  }
+  EXPECT_FALSE(SamePose(poses[1][3], start[3]));  // free: moved
+}
+
+TEST(JointStepSourceGradients, SharedSourcesGiveTheBitsOfSeparateCopies) {
+  const FourFrames scene;
+  const std::vector<cv::Mat> sources = SecondImages(scene);
+  std::vector<std::vector<SE3>> poses(2);
+  std::vector<std::vector<cv::Mat>> rho(2);
+  std::vector<cv::Mat> copied;
+  for (int copies = 0; copies < 2; ++copies) {
+    const std::vector<FrameDepthTerms> terms = TermsWithSources(scene, sources, copies == 1, &copied);
+    JointStep(scene, terms, 1, &poses[copies], &rho[copies]);
+  }
+  for (int f = 0; f < 4; ++f) {
+    EXPECT_TRUE(SamePose(poses[0][f], poses[1][f])) << "pose " << f;
+    EXPECT_TRUE(SameBits(rho[0][f], rho[1][f])) << "inverse depth " << f;
+  }
+}
 
 TEST(HeldPoseWork, JointStepIsTheSameWithoutTheHeldPairsPoseTerms) {
   const FourFrames scene;
