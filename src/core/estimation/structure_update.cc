@@ -759,7 +759,19 @@ struct CouplingTarget {
 };
 using CouplingTargets = std::array<CouplingTarget, 2>;
 
-// The pose terms of an HR pair (no capture operator) in one pass over its
+// One HR pair's share of HrPairPoseTerms: its images after LinearizeWarpSampled
+// and the reweighting, where its coupling goes and its 6x6 sums.
+struct HrPairPoseInputs {
+  const cv::Mat* warped_gradients = nullptr;
+  const cv::Mat* d_inverse_depth = nullptr;
+  const cv::Mat* residual = nullptr;
+  const cv::Mat* weight = nullptr;
+  CouplingTargets targets;
+  Eigen::Matrix<double, 6, 6>* block = nullptr;
+  Vector6d* rhs = nullptr;
+};
+
+// The pose terms of HR pairs (no capture operator) in one pass over their
 // pixels, without the six pose Jacobian images: channel c's row is A_c =
 // g_c^T J (g_c the source's gradient at the warp, `warped_gradients` of
 // LinearizeWarpSampled; J = d pixel / d eps_t), so
@@ -768,54 +780,60 @@ using CouplingTargets = std::array<CouplingTarget, 2>;
 //   block = sum J^T S J,  S = sum_c w_c g_c g_c^T,  rhs = sum J^T sum_c w_c r0_c g_c.
 // The coupling is added into `targets` as it is formed (no image per pair).
 // The 6x6 sums go row by row (float within a row, double across rows).
+// Every pair of `pairs` warps t's pixels into s at the same depth and poses
+// (a restored pair and its input pair), so J is formed once per pixel for
+// all of them; each pair's values get the operations, and each coupling
+// value the additions in pair order, that one pair at a time gives.
 void HrPairPoseTerms(const PinholeCamera& camera, const cv::Mat& inverse_depth, const SE3& T_world_t,
-                     const SE3& T_world_s, const cv::Mat& warped_gradients, const cv::Mat& d_inverse_depth,
-                     const cv::Mat& residual, const cv::Mat& weight, const CouplingTargets& targets,
-                     Eigen::Matrix<double, 6, 6>* block, Vector6d* rhs) {
-  const int channels = d_inverse_depth.channels();
+                     const SE3& T_world_s, const std::vector<HrPairPoseInputs>& pairs) {
   const int width = camera.width;
   const PairWarp warp(camera, T_world_t, T_world_s);
-  block->setZero();
-  rhs->setZero();
-  // Per row, zero where every weight is zero.
-  RowPoseSums row_sums(width);
+  std::vector<RowPoseSums> row_sums;  // per pair; per row, zero where every weight is zero
+  for (const HrPairPoseInputs& pair : pairs) {
+    pair.block->setZero();
+    pair.rhs->setZero();
+    row_sums.emplace_back(width);
+  }
   for (int y = 0; y < camera.height; ++y) {
     const float* rho_row = inverse_depth.ptr<float>(y);
-    const float* w_row = weight.ptr<float>(y);
-    const float* r_row = residual.ptr<float>(y);
-    const float* g_row = d_inverse_depth.ptr<float>(y);
-    const float* gradient_row = warped_gradients.ptr<float>(y);
-    std::array<float*, 2> out{};
-    for (size_t i = 0; i < targets.size(); ++i) {
-      if (targets[i].images != nullptr) out[i] = targets[i].images->ptr<float>(y);
-    }
-    row_sums.Clear();
+    for (size_t p = 0; p < pairs.size(); ++p) row_sums[p].Clear();
     for (int x = 0; x < width; ++x) {
-      // A zero weight in every channel: masked, or the warp is not valid.
-      const float* w = w_row + x * channels;
-      if (std::all_of(w, w + channels, [](float value) { return value == 0.0f; })) continue;
-      const float* gradient = gradient_row + x * 2 * channels;
-      GradientMoments m;
-      double q0 = 0.0, q1 = 0.0;
-      for (int c = 0; c < channels; ++c) {
-        const double g_rho = g_row[x * channels + c];
-        const float grad_x = gradient[2 * c], grad_y = gradient[2 * c + 1];
-        m.Add(w[c], r_row[x * channels + c], grad_x, grad_y);
-        q0 += w[c] * g_rho * grad_x;
-        q1 += w[c] * g_rho * grad_y;
-      }
-      const Eigen::Matrix<double, 2, 6> j = warp.DPixelDPose(x, y, rho_row[x]);
-      for (int k = 0; k < 6; ++k) {
-        const float coupling = static_cast<float>(j(0, k) * q0 + j(1, k) * q1);
-        for (size_t i = 0; i < targets.size(); ++i) {
-          if (out[i] != nullptr) out[i][6 * x + k] += targets[i].sign * coupling;
+      Eigen::Matrix<double, 2, 6> j;
+      bool j_formed = false;
+      for (size_t p = 0; p < pairs.size(); ++p) {
+        const HrPairPoseInputs& pair = pairs[p];
+        const int channels = pair.d_inverse_depth->channels();
+        // A zero weight in every channel: masked, or the warp is not valid.
+        const float* w = pair.weight->ptr<float>(y) + x * channels;
+        if (std::all_of(w, w + channels, [](float value) { return value == 0.0f; })) continue;
+        const float* r_row = pair.residual->ptr<float>(y);
+        const float* g_row = pair.d_inverse_depth->ptr<float>(y);
+        const float* gradient = pair.warped_gradients->ptr<float>(y) + x * 2 * channels;
+        GradientMoments m;
+        double q0 = 0.0, q1 = 0.0;
+        for (int c = 0; c < channels; ++c) {
+          const double g_rho = g_row[x * channels + c];
+          const float grad_x = gradient[2 * c], grad_y = gradient[2 * c + 1];
+          m.Add(w[c], r_row[x * channels + c], grad_x, grad_y);
+          q0 += w[c] * g_rho * grad_x;
+          q1 += w[c] * g_rho * grad_y;
         }
+        if (!j_formed) {
+          j = warp.DPixelDPose(x, y, rho_row[x]);
+          j_formed = true;
+        }
+        for (int k = 0; k < 6; ++k) {
+          const float coupling = static_cast<float>(j(0, k) * q0 + j(1, k) * q1);
+          for (const CouplingTarget& target : pair.targets) {
+            if (target.images != nullptr) target.images->ptr<float>(y)[6 * x + k] += target.sign * coupling;
+          }
+        }
+        row_sums[p].Set(x, j, m);
       }
-      row_sums.Set(x, j, m);
     }
-    row_sums.AddTo(width, block, rhs);
+    for (size_t p = 0; p < pairs.size(); ++p) row_sums[p].AddTo(width, pairs[p].block, pairs[p].rhs);
   }
-  *block = 0.5 * (*block + block->transpose());
+  for (const HrPairPoseInputs& pair : pairs) *pair.block = 0.5 * (*pair.block + pair.block->transpose());
 }
 
 // The IRLS form of the depth update of one frame (eq:taylorExpansion, with
@@ -1013,6 +1031,15 @@ class DepthNormalEquations {
     return targets;
   }
 
+  // Whether HR pair p with pose terms and the next pair warp the same
+  // pixels (the same t and s: a restored pair and its input pair) and the
+  // next forms its pose terms without a capture operator too.
+  bool SharesHrWarp(size_t p) const {
+    if (p + 1 >= pairs_.size()) return false;
+    const PairMatching &a = pairs_[p], &b = pairs_[p + 1];
+    return a.t == b.t && a.s == b.s && b.blur == nullptr && pose_terms_formed(b);
+  }
+
   // Every pair at the current depth (eq:taylorExpansion), one at a time:
   // its share of the right-hand side, of the HR diagonal and, with pose
   // coupling, its pose terms; returns its share of the data diagonal's sum
@@ -1027,7 +1054,12 @@ class DepthNormalEquations {
     hr_diagonal_.setTo(0.0);
     for (PoseColumn& column : couplings_) column.images.setTo(0.0);
     std::vector<cv::Mat> pose_jacobians;  // A_j of a pair with a capture operator
-    cv::Mat warped_gradients;             // the source's gradients at an HR pair's warp
+    // The source's gradients at an HR pair's warp: two buffers, as an HR
+    // pair whose next pair shares its warp (SharesHrWarp) waits for it.
+    std::array<cv::Mat, 2> warped_gradients;
+    std::vector<HrPairPoseInputs> waiting;  // HR pairs whose pose terms wait for their partner
+    std::vector<cv::Mat> waiting_images;    // and what they read (residual, weight, d rho)
+    waiting_images.reserve(6);              // no reallocation: `waiting` points into it
     for (size_t p = 0; p < pairs_.size(); ++p) {
       const PairMatching& pair = pairs_[p];
       PairState& state = states_[p];
@@ -1036,9 +1068,10 @@ class DepthNormalEquations {
       const bool jacobian_images = pose_terms_formed(pair) && pair.blur != nullptr;
       const bool hr_pose_terms = pose_terms_formed(pair) && pair.blur == nullptr;
       const cv::Mat& source = SourceImage(pair, latents_);
+      cv::Mat& gradients = warped_gradients[waiting.size() % 2];
       const WarpLinearization lin = LinearizeWarpSampled(
           camera_hr_, inverse_depth, T_world_cam_[pair.t], T_world_cam_[pair.s], source,
-          jacobian_images ? &pose_jacobians : nullptr, hr_pose_terms ? &warped_gradients : nullptr,
+          jacobian_images ? &pose_jacobians : nullptr, hr_pose_terms ? &gradients : nullptr,
           FindGradients(source_gradients_, &source));
       Predict(pair, lin.warped, &predicted_);
       const cv::Mat residual = *pair.observation - predicted_;
@@ -1055,9 +1088,17 @@ class DepthNormalEquations {
       }
       if (jacobian_images) CouplePoses(pair, lin, residual, weight, pose_jacobians, &state.pose);
       if (hr_pose_terms) {
-        HrPairPoseTerms(camera_hr_, inverse_depth, T_world_cam_[pair.t], T_world_cam_[pair.s],
-                        warped_gradients, lin.d_inverse_depth, residual, weight, TargetsOf(pair),
-                        &state.pose.block, &state.pose.rhs);
+        waiting_images.insert(waiting_images.end(), {residual, weight, lin.d_inverse_depth});
+        const cv::Mat* kept = &waiting_images[waiting_images.size() - 3];
+        waiting.push_back({&gradients, kept + 2, kept, kept + 1, TargetsOf(pair), &state.pose.block,
+                           &state.pose.rhs});
+        // The pose terms of the pair and its partner in one pass (the
+        // coupling images are touched by no other pair in between).
+        if (waiting.size() == 2 || !SharesHrWarp(p)) {
+          HrPairPoseTerms(camera_hr_, inverse_depth, T_world_cam_[pair.t], T_world_cam_[pair.s], waiting);
+          waiting.clear();
+          waiting_images.clear();
+        }
       }
       diagonal_sum += Dot1(lin.d_inverse_depth, lin.d_inverse_depth) * cv::mean(weight)[0] /
                       std::max(1, weight.channels());

@@ -90,10 +90,12 @@ struct FourFrames {
 
 constexpr int kHeldPoses = 2;
 
-// Terms() and, per pair, a second HR pair that warps another image pair
-// (`sources`[s] into `sources`[t], as the inputs' pairs do); `copies`: each
-// such pair reads its own copy of the source image (a source shared by
-// several pairs then has one entry per pair in the step's gradients).
+// Terms() and, right after each pair, a second HR pair that warps another
+// image pair (`sources`[s] into `sources`[t]), as the estimator lays out a
+// restored pair and its input pair (the two form their pose terms in one
+// pass); `copies`: each such pair reads its own copy of the source image (a
+// source shared by several pairs then has one entry per pair in the step's
+// gradients).
 std::vector<FrameDepthTerms> TermsWithSources(const FourFrames& scene, const std::vector<cv::Mat>& sources,
                                               bool copies, std::vector<cv::Mat>* copied) {
   std::vector<FrameDepthTerms> terms = scene.Terms();
@@ -101,7 +103,9 @@ std::vector<FrameDepthTerms> TermsWithSources(const FourFrames& scene, const std
   copied->reserve(64);  // pointers into it stay valid
   for (FrameDepthTerms& frame : terms) {
     const std::vector<PairMatching> restored = frame.pairs;
+    frame.pairs.clear();
     for (PairMatching pair : restored) {
+      frame.pairs.push_back(pair);
       pair.observation = &sources[pair.t];
       if (copies) {
         copied->push_back(sources[pair.s].clone());
