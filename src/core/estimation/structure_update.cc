@@ -1783,15 +1783,23 @@ class JointDepthPoseSystem::Impl {
     return systems_[t] ? systems_[t]->couplings() : kNone;
   }
 
-  // The gradients of every image the pairs warp, once for the system's
-  // life (the latents and the pairs' sources do not change in a joint step;
-  // each pair and reweighting made them anew before), in parallel.
+  // The gradients of every image that two or more pairs warp (the latents;
+  // an input pair's source is its own), once for the system's life (the
+  // latents and the pairs' sources do not change in a joint step; each pair
+  // and reweighting made them anew before), in parallel. Images of one pair
+  // are left out: they would save one Gradients call per reweighting but
+  // hold two images each through the step (the peak memory).
   void MakeSourceGradients(const std::vector<cv::Mat>& latents) {
+    std::vector<const cv::Mat*> seen;
     for (int t = 0; t < num_frames_; ++t) {
       if (!systems_[t]) continue;
       for (const PairMatching& pair : frames_[t].pairs) {
         const cv::Mat* source = &SourceImage(pair, latents);
-        if (FindGradients(&source_gradients_, source) == nullptr) source_gradients_.push_back({source, {}, {}});
+        if (std::find(seen.begin(), seen.end(), source) == seen.end()) {
+          seen.push_back(source);
+        } else if (FindGradients(&source_gradients_, source) == nullptr) {
+          source_gradients_.push_back({source, {}, {}});
+        }
       }
     }
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads_)
@@ -2024,7 +2032,7 @@ class JointDepthPoseSystem::Impl {
   const cv::Size size_;
   const int threads_;
   std::vector<std::unique_ptr<DepthNormalEquations>> systems_;  // nullptr: a frame without terms
-  std::vector<ImageGradients> source_gradients_;                 // of every image the pairs warp
+  std::vector<ImageGradients> source_gradients_;                 // of the images two or more pairs warp
   std::vector<int> reference_;        // per frame t: the pose column its couplings leave out
   Eigen::MatrixXd pose_normal_;       // N_pp (damped)
   Eigen::VectorXd pose_rhs_, gauge_;  // gauge_: unit, empty if none

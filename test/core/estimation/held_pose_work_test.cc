@@ -108,9 +108,9 @@ void ExpectSameMovedResults(const FourFrames& scene, const std::vector<std::vect
 // Terms() and, right after each pair, a second HR pair that warps another
 // image pair (`sources`[s] into `sources`[t]), as the estimator lays out a
 // restored pair and its input pair (the two form their pose terms in one
-// pass); `copies`: each such pair reads its own copy of the source image (a
-// source shared by several pairs then has one entry per pair in the step's
-// gradients).
+// pass); `copies`: each such pair reads its own copy of the source image
+// (read by one pair only, its gradients are made per pair and reweighting
+// instead of once for the step).
 std::vector<FrameDepthTerms> TermsWithSources(const FourFrames& scene, const std::vector<cv::Mat>& sources,
                                               bool copies, std::vector<cv::Mat>* copied) {
   std::vector<FrameDepthTerms> terms = scene.Terms();
