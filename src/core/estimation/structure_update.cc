@@ -648,30 +648,12 @@ void StructureUpdateOptions::Check() const {
 
 namespace {
 
-// The central-difference gradients of one image (Gradients), made once for
-// every linearisation that warps it while it does not change.
-struct ImageGradients {
-  const cv::Mat* image = nullptr;
-  cv::Mat gx, gy;
-};
-
-// The entry of `gradients` for `image` (by address); nullptr if none.
-const ImageGradients* FindGradients(const std::vector<ImageGradients>* gradients, const cv::Mat* image) {
-  if (gradients == nullptr) return nullptr;
-  for (const ImageGradients& entry : *gradients) {
-    if (entry.image == image) return &entry;
-  }
-  return nullptr;
-}
-
 // LinearizeWarp, and with `warped_gradients` the source's gradients at the
 // warp (HR, 2C channels: g_x of channel c at 2c, g_y at 2c + 1; zero where
-// the warp is not valid), for the pose terms of HR pairs. `known` (optional):
-// latent_s's gradients, already made (the same values Gradients gives).
+// the warp is not valid), for the pose terms of HR pairs.
 WarpLinearization LinearizeWarpSampled(const PinholeCamera& camera_hr, const cv::Mat& inverse_depth_t,
                                        const SE3& T_world_t, const SE3& T_world_s, const cv::Mat& latent_s,
-                                       std::vector<cv::Mat>* pose_jacobians, cv::Mat* warped_gradients,
-                                       const ImageGradients* known = nullptr) {
+                                       std::vector<cv::Mat>* pose_jacobians, cv::Mat* warped_gradients) {
   const int channels = latent_s.channels();
   const int width = camera_hr.width, height = camera_hr.height;
   // The outputs are not cleared first: every pixel is written, zeros
@@ -694,10 +676,8 @@ WarpLinearization LinearizeWarpSampled(const PinholeCamera& camera_hr, const cv:
     if (pose_jacobians == nullptr) return;
     for (cv::Mat& j : *pose_jacobians) std::fill_n(j.ptr<float>(y) + x * channels, channels, 0.0f);
   };
-  cv::Mat made_gx, made_gy;
-  if (known == nullptr) Gradients(latent_s, &made_gx, &made_gy);
-  const cv::Mat& gx = known != nullptr ? known->gx : made_gx;
-  const cv::Mat& gy = known != nullptr ? known->gy : made_gy;
+  cv::Mat gx, gy;
+  Gradients(latent_s, &gx, &gy);
   const PairWarp warp(camera_hr, T_world_t, T_world_s);
 #pragma omp parallel for schedule(static)
   for (int y = 0; y < height; ++y) {
@@ -896,12 +876,6 @@ class DepthNormalEquations {
     FormDiagonal();
   }
 
-  // From now on Linearize reads the sources' gradients from `gradients`
-  // (made by the caller from the same images, which must not change while
-  // this system lives) where they have an entry, instead of making them per
-  // pair and reweighting.
-  void UseSourceGradients(const std::vector<ImageGradients>* gradients) { source_gradients_ = gradients; }
-
   // Frees the scratch images of Linearize (kept otherwise for the next one).
   void ReleaseScratch() {
     squared_.release();
@@ -1067,12 +1041,10 @@ class DepthNormalEquations {
       // the pose Jacobian images.
       const bool jacobian_images = pose_terms_formed(pair) && pair.blur != nullptr;
       const bool hr_pose_terms = pose_terms_formed(pair) && pair.blur == nullptr;
-      const cv::Mat& source = SourceImage(pair, latents_);
       cv::Mat& gradients = warped_gradients[waiting.size() % 2];
       const WarpLinearization lin = LinearizeWarpSampled(
-          camera_hr_, inverse_depth, T_world_cam_[pair.t], T_world_cam_[pair.s], source,
-          jacobian_images ? &pose_jacobians : nullptr, hr_pose_terms ? &gradients : nullptr,
-          FindGradients(source_gradients_, &source));
+          camera_hr_, inverse_depth, T_world_cam_[pair.t], T_world_cam_[pair.s], SourceImage(pair, latents_),
+          jacobian_images ? &pose_jacobians : nullptr, hr_pose_terms ? &gradients : nullptr);
       Predict(pair, lin.warped, &predicted_);
       const cv::Mat residual = *pair.observation - predicted_;
       cv::Mat weight;
@@ -1239,7 +1211,6 @@ class DepthNormalEquations {
   cv::Mat data_rhs_;                               // the pairs' share of the rhs
   cv::Mat squared_, expanded_, predicted_, back_;  // scratch
   double damping_ = 0.0;
-  const std::vector<ImageGradients>* source_gradients_ = nullptr;  // see UseSourceGradients
   bool measure_residuals_ = false;
   double absolute_residuals_ = 0.0, residual_values_ = 0.0;  // of the pairs, with measure_residuals_
 };
@@ -1626,7 +1597,6 @@ class JointDepthPoseSystem::Impl {
           options, reference_[t], options.skip_held_pose_work ? num_fixed_ : 0);
       if (prior_ != nullptr) systems_[t]->MeasureResiduals();
     }
-    MakeSourceGradients(latents);
   }
 
   int num_values() const { return num_frames_ * pixels_ + 6 * num_frames_; }
@@ -1781,35 +1751,6 @@ class JointDepthPoseSystem::Impl {
   const std::vector<PoseColumn>& Couplings(int t) const {
     static const std::vector<PoseColumn> kNone;
     return systems_[t] ? systems_[t]->couplings() : kNone;
-  }
-
-  // The gradients of every image that two or more pairs warp (the latents;
-  // an input pair's source is its own), once for the system's life (the
-  // latents and the pairs' sources do not change in a joint step; each pair
-  // and reweighting made them anew before), in parallel. Images of one pair
-  // are left out: they would save one Gradients call per reweighting but
-  // hold two images each through the step (the peak memory).
-  void MakeSourceGradients(const std::vector<cv::Mat>& latents) {
-    std::vector<const cv::Mat*> seen;
-    for (int t = 0; t < num_frames_; ++t) {
-      if (!systems_[t]) continue;
-      for (const PairMatching& pair : frames_[t].pairs) {
-        const cv::Mat* source = &SourceImage(pair, latents);
-        if (std::find(seen.begin(), seen.end(), source) == seen.end()) {
-          seen.push_back(source);
-        } else if (FindGradients(&source_gradients_, source) == nullptr) {
-          source_gradients_.push_back({source, {}, {}});
-        }
-      }
-    }
-#pragma omp parallel for schedule(dynamic, 1) num_threads(threads_)
-    for (int i = 0; i < static_cast<int>(source_gradients_.size()); ++i) {
-      ImageGradients& entry = source_gradients_[i];
-      Gradients(*entry.image, &entry.gx, &entry.gy);
-    }
-    for (const auto& system : systems_) {
-      if (system) system->UseSourceGradients(&source_gradients_);
-    }
   }
 
   // A held frame among t and the frames its pairs match, else t.
@@ -2032,7 +1973,6 @@ class JointDepthPoseSystem::Impl {
   const cv::Size size_;
   const int threads_;
   std::vector<std::unique_ptr<DepthNormalEquations>> systems_;  // nullptr: a frame without terms
-  std::vector<ImageGradients> source_gradients_;                 // of the images two or more pairs warp
   std::vector<int> reference_;        // per frame t: the pose column its couplings leave out
   Eigen::MatrixXd pose_normal_;       // N_pp (damped)
   Eigen::VectorXd pose_rhs_, gauge_;  // gauge_: unit, empty if none

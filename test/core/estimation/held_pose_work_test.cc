@@ -3,10 +3,10 @@
 // window) enters only the held poses' rows of the pose systems, so its pose
 // terms are not formed. The joint depth + pose step, the pose update and a
 // continued stream window give the same results bit for bit with and
-// without the saving. The joint step's other exact savings (the sources'
-// gradients made once per step, the reduced camera system's products formed
-// frame by frame in parallel) keep its results too: the same bits on one and
-// two threads, and with shared or separate source images.
+// without the saving. The joint step's other exact savings (a restored pair
+// and its input pair form their pose terms in one pass, the reduced camera
+// system's products are formed frame by frame in parallel) keep its results
+// too: the same bits on one and two threads.
 #include <cstring>
 #include <vector>
 
@@ -108,26 +108,16 @@ void ExpectSameMovedResults(const FourFrames& scene, const std::vector<std::vect
 // Terms() and, right after each pair, a second HR pair that warps another
 // image pair (`sources`[s] into `sources`[t]), as the estimator lays out a
 // restored pair and its input pair (the two form their pose terms in one
-// pass); `copies`: each such pair reads its own copy of the source image
-// (read by one pair only, its gradients are made per pair and reweighting
-// instead of once for the step).
-std::vector<FrameDepthTerms> TermsWithSources(const FourFrames& scene, const std::vector<cv::Mat>& sources,
-                                              bool copies, std::vector<cv::Mat>* copied) {
+// pass).
+std::vector<FrameDepthTerms> TermsWithSources(const FourFrames& scene, const std::vector<cv::Mat>& sources) {
   std::vector<FrameDepthTerms> terms = scene.Terms();
-  copied->clear();
-  copied->reserve(64);  // pointers into it stay valid
   for (FrameDepthTerms& frame : terms) {
     const std::vector<PairMatching> restored = frame.pairs;
     frame.pairs.clear();
     for (PairMatching pair : restored) {
       frame.pairs.push_back(pair);
       pair.observation = &sources[pair.t];
-      if (copies) {
-        copied->push_back(sources[pair.s].clone());
-        pair.source = &copied->back();
-      } else {
-        pair.source = &sources[pair.s];
-      }
+      pair.source = &sources[pair.s];
       frame.pairs.push_back(pair);
     }
   }
@@ -159,24 +149,10 @@ std::vector<cv::Mat> SecondImages(const FourFrames& scene) {
 TEST(JointStepThreads, OneAndTwoThreadsGiveTheSameBits) {
   const FourFrames scene;
   const std::vector<cv::Mat> sources = SecondImages(scene);
-  std::vector<cv::Mat> copied;
-  const std::vector<FrameDepthTerms> terms = TermsWithSources(scene, sources, false, &copied);
+  const std::vector<FrameDepthTerms> terms = TermsWithSources(scene, sources);
   std::vector<std::vector<SE3>> poses(2);
   std::vector<std::vector<cv::Mat>> rho(2);
   for (int threads : {1, 2}) JointStep(scene, terms, threads, &poses[threads - 1], &rho[threads - 1]);
-  ExpectSameMovedResults(scene, poses, rho);
-}
-
-TEST(JointStepSourceGradients, SharedSourcesGiveTheBitsOfSeparateCopies) {
-  const FourFrames scene;
-  const std::vector<cv::Mat> sources = SecondImages(scene);
-  std::vector<std::vector<SE3>> poses(2);
-  std::vector<std::vector<cv::Mat>> rho(2);
-  std::vector<cv::Mat> copied;
-  for (int copies = 0; copies < 2; ++copies) {
-    const std::vector<FrameDepthTerms> terms = TermsWithSources(scene, sources, copies == 1, &copied);
-    JointStep(scene, terms, 1, &poses[copies], &rho[copies]);
-  }
   ExpectSameMovedResults(scene, poses, rho);
 }
 
