@@ -105,6 +105,10 @@ void AddPosePriorOptions(dsm::ToolCommandLine* command_line, Flags* flags, dsm::
                "initialisation: where the tracks reject a turning camera, decide the turn again by the "
                "epipolar distances of a dense optical flow under both solutions (replaces "
                "--dense-fixation-test; default off)");
+  cli.add_option("--flow-test-tile-px", options->initializer.flow_test_tile_px,
+                 "with --flow-fixation-test: LR px of the tiles that are its samples (clusters of the "
+                 "flow's correlated errors; default 32)")
+      ->check(dsm::FlagNumber(1.0));
   cli.add_option("--dense-fixation-test-z", options->initializer.dense_test_z,
                  "with --dense-fixation-test or --flow-fixation-test: standard errors by which the turn must "
                  "lower the dense data cost or the flow's epipolar distances (default 3.09, the 0.1 % level)")

@@ -49,6 +49,8 @@
 #include <ceres/ceres.h>
 #include <ceres/rotation.h>
 #include <Eigen/Dense>
+#include <boost/math/distributions/normal.hpp>
+#include <boost/math/distributions/students_t.hpp>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
@@ -1754,6 +1756,7 @@ void InitializerOptions::Check() const {
   CheckAbove(prefix + "rotation_prior_px", rotation_prior_px, 0.0);
   CheckAbove(prefix + "fixation_test_z", fixation_test_z, 0.0);
   CheckAtLeast(prefix + "dense_test_block_px", dense_test_block_px, 1);
+  CheckAtLeast(prefix + "flow_test_tile_px", flow_test_tile_px, 1);
   CheckAbove(prefix + "dense_test_z", dense_test_z, 0.0);
   CheckAtLeast(prefix + "ba_max_iterations", ba_max_iterations, 0);
   CheckAtLeast(prefix + "pose_prior_position_sigma", pose_prior_position_sigma, 0.0);
@@ -2577,10 +2580,40 @@ DataCostComparison CompareDataCosts(const std::vector<cv::Mat>& before, const st
 
 // Distance (LR px) of each flow end point x + flow(x) in frame s from the
 // epipolar line of x (frame t's pixel) under a structure's mid-exposure
-// poses; 0 where the end point leaves the image (no sample); capped at
-// `cap` (flow failures: occlusions, textureless areas).
+// poses; 0 where the end point leaves the image or `consistent` is 0 (no
+// sample); capped at `cap` (flow failures: occlusions, textureless areas).
+// Forward-backward consistency of a flow pair (Sundaram, Brox and Keutzer,
+// ECCV 2010): 255 where |w_f(x) + w_b(x + w_f(x))|^2 < 0.01 (|w_f|^2 +
+// |w_b|^2) + 0.5 px^2, w_b bilinearly sampled; 0 elsewhere and where the
+// end point leaves the image.
+cv::Mat ForwardBackwardConsistent(const cv::Mat& forward, const cv::Mat& backward) {
+  cv::Mat map(forward.size(), CV_32FC2);
+  for (int y = 0; y < forward.rows; ++y) {
+    const cv::Point2f* f = forward.ptr<cv::Point2f>(y);
+    cv::Point2f* m = map.ptr<cv::Point2f>(y);
+    for (int x = 0; x < forward.cols; ++x) m[x] = cv::Point2f(x + f[x].x, y + f[x].y);
+  }
+  cv::Mat backward_at_end;
+  cv::remap(backward, backward_at_end, map, cv::noArray(), cv::INTER_LINEAR, cv::BORDER_CONSTANT,
+            cv::Scalar(std::numeric_limits<float>::quiet_NaN(), std::numeric_limits<float>::quiet_NaN()));
+  cv::Mat consistent(forward.size(), CV_8UC1, cv::Scalar(0));
+  for (int y = 0; y < forward.rows; ++y) {
+    const cv::Point2f* f = forward.ptr<cv::Point2f>(y);
+    const cv::Point2f* b = backward_at_end.ptr<cv::Point2f>(y);
+    const cv::Point2f* m = map.ptr<cv::Point2f>(y);
+    uchar* c = consistent.ptr<uchar>(y);
+    for (int x = 0; x < forward.cols; ++x) {
+      if (!(m[x].x >= 0.0f && m[x].y >= 0.0f && m[x].x <= forward.cols - 1 && m[x].y <= forward.rows - 1))
+        continue;
+      const cv::Point2f sum = f[x] + b[x];
+      if (sum.dot(sum) < 0.01f * (f[x].dot(f[x]) + b[x].dot(b[x])) + 0.5f) c[x] = 255;
+    }
+  }
+  return consistent;
+}
+
 cv::Mat EpipolarDistances(const PinholeCamera& camera, const SparseStructure& structure, int t, int s,
-                          const cv::Mat& flow, double cap) {
+                          const cv::Mat& flow, const cv::Mat& consistent, double cap) {
   const SE3 T_s_t = structure.T_cam_world[s] * structure.T_cam_world[t].Inverse();
   const Eigen::Vector3d b = T_s_t.translation();
   Eigen::Matrix3d b_cross;
@@ -2591,7 +2624,9 @@ cv::Mat EpipolarDistances(const PinholeCamera& camera, const SparseStructure& st
   for (int y = 0; y < flow.rows; ++y) {
     const cv::Point2f* f = flow.ptr<cv::Point2f>(y);
     float* d = distance.ptr<float>(y);
+    const uchar* c = consistent.ptr<uchar>(y);
     for (int x = 0; x < flow.cols; ++x) {
+      if (c[x] == 0) continue;
       const double u = x + f[x].x, v = y + f[x].y;
       if (!std::isfinite(u) || !std::isfinite(v) || !camera.InImage(u, v)) continue;
       const Eigen::Vector3d line = fundamental * Eigen::Vector3d(x, y, 1.0);
@@ -2606,23 +2641,35 @@ cv::Mat EpipolarDistances(const PinholeCamera& camera, const SparseStructure& st
 // InitializerOptions::flow_fixation_test: the epipolar distances of a dense
 // flow of the pairs t -> t+1, t -> t+2 under the structure without the turn
 // against those under the turn, compared as CompareDataCosts compares costs.
-DataCostComparison CompareFlowEpipolarDistances(const std::vector<cv::Mat>& gray,
-                                                const PinholeCamera& camera, const InitializerOptions& options,
+DataCostComparison CompareFlowEpipolarDistances(const std::vector<cv::Mat>& gray, const PinholeCamera& camera,
+                                                const InitializerOptions& options,
                                                 const SparseStructure& still, const SparseStructure& turned) {
   std::vector<cv::Mat> before, after;
   cv::Ptr<cv::DISOpticalFlow> dis = cv::DISOpticalFlow::create(cv::DISOpticalFlow::PRESET_MEDIUM);
   std::vector<cv::Mat> gray8(gray.size());
   for (size_t t = 0; t < gray.size(); ++t) gray[t].convertTo(gray8[t], CV_8UC1, 255.0);
-  cv::Mat flow;
+  cv::Mat flow, back;
   const int num_frames = static_cast<int>(gray.size());
   for (int step = 1; step <= 2; ++step) {
     for (int t = 0; t + step < num_frames; ++t) {
       dis->calc(gray8[t], gray8[t + step], flow);
-      before.push_back(EpipolarDistances(camera, still, t, t + step, flow, options.pnp_threshold_px));
-      after.push_back(EpipolarDistances(camera, turned, t, t + step, flow, options.pnp_threshold_px));
+      dis->calc(gray8[t + step], gray8[t], back);
+      const cv::Mat consistent = ForwardBackwardConsistent(flow, back);
+      before.push_back(
+          EpipolarDistances(camera, still, t, t + step, flow, consistent, options.pnp_threshold_px));
+      after.push_back(
+          EpipolarDistances(camera, turned, t, t + step, flow, consistent, options.pnp_threshold_px));
     }
   }
-  return CompareDataCosts(before, after, options.dense_test_block_px);
+  return CompareDataCosts(before, after, options.flow_test_tile_px);
+}
+
+// The flow test's bound: Student's t quantile with tiles - 1 degrees of
+// freedom at the one-sided level of the normal quantile dense_test_z.
+double FlowTestBound(const InitializerOptions& options, int tiles) {
+  if (tiles < 2) return std::numeric_limits<double>::infinity();
+  const double level = boost::math::cdf(boost::math::normal(), options.dense_test_z);
+  return boost::math::quantile(boost::math::students_t(tiles - 1.0), level);
 }
 
 // Poses at shutter close and dense depths (stage 4) of a bundle-adjusted
@@ -2665,11 +2712,11 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
     const double test_ms = NowMs();
     const DataCostComparison gain =
         CompareFlowEpipolarDistances(window.gray, camera_lr, options, structure, *rejected_turn);
-    const bool keep_turn = gain.z > options.dense_test_z;
+    const double bound = FlowTestBound(options, gain.blocks);
+    const bool keep_turn = gain.z > bound;
     summary << Format("flow turn test: the turn lowers the flow's epipolar distances by %.3g %% (%.4g px; "
-                      "%.2f standard errors over %.0f blocks, bound %.2f; %.1f ms): ",
-                      100.0 * gain.relative, gain.mean, gain.z, gain.blocks, options.dense_test_z,
-                      NowMs() - test_ms)
+                      "%.2f standard errors over %.0f tiles, bound %.2f; %.1f ms): ",
+                      100.0 * gain.relative, gain.mean, gain.z, gain.blocks, bound, NowMs() - test_ms)
             << (keep_turn ? "turn kept\n" : "no turn\n");
     if (keep_turn) structure = std::move(*rejected_turn);
     rejected_turn.reset();

@@ -91,7 +91,20 @@ struct InitializerOptions {
   // dense_test_block_px, one sample per block location, as above).
   // Replaces dense_fixation_test where both are set. Not with a rolling
   // shutter or a pose prior.
+  // Only flow that survives the forward-backward check votes: the flow
+  // s -> t is computed too, and an end point counts only where
+  // |w_f(x) + w_b(x + w_f(x))|^2 < 0.01 (|w_f|^2 + |w_b|^2) + 0.5 px^2
+  // (Sundaram, Brox and Keutzer, ECCV 2010: occlusions and flow failures,
+  // whose errors are spatially coherent, do not vote). The samples of the
+  // flow test are tiles of flow_test_tile_px (clusters of blocks: DIS flow
+  // errors are correlated over its patches, so 16 px blocks are not
+  // independent), and the bound is Student's t quantile with tiles - 1
+  // degrees of freedom at the one-sided level of dense_test_z (few
+  // clusters: the cluster-robust test's reference distribution).
   bool flow_fixation_test = false;
+  // LR px; > the footprint of a DIS PRESET_MEDIUM patch at its finest scale
+  // (12 px at half resolution = 24 LR px): pixels that share no patch.
+  int flow_test_tile_px = 32;
   int dense_test_block_px = 16;  // LR px; > the matching patch and the blur
   // One-sided normal quantile of that test: 3.09 is the 0.1 % level. The
   // blocks make the samples nearly independent, so it is the usual level
@@ -119,7 +132,6 @@ struct InitializerOptions {
   // not. 0: the orientations only enter the alignment.
   double pose_prior_rotation_sigma_deg = 0.1;
   PosePriorOptions pose_prior;  // the alignment's outlier distance, extent needed
-
 
   // --- Dense depth (eq:initializationScene): sweep, TV-L1, refinement.
   bool blur_aware = true;    // match Psi_s o B_t against Psi_t o B_s (false: B_t vs B_s)
