@@ -171,6 +171,36 @@ TEST(Noise, MultiFrameDataPassLowersTheAddedError) {
   EXPECT_LT(runs.Added(1), runs.Added(0));
 }
 
+// The denoised anchor (EstimatorOptions::denoised_anchor, off by default):
+// on noise-free frames (the noise estimate below its floor) the images are
+// those without it, bit for bit; at sigma 2 it changes the images only
+// (it runs in the multi-frame data pass, after depth and poses).
+TEST(Noise, DenoisedAnchorIsInertWithoutNoise) {
+  for (int sigma : {0, 2}) {
+    const Sequence sequence = DollsWithNoise("noise_anchor", sigma);
+    ASSERT_TRUE(sequence.ground_truth.has_value());
+    EstimatorOptions options;
+    options.max_iterations = 1;
+    options.num_threads = 1;
+    const EstimatorResult off = Estimator(options).Run(InputOf(sequence));
+    options.denoised_anchor.enabled = true;
+    const EstimatorResult on = Estimator(options).Run(InputOf(sequence));
+    ExpectSameDepthAndPoses(on, off);
+    double largest = 0.0;
+    for (size_t t = 0; t < on.latent.size(); ++t) {
+      largest = std::max(largest, cv::norm(on.latent[t], off.latent[t], cv::NORM_INF));
+    }
+    std::printf("sigma %d: noise estimate %.2f gray levels, images differ by up to %.4f\n", sigma,
+                255.0 * on.noise_sigma, largest);
+    if (sigma == 0) {
+      EXPECT_LT(255.0 * on.noise_sigma, 0.9);
+      EXPECT_EQ(largest, 0.0);
+    } else {
+      EXPECT_GT(largest, 0.0);
+    }
+  }
+}
+
 // The weight rule: unchanged without noise, growing as the residual's scale.
 TEST(Noise, ImageWeightFollowsTheResidualScale) {
   EstimatorOptions options;

@@ -20,6 +20,7 @@
 #include "deblur_sr_mvs/core/estimation/initializer.h"
 #include "deblur_sr_mvs/core/estimation/photometric.h"
 #include "deblur_sr_mvs/core/estimation/structure_update.h"
+#include "deblur_sr_mvs/core/estimation/denoised_anchor.h"
 #include "deblur_sr_mvs/core/estimation/multi_frame_data.h"
 #include "deblur_sr_mvs/core/estimation/temporal_fusion.h"
 #include "deblur_sr_mvs/core/geometry/camera.h"
@@ -249,6 +250,13 @@ struct EstimatorOptions {
   // energies are unchanged. On by default (relative_weight 1; 0 turns it
   // off): BENCHMARKS.md "Multi-frame evidence in the last image pass".
   MultiFrameDataOptions multi_frame_data;
+  // Denoised anchor (issue 12, noise): in joint mode, where the window's
+  // noise estimate (noise_sigma) lies above the estimator's floor, the
+  // multi-frame data pass also pulls each I_t towards its non-local-means
+  // denoised copy (a plug-and-play step; DenoisedAnchorOptions), frame 0
+  // included; on noise-free frames nothing changes. Off by default: it lost
+  // PSNR at sigma 1-4 (BENCHMARKS.md, branch noise7).
+  DenoisedAnchorOptions denoised_anchor;
   // Depth re-sweep (issue 14): joint mode's output D_t re-estimated by a
   // plane sweep over the restored images with guided-filter cost
   // aggregation where it clearly disagrees with the solver's
