@@ -224,6 +224,12 @@ void AddDenoisedAnchorOptions(dsm::ToolCommandLine* command_line, dsm::Estimator
   cli.add_flag("--denoised-anchor,!--no-denoised-anchor", anchor.enabled,
                "joint, noisy frames: pull each restored image in the last pass towards its non-local-means "
                "denoised copy (default off; no effect where the noise estimate is below its floor)");
+  cli.add_flag("--input-denoising,!--no-input-denoising", options->input_denoising.enabled,
+               "filter the frames with 3-frame non-local means at h = the noise estimate above its floor "
+               "before estimating (no effect on noise-free frames)");
+  cli.add_option("--input-denoising-h-scale", options->input_denoising.h_scale,
+                 "with --input-denoising: h over the input noise (default 1)")
+      ->check(dsm::FlagNumber());
   cli.add_option("--anchor-weight-scale", anchor.weight_scale,
                  "with --denoised-anchor: scale of the proximity weight (default 1)")
       ->check(dsm::FlagNumber());

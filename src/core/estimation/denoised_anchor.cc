@@ -30,7 +30,8 @@ DenoisedAnchorSettings AnchorSettings(const DenoisedAnchorOptions& options, doub
   const double estimate = std::max(estimated_noise, 0.0);
   const double excess = estimate * estimate - options.noise_floor * options.noise_floor;
   settings.input_noise = excess > 0.0 ? std::sqrt(excess) : 0.0;
-  settings.active = options.enabled && settings.input_noise > 0.0 && settings.input_noise >= options.min_noise;
+  settings.active =
+      options.enabled && settings.input_noise > 0.0 && settings.input_noise >= options.min_noise;
   if (!settings.active) return settings;
   settings.amplified_noise = options.amplification * settings.input_noise;
   settings.h = options.h_scale * settings.amplified_noise;

@@ -1592,6 +1592,27 @@ bool GainReadable(const EstimatorInput& input) {
 
 }  // namespace
 
+// EstimatorOptions::input_denoising: the frames filtered (DenoiseInputFrames)
+// at the strength the noise estimate asks for, then `run` on them without
+// the stage; frames below its noise floor go to `run` as they are.
+EstimatorResult Estimator::RunInputDenoised(const EstimatorInput& input, const InnerRun& run) const {
+  EstimatorOptions inner = options_;
+  inner.input_denoising.enabled = false;
+  Estimator estimator(inner);
+  estimator.SetCancelFlag(cancel_);
+  const double start = NowMs();
+  const double estimate = options_.noise_sigma >= 0.0 ? options_.noise_sigma : EstimateNoiseSigma(input.images);
+  const double h = InputDenoisingStrength(options_.input_denoising, estimate);
+  if (h <= 0.0) return run(&estimator, input);
+  EstimatorInput denoised = input;
+  denoised.images = DenoiseInputFrames(input.images, h, options_.input_denoising);
+  const double denoise_seconds = (NowMs() - start) / 1000.0;
+  EstimatorResult result = run(&estimator, denoised);
+  result.input_denoising_h = h;
+  result.timings.insert(result.timings.begin(), StageTiming{"input denoising", denoise_seconds});
+  return result;
+}
+
 EstimatorResult Estimator::RunGainCompensated(const EstimatorInput& input, const InnerRun& run) const {
   EstimatorOptions inner = options_;
   inner.gain_compensation = false;
@@ -1683,6 +1704,7 @@ void EstimatorOptions::Check() const {
   depth_consistency.Check();
   multi_frame_data.Check();
   denoised_anchor.Check();
+  input_denoising.Check();
   depth_sweep.Check();
 }
 
@@ -1726,6 +1748,9 @@ EstimatorResult Estimator::Run(const EstimatorInput& input, const ProgressCallba
   if (options_.gain_compensation) {
     return RunGainCompensated(input,
                               [&](Estimator* e, const EstimatorInput& in) { return e->Run(in, progress); });
+  }
+  if (options_.input_denoising.enabled) {
+    return RunInputDenoised(input, [&](Estimator* e, const EstimatorInput& in) { return e->Run(in, progress); });
   }
   const double start = NowMs();
   if (progress) progress(0.0, "initialisation");

@@ -14,6 +14,7 @@
 
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/estimation/image_update.h"
+#include "deblur_sr_mvs/core/estimation/input_denoising.h"
 #include "deblur_sr_mvs/core/imaging/capture_operator.h"
 
 namespace deblur_sr_mvs {
@@ -24,7 +25,8 @@ constexpr double kGray = 1.0 / 255.0;
 // Below the floor (the estimates of noise-free frames read 0.46-0.85 gray
 // levels) there is no anchor; above it h and the weight follow the rule.
 TEST(DenoisedAnchor, SettingsFollowTheNoiseAboveTheFloor) {
-  const DenoisedAnchorOptions options;
+  DenoisedAnchorOptions options;
+  options.enabled = true;
   for (double estimate : {0.0, 0.46, 0.85, 0.9}) {
     EXPECT_FALSE(AnchorSettings(options, estimate * kGray, 30.0, kGray).active) << estimate;
   }
@@ -169,6 +171,51 @@ TEST(QuadraticAnchor, PullsTheSolutionTowardsTheAnchor) {
   const double to_anchor = cv::norm(moderate, anchor_image), plain_to_anchor = cv::norm(plain, anchor_image);
   EXPECT_LT(to_anchor, plain_to_anchor);
   EXPECT_GT(to_anchor, cv::norm(strong, anchor_image));
+}
+
+// The input filter's strength: none below the floor or when off, then
+// h_scale x sqrt(sigma^2 - floor^2).
+TEST(InputDenoising, StrengthFollowsTheNoiseAboveTheFloor) {
+  InputDenoisingOptions options;
+  options.enabled = true;
+  for (double estimate : {0.0, 0.46, 0.85, 0.9}) {
+    EXPECT_EQ(InputDenoisingStrength(options, estimate * kGray), 0.0) << estimate;
+  }
+  EXPECT_NEAR(InputDenoisingStrength(options, 2.0 * kGray), std::sqrt(4.0 - 0.81) * kGray, 1e-12);
+  options.h_scale = 0.5;
+  EXPECT_NEAR(InputDenoisingStrength(options, 4.0 * kGray), 0.5 * std::sqrt(16.0 - 0.81) * kGray, 1e-12);
+  options.enabled = false;
+  EXPECT_EQ(InputDenoisingStrength(options, 4.0 * kGray), 0.0);
+  options = InputDenoisingOptions();
+  options.search_px = 20;
+  EXPECT_THROW(options.Check(), InputError);
+  EXPECT_NO_THROW(InputDenoisingOptions().Check());
+}
+
+// Three 8-bit frames of one scene with independent noise of 6 gray levels:
+// each filtered frame is closer to the truth (the middle one, which has a
+// neighbour on either side, less than 0.6x the noisy frame's RMS error).
+TEST(InputDenoising, NoisyFramesGetCloserToTheTruth) {
+  const cv::Mat truth = Cartoon(60, 80);
+  std::vector<cv::Mat> frames;
+  cv::theRNG().state = 11;
+  for (int t = 0; t < 3; ++t) {
+    cv::Mat noise(truth.size(), truth.type()), quantised;
+    cv::randn(noise, cv::Scalar::all(0.0), cv::Scalar::all(6.0 * kGray));
+    cv::Mat noisy = truth + noise;
+    noisy.convertTo(quantised, CV_8U, 255.0);  // as read from 8-bit files
+    quantised.convertTo(noisy, CV_32F, 1.0 / 255.0);
+    frames.push_back(noisy);
+  }
+  const std::vector<cv::Mat> filtered = DenoiseInputFrames(frames, 6.0 * kGray, InputDenoisingOptions());
+  ASSERT_EQ(filtered.size(), frames.size());
+  for (int t = 0; t < 3; ++t) {
+    const double before = RmsGray(frames[t], truth), after = RmsGray(filtered[t], truth);
+    std::printf("frame %d: RMS error %.2f -> %.2f gray levels\n", t, before, after);
+    EXPECT_LT(after, (t == 1 ? 0.6 : 0.8) * before);
+  }
+  EXPECT_THROW(DenoiseInputFrames({frames[0], cv::Mat(4, 4, CV_32FC3)}, kGray, InputDenoisingOptions()),
+               InputError);
 }
 
 }  // namespace

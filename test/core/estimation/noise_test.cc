@@ -201,6 +201,33 @@ TEST(Noise, DenoisedAnchorIsInertWithoutNoise) {
   }
 }
 
+// The input denoising (EstimatorOptions::input_denoising, off by default)
+// leaves noise-free frames alone: the result is the one without it, bit for
+// bit; at sigma 2 it filters them (h > 0).
+TEST(Noise, InputDenoisingIsInertWithoutNoise) {
+  for (int sigma : {0, 2}) {
+    const Sequence sequence = DollsWithNoise("noise_input_denoising", sigma);
+    ASSERT_TRUE(sequence.ground_truth.has_value());
+    EstimatorOptions options;
+    options.max_iterations = 1;
+    options.num_threads = 1;
+    options.input_denoising.enabled = true;
+    if (sigma == 2) {
+      options.max_iterations = 0;  // only the filter's strength is checked here
+      EXPECT_GT(255.0 * Estimator(options).Run(InputOf(sequence)).input_denoising_h, 1.0);
+      continue;
+    }
+    const EstimatorResult on = Estimator(options).Run(InputOf(sequence));
+    options.input_denoising.enabled = false;
+    const EstimatorResult off = Estimator(options).Run(InputOf(sequence));
+    EXPECT_EQ(on.input_denoising_h, 0.0);
+    ExpectSameDepthAndPoses(on, off);
+    for (size_t t = 0; t < on.latent.size(); ++t) {
+      EXPECT_EQ(cv::norm(on.latent[t], off.latent[t], cv::NORM_INF), 0.0);
+    }
+  }
+}
+
 // The weight rule: unchanged without noise, growing as the residual's scale.
 TEST(Noise, ImageWeightFollowsTheResidualScale) {
   EstimatorOptions options;
