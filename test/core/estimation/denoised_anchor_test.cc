@@ -1,8 +1,8 @@
-// The denoised anchor of the last image pass (DenoisedAnchorOptions): its
-// settings follow the noise estimate above the estimator's floor, the
-// non-local-means anchor brings a noisy image closer to the truth, and the
-// image update's proximity term (QuadraticAnchor) is exact: weight 0 is the
-// update of before bit for bit, a large weight gives the anchor.
+// The denoised anchor of the last image pass (DenoisedAnchorOptions) and the
+// input denoising (InputDenoisingOptions): their settings follow the noise
+// estimate above the estimator's floor, and the non-local-means filters
+// bring noisy images closer to the truth. The image update's proximity term
+// (QuadraticAnchor) is tested in image_update_test.cc.
 #include "deblur_sr_mvs/core/estimation/denoised_anchor.h"
 
 #include <cmath>
@@ -13,9 +13,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "deblur_sr_mvs/core/common/errors.h"
-#include "deblur_sr_mvs/core/estimation/image_update.h"
 #include "deblur_sr_mvs/core/estimation/input_denoising.h"
-#include "deblur_sr_mvs/core/imaging/capture_operator.h"
 
 namespace deblur_sr_mvs {
 namespace {
@@ -99,78 +97,6 @@ TEST(DenoisedAnchor, KeepsTheFloatValuesTheFilterDoesNotChange) {
   const cv::Mat anchor = DenoisedAnchor(flat, 3.0 * kGray, DenoisedAnchorOptions());
   EXPECT_EQ(cv::norm(anchor, flat, cv::NORM_INF), 0.0);
   EXPECT_THROW(DenoisedAnchor(cv::Mat(4, 4, CV_8UC1), kGray, DenoisedAnchorOptions()), InputError);
-}
-
-// A small deblurring problem (image_update_test.cc's): motion blur and 2x
-// down-sampling of a random image.
-struct Problem {
-  CaptureOperator op;
-  cv::Mat truth, observation;
-};
-
-Problem MakeProblem() {
-  const int hr_rows = 24, hr_cols = 32;
-  CaptureGeometry geometry;
-  geometry.camera_hr = PinholeCamera(hr_cols, hr_rows, 30.0, 30.0, hr_cols / 2.0, hr_rows / 2.0);
-  geometry.depth_hr = cv::Mat(hr_rows, hr_cols, CV_32FC1, cv::Scalar(2.0));
-  geometry.T_world_cam = SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0.0, 0.0, 0.0));
-  geometry.T_world_neighbour = SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(-0.05, 0.0, 0.0));
-  geometry.stamp = 1.0;
-  geometry.neighbour_stamp = 0.9;
-  geometry.exposure = 0.08;
-  CaptureOperatorOptions op_options;
-  op_options.samples = 10;
-  Problem problem;
-  problem.op = BuildCaptureOperator(geometry, op_options);
-  problem.truth.create(hr_rows, hr_cols, CV_32FC1);
-  cv::theRNG().state = 5;
-  cv::randu(problem.truth, 0.0, 1.0);
-  problem.op.Apply(problem.truth, &problem.observation);
-  return problem;
-}
-
-TEST(QuadraticAnchor, ZeroWeightIsTheUpdateOfBefore) {
-  const Problem problem = MakeProblem();
-  const std::vector<LinearL1Term> terms{{&problem.op, &problem.observation, cv::Mat(), 1.0}};
-  ImageUpdateOptions options;
-  options.lambda_i = 0.01;
-  options.num_threads = 1;
-  const cv::Mat start(problem.truth.size(), CV_32FC1, cv::Scalar(0.5));
-  cv::Mat plain = start.clone(), anchored = start.clone();
-  UpdateImage(terms, options, &plain);
-  const cv::Mat anchor_image = problem.truth.clone();
-  const QuadraticAnchor zero{&anchor_image, 0.0};
-  UpdateImage(terms, options, &anchored, &zero);
-  EXPECT_EQ(cv::norm(plain, anchored, cv::NORM_INF), 0.0);
-  const QuadraticAnchor wrong{&problem.observation, 1.0};  // LR size
-  EXPECT_THROW(UpdateImage(terms, options, &anchored, &wrong), InputError);
-}
-
-// The proximity term pulls the solution to the anchor: a weight far above the
-// data terms' curvature gives the anchor; a moderate one lands between the
-// anchor-free solution and the anchor, and lowers the energy with the term.
-TEST(QuadraticAnchor, PullsTheSolutionTowardsTheAnchor) {
-  const Problem problem = MakeProblem();
-  const std::vector<LinearL1Term> terms{{&problem.op, &problem.observation, cv::Mat(), 1.0}};
-  ImageUpdateOptions options;
-  options.lambda_i = 0.01;
-  options.num_threads = 1;
-  options.irls_iterations = 6;
-  options.cg_iterations = 50;
-  options.cg_tolerance = 0.0;
-  const cv::Mat start(problem.truth.size(), CV_32FC1, cv::Scalar(0.5));
-  const cv::Mat anchor_image(problem.truth.size(), CV_32FC1, cv::Scalar(0.3));
-  cv::Mat plain = start.clone(), strong = start.clone();
-  UpdateImage(terms, options, &plain);
-  const QuadraticAnchor heavy{&anchor_image, 1e6};
-  UpdateImage(terms, options, &strong, &heavy);
-  EXPECT_LT(cv::norm(strong, anchor_image, cv::NORM_INF), 1e-3);
-  cv::Mat moderate = start.clone();
-  const QuadraticAnchor some{&anchor_image, 50.0};
-  UpdateImage(terms, options, &moderate, &some);
-  const double to_anchor = cv::norm(moderate, anchor_image), plain_to_anchor = cv::norm(plain, anchor_image);
-  EXPECT_LT(to_anchor, plain_to_anchor);
-  EXPECT_GT(to_anchor, cv::norm(strong, anchor_image));
 }
 
 // The input filter's strength: none below the floor or when off, then
