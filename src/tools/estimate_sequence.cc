@@ -221,6 +221,39 @@ void AddMultiFrameDataOptions(dsm::ToolCommandLine* command_line, dsm::Estimator
       ->check(dsm::FlagInt());
 }
 
+// --denoised-anchor: the plug-and-play anchor of the last image pass.
+void AddDenoisedAnchorOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions* options) {
+  dsm::ToolCommandLine& cli = *command_line;
+  dsm::DenoisedAnchorOptions& anchor = options->denoised_anchor;
+  cli.add_flag("--denoised-anchor,!--no-denoised-anchor", anchor.enabled,
+               "joint, noisy frames: pull each restored image in the last pass towards its non-local-means "
+               "denoised copy (default off; no effect where the noise estimate is below its floor)");
+  cli.add_flag("--input-denoising,!--no-input-denoising", options->input_denoising.enabled,
+               "filter the frames with 3-frame non-local means at h = the noise estimate above its floor "
+               "before estimating (no effect on noise-free frames)");
+  cli.add_option("--input-denoising-h-scale", options->input_denoising.h_scale,
+                 "with --input-denoising: h over the input noise (default 1)")
+      ->check(dsm::FlagNumber());
+  cli.add_option("--anchor-weight-scale", anchor.weight_scale,
+                 "with --denoised-anchor: scale of the proximity weight (default 1)")
+      ->check(dsm::FlagNumber());
+  cli.add_option("--anchor-h-scale", anchor.h_scale,
+                 "with --denoised-anchor: NLM h over the predicted amplified noise (default 1)")
+      ->check(dsm::FlagNumber());
+  cli.add_option_function<std::string>(
+         "--anchor-denoiser",
+         [&anchor](const std::string& name) {
+           anchor.denoiser =
+               name == "nlm" ? dsm::AnchorDenoiser::kNonLocalMeans : dsm::AnchorDenoiser::kTemporalFusion;
+         },
+         "with --denoised-anchor: fusion (the temporal fusion of the window's restored images; default) or "
+         "nlm (single-image non-local means)")
+      ->check(CLI::IsMember({"fusion", "nlm"}));
+  cli.add_option("--anchor-amplification", anchor.amplification,
+                 "with --denoised-anchor: the restored image's noise over the input noise (default 3)")
+      ->check(dsm::FlagNumber());
+}
+
 // --depth-sweep and its sweep's settings.
 void AddDepthSweepOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions* options) {
   dsm::ToolCommandLine& cli = *command_line;
@@ -322,6 +355,7 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   AddFusionOptions(&cli, options);
   AddDepthConsistencyOptions(&cli, options);
   AddMultiFrameDataOptions(&cli, options);
+  AddDenoisedAnchorOptions(&cli, options);
   AddDepthSweepOptions(&cli, options);
   AddBlurPoseOptions(&cli, options);
   cli.add_option("--structure-matching", flags->structure_matching, "both, restored or blurred")

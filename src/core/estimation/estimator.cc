@@ -599,7 +599,7 @@ class WindowSolver {
   EstimatorResult GaugedResult();
   void RefineOutputDepthsDuringFramePass(std::vector<cv::Mat>* depths);
   std::vector<cv::Mat> OutputLatents(const std::vector<cv::Mat>& depths);
-  void UpdateLatentFromFrames(int t);
+  void UpdateLatentFromFrames(int t, bool raised);
   void FuseBetweenUpdates();
 
   bool blurred_matching() const {
@@ -644,6 +644,8 @@ class WindowSolver {
   std::vector<long> depth_version_, pose_version_;
   std::vector<std::vector<int>> neighbours_;  // N(t)
   PosePriorTerms pose_prior_;                 // empty: none (WindowPosePrior)
+  DenoisedAnchorSettings anchor_;             // the last pass's anchor (AnchorSettings)
+  std::vector<cv::Mat> anchor_images_;        // z_t of AnchorDenoiser::kTemporalFusion
   std::unique_ptr<OperatorCache> cache_;
   std::mutex work_mutex_;  // result_.image_work, summed by the frames' threads
 };
@@ -716,6 +718,8 @@ WindowSolver::WindowSolver(const EstimatorOptions& options, int threads, const E
   }
   std::string prior_note;
   pose_prior_ = WindowPosePrior(options_, input, T_world_cam, &prior_note);
+  anchor_ = AnchorSettings(options_.denoised_anchor, options_.noise_sigma, options_.lambda_s,
+                           options_.model_error_sigma);
   if (!prior_note.empty()) result_.notes.push_back(prior_note);
   omp_set_max_active_levels(1);
   std::vector<int> sources_per_frame(num_frames_);
@@ -1425,21 +1429,36 @@ std::vector<cv::Mat> WindowSolver::OutputLatents(const std::vector<cv::Mat>& dep
 // multi-frame data pass, and in joint mode that pass
 // (EstimatorOptions::multi_frame_data: each I_t, not the held leading ones,
 // re-solved from its current value with its agreeing neighbours' matching
-// terms raised towards lambda_s, MultiFrameDataOptions, with the solver's
-// final depth and poses, which it does not change). The two do not read
-// each other's results, so they run side by side: the weighted median runs
-// one call at a time process-wide (RefineDepthEdges), so it is task 0, one
-// thread's, frame after frame, while the other threads start the pass
+// terms raised towards lambda_s, MultiFrameDataOptions, and the denoised
+// anchor where the noise asks for it, DenoisedAnchorOptions, with the
+// solver's final depth and poses, which it does not change). The two do not
+// read each other's results, so they run side by side: the weighted median
+// runs one call at a time process-wide (RefineDepthEdges), so it is task 0,
+// one thread's, frame after frame, while the other threads start the pass
 // (task 1 + t: frame t); the median's guides are copies of the latents
 // taken before the pass. Each result is the one of the two in sequence
 // (the timer's "multi-frame data pass" now covers both).
 void WindowSolver::RefineOutputDepthsDuringFramePass(std::vector<cv::Mat>* depths) {
   const bool refine = RefineOutputDepthEdges();
-  const bool pass = joint_ && options_.multi_frame_data.relative_weight > 0.0;
+  const bool raise = joint_ && options_.multi_frame_data.relative_weight > 0.0;
+  const bool anchor = joint_ && anchor_.active;
+  const bool pass = raise || anchor;
   if (!refine && !pass) return;
   const double begin = NowMs();
   const std::vector<cv::Mat> guides = refine && pass ? CloneAll(latents_) : latents_;
-  ForEachTask(1 + num_frames_, [this, refine, pass, depths, &guides](int task) {
+  if (anchor && options_.denoised_anchor.denoiser == AnchorDenoiser::kTemporalFusion) {
+    std::vector<cv::Mat> solver_depths;
+    std::vector<SE3> T_world_cam;
+    for (const FrameStructure& frame : frames_) {
+      solver_depths.push_back(frame.depth_hr);
+      T_world_cam.push_back(frame.T_world_cam);
+    }
+    TemporalFusionOptions fusion = options_.fusion;
+    fusion.radius = options_.denoised_anchor.fusion_radius;
+    anchor_images_ = FuseRestoredImages(camera_hr_, latents_, solver_depths, T_world_cam, fusion,
+                                        options_.held_leading_latents);
+  }
+  ForEachTask(1 + num_frames_, [this, refine, raise, anchor, depths, &guides](int task) {
     if (task == 0) {
       for (int t = 0; refine && t < num_frames_; ++t) {
         (*depths)[t] = (*depths)[t].clone();
@@ -1448,18 +1467,21 @@ void WindowSolver::RefineOutputDepthsDuringFramePass(std::vector<cv::Mat>* depth
       return;
     }
     const int t = task - 1;
-    const bool skipped = options_.multi_frame_data.skip_first_frame && t == 0;
-    if (pass && t >= options_.held_leading_latents && !skipped) UpdateLatentFromFrames(t);
+    const bool raised = raise && !(options_.multi_frame_data.skip_first_frame && t == 0);
+    if ((raised || anchor) && t >= options_.held_leading_latents) UpdateLatentFromFrames(t, raised);
   });
-  if (pass) timer_.AddSince("multi-frame data pass", begin);
+  if (raise || anchor) timer_.AddSince("multi-frame data pass", begin);
 }
 
 // One I_t of the pass: the self term lambda_s of eq:imgUpdate and, for each
-// neighbour s within multi_frame_data.radius, its matching term at
-// relative_weight x lambda_s (at least 1, eq:imgUpdate's weight) on the
-// pixels that agree with Psi_s I_t (MultiFrameAgreementMask at the expected
-// residual); B_0 with skip_first_frame keeps weight 1 where it is visible.
-void WindowSolver::UpdateLatentFromFrames(int t) {
+// neighbour s within multi_frame_data.radius, its matching term: with
+// `raised`, at relative_weight x lambda_s (at least 1, eq:imgUpdate's weight)
+// on the pixels that agree with Psi_s I_t (MultiFrameAgreementMask at the
+// expected residual), B_0 with skip_first_frame keeping weight 1 where it is
+// visible; without, at eq:imgUpdate's weight 1 where visible. With an active
+// anchor (anchor_) the proximity term to z_t = NLM(I_t) is added
+// (DenoisedAnchorOptions).
+void WindowSolver::UpdateLatentFromFrames(int t, bool raised) {
   const MultiFrameDataOptions& pass = options_.multi_frame_data;
   const double expected = std::hypot(options_.model_error_sigma, std::max(options_.noise_sigma, 0.0));
   std::vector<LinearL1Term> terms;
@@ -1469,7 +1491,7 @@ void WindowSolver::UpdateLatentFromFrames(int t) {
   cv::Mat predicted;
   for (int s : Neighbours(t, num_frames_, pass.radius)) {
     held.push_back(Operator(s, t));
-    if (pass.skip_first_frame && s == 0) {  // B_0 keeps the weight of eq:imgUpdate
+    if (!raised || (pass.skip_first_frame && s == 0)) {  // eq:imgUpdate's weight
       terms.push_back({&held.back()->op, &observations_[s], held.back()->mask, 1.0});
       continue;
     }
@@ -1488,7 +1510,15 @@ void WindowSolver::UpdateLatentFromFrames(int t) {
   image_options.irls_iterations = pass.irls_iterations;
   image_options.cg_iterations = pass.cg_iterations;
   image_options.num_threads = 1;
-  const ImageUpdateStats stats = UpdateImage(terms, image_options, &latents_[t]);
+  cv::Mat anchor_image;
+  QuadraticAnchor anchor;
+  if (joint_ && anchor_.active) {
+    anchor_image = options_.denoised_anchor.denoiser == AnchorDenoiser::kTemporalFusion
+                       ? anchor_images_[t]
+                       : DenoisedAnchor(latents_[t], anchor_.h, options_.denoised_anchor);
+    anchor = {&anchor_image, anchor_.weight};
+  }
+  const ImageUpdateStats stats = UpdateImage(terms, image_options, &latents_[t], &anchor);
   std::lock_guard<std::mutex> lock(work_mutex_);
   result_.image_work.reweightings += stats.reweightings;
   result_.image_work.cg_steps += stats.cg_steps;
@@ -1561,6 +1591,27 @@ bool GainReadable(const EstimatorInput& input) {
 }
 
 }  // namespace
+
+// EstimatorOptions::input_denoising: the frames filtered (DenoiseInputFrames)
+// at the strength the noise estimate asks for, then `run` on them without
+// the stage; frames below its noise floor go to `run` as they are.
+EstimatorResult Estimator::RunInputDenoised(const EstimatorInput& input, const InnerRun& run) const {
+  EstimatorOptions inner = options_;
+  inner.input_denoising.enabled = false;
+  Estimator estimator(inner);
+  estimator.SetCancelFlag(cancel_);
+  const double start = NowMs();
+  const double estimate = options_.noise_sigma >= 0.0 ? options_.noise_sigma : EstimateNoiseSigma(input.images);
+  const double h = InputDenoisingStrength(options_.input_denoising, estimate);
+  if (h <= 0.0) return run(&estimator, input);
+  EstimatorInput denoised = input;
+  denoised.images = DenoiseInputFrames(input.images, h, options_.input_denoising);
+  const double denoise_seconds = (NowMs() - start) / 1000.0;
+  EstimatorResult result = run(&estimator, denoised);
+  result.input_denoising_h = h;
+  result.timings.insert(result.timings.begin(), StageTiming{"input denoising", denoise_seconds});
+  return result;
+}
 
 EstimatorResult Estimator::RunGainCompensated(const EstimatorInput& input, const InnerRun& run) const {
   EstimatorOptions inner = options_;
@@ -1652,6 +1703,8 @@ void EstimatorOptions::Check() const {
   fusion.Check();
   depth_consistency.Check();
   multi_frame_data.Check();
+  denoised_anchor.Check();
+  input_denoising.Check();
   depth_sweep.Check();
 }
 
@@ -1695,6 +1748,9 @@ EstimatorResult Estimator::Run(const EstimatorInput& input, const ProgressCallba
   if (options_.gain_compensation) {
     return RunGainCompensated(input,
                               [&](Estimator* e, const EstimatorInput& in) { return e->Run(in, progress); });
+  }
+  if (options_.input_denoising.enabled) {
+    return RunInputDenoised(input, [&](Estimator* e, const EstimatorInput& in) { return e->Run(in, progress); });
   }
   const double start = NowMs();
   if (progress) progress(0.0, "initialisation");

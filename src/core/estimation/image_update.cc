@@ -280,8 +280,8 @@ void ApplyLaplacianGaussSeidelInverse(const cv::Mat& inverse_diagonal, const cv:
 class ReweightedImageSystem {
  public:
   ReweightedImageSystem(const std::vector<LinearL1Term>& terms, const ImageUpdateOptions& options,
-                        int threads)
-      : terms_(terms), options_(options), threads_(threads), states_(terms.size()) {}
+                        int threads, const QuadraticAnchor* anchor)
+      : terms_(terms), options_(options), threads_(threads), states_(terms.size()), anchor_(anchor) {}
 
   // W_k, V and the Jacobi diagonal diag(N) at `image`, and `residual` =
   // rhs - N x there: sum_k A_k^T W_k (b_k - A_k x) - lambda_i D^T V D x.
@@ -312,6 +312,11 @@ class ReweightedImageSystem {
       }
     }
     if (options_.lambda_i > 0.0) AddWeightedLaplacianDiagonal(tv_weights_, options_.lambda_i, &diagonal_);
+    if (anchor_ != nullptr) {  // + weight (anchor - x) to the residual, + weight to diag(N)
+      diagonal_ += cv::Scalar::all(anchor_->weight);
+      cv::scaleAdd(*anchor_->anchor, anchor_->weight, *residual, *residual);
+      cv::scaleAdd(image, -anchor_->weight, *residual, *residual);
+    }
     InverseDiagonal(diagonal_, &inverse_diagonal_);
     if (options_.lambda_i > 0.0)
       AddWeightedLaplacian(image, tv_weights_, -options_.lambda_i, residual, threads_);
@@ -325,6 +330,7 @@ class ReweightedImageSystem {
       AddWeightedNormalProduct(terms_[k].op->matrix(), states_[k].weight, x, out, threads_);
     }
     if (options_.lambda_i > 0.0) AddWeightedLaplacian(x, tv_weights_, options_.lambda_i, out, threads_);
+    if (anchor_ != nullptr) cv::scaleAdd(x, anchor_->weight, *out, *out);
   }
 
   const cv::Mat& diagonal() const { return diagonal_; }
@@ -365,6 +371,7 @@ class ReweightedImageSystem {
   const ImageUpdateOptions& options_;
   const int threads_;
   std::vector<TermState> states_;
+  const QuadraticAnchor* anchor_;  // null: none
   cv::Mat tv_weights_, diagonal_, inverse_diagonal_, temp_lr_;
 };
 
@@ -547,11 +554,16 @@ void CheckTermsMatchImage(const std::vector<LinearL1Term>& terms, const cv::Mat&
 // IRLS on eq:imgUpdate: reweight at the current image, then CG on the
 // reweighted system from it (each solve warm starts from the last).
 ImageUpdateStats UpdateImage(const std::vector<LinearL1Term>& terms, const ImageUpdateOptions& options,
-                             cv::Mat* image) {
+                             cv::Mat* image, const QuadraticAnchor* anchor) {
   options.Check();
   const int threads = ResolveThreads(options.num_threads);
   CheckTermsMatchImage(terms, *image);
-  ReweightedImageSystem system(terms, options, threads);
+  const bool anchored = anchor != nullptr && anchor->weight > 0.0;
+  if (anchored && (anchor->anchor == nullptr || anchor->anchor->size() != image->size() ||
+                   anchor->anchor->type() != image->type() || !std::isfinite(anchor->weight))) {
+    throw InputError("image update: the anchor must match the image and have a finite weight");
+  }
+  ReweightedImageSystem system(terms, options, threads, anchored ? anchor : nullptr);
   const auto apply_normal = [&system](const cv::Mat& x, cv::Mat* out) { system.ApplyNormal(x, out); };
   const auto precondition = [&system](const cv::Mat& r, cv::Mat* z) { system.Precondition(r, z); };
   ImageUpdateStats stats;

@@ -15,6 +15,7 @@
 #include <Eigen/Dense>
 
 #include "../support/random_values.h"
+#include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/imaging/capture_operator.h"
 #include "deblur_sr_mvs/core/imaging/normal_product.h"
 
@@ -507,6 +508,52 @@ TEST(ImageUpdate, LowersTheEnergyOfARandomProblem) {
   EXPECT_GE(stats.cg_steps, options.irls_iterations);
   EXPECT_LE(stats.cg_steps, options.irls_iterations * options.cg_iterations);
   EXPECT_EQ(stats.operator_passes, 3L * stats.reweightings + 2L * stats.cg_steps);  // one term
+}
+
+// The proximity term (QuadraticAnchor): weight 0 is the update of before,
+// bit for bit; a wrong-sized anchor throws.
+TEST(QuadraticAnchor, ZeroWeightIsTheUpdateOfBefore) {
+  const SmallDeblurProblem problem = MakeSmallDeblurProblem();
+  const std::vector<LinearL1Term> terms{{&problem.op, &problem.observation, cv::Mat(), 1.0}};
+  ImageUpdateOptions options;
+  options.lambda_i = 0.01;
+  options.num_threads = 1;
+  const cv::Mat start(problem.truth.size(), CV_32FC1, cv::Scalar(0.5));
+  cv::Mat plain = start.clone(), anchored = start.clone();
+  UpdateImage(terms, options, &plain);
+  const cv::Mat anchor_image = problem.truth.clone();
+  const QuadraticAnchor zero{&anchor_image, 0.0};
+  UpdateImage(terms, options, &anchored, &zero);
+  EXPECT_EQ(cv::norm(plain, anchored, cv::NORM_INF), 0.0);
+  const QuadraticAnchor wrong{&problem.observation, 1.0};  // LR size
+  EXPECT_THROW(UpdateImage(terms, options, &anchored, &wrong), InputError);
+}
+
+// The proximity term pulls the solution to the anchor: a weight far above the
+// data terms' curvature gives the anchor; a moderate one lands between the
+// anchor-free solution and the anchor, and lowers the energy with the term.
+TEST(QuadraticAnchor, PullsTheSolutionTowardsTheAnchor) {
+  const SmallDeblurProblem problem = MakeSmallDeblurProblem();
+  const std::vector<LinearL1Term> terms{{&problem.op, &problem.observation, cv::Mat(), 1.0}};
+  ImageUpdateOptions options;
+  options.lambda_i = 0.01;
+  options.num_threads = 1;
+  options.irls_iterations = 6;
+  options.cg_iterations = 50;
+  options.cg_tolerance = 0.0;
+  const cv::Mat start(problem.truth.size(), CV_32FC1, cv::Scalar(0.5));
+  const cv::Mat anchor_image(problem.truth.size(), CV_32FC1, cv::Scalar(0.3));
+  cv::Mat plain = start.clone(), strong = start.clone();
+  UpdateImage(terms, options, &plain);
+  const QuadraticAnchor heavy{&anchor_image, 1e6};
+  UpdateImage(terms, options, &strong, &heavy);
+  EXPECT_LT(cv::norm(strong, anchor_image, cv::NORM_INF), 1e-3);
+  cv::Mat moderate = start.clone();
+  const QuadraticAnchor some{&anchor_image, 50.0};
+  UpdateImage(terms, options, &moderate, &some);
+  const double to_anchor = cv::norm(moderate, anchor_image), plain_to_anchor = cv::norm(plain, anchor_image);
+  EXPECT_LT(to_anchor, plain_to_anchor);
+  EXPECT_GT(to_anchor, cv::norm(strong, anchor_image));
 }
 
 }  // namespace

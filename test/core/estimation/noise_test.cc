@@ -171,6 +171,63 @@ TEST(Noise, MultiFrameDataPassLowersTheAddedError) {
   EXPECT_LT(runs.Added(1), runs.Added(0));
 }
 
+// The denoised anchor (EstimatorOptions::denoised_anchor, off by default):
+// on noise-free frames (the noise estimate below its floor) the images are
+// those without it, bit for bit; at sigma 2 it changes the images only
+// (it runs in the multi-frame data pass, after depth and poses).
+TEST(Noise, DenoisedAnchorIsInertWithoutNoise) {
+  for (int sigma : {0, 2}) {
+    const Sequence sequence = DollsWithNoise("noise_anchor", sigma);
+    ASSERT_TRUE(sequence.ground_truth.has_value());
+    EstimatorOptions options;
+    options.max_iterations = 1;
+    options.num_threads = 1;
+    const EstimatorResult off = Estimator(options).Run(InputOf(sequence));
+    options.denoised_anchor.enabled = true;
+    const EstimatorResult on = Estimator(options).Run(InputOf(sequence));
+    ExpectSameDepthAndPoses(on, off);
+    double largest = 0.0;
+    for (size_t t = 0; t < on.latent.size(); ++t) {
+      largest = std::max(largest, cv::norm(on.latent[t], off.latent[t], cv::NORM_INF));
+    }
+    std::printf("sigma %d: noise estimate %.2f gray levels, images differ by up to %.4f\n", sigma,
+                255.0 * on.noise_sigma, largest);
+    if (sigma == 0) {
+      EXPECT_LT(255.0 * on.noise_sigma, 0.9);
+      EXPECT_EQ(largest, 0.0);
+    } else {
+      EXPECT_GT(largest, 0.0);
+    }
+  }
+}
+
+// The input denoising (EstimatorOptions::input_denoising, off by default)
+// leaves noise-free frames alone: the result is the one without it, bit for
+// bit; at sigma 2 it filters them (h > 0).
+TEST(Noise, InputDenoisingIsInertWithoutNoise) {
+  for (int sigma : {0, 2}) {
+    const Sequence sequence = DollsWithNoise("noise_input_denoising", sigma);
+    ASSERT_TRUE(sequence.ground_truth.has_value());
+    EstimatorOptions options;
+    options.max_iterations = 1;
+    options.num_threads = 1;
+    options.input_denoising.enabled = true;
+    if (sigma == 2) {
+      options.max_iterations = 0;  // only the filter's strength is checked here
+      EXPECT_GT(255.0 * Estimator(options).Run(InputOf(sequence)).input_denoising_h, 1.0);
+      continue;
+    }
+    const EstimatorResult on = Estimator(options).Run(InputOf(sequence));
+    options.input_denoising.enabled = false;
+    const EstimatorResult off = Estimator(options).Run(InputOf(sequence));
+    EXPECT_EQ(on.input_denoising_h, 0.0);
+    ExpectSameDepthAndPoses(on, off);
+    for (size_t t = 0; t < on.latent.size(); ++t) {
+      EXPECT_EQ(cv::norm(on.latent[t], off.latent[t], cv::NORM_INF), 0.0);
+    }
+  }
+}
+
 // The weight rule: unchanged without noise, growing as the residual's scale.
 TEST(Noise, ImageWeightFollowsTheResidualScale) {
   EstimatorOptions options;

@@ -20,6 +20,8 @@
 #include "deblur_sr_mvs/core/estimation/initializer.h"
 #include "deblur_sr_mvs/core/estimation/photometric.h"
 #include "deblur_sr_mvs/core/estimation/structure_update.h"
+#include "deblur_sr_mvs/core/estimation/denoised_anchor.h"
+#include "deblur_sr_mvs/core/estimation/input_denoising.h"
 #include "deblur_sr_mvs/core/estimation/multi_frame_data.h"
 #include "deblur_sr_mvs/core/estimation/temporal_fusion.h"
 #include "deblur_sr_mvs/core/geometry/camera.h"
@@ -249,6 +251,19 @@ struct EstimatorOptions {
   // energies are unchanged. On by default (relative_weight 1; 0 turns it
   // off): BENCHMARKS.md "Multi-frame evidence in the last image pass".
   MultiFrameDataOptions multi_frame_data;
+  // Denoised anchor (issue 12, noise): in joint mode, where the window's
+  // noise estimate (noise_sigma) lies above the estimator's floor, the
+  // multi-frame data pass also pulls each I_t towards its non-local-means
+  // denoised copy (a plug-and-play step; DenoisedAnchorOptions), frame 0
+  // included; on noise-free frames nothing changes. Off by default: it lost
+  // PSNR at sigma 1-4 (BENCHMARKS.md, branch noise7).
+  DenoisedAnchorOptions denoised_anchor;
+  // Input denoising (issue 12, noise): Run filters the frames with
+  // multi-frame non-local means at a strength that follows the noise
+  // estimate above the estimator's floor (InputDenoisingOptions), then
+  // estimates from them; noise-free frames are not touched. Run only (not
+  // RunFromStructure, so not the stream or the node).
+  InputDenoisingOptions input_denoising;
   // Depth re-sweep (issue 14): joint mode's output D_t re-estimated by a
   // plane sweep over the restored images with guided-filter cost
   // aggregation where it clearly disagrees with the solver's
@@ -348,6 +363,9 @@ struct EstimatorResult {
   // it gave (NoiseAwareImageOptions).
   double noise_sigma = 0.0;
   double image_lambda_i = 0.0;
+  // The input denoising's filter strength h (intensity units; 0: the
+  // frames were not filtered, EstimatorOptions::input_denoising).
+  double input_denoising_h = 0.0;
   // Operators for the next window (EstimatorOptions::carried_frames), and
   // how many of the input's carried operators this run used instead of
   // building them.
@@ -432,6 +450,7 @@ class Estimator {
   // `run` on an estimator without gain compensation, given the input divided
   // by its frame gains; the latent images multiplied back.
   EstimatorResult RunGainCompensated(const EstimatorInput& input, const InnerRun& run) const;
+  EstimatorResult RunInputDenoised(const EstimatorInput& input, const InnerRun& run) const;
   void ThrowIfCancelled() const {
     if (cancel_ != nullptr && cancel_->load()) throw EstimationCancelled();
   }

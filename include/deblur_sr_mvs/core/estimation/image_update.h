@@ -131,9 +131,17 @@ struct ImageUpdateStats {
   long operator_passes = 0;
 };
 
+// A quadratic proximity term (weight / 2) ||I - anchor||^2 over every HR
+// value (the plug-and-play step of DenoisedAnchorOptions).
+struct QuadraticAnchor {
+  const cv::Mat* anchor = nullptr;  // HR, the image's size and type
+  double weight = 0.0;
+};
+
 // Minimises the energy over `image` (HR, CV_32FC(C), updated in place from
-// its current value); ImageEnergy gives the energy reached.
+// its current value); ImageEnergy gives the energy reached. With `anchor`
+// (non-null, weight > 0) the energy also holds its proximity term.
 ImageUpdateStats UpdateImage(const std::vector<LinearL1Term>& terms, const ImageUpdateOptions& options,
-                             cv::Mat* image);
+                             cv::Mat* image, const QuadraticAnchor* anchor = nullptr);
 
 }  // namespace deblur_sr_mvs
