@@ -17,6 +17,7 @@
 
 #include "deblur_sr_mvs/core/imaging/capture_operator.h"
 #include "deblur_sr_mvs/core/imaging/normal_product.h"
+#include "deblur_sr_mvs/core/imaging/rgb_run_kernels.h"
 #include "tool_main.h"
 
 namespace dsm = deblur_sr_mvs;
@@ -170,6 +171,33 @@ void BenchmarkSharedDepths(const dsm::CaptureGeometry& geometry, int samples, in
       adaptive_shared, alone / adaptive_shared);
 }
 
+// The colour normal product and diagonal pass over the row runs with the
+// 4-lane kernels against the 8-lane ones (rgb_run_kernels.h), interleaved.
+void BenchmarkRgbLanes(const dsm::RowRunMatrix& runs, const cv::Mat& weight, const cv::Mat& x, int repeats) {
+  cv::Mat four(x.size(), x.type()), eight(x.size(), x.type());
+  const auto timed = [&](bool eight_lanes, cv::Mat* out, bool diagonal) {
+    return [&, eight_lanes, out, diagonal] {
+      dsm::rgb_runs::Allow8LaneKernels(eight_lanes);
+      out->setTo(0.0);
+      if (diagonal) {
+        dsm::AddWeightedNormalDiagonal(runs, weight, out, 1);
+      } else {
+        dsm::AddWeightedNormalProduct(runs, weight, x, out, 1);
+      }
+      dsm::rgb_runs::Allow8LaneKernels(true);
+    };
+  };
+  const auto [four_ms, eight_ms] = InterleavedMedianMs(repeats, timed(false, &four, false), timed(true, &eight, false));
+  const bool same = SameBits(four, eight);
+  const auto [four_diagonal_ms, eight_diagonal_ms] =
+      InterleavedMedianMs(repeats, timed(false, &four, true), timed(true, &eight, true));
+  std::printf(
+      "colour, row runs, 1 thread: A^T W A x 4-lane %.2f ms, 8-lane %.2f ms (x%.2f, bit-identical: %s) | "
+      "diagonal pass 4-lane %.2f ms, 8-lane %.2f ms (x%.2f, bit-identical: %s)\n",
+      four_ms, eight_ms, four_ms / eight_ms, same ? "yes" : "no", four_diagonal_ms, eight_diagonal_ms,
+      four_diagonal_ms / eight_diagonal_ms, SameBits(four, eight) ? "yes" : "no");
+}
+
 // One product with the weighted normal operator A^T W A, as a CG step of
 // the image update makes it, and the diagonal pass of its preconditioner
 // (one thread): streaming the operator's row runs once (gather, weigh,
@@ -228,6 +256,7 @@ void BenchmarkNormalProduct(const dsm::CaptureGeometry& geometry, int samples, i
         diagonal_runs_ms, diagonal_csr_ms, diagonal_csr_ms / diagonal_runs_ms,
         SameBits(diagonal_runs, diagonal_csr) ? "yes" : "no", two_gathers_ms, csr_ms / two_gathers_ms,
         transpose_ms, cv::norm(one_pass_csr, two_gathers, cv::NORM_INF));
+    if (channels == 3 && dsm::rgb_runs::Use8LaneKernels()) BenchmarkRgbLanes(runs, weight, x, apply_repeats);
   }
 }
 

@@ -38,12 +38,14 @@ void MultiplyFixed(const Rows& a, int rows, const float* x, float* y, int thread
   }
 }
 
-// MultiplyFixed<3> over row runs with one 4-lane vector per pixel
-// (rgb_run_kernels.h): the same values, bit for bit.
+// MultiplyFixed<3> over row runs with one 4-lane vector per pixel, or two
+// taps per 8-lane vector where the CPU has them (rgb_run_kernels.h): the
+// same values, bit for bit.
 void MultiplyRgbRuns(const RunRowSpans& a, int rows, int cols, const float* x, float* y, int threads) {
+  const bool eight = rgb_runs::Use8LaneKernels();
 #pragma omp parallel for schedule(static) num_threads(threads)
   for (int r = 0; r < rows; ++r) {
-    const rgb_runs::Float4 sum = rgb_runs::GatherRow(a, r, x, cols);
+    const rgb_runs::Float4 sum = eight ? rgb_runs::GatherRow8(a, r, x, cols) : rgb_runs::GatherRow(a, r, x, cols);
     float* py = y + static_cast<std::ptrdiff_t>(r) * 3;
     for (int c = 0; c < 3; ++c) py[c] = sum[c];
   }

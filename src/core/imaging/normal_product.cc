@@ -18,10 +18,12 @@ namespace deblur_sr_mvs {
 namespace {
 
 // The three row kernels for 3-channel images over row runs, with one 4-lane
-// vector per pixel (rgb_run_kernels.h): the same values, bit for bit, as
-// the scalar kernels below, which call them for such images.
+// vector per pixel (rgb_run_kernels.h), or their 8-lane forms where the CPU
+// has them: the same values, bit for bit, as the scalar kernels below,
+// which call them for such images.
 void NormalProductRowsRgb(const RunRowSpans& a, int cols, const float* __restrict weight,
                           const float* __restrict x, int first, int last, float* __restrict out) {
+  if (rgb_runs::Use8LaneKernels()) return rgb_runs::NormalProductRows8(a, cols, weight, x, first, last, out);
   for (int r = first; r < last; ++r) {
     const float* w = weight + static_cast<std::ptrdiff_t>(r) * 3;
     if (w[0] == 0.0f && w[1] == 0.0f && w[2] == 0.0f) continue;
@@ -32,6 +34,7 @@ void NormalProductRowsRgb(const RunRowSpans& a, int cols, const float* __restric
 
 void AdjointRowsRgb(const RunRowSpans& a, const float* __restrict y, int first, int last,
                     float* __restrict out) {
+  if (rgb_runs::Use8LaneKernels()) return rgb_runs::AdjointRows8(a, y, first, last, out);
   for (int r = first; r < last; ++r) {
     const float* py = y + static_cast<std::ptrdiff_t>(r) * 3;
     rgb_runs::ScatterRow(a, r, rgb_runs::Float4{py[0], py[1], py[2], 0.0f}, out);
@@ -40,6 +43,7 @@ void AdjointRowsRgb(const RunRowSpans& a, const float* __restrict y, int first, 
 
 void NormalDiagonalRowsRgb(const RunRowSpans& a, const float* __restrict weight, int first, int last,
                            float* __restrict out) {
+  if (rgb_runs::Use8LaneKernels()) return rgb_runs::NormalDiagonalRows8(a, weight, first, last, out);
   for (int r = first; r < last; ++r) {
     const float* w = weight + static_cast<std::ptrdiff_t>(r) * 3;
     rgb_runs::ScatterRow</*kSquare=*/true>(a, r, rgb_runs::Float4{w[0], w[1], w[2], 0.0f}, out);
@@ -266,13 +270,31 @@ inline void L1RowWeights(const L1Reweighting& l1, int r, const float* ax, float*
   }
 }
 
-template <int kChannels>
+// L1ReweightRows<3>'s gather and scatters, 4-lane or (k8Lanes) 8-lane.
+template <bool k8Lanes>
+struct RgbRowKernels {
+  static rgb_runs::Float4 Gather(const RunRowSpans& a, int r, const float* __restrict x, int cols) {
+    return k8Lanes ? rgb_runs::GatherRow8(a, r, x, cols) : rgb_runs::GatherRow(a, r, x, cols);
+  }
+  template <bool kSquare>
+  static void Scatter(const RunRowSpans& a, int r, rgb_runs::Float4 s, float* __restrict out) {
+    if (!k8Lanes) return rgb_runs::ScatterRow<kSquare>(a, r, s, out);
+    if (kSquare) return rgb_runs::ScatterSquaredRow8(a, r, s, out);
+    rgb_runs::ScatterRow8(a, r, s, out);
+  }
+};
+
+template <int kChannels, bool k8Lanes = false>
 void L1ReweightRows(const RunRowSpans& a, int rows, int cols, const float* __restrict x,
                     const L1Reweighting& l1, float* __restrict diagonal, float* __restrict adjoint) {
+  if constexpr (kChannels == 3 && !k8Lanes) {
+    if (rgb_runs::Use8LaneKernels()) return L1ReweightRows<3, true>(a, rows, cols, x, l1, diagonal, adjoint);
+  }
+  using Rgb = RgbRowKernels<k8Lanes>;
   for (int r = 0; r < rows; ++r) {
     float ax[kChannels], y[kChannels];
     if constexpr (kChannels == 3) {
-      const rgb_runs::Float4 sum = rgb_runs::GatherRow(a, r, x, cols);
+      const rgb_runs::Float4 sum = Rgb::Gather(a, r, x, cols);
       for (int c = 0; c < 3; ++c) ax[c] = sum[c];
     } else {
       GatherRowChains<kChannels>(a, r, x, ax);
@@ -280,8 +302,8 @@ void L1ReweightRows(const RunRowSpans& a, int rows, int cols, const float* __res
     L1RowWeights<kChannels>(l1, r, ax, y);
     const float* w = l1.weight + static_cast<std::ptrdiff_t>(r) * kChannels;
     if constexpr (kChannels == 3) {
-      rgb_runs::ScatterRow</*kSquare=*/true>(a, r, rgb_runs::Float4{w[0], w[1], w[2], 0.0f}, diagonal);
-      rgb_runs::ScatterRow(a, r, rgb_runs::Float4{y[0], y[1], y[2], 0.0f}, adjoint);
+      Rgb::template Scatter</*kSquare=*/true>(a, r, rgb_runs::Float4{w[0], w[1], w[2], 0.0f}, diagonal);
+      Rgb::template Scatter<false>(a, r, rgb_runs::Float4{y[0], y[1], y[2], 0.0f}, adjoint);
     } else {
       a.ForEachSpan(r, [&](const float* __restrict v, int column, int length) {
         float* __restrict pd = diagonal + static_cast<std::ptrdiff_t>(column) * kChannels;

@@ -17,6 +17,7 @@
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/imaging/capture_operator.h"
 #include "deblur_sr_mvs/core/imaging/normal_product.h"
+#include "deblur_sr_mvs/core/imaging/rgb_run_kernels.h"
 
 namespace deblur_sr_mvs {
 namespace {
@@ -329,5 +330,80 @@ TEST_P(L1ReweightPassTest, EqualsTheSeparatePassesBitForBit) {
 
 INSTANTIATE_TEST_SUITE_P(Channels, L1ReweightPassTest, ::testing::Values(1, 2, 3, 4));
 
+
+// The colour products with the 8-lane kernels (rgb_run_kernels_avx2.cc, which
+// the dispatch takes where the CPU has AVX2) and with the 4-lane ones, one
+// call each.
+struct RgbProducts {
+  cv::Mat normal, adjoint, diagonal, apply, residual, weight, l1_diagonal, l1_adjoint;
+};
+
+RgbProducts RunRgbProducts(const RowRunMatrix& a, const cv::Mat& x, const cv::Mat& y, const cv::Mat& w,
+                           const cv::Mat& start, int threads) {
+  RgbProducts p{start.clone(), start.clone(), start.clone(), {}, {}, {}, start.clone(), start.clone()};
+  AddWeightedNormalProduct(a, w, x, &p.normal, threads);
+  AddAdjointProduct(a, y, &p.adjoint, threads);
+  AddWeightedNormalDiagonal(a, w, &p.diagonal, threads);
+  MultiplySparse(a, x, &p.apply, threads);
+  L1ReweightPass(a, x, y, cv::Mat(), 0.7, 1e-3, &p.residual, &p.weight, &p.l1_diagonal, &p.l1_adjoint);
+  return p;
+}
+
+// The 8-lane forms give the 4-lane forms' bits on random colour operators
+// (runs of 1-20 columns: the 8-tap, 4-tap and single-tap paths; rows ending
+// at the image's last pixel; masked rows; some inputs +-0), through the
+// dispatched products (1 and 3 threads) and called row by row directly.
+TEST(RgbRunKernels, EightLanesEqualFourLanesBitForBit) {
+  if (!rgb_runs::Use8LaneKernels()) GTEST_SKIP() << "no 8-lane kernels on this CPU or compiler";
+  for (int seed = 0; seed < 4; ++seed) {
+    std::mt19937 rng(101 + seed);
+    const int rows = 450, cols = 1700;
+    const RowRunMatrix a = RowRunMatrix::FromCsr(RandomRunOperator(rows, cols, &rng));
+    cv::Mat x = RandomValues(cols, 3, -1.0f, 1.0f, &rng);
+    for (int i = 0; i < cols * 3; i += 37) x.ptr<float>()[i] = i % 2 == 0 ? 0.0f : -0.0f;
+    const cv::Mat y = RandomValues(rows, 3, -2.0f, 2.0f, &rng);
+    cv::Mat w = RandomValues(rows, 3, 0.0f, 10.0f, &rng);
+    w.rowRange(0, 30).setTo(0.0);
+    const cv::Mat start = RandomValues(cols, 3, -1.0f, 1.0f, &rng);
+    for (const int threads : {1, 3}) {
+      const RgbProducts eight = RunRgbProducts(a, x, y, w, start, threads);
+      rgb_runs::Allow8LaneKernels(false);
+      const RgbProducts four = RunRgbProducts(a, x, y, w, start, threads);
+      rgb_runs::Allow8LaneKernels(true);
+      const auto expect_same = [&](const cv::Mat& e, const cv::Mat& f) {
+        EXPECT_TRUE(SameBits(e, f));
+        EXPECT_GT(cv::norm(e, cv::NORM_INF), 0.0);
+      };
+      expect_same(eight.normal, four.normal);
+      expect_same(eight.adjoint, four.adjoint);
+      expect_same(eight.diagonal, four.diagonal);
+      expect_same(eight.apply, four.apply);
+      expect_same(eight.residual, four.residual);
+      expect_same(eight.weight, four.weight);
+      expect_same(eight.l1_diagonal, four.l1_diagonal);
+      expect_same(eight.l1_adjoint, four.l1_adjoint);
+      EXPECT_FALSE(SameBits(eight.normal, start));  // it added something
+    }
+    // Row by row, the exported kernels against the header's 4-lane ones.
+    const RunRowSpans spans = RowSpansOf(a);
+    cv::Mat out8 = start.clone(), out4 = start.clone();
+    for (int r = 0; r < rows; ++r) {
+      const rgb_runs::Float4 g8 = rgb_runs::GatherRow8(spans, r, x.ptr<float>(), cols);
+      const rgb_runs::Float4 g4 = rgb_runs::GatherRow(spans, r, x.ptr<float>(), cols);
+      ASSERT_EQ(std::memcmp(&g8, &g4, 3 * sizeof(float)), 0) << "row " << r;
+      rgb_runs::ScatterRow8(spans, r, g8, out8.ptr<float>());
+      rgb_runs::ScatterRow(spans, r, g4, out4.ptr<float>());
+      rgb_runs::ScatterSquaredRow8(spans, r, g8, out8.ptr<float>());
+      rgb_runs::ScatterRow<true>(spans, r, g4, out4.ptr<float>());
+    }
+    EXPECT_TRUE(SameBits(out8, out4));
+    cv::Mat rows8 = start.clone(), rows4 = start.clone();
+    rgb_runs::NormalProductRows8(spans, cols, w.ptr<float>(), x.ptr<float>(), 0, rows, rows8.ptr<float>());
+    rgb_runs::Allow8LaneKernels(false);
+    AddWeightedNormalProduct(a, w, x, &rows4, 1);
+    rgb_runs::Allow8LaneKernels(true);
+    EXPECT_TRUE(SameBits(rows8, rows4));
+  }
+}
 }  // namespace
 }  // namespace deblur_sr_mvs

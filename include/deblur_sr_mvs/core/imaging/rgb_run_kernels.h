@@ -80,40 +80,86 @@ inline Float4 GatherRow(const RunRowSpans& a, int r, const float* __restrict x, 
   return (s[0] + s[1]) + (s[2] + s[3]);
 }
 
+// The scatter's factor vectors (s_r, s_g, s_b, s_r), (s_g, s_b, s_r, s_g),
+// (s_b, s_r, s_g, s_b): four taps' 12 contiguous outputs, channel by channel.
+struct ScatterFactors {
+  explicit ScatterFactors(Float4 s)
+      : s0{s[0], s[1], s[2], s[0]}, s1{s[1], s[2], s[0], s[1]}, s2{s[2], s[0], s[1], s[2]}, s(s) {}
+  Float4 s0, s1, s2, s;
+};
+
+// q[3 j + c] += f(v[j]) * s_c for the four taps j < 4 at v (12 outputs at q,
+// three vectors), f the identity or (kSquare) the square.
+template <bool kSquare>
+inline void ScatterQuad(const float* __restrict v, const ScatterFactors& s, float* __restrict q) {
+  Float4 f = Load4(v);
+  if (kSquare) f = f * f;
+  const Float4 f0 = {f[0], f[0], f[0], f[1]};
+  const Float4 f1 = {f[1], f[1], f[2], f[2]};
+  const Float4 f2 = {f[2], f[3], f[3], f[3]};
+  const Float4 o0 = Load4(q) + f0 * s.s0;
+  const Float4 o1 = Load4(q + 4) + f1 * s.s1;
+  const Float4 o2 = Load4(q + 8) + f2 * s.s2;
+  Store4(q, o0);
+  Store4(q + 4, o1);
+  Store4(q + 8, o2);
+}
+
+// Taps [i, length) of a run one at a time (q: the run's first output).
+template <bool kSquare>
+inline void ScatterTail(const float* __restrict v, int i, int length, Float4 s, float* __restrict q) {
+  for (; i < length; ++i) {
+    const float f = kSquare ? v[i] * v[i] : v[i];
+    for (int c = 0; c < 3; ++c) q[3 * i + c] += f * s[c];
+  }
+}
+
 // out(k) += f(a(r, k)) * s (channels 0-2) over row r, f the identity or
 // (kSquare) the square. Four taps at a time: 12 contiguous outputs as three
 // vectors, the taps' factors laid out to match.
 template <bool kSquare = false>
 inline void ScatterRow(const RunRowSpans& a, int r, Float4 s, float* __restrict out) {
-  const Float4 s0 = {s[0], s[1], s[2], s[0]};
-  const Float4 s1 = {s[1], s[2], s[0], s[1]};
-  const Float4 s2 = {s[2], s[0], s[1], s[2]};
+  const ScatterFactors factors(s);
   const float* v = a.values + a.row_first_value[r];
   for (int run = a.row_first_run[r]; run < a.row_first_run[r + 1]; ++run) {
     const int length = a.run_length[run];
     float* __restrict po = out + static_cast<std::ptrdiff_t>(a.run_first_column[run]) * 3;
     int i = 0;
-    for (; i + 4 <= length; i += 4) {
-      Float4 f = Load4(v + i);
-      if (kSquare) f = f * f;
-      const Float4 f0 = {f[0], f[0], f[0], f[1]};
-      const Float4 f1 = {f[1], f[1], f[2], f[2]};
-      const Float4 f2 = {f[2], f[3], f[3], f[3]};
-      float* q = po + 3 * i;
-      const Float4 o0 = Load4(q) + f0 * s0;
-      const Float4 o1 = Load4(q + 4) + f1 * s1;
-      const Float4 o2 = Load4(q + 8) + f2 * s2;
-      Store4(q, o0);
-      Store4(q + 4, o1);
-      Store4(q + 8, o2);
-    }
-    for (; i < length; ++i) {
-      const float f = kSquare ? v[i] * v[i] : v[i];
-      for (int c = 0; c < 3; ++c) po[3 * i + c] += f * s[c];
-    }
+    for (; i + 4 <= length; i += 4) ScatterQuad<kSquare>(v + i, factors, po + 3 * i);
+    ScatterTail<kSquare>(v, i, length, s, po);
     v += length;
   }
 }
+
+// The 8-lane forms (rgb_run_kernels_avx2.cc): two taps per vector in the
+// gathers, 24 outputs per 8 taps in the scatters, with each value's float
+// operations and their order unchanged, so the results are bit for bit those
+// of the 4-lane forms above (test RgbRunKernels.*). Compiled for AVX2
+// through function attributes (the package is built without -march) and
+// used where the CPU has AVX2 (runtime check); elsewhere the callers take
+// the 4-lane forms (where the compiler is not an x86-64 GCC / Clang, the
+// 8-lane functions are not compiled in: the row ones throw, the others are
+// the 4-lane forms).
+//
+// Whether the 8-lane forms run: compiled in, the CPU has AVX2 (and the OS
+// saves its registers) and Allow8LaneKernels(false) was not called.
+bool Use8LaneKernels();
+// Tests: lets (true, the default) or stops the dispatch from taking the
+// 8-lane forms. Not thread-safe against running products.
+void Allow8LaneKernels(bool allow);
+
+// GatherRow, ScatterRow, ScatterRow<true>.
+Float4 GatherRow8(const RunRowSpans& a, int r, const float* __restrict x, int cols);
+void ScatterRow8(const RunRowSpans& a, int r, Float4 s, float* __restrict out);
+void ScatterSquaredRow8(const RunRowSpans& a, int r, Float4 s, float* __restrict out);
+
+// Rows [first, last) of the colour kernels of normal_product.cc
+// (A^T W A x, A^T y, diag(A^T W A); weight, y: 3 values per row).
+void NormalProductRows8(const RunRowSpans& a, int cols, const float* __restrict weight,
+                        const float* __restrict x, int first, int last, float* __restrict out);
+void AdjointRows8(const RunRowSpans& a, const float* __restrict y, int first, int last, float* __restrict out);
+void NormalDiagonalRows8(const RunRowSpans& a, const float* __restrict weight, int first, int last,
+                         float* __restrict out);
 
 }  // namespace rgb_runs
 }  // namespace deblur_sr_mvs
