@@ -20,9 +20,11 @@
 
 #include "deblur_sr_mvs/core/imaging/rgb_run_kernels.h"
 
-#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#ifdef __x86_64__
+#ifdef __GNUC__  // GCC and Clang
 #define DSM_RGB_RUNS_8_LANES 1
 #include <immintrin.h>
+#endif
 #endif
 
 namespace deblur_sr_mvs {
