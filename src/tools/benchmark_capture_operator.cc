@@ -171,8 +171,9 @@ void BenchmarkSharedDepths(const dsm::CaptureGeometry& geometry, int samples, in
       adaptive_shared, alone / adaptive_shared);
 }
 
-// The colour normal product and diagonal pass over the row runs with the
-// 4-lane kernels against the 8-lane ones (rgb_run_kernels.h), interleaved.
+// The colour normal product, diagonal pass and A x over the row runs with
+// the 4-lane kernels against the 8-lane ones (rgb_run_kernels.h),
+// interleaved.
 void BenchmarkRgbLanes(const dsm::RowRunMatrix& runs, const cv::Mat& weight, const cv::Mat& x, int repeats) {
   cv::Mat four(x.size(), x.type()), eight(x.size(), x.type());
   const auto timed = [&](bool eight_lanes, cv::Mat* out, bool diagonal) {
@@ -191,11 +192,24 @@ void BenchmarkRgbLanes(const dsm::RowRunMatrix& runs, const cv::Mat& weight, con
   const bool same = SameBits(four, eight);
   const auto [four_diagonal_ms, eight_diagonal_ms] =
       InterleavedMedianMs(repeats, timed(false, &four, true), timed(true, &eight, true));
+  const bool same_diagonal = SameBits(four, eight);
+  cv::Mat four_ax, eight_ax;
+  const auto gather = [&](bool eight_lanes, cv::Mat* ax) {
+    return [&, eight_lanes, ax] {
+      dsm::rgb_runs::Allow8LaneKernels(eight_lanes);
+      dsm::MultiplySparse(runs, x, ax, 1);
+      dsm::rgb_runs::Allow8LaneKernels(true);
+    };
+  };
+  const auto [four_ax_ms, eight_ax_ms] =
+      InterleavedMedianMs(repeats, gather(false, &four_ax), gather(true, &eight_ax));
   std::printf(
       "colour, row runs, 1 thread: A^T W A x 4-lane %.2f ms, 8-lane %.2f ms (x%.2f, bit-identical: %s) | "
-      "diagonal pass 4-lane %.2f ms, 8-lane %.2f ms (x%.2f, bit-identical: %s)\n",
+      "diagonal pass 4-lane %.2f ms, 8-lane %.2f ms (x%.2f, bit-identical: %s) | A x 4-lane %.2f ms, 8-lane "
+      "%.2f ms (x%.2f, bit-identical: %s)\n",
       four_ms, eight_ms, four_ms / eight_ms, same ? "yes" : "no", four_diagonal_ms, eight_diagonal_ms,
-      four_diagonal_ms / eight_diagonal_ms, SameBits(four, eight) ? "yes" : "no");
+      four_diagonal_ms / eight_diagonal_ms, same_diagonal ? "yes" : "no", four_ax_ms, eight_ax_ms,
+      four_ax_ms / eight_ax_ms, SameBits(four_ax, eight_ax) ? "yes" : "no");
 }
 
 // One product with the weighted normal operator A^T W A, as a CG step of
