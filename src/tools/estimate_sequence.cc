@@ -109,6 +109,13 @@ void AddPosePriorOptions(dsm::ToolCommandLine* command_line, Flags* flags, dsm::
                  "with --flow-fixation-test: LR px of the tiles that are its samples (clusters of the "
                  "flow's correlated errors; default 32)")
       ->check(dsm::FlagNumber(1.0));
+  cli.add_option("--flow-test-min-gap", options->initializer.flow_test_min_gap,
+                 "with --flow-fixation-test: shortest frame gap k of its flow pairs t -> t+k (default 1)")
+      ->check(dsm::FlagInt(1));
+  cli.add_option("--flow-test-max-gap", options->initializer.flow_test_max_gap,
+                 "with --flow-fixation-test: longest frame gap k of its flow pairs t -> t+k; larger than "
+                 "the window: its longest (default 2)")
+      ->check(dsm::FlagInt(1));
   cli.add_option("--dense-fixation-test-z", options->initializer.dense_test_z,
                  "with --dense-fixation-test or --flow-fixation-test: standard errors by which the turn must "
                  "lower the dense data cost or the flow's epipolar distances (default 3.09, the 0.1 % level)")

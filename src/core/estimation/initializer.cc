@@ -1757,6 +1757,8 @@ void InitializerOptions::Check() const {
   CheckAbove(prefix + "fixation_test_z", fixation_test_z, 0.0);
   CheckAtLeast(prefix + "dense_test_block_px", dense_test_block_px, 1);
   CheckAtLeast(prefix + "flow_test_tile_px", flow_test_tile_px, 1);
+  CheckAtLeast(prefix + "flow_test_min_gap", flow_test_min_gap, 1);
+  CheckAtLeast(prefix + "flow_test_max_gap", flow_test_max_gap, flow_test_min_gap);
   CheckAbove(prefix + "dense_test_z", dense_test_z, 0.0);
   CheckAtLeast(prefix + "ba_max_iterations", ba_max_iterations, 0);
   CheckAtLeast(prefix + "pose_prior_position_sigma", pose_prior_position_sigma, 0.0);
@@ -2540,12 +2542,14 @@ struct DataCostComparison {
   double relative = 0.0;  // mean / mean cost before
   double z = 0.0;         // mean / its standard error
   int blocks = 0;
+  int maps = 0;  // cost maps compared (frames, or the flow test's pairs)
 };
 
 DataCostComparison CompareDataCosts(const std::vector<cv::Mat>& before, const std::vector<cv::Mat>& after,
                                     int block) {
   DataCostComparison result;
   if (before.empty() || before.size() != after.size()) return result;
+  result.maps = static_cast<int>(before.size());
   const int width = before[0].cols, height = before[0].rows;
   const int bx = std::max(1, width / block), by = std::max(1, height / block);
   std::vector<double> sums(static_cast<size_t>(bx) * by, 0.0);
@@ -2639,8 +2643,9 @@ cv::Mat EpipolarDistances(const PinholeCamera& camera, const SparseStructure& st
 }
 
 // InitializerOptions::flow_fixation_test: the epipolar distances of a dense
-// flow of the pairs t -> t+1, t -> t+2 under the structure without the turn
-// against those under the turn, compared as CompareDataCosts compares costs.
+// flow of the pairs t -> t+k (flow_test_min_gap <= k <= flow_test_max_gap)
+// under the structure without the turn against those under the turn,
+// compared as CompareDataCosts compares costs.
 DataCostComparison CompareFlowEpipolarDistances(const std::vector<cv::Mat>& gray, const PinholeCamera& camera,
                                                 const InitializerOptions& options,
                                                 const SparseStructure& still, const SparseStructure& turned) {
@@ -2650,7 +2655,7 @@ DataCostComparison CompareFlowEpipolarDistances(const std::vector<cv::Mat>& gray
   for (size_t t = 0; t < gray.size(); ++t) gray[t].convertTo(gray8[t], CV_8UC1, 255.0);
   cv::Mat flow, back;
   const int num_frames = static_cast<int>(gray.size());
-  for (int step = 1; step <= 2; ++step) {
+  for (int step = options.flow_test_min_gap; step <= options.flow_test_max_gap && step < num_frames; ++step) {
     for (int t = 0; t + step < num_frames; ++t) {
       dis->calc(gray8[t], gray8[t + step], flow);
       dis->calc(gray8[t + step], gray8[t], back);
@@ -2715,8 +2720,10 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
     const double bound = FlowTestBound(options, gain.blocks);
     const bool keep_turn = gain.z > bound;
     summary << Format("flow turn test: the turn lowers the flow's epipolar distances by %.3g %% (%.4g px; "
-                      "%.2f standard errors over %.0f tiles, bound %.2f; %.1f ms): ",
-                      100.0 * gain.relative, gain.mean, gain.z, gain.blocks, bound, NowMs() - test_ms)
+                      "%.2f standard errors over %.0f tiles, bound %.2f; ",
+                      100.0 * gain.relative, gain.mean, gain.z, gain.blocks, bound)
+            << Format("%.0f pairs of gaps %.0f-%.0f; %.1f ms): ", gain.maps, options.flow_test_min_gap,
+                      std::min(options.flow_test_max_gap, num_frames - 1), NowMs() - test_ms)
             << (keep_turn ? "turn kept\n" : "no turn\n");
     if (keep_turn) structure = std::move(*rejected_turn);
     rejected_turn.reset();

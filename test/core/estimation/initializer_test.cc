@@ -649,6 +649,29 @@ TEST(InitializerTest, FlowTurnTestKeepsTheLateralPathsStructure) {
                                  "poses moved");
 }
 
+// InitializerOptions::flow_test_min_gap / flow_test_max_gap: every pair of
+// the 5-frame window (a longest gap beyond the window is the window's), and
+// no pair at all (a shortest gap the window does not have: no sample, no
+// turn); either way the test only decides.
+TEST(InitializerTest, FlowTurnTestOfAllGapsKeepsTheLateralPathsStructure) {
+  ExpectTheLateralPathsStructure(
+      [](InitializerOptions* o) {
+        o->flow_fixation_test = true;
+        o->flow_test_max_gap = 99;
+      },
+      "10 pairs of gaps 1-4", "poses moved");
+}
+
+TEST(InitializerTest, FlowTurnTestWithoutPairsKeepsNoTurn) {
+  ExpectTheLateralPathsStructure(
+      [](InitializerOptions* o) {
+        o->flow_fixation_test = true;
+        o->flow_test_min_gap = 5;
+        o->flow_test_max_gap = 5;
+      },
+      "over 0 tiles, bound inf; 0 pairs", "poses moved");
+}
+
 // An arc around a scene of little depth range (Aloe, the fixation point
 // twice the median depth away, noise 1): the tracks leave the turn open, a
 // turn test decides it. Returns the test's summary and errors, beside the
@@ -735,6 +758,14 @@ TEST(InitializerTest, BadOptionsAndInputsGiveInputError) {
              "initializer: dense_test_block_px must be >= 1, got 0");
   expect_bad([](InitializerOptions* o) { o->flow_test_tile_px = 0; },
              "initializer: flow_test_tile_px must be >= 1, got 0");
+  expect_bad([](InitializerOptions* o) { o->flow_test_min_gap = 0; },
+             "initializer: flow_test_min_gap must be >= 1, got 0");
+  expect_bad(
+      [](InitializerOptions* o) {
+        o->flow_test_min_gap = 3;
+        o->flow_test_max_gap = 2;
+      },
+      "initializer: flow_test_max_gap must be >= 3, got 2");
   expect_bad([](InitializerOptions* o) { o->dense_test_z = 0.0; },
              "initializer: dense_test_z must be > 0, got 0");
   expect_bad([](InitializerOptions* o) { o->pose_prior_position_sigma = -0.01; },

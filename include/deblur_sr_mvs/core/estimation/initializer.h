@@ -80,9 +80,10 @@ struct InitializerOptions {
   bool dense_fixation_test = false;
   // The same decision by evidence that no depth can absorb, and without a
   // second depth stage: where the tracks reject the turn, a dense optical
-  // flow (OpenCV's DIS) of every pair t -> t+1, t -> t+2 of the LR frames is
-  // compared with both solutions' epipolar geometry (mid-exposure poses, as
-  // the tracks'); the distance of each flow end point from its epipolar line
+  // flow (OpenCV's DIS) of every pair t -> t+1, t -> t+2 of the LR frames
+  // (the gaps flow_test_min_gap..flow_test_max_gap below) is compared with
+  // both solutions' epipolar geometry (mid-exposure poses, as the tracks');
+  // the distance of each flow end point from its epipolar line
   // does not depend on the depths, so the bas-relief bend that hides the
   // turn from the depth stage cannot hide it here, and a turn's vertical
   // displacement (~ angle * x * y / f) enters linearly, not as a cost's
@@ -105,6 +106,16 @@ struct InitializerOptions {
   // LR px; > the footprint of a DIS PRESET_MEDIUM patch at its finest scale
   // (12 px at half resolution = 24 LR px): pixels that share no patch.
   int flow_test_tile_px = 32;
+  // Frame gaps k of the flow test's pairs t -> t+k: flow_test_min_gap <= k
+  // <= flow_test_max_gap (and k < the window's frames; larger values take
+  // the window's longest gap). A window with no pair of these gaps keeps no
+  // turn. 1, 2: the pairs t -> t+1, t -> t+2. The turn's signal (the
+  // vertical displacement ~ angle * x * y / f) grows with the gap, but so
+  // does the flow's error on blurred frames: measured, every pair of the
+  // window or its long gaps only find no more arcs than gaps 1-2
+  // (BENCHMARKS.md, "Long frame gaps in the flow test").
+  int flow_test_min_gap = 1;
+  int flow_test_max_gap = 2;
   int dense_test_block_px = 16;  // LR px; > the matching patch and the blur
   // One-sided normal quantile of that test: 3.09 is the 0.1 % level. The
   // blocks make the samples nearly independent, so it is the usual level
