@@ -198,7 +198,7 @@ void AddDepthConsistencyOptions(dsm::ToolCommandLine* command_line, dsm::Estimat
       ->check(dsm::FlagInt());
   cli.add_option("--depth-consistency-tolerance", consistency.tolerance,
                  "with --depth-consistency-radius: relative inverse-depth difference up to which a neighbour "
-                 "agrees (default 0.05)")
+                 "agrees (default 0.1)")
       ->check(dsm::FlagNumber());
   cli.add_flag_callback(
       "--depth-consistency-median",

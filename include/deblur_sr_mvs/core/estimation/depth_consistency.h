@@ -57,9 +57,12 @@ struct DepthConsistencyOptions {
   // DepthInMetresStaysWithinTenPercentOfTheAlignedError.
   int radius = 0;
   // Relative tolerance on the inverse depth for a candidate to count (see
-  // above): 0.05 admits 5 % disagreement (0.02 gained less on the 8-sequence
-  // ablation, 0.1 the same).
-  double tolerance = 0.05;
+  // above): 0.1 admits 10 % disagreement. First 0.05 (fixed in advance; 0.02
+  // gained less on the 8-sequence ablation, 0.1 the same there); 0.1 then
+  // lowered the error against 0.05 on two further sets it was not chosen on
+  // (0.953x and 0.972x, the gain on the hand-held paths: BENCHMARKS.md
+  // "Depth consistency: tolerance 0.1 on a third set").
+  double tolerance = 0.1;
   Combination combination = Combination::kMean;
   void Check() const;  // throws InputError naming the bad value
 };
