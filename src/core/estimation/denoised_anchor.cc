@@ -7,6 +7,8 @@
 
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/common/options_check.h"
+#include "deblur_sr_mvs/core/estimation/input_denoising.h"
+#include "deblur_sr_mvs/core/imaging/noise_estimation.h"
 
 namespace deblur_sr_mvs {
 
@@ -27,9 +29,7 @@ void DenoisedAnchorOptions::Check() const {
 DenoisedAnchorSettings AnchorSettings(const DenoisedAnchorOptions& options, double estimated_noise,
                                       double lambda_s, double model_error_sigma) {
   DenoisedAnchorSettings settings;
-  const double estimate = std::max(estimated_noise, 0.0);
-  const double excess = estimate * estimate - options.noise_floor * options.noise_floor;
-  settings.input_noise = excess > 0.0 ? std::sqrt(excess) : 0.0;
+  settings.input_noise = NoiseAboveFloor(estimated_noise, options.noise_floor);
   settings.active =
       options.enabled && settings.input_noise > 0.0 && settings.input_noise >= options.min_noise;
   if (!settings.active) return settings;
@@ -50,11 +50,7 @@ cv::Mat DenoisedAnchor(const cv::Mat& image, double h, const DenoisedAnchorOptio
   image.convertTo(quantised, CV_8U, 255.0);
   cv::fastNlMeansDenoising(quantised, filtered, static_cast<float>(h * 255.0), options.template_px,
                            options.search_px);
-  cv::Mat correction;
-  cv::subtract(filtered, quantised, correction, cv::noArray(), CV_32F);
-  cv::Mat anchor;
-  cv::scaleAdd(correction, 1.0 / 255.0, image, anchor);
-  return anchor;
+  return WithFilterCorrection(image, quantised, filtered);
 }
 
 }  // namespace deblur_sr_mvs

@@ -7,6 +7,7 @@
 
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/common/options_check.h"
+#include "deblur_sr_mvs/core/imaging/noise_estimation.h"
 
 namespace deblur_sr_mvs {
 
@@ -22,10 +23,15 @@ void InputDenoisingOptions::Check() const {
   }
 }
 
+cv::Mat WithFilterCorrection(const cv::Mat& image, const cv::Mat& quantised, const cv::Mat& filtered) {
+  cv::Mat correction, corrected;
+  cv::subtract(filtered, quantised, correction, cv::noArray(), CV_32F);
+  cv::scaleAdd(correction, 1.0 / 255.0, image, corrected);
+  return corrected;
+}
+
 double InputDenoisingStrength(const InputDenoisingOptions& options, double estimated_noise) {
-  const double estimate = std::max(estimated_noise, 0.0);
-  const double excess = estimate * estimate - options.noise_floor * options.noise_floor;
-  const double input_noise = excess > 0.0 ? std::sqrt(excess) : 0.0;
+  const double input_noise = NoiseAboveFloor(estimated_noise, options.noise_floor);
   if (!options.enabled || input_noise <= 0.0 || input_noise < options.min_noise) return 0.0;
   return options.h_scale * input_noise;
 }
@@ -45,11 +51,10 @@ std::vector<cv::Mat> DenoiseInputFrames(const std::vector<cv::Mat>& images, doub
   std::vector<cv::Mat> denoised(images.size());
   for (int t = 0; t < frames; ++t) {
     const int radius = std::min(options.temporal_radius, std::min(t, frames - 1 - t));
-    cv::Mat filtered, correction;
+    cv::Mat filtered;
     cv::fastNlMeansDenoisingMulti(quantised, filtered, t, 2 * radius + 1, static_cast<float>(h * 255.0),
                                   options.template_px, options.search_px);
-    cv::subtract(filtered, quantised[t], correction, cv::noArray(), CV_32F);
-    cv::scaleAdd(correction, 1.0 / 255.0, images[t], denoised[t]);
+    denoised[t] = WithFilterCorrection(images[t], quantised[t], filtered);
   }
   return denoised;
 }

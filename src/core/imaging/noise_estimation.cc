@@ -85,4 +85,10 @@ double EstimateNoiseSigma(const std::vector<cv::Mat>& images, double quantizatio
   return Median(&sigmas);
 }
 
+double NoiseAboveFloor(double estimated_noise, double floor) {
+  const double estimate = std::max(estimated_noise, 0.0);
+  const double excess = estimate * estimate - floor * floor;
+  return excess > 0.0 ? std::sqrt(excess) : 0.0;
+}
+
 }  // namespace deblur_sr_mvs

@@ -60,4 +60,10 @@ double InputDenoisingStrength(const InputDenoisingOptions& options, double estim
 std::vector<cv::Mat> DenoiseInputFrames(const std::vector<cv::Mat>& images, double h,
                                         const InputDenoisingOptions& options);
 
+// image + (filtered - quantised) / 255: the correction of an 8-bit filter
+// (quantised = image x 255 rounded, filtered = its output) applied to the
+// float image, so that what the filter leaves alone keeps its float value.
+// A new Mat; used by DenoiseInputFrames and DenoisedAnchor.
+cv::Mat WithFilterCorrection(const cv::Mat& image, const cv::Mat& quantised, const cv::Mat& filtered);
+
 }  // namespace deblur_sr_mvs

@@ -36,4 +36,9 @@ double EstimateNoiseSigma(const cv::Mat& image, double quantization_step = 1.0 /
 double EstimateNoiseSigma(const std::vector<cv::Mat>& images, double quantization_step = 1.0 / 255.0,
                           double quantile = 0.25);
 
+// The part of a noise estimate above the estimate's floor on noise-free
+// frames (8-bit rounding, scene detail), the two adding in quadrature:
+// sqrt(max(0, estimate^2 - floor^2)); a negative estimate reads as 0.
+double NoiseAboveFloor(double estimated_noise, double floor);
+
 }  // namespace deblur_sr_mvs
