@@ -357,7 +357,7 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   cli.add_flag("--fixed-poses", flags->fixed_poses, "keep the initial poses");
   cli.add_flag("--gain-compensation,!--no-gain-compensation", options->gain_compensation,
                "estimate and divide out a per-frame gain (auto-gain), restore each image at its gain "
-               "(default off)");
+               "(default on)");
   cli.add_flag("--cross-blurred-inputs,!--no-cross-blurred-inputs", options->cross_blurred_inputs,
                "joint, --structure-matching both: input pairs each blurred by the other frame's blur");
   cli.add_flag("--depth-input-pairs,!--no-depth-input-pairs", options->depth_input_pairs,

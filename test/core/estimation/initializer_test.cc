@@ -753,7 +753,7 @@ TEST(InitializerTest, FlowTurnCheckDropsTheTracksTurnOnALateralPath) {
 
 // The arc turn that the tracks find (Dolls, the arc sequence above) is
 // confirmed by the flow and kept (measured: 4.00 standard errors over 30
-// tiles, bound 1.70 at the 5 % level; 1.03 at the default's 16 %).
+// tiles).
 TEST(InitializerTest, FlowTurnCheckKeepsTheArcTurnTheTracksFind) {
   const InitialStructure result = InitializeStructure(FloatImages(ArcSequence()), ArcSequence().calibration.camera,
                                                       ArcSequence().frames, InitializerOptions());
