@@ -1641,6 +1641,13 @@ EstimatorResult Estimator::RunGainCompensated(const EstimatorInput& input, const
   EstimatorResult result = run(&estimator, compensated);
   // The gt latent of a frame with gain g is g times the scene, clamped to 1.
   for (size_t t = 0; t < result.latent.size() && t < gains.size(); ++t) {
+    // A held latent (held_leading_latents) is given back as it came, not
+    // divided and multiplied by its gain (which would round it).
+    if (static_cast<int>(t) < options_.held_leading_latents && t < input.initial_latents.size() &&
+        !input.initial_latents[t].empty()) {
+      result.latent[t] = input.initial_latents[t].clone();
+      continue;
+    }
     result.latent[t] *= gains[t];
     cv::min(result.latent[t], 1.0, result.latent[t]);
   }
