@@ -105,6 +105,12 @@ void AddPosePriorOptions(dsm::ToolCommandLine* command_line, Flags* flags, dsm::
                "initialisation: where the tracks reject a turning camera, decide the turn again by the "
                "epipolar distances of a dense optical flow under both solutions (replaces "
                "--dense-fixation-test; default off)");
+  cli.add_flag("--flow-turn-check,!--no-flow-turn-check", options->initializer.flow_turn_check,
+               "initialisation: where the track test keeps a turning camera, the dense flow's epipolar "
+               "distances (as --flow-fixation-test) must confirm the turn, or it is dropped (default: on)");
+  cli.add_option("--flow-turn-check-z", options->initializer.flow_turn_check_z,
+                 "with --flow-turn-check: one-sided normal quantile of that confirmation (Student's t over the "
+                 "tiles; 1: the flow leans towards the turn by one standard error)");
   cli.add_option("--flow-test-tile-px", options->initializer.flow_test_tile_px,
                  "with --flow-fixation-test: LR px of the tiles that are its samples (clusters of the "
                  "flow's correlated errors; default 32)")
@@ -351,7 +357,7 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   cli.add_flag("--fixed-poses", flags->fixed_poses, "keep the initial poses");
   cli.add_flag("--gain-compensation,!--no-gain-compensation", options->gain_compensation,
                "estimate and divide out a per-frame gain (auto-gain), restore each image at its gain "
-               "(default off)");
+               "(default on)");
   cli.add_flag("--cross-blurred-inputs,!--no-cross-blurred-inputs", options->cross_blurred_inputs,
                "joint, --structure-matching both: input pairs each blurred by the other frame's blur");
   cli.add_flag("--depth-input-pairs,!--no-depth-input-pairs", options->depth_input_pairs,

@@ -77,7 +77,7 @@ TEST(ReportJson, UndoneIterationWithNanEnergiesIsStrictJson) {
   EXPECT_EQ(keys, expected);
   EXPECT_EQ(report["parameters"]["mode"], "joint");
   EXPECT_EQ(report["parameters"]["update_poses"], true);
-  EXPECT_EQ(report["parameters"]["gain_compensation"], false);  // the default
+  EXPECT_EQ(report["parameters"]["gain_compensation"], true);  // the default
   EXPECT_TRUE(report["frame_gains"].is_array());
   EXPECT_TRUE(report["noise"]["sigma_gray_levels"].is_number());
 }

@@ -1206,7 +1206,8 @@ double MedianPointDepth(const SparseStructure& structure) {
 double SelectFixationTurn(const PinholeCamera& camera, const InitializerOptions& options, int threads,
                           const std::vector<Track>& tracks, double rms, SparseStructure* structure,
                           int* num_observations, std::ostringstream* summary,
-                          std::optional<SparseStructure>* rejected_turn) {
+                          std::optional<SparseStructure>* rejected_turn,
+                          std::optional<SparseStructure>* kept_turn_still) {
   if (!options.fixation_prior || structure->T_cam_world.size() < 3) return rms;
   SparseStructure turning = *structure;
   turning.fit_turn_rate = true;
@@ -1238,7 +1239,8 @@ double SelectFixationTurn(const PinholeCamera& camera, const InitializerOptions&
     if (turning.turn_rate != 0.0) *rejected_turn = std::move(turning);
     return rms;
   }
-  *structure = turning;
+  *kept_turn_still = std::move(*structure);
+  *structure = std::move(turning);
   *num_observations = turning_observations;
   return turning_rms;
 }
@@ -1760,6 +1762,7 @@ void InitializerOptions::Check() const {
   CheckAtLeast(prefix + "flow_test_min_gap", flow_test_min_gap, 1);
   CheckAtLeast(prefix + "flow_test_max_gap", flow_test_max_gap, flow_test_min_gap);
   CheckAbove(prefix + "dense_test_z", dense_test_z, 0.0);
+  CheckAbove(prefix + "flow_turn_check_z", flow_turn_check_z, 0.0);
   CheckAtLeast(prefix + "ba_max_iterations", ba_max_iterations, 0);
   CheckAtLeast(prefix + "pose_prior_position_sigma", pose_prior_position_sigma, 0.0);
   CheckAtLeast(prefix + "pose_prior_rotation_sigma_deg", pose_prior_rotation_sigma_deg, 0.0);
@@ -1951,7 +1954,8 @@ SE3 PredictPose(const SparseStructure& structure, const std::vector<char>& has_p
 // mid-exposure (T_cam_world) in the pair's gauge.
 SparseStructure SparseStage(const PinholeCamera& camera_lr, const InitializerOptions& options, int threads,
                             int num_frames, std::vector<Track>* tracks, std::ostringstream* summary,
-                            std::optional<SparseStructure>* rejected_turn) {
+                            std::optional<SparseStructure>* rejected_turn,
+                            std::optional<SparseStructure>* kept_turn_still) {
   double stage_ms = NowMs();
   SparseStructure structure;
   structure.T_cam_world.assign(num_frames, SE3());
@@ -1976,7 +1980,7 @@ SparseStructure SparseStage(const PinholeCamera& camera_lr, const InitializerOpt
   int observations = 0;
   double rms = BundleAdjust(camera_lr, options, threads, *tracks, &structure, &observations);
   rms = SelectFixationTurn(camera_lr, options, threads, *tracks, rms, &structure, &observations, summary,
-                           rejected_turn);
+                           rejected_turn, kept_turn_still);
   *summary << Format("bundle adjustment: %.0f points, %.0f observations, rms %.3f px; %.1f ms\n",
                      structure.points_world.size(), observations, rms, NowMs() - stage_ms);
   return structure;
@@ -2670,10 +2674,10 @@ DataCostComparison CompareFlowEpipolarDistances(const std::vector<cv::Mat>& gray
 }
 
 // The flow test's bound: Student's t quantile with tiles - 1 degrees of
-// freedom at the one-sided level of the normal quantile dense_test_z.
-double FlowTestBound(const InitializerOptions& options, int tiles) {
+// freedom at the one-sided level of the normal quantile z.
+double FlowTestBound(double z, int tiles) {
   if (tiles < 2) return std::numeric_limits<double>::infinity();
-  const double level = boost::math::cdf(boost::math::normal(), options.dense_test_z);
+  const double level = boost::math::cdf(boost::math::normal(), z);
   return boost::math::quantile(boost::math::students_t(tiles - 1.0), level);
 }
 
@@ -2705,19 +2709,31 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
   const std::vector<cv::Mat>& images = window.images;
   const int num_frames = static_cast<int>(images_lr.size());
   const int threads = window.threads;
-  std::optional<SparseStructure> rejected_turn;
-  SparseStructure structure =
-      SparseStage(camera_lr, options, threads, num_frames, &tracking.tracks, &summary, &rejected_turn);
+  std::optional<SparseStructure> rejected_turn, kept_turn_still;
+  SparseStructure structure = SparseStage(camera_lr, options, threads, num_frames, &tracking.tracks, &summary,
+                                          &rejected_turn, &kept_turn_still);
   const bool has_prior =
       std::any_of(T_prior_cam.begin(), T_prior_cam.end(), [](const auto& T) { return T.has_value(); });
   if (!(options.dense_fixation_test || options.flow_fixation_test) || readout_time > 0.0 || has_prior) {
     rejected_turn.reset();
   }
+  if (kept_turn_still && options.flow_turn_check && readout_time == 0.0 && !has_prior) {
+    const double test_ms = NowMs();
+    const DataCostComparison gain =
+        CompareFlowEpipolarDistances(window.gray, camera_lr, options, *kept_turn_still, structure);
+    const double bound = FlowTestBound(options.flow_turn_check_z, gain.blocks);
+    const bool drop_turn = !(gain.z > bound);
+    summary << Format("flow turn check: the turn lowers the flow's epipolar distances by %.3g %% (%.4g px; "
+                      "%.2f standard errors over %.0f tiles, bound %.2f; %.1f ms): ",
+                      100.0 * gain.relative, gain.mean, gain.z, gain.blocks, bound, NowMs() - test_ms)
+            << (drop_turn ? "turn dropped\n" : "turn kept\n");
+    if (drop_turn) structure = std::move(*kept_turn_still);
+  }
   if (rejected_turn && options.flow_fixation_test) {
     const double test_ms = NowMs();
     const DataCostComparison gain =
         CompareFlowEpipolarDistances(window.gray, camera_lr, options, structure, *rejected_turn);
-    const double bound = FlowTestBound(options, gain.blocks);
+    const double bound = FlowTestBound(options.dense_test_z, gain.blocks);
     const bool keep_turn = gain.z > bound;
     summary << Format("flow turn test: the turn lowers the flow's epipolar distances by %.3g %% (%.4g px; "
                       "%.2f standard errors over %.0f tiles, bound %.2f; ",

@@ -285,11 +285,9 @@ struct EstimatorOptions {
   // multiplied by it afterwards (each output keeps its frame's brightness).
   // With +-10 % jitter it removes nearly all the damage, and without
   // auto-gain it measures no worse on the benchmark sequences (BENCHMARKS.md
-  // "Gain compensation"; test/core/estimation/gain_test.cc). Off by default
-  // all the same: with it on, test/core/estimation/estimator_test.cc's
-  // JointBeatsBicubicAndBaselineFromScratch gives joint depth 0.013306
-  // against the baseline's 0.013276 and fails its "joint beats baseline".
-  bool gain_compensation = false;
+  // "Gain compensation", "Gain compensation on by default"; the tests of
+  // gain_test.cc). On by default: most cameras have auto-gain.
+  bool gain_compensation = true;
   GainEstimationOptions gain;  // the robust ratio's corners, box, thresholds
   void Check() const;          // throws InputError naming the bad value
 };

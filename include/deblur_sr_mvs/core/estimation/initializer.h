@@ -116,6 +116,22 @@ struct InitializerOptions {
   // (BENCHMARKS.md, "Long frame gaps in the flow test").
   int flow_test_min_gap = 1;
   int flow_test_max_gap = 2;
+  // Where the tracks keep the turn, the flow evidence of the test above must
+  // lean towards it: the turn is dropped unless it lowers the flow's
+  // epipolar distances by more than flow_turn_check_z (a one-sided normal
+  // quantile, taken as Student's t over the tiles like that test's bound).
+  // The tracks' errors persist along a track and grow with the window: on
+  // 10-frame lateral windows they kept turns of 1.3-1.9 deg that the flow
+  // did not support (0.0-0.5 standard errors), while the arcs' turns that
+  // they kept had 1.8-4.0 (BENCHMARKS.md, "The tracks' turn checked by the
+  // flow"). The flow alone is not trusted to 5 %: on paths that do not turn
+  // it reached 2.1 standard errors, which is why a turn that the tracks
+  // reject needs dense_test_z. So the check only asks that the flow lean
+  // towards the turn by one standard error (the 16 % level). One flow per
+  // pair of the gaps above, only where the tracks keep a turn; not with a
+  // rolling shutter or a pose prior.
+  bool flow_turn_check = true;
+  double flow_turn_check_z = 1.0;
   int dense_test_block_px = 16;  // LR px; > the matching patch and the blur
   // One-sided normal quantile of that test: 3.09 is the 0.1 % level. The
   // blocks make the samples nearly independent, so it is the usual level
