@@ -1616,13 +1616,14 @@ EstimatorResult Estimator::RunInputDenoised(const EstimatorInput& input, const I
 EstimatorResult Estimator::RunGainCompensated(const EstimatorInput& input, const InnerRun& run) const {
   EstimatorOptions inner = options_;
   inner.gain_compensation = false;
+  const bool readable = GainReadable(input);
   // The noise is estimated on the frames as they came (EstimateNoiseSigma
   // reads the 8-bit quantisation steps, which dividing by a gain moves):
   // the divided frames read 20 % high at sigma 2 (2.40 for 2.0).
-  if (inner.noise_sigma < 0.0 && GainReadable(input)) inner.noise_sigma = EstimateNoiseSigma(input.images);
+  if (inner.noise_sigma < 0.0 && readable) inner.noise_sigma = EstimateNoiseSigma(input.images);
   Estimator estimator(inner);
   estimator.SetCancelFlag(cancel_);
-  if (!GainReadable(input)) return run(&estimator, input);
+  if (!readable) return run(&estimator, input);
   const double start = NowMs();
   const std::vector<double> gains = EstimateFrameGains(input.images, options_.gain);
   EstimatorInput compensated;

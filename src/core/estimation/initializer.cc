@@ -2681,6 +2681,29 @@ double FlowTestBound(double z, int tiles) {
   return boost::math::quantile(boost::math::students_t(tiles - 1.0), level);
 }
 
+// The flow's decision between the structure without the turn (`still`) and
+// with it (`turned`): true when the turn lowers the flow's epipolar
+// distances by more than FlowTestBound(z). One summary line named `name`,
+// ending in "turn kept" or `otherwise`.
+bool FlowFavoursTurn(const std::vector<cv::Mat>& gray, const PinholeCamera& camera,
+                     const InitializerOptions& options, const SparseStructure& still,
+                     const SparseStructure& turned, double z, const std::string& name,
+                     const std::string& otherwise, std::ostringstream* summary) {
+  const double test_ms = NowMs();
+  const DataCostComparison gain = CompareFlowEpipolarDistances(gray, camera, options, still, turned);
+  const double bound = FlowTestBound(z, gain.blocks);
+  const bool turns = gain.z > bound;
+  const int num_frames = static_cast<int>(gray.size());
+  *summary << name
+           << Format(": the turn lowers the flow's epipolar distances by %.3g %% (%.4g px; "
+                     "%.2f standard errors over %.0f tiles, bound %.2f; ",
+                     100.0 * gain.relative, gain.mean, gain.z, gain.blocks, bound)
+           << Format("%.0f pairs of gaps %.0f-%.0f; %.1f ms): ", gain.maps, options.flow_test_min_gap,
+                     std::min(options.flow_test_max_gap, num_frames - 1), NowMs() - test_ms)
+           << (turns ? std::string("turn kept") : otherwise) << "\n";
+  return turns;
+}
+
 // Poses at shutter close and dense depths (stage 4) of a bundle-adjusted
 // structure; the data cost of the depths' solution per pixel in `data_cost`.
 InitialStructure DenseStructure(const std::vector<cv::Mat>& images, const PinholeCamera& camera_lr,
@@ -2718,29 +2741,13 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
     rejected_turn.reset();
   }
   if (kept_turn_still && options.flow_turn_check && readout_time == 0.0 && !has_prior) {
-    const double test_ms = NowMs();
-    const DataCostComparison gain =
-        CompareFlowEpipolarDistances(window.gray, camera_lr, options, *kept_turn_still, structure);
-    const double bound = FlowTestBound(options.flow_turn_check_z, gain.blocks);
-    const bool drop_turn = !(gain.z > bound);
-    summary << Format("flow turn check: the turn lowers the flow's epipolar distances by %.3g %% (%.4g px; "
-                      "%.2f standard errors over %.0f tiles, bound %.2f; %.1f ms): ",
-                      100.0 * gain.relative, gain.mean, gain.z, gain.blocks, bound, NowMs() - test_ms)
-            << (drop_turn ? "turn dropped\n" : "turn kept\n");
-    if (drop_turn) structure = std::move(*kept_turn_still);
+    const bool keep_turn = FlowFavoursTurn(window.gray, camera_lr, options, *kept_turn_still, structure,
+                                           options.flow_turn_check_z, "flow turn check", "turn dropped", &summary);
+    if (!keep_turn) structure = std::move(*kept_turn_still);
   }
   if (rejected_turn && options.flow_fixation_test) {
-    const double test_ms = NowMs();
-    const DataCostComparison gain =
-        CompareFlowEpipolarDistances(window.gray, camera_lr, options, structure, *rejected_turn);
-    const double bound = FlowTestBound(options.dense_test_z, gain.blocks);
-    const bool keep_turn = gain.z > bound;
-    summary << Format("flow turn test: the turn lowers the flow's epipolar distances by %.3g %% (%.4g px; "
-                      "%.2f standard errors over %.0f tiles, bound %.2f; ",
-                      100.0 * gain.relative, gain.mean, gain.z, gain.blocks, bound)
-            << Format("%.0f pairs of gaps %.0f-%.0f; %.1f ms): ", gain.maps, options.flow_test_min_gap,
-                      std::min(options.flow_test_max_gap, num_frames - 1), NowMs() - test_ms)
-            << (keep_turn ? "turn kept\n" : "no turn\n");
+    const bool keep_turn = FlowFavoursTurn(window.gray, camera_lr, options, structure, *rejected_turn,
+                                           options.dense_test_z, "flow turn test", "no turn", &summary);
     if (keep_turn) structure = std::move(*rejected_turn);
     rejected_turn.reset();
   }
