@@ -293,6 +293,10 @@ void AddDepthSweepOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOpti
   cli.add_option("--depth-sweep-min-gain", options->depth_sweep.min_cost_gain,
                  "with --depth-sweep: keep the solver's depth unless the sweep's cost is lower by this fraction")
       ->check(dsm::FlagNumber());
+  cli.add_option("--depth-sweep-min-guide-std", options->depth_sweep.min_guide_std,
+                 "with --depth-sweep: keep the solver's depth where the restored image's standard deviation over the "
+                 "aggregation window is below this (intensity in [0, 1])")
+      ->check(dsm::FlagNumber());
   cli.add_option("--depth-sweep-downsample", options->depth_sweep.downsample,
                  "with --depth-sweep: sweep on the images downsampled by this factor (1: HR)")
       ->check(dsm::FlagInt());

@@ -123,6 +123,20 @@ cv::Mat GrayGuide(const cv::Mat& image) {
   return gray;
 }
 
+// The local standard deviation of the gray guide over the aggregation
+// window ((2 r + 1)^2, the window's mean of I^2 minus its squared mean).
+cv::Mat GuideStd(const cv::Mat& image, int radius) {
+  const cv::Mat gray = GrayGuide(image);
+  cv::Mat mean, mean_sq;
+  const cv::Size window(2 * radius + 1, 2 * radius + 1);
+  cv::boxFilter(gray, mean, CV_32F, window, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
+  cv::boxFilter(gray.mul(gray), mean_sq, CV_32F, window, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
+  cv::Mat variance = cv::max(mean_sq - mean.mul(mean), 0.0);
+  cv::Mat std_dev;
+  cv::sqrt(variance, std_dev);
+  return std_dev;
+}
+
 // Running best plane per pixel and the costs of the planes either side of it
 // (for the parabola), kept without the whole cost volume.
 struct BestPlane {
@@ -330,6 +344,7 @@ void DepthSweepOptions::Check() const {
   CheckInRange("depth_sweep_truncation", cost_truncation, 1e-3, 1.0);
   CheckInRange("depth_sweep_keep_steps", keep_steps, 0.0, 1024.0);
   CheckInRange("depth_sweep_min_cost_gain", min_cost_gain, 0.0, 0.99);
+  CheckInRange("depth_sweep_min_guide_std", min_guide_std, 0.0, 1.0);
   CheckInRange("depth_sweep_neighbour_radius", neighbour_radius, 1, 5);
   CheckInRange("depth_sweep_downsample", downsample, 1, 4);
   CheckInRange("depth_sweep_before_last_structure_updates", before_last_structure_updates, 0, 1000);
@@ -352,6 +367,8 @@ void SweepInverseDepth(const std::vector<cv::Mat>& images, const PinholeCamera& 
           ? SweepDownsampled(images, camera, T_world_cam, t, sources, options, *inverse_depth, options.downsample)
           : Sweep(images, camera, T_world_cam, t, sources, options, *inverse_depth);
   if (maps.swept_rho.empty()) return;
+  const float min_std = static_cast<float>(options.min_guide_std);
+  const cv::Mat guide_std = min_std > 0.0f ? GuideStd(images[t], options.aggregation_radius_px) : cv::Mat();
   const double keep = options.keep_steps * maps.step;
   const float gain = static_cast<float>(1.0 - options.min_cost_gain);
   for (int y = 0; y < size.height; ++y) {
@@ -364,6 +381,7 @@ void SweepInverseDepth(const std::vector<cv::Mat>& images, const PinholeCamera& 
       // Where the current inverse depth lies outside the planes (NaN) the
       // sweep is not judged.
       if (!(best[x] < gain * current[x])) continue;
+      if (min_std > 0.0f && !(guide_std.at<float>(y, x) >= min_std)) continue;
       if (std::abs(swept[x] - rho[x]) > keep && swept[x] > 0.0f) rho[x] = swept[x];
     }
   }

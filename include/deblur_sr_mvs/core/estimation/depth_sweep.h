@@ -77,6 +77,15 @@ struct DepthSweepOptions {
   // min_cost_gain) times the cost of the plane nearest its inverse depth
   // (0: any lower cost replaces it).
   double min_cost_gain = 0.1;
+  // ... and where the restored image is flat: its gray standard deviation
+  // over the aggregation window below min_guide_std (intensity in [0, 1];
+  // 0: no such test). There every plane matches about as well, noise picks
+  // the sweep's best plane, and the guided filter (whose eps is 1e-4, a
+  // standard deviation of 0.01) aggregates as a plain box. On 4 sequences
+  // (lateral Reindeer, hand-held Reindeer, arc Aloe, lateral Dolls) 0.01
+  // lowered joint's crop depth from 0.910x to 0.896x the baseline's
+  // (BENCHMARKS.md "The re-sweep kept off flat image regions").
+  double min_guide_std = 0.01;
   // The estimator matches frame t against the frames within this distance
   // (its own N(t) is often one frame per side: too noisy for a sweep).
   int neighbour_radius = 2;
