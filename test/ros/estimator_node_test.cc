@@ -139,9 +139,15 @@ class EstimatorNodeTest : public testing::Test {
   }
 
   ros::NodeHandle node_;
+  // Declared before the subscribers, so destroyed after them: a subscriber's
+  // destruction waits for its running callback, and the node goes on
+  // publishing (diagnostics, status) while a test ends. Declared after them,
+  // out_ was destroyed first, and a callback arriving then wrote into freed
+  // memory (the likely cause of one SIGSEGV of this binary at the end of its
+  // first test, under load).
+  Outputs out_;
   std::vector<ros::Subscriber> subscribers_;
   ros::Publisher image_publisher_, info_publisher_;
-  Outputs out_;
 };
 
 TEST_F(EstimatorNodeTest, PublishesEveryFrameConsistentlyAndBeatsBicubic) {
