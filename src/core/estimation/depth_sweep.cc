@@ -376,12 +376,13 @@ void SweepInverseDepth(const std::vector<cv::Mat>& images, const PinholeCamera& 
     const float* swept = maps.swept_rho.ptr<float>(y);
     const float* best = maps.best_cost.ptr<float>(y);
     const float* current = maps.current_cost.ptr<float>(y);
+    const float* local_std = min_std > 0.0f ? guide_std.ptr<float>(y) : nullptr;
     for (int x = 0; x < size.width; ++x) {
       if (!(std::isfinite(rho[x]) && rho[x] > 0.0f)) continue;
       // Where the current inverse depth lies outside the planes (NaN) the
       // sweep is not judged.
       if (!(best[x] < gain * current[x])) continue;
-      if (min_std > 0.0f && !(guide_std.at<float>(y, x) >= min_std)) continue;
+      if (local_std != nullptr && !(local_std[x] >= min_std)) continue;
       if (std::abs(swept[x] - rho[x]) > keep && swept[x] > 0.0f) rho[x] = swept[x];
     }
   }
