@@ -367,6 +367,10 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   cli.add_flag("--depth-input-pairs,!--no-depth-input-pairs", options->depth_input_pairs,
                "joint, --structure-matching both: the depth update matches the input pairs too (default "
                "on; off: restored pairs for depth, both kinds for poses)");
+  cli.add_option("--equal-blur-tolerance", options->equal_blur_tolerance_px,
+                 "joint, --structure-matching both: pose-update pairs whose frames' blurs differ by less than "
+                 "this (HR px) match their input pair only (0: restored pairs always)")
+      ->check(dsm::FlagNumber());
   AddJointStepOptions(&cli, options);
   AddDepthEdgeOptions(&cli, options);
   AddFusionOptions(&cli, options);

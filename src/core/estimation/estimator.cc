@@ -571,6 +571,7 @@ class WindowSolver {
   std::vector<BlurPoseTerm> BlurPoseTerms(const StructureUpdateOptions& structure_options);
   void AppendPairs(int t, const std::vector<int>& sources, bool with_inputs, std::vector<PairMatching>* pairs,
                    HeldOperators* held);
+  void DropRestoredPairsOfEqualBlur(int t, std::vector<PairMatching>* pairs) const;
   SelfConsistencyLinearization SelfConsistencyOf(int t);
   void SetInverseDepth(int t, const cv::Mat& inverse_depth);
   void SetPoses(const std::vector<SE3>& T_world_cam);
@@ -1072,6 +1073,7 @@ void WindowSolver::UpdateAllPoses(int iteration, bool isolated, const std::vecto
       sources.erase(sources.begin(), std::lower_bound(sources.begin(), sources.end(), held_poses));
     }
     AppendPairs(t, sources, /*with_inputs=*/true, &frame_pairs[t], &held[t]);
+    DropRestoredPairsOfEqualBlur(t, &frame_pairs[t]);
   });
   std::vector<PairMatching> pairs;
   for (std::vector<PairMatching>& frame : frame_pairs) {
@@ -1157,6 +1159,25 @@ void WindowSolver::AppendPairs(int t, const std::vector<int>& sources, bool with
       pairs->push_back(pair);
     }
   }
+}
+
+// The pose update's pairs of frame t without the restored pairs whose two
+// frames carry the same blur (EstimatorOptions::equal_blur_tolerance_px):
+// their input pairs, which stay, compare them without bias. A pair whose
+// blurs cannot be compared (BlurDifferenceHr NaN) keeps both.
+void WindowSolver::DropRestoredPairsOfEqualBlur(int t, std::vector<PairMatching>* pairs) const {
+  if (!input_matching() || options_.equal_blur_tolerance_px <= 0.0) return;
+  const CaptureGeometry geometry_t = MakeCaptureGeometry(frames_, camera_hr_, t, t);
+  std::vector<PairMatching> kept;
+  for (PairMatching& pair : *pairs) {
+    const bool restored = pair.blur == nullptr && pair.source == nullptr;
+    if (restored && BlurDifferenceHr(geometry_t, MakeCaptureGeometry(frames_, camera_hr_, pair.s, pair.s),
+                                     options_.scale) < options_.equal_blur_tolerance_px) {
+      continue;
+    }
+    kept.push_back(std::move(pair));
+  }
+  *pairs = std::move(kept);
 }
 
 // Psi_b o B_a and Psi_a o B_b for every pair of frames within the pose
@@ -1704,6 +1725,7 @@ void EstimatorOptions::Check() const {
   CheckInRange("continued_max_iterations", continued_max_iterations, -1, 100);
   CheckAtLeast("max_seconds", max_seconds, 0.0);
   CheckAbove("pose_prior_weight", pose_prior_weight, 0.0);
+  CheckInRange("equal_blur_tolerance_px", equal_blur_tolerance_px, 0.0, 1000.0);
   CheckInRange("model_error_sigma", model_error_sigma, 1e-6, 1.0);
   if (noise_sigma > 1.0) throw InputError("noise_sigma must be <= 1 (intensity units; negative: auto)");
   gain.Check();

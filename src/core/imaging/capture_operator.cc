@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <sstream>
 #include <type_traits>
 
@@ -679,6 +680,36 @@ int NextGridPoint(int i, int size) {
   return i == size - 1 ? size : std::min(i + kBlurGridStep, size - 1);
 }
 
+// The opening time of LR row `lr_row`'s exposure window (its closing is
+// `exposure` later).
+double RowOpening(const CaptureGeometry& geometry, int lr_row, int lr_rows) {
+  return geometry.stamp - geometry.exposure + RowDelay(geometry, lr_row, lr_rows);
+}
+
+// World-to-camera poses at the opening and the closing of every LR row's
+// exposure window: one entry for a global shutter (every row alike).
+struct RowExposureEnds {
+  std::vector<SE3> T_open_world, T_close_world;
+  RowExposureEnds(const CaptureGeometry& geometry, int lr_rows) {
+    const int rows = geometry.readout_time > 0.0 ? lr_rows : 1;
+    for (int y = 0; y < rows; ++y) {
+      const double open = RowOpening(geometry, y, lr_rows);
+      T_open_world.push_back(PoseAtTime(geometry, open).Inverse());
+      T_close_world.push_back(PoseAtTime(geometry, open + geometry.exposure).Inverse());
+    }
+  }
+  // The blur vector (opening minus closing position, HR pixels) of a world
+  // point seen in LR row `lr_row`; false when it is behind the camera.
+  bool Blur(const PinholeCamera& camera, const Eigen::Vector3d& world, int lr_row, Eigen::Vector2d* blur) const {
+    const size_t row = std::min<size_t>(static_cast<size_t>(std::max(lr_row, 0)), T_open_world.size() - 1);
+    const Eigen::Vector3d at_open = T_open_world[row] * world;
+    const Eigen::Vector3d at_close = T_close_world[row] * world;
+    if (!(at_open.z() > 1e-9 && at_close.z() > 1e-9)) return false;
+    *blur = camera.Project(at_open) - camera.Project(at_close);
+    return true;
+  }
+};
+
 }  // namespace
 
 double BlurLengthHr(const CaptureGeometry& geometry, int scale) {
@@ -692,7 +723,7 @@ double BlurLengthHr(const CaptureGeometry& geometry, int scale) {
     const double delay = RowDelay(geometry, y / scale, lr_rows);
     if (delay != row_delay) {  // once for a global shutter
       row_delay = delay;
-      const double open = geometry.stamp - geometry.exposure + delay;
+      const double open = RowOpening(geometry, y / scale, lr_rows);
       T_open_t = PoseAtTime(geometry, open).Inverse() * geometry.T_world_cam;
       T_close_t = PoseAtTime(geometry, open + geometry.exposure).Inverse() * geometry.T_world_cam;
     }
@@ -708,6 +739,42 @@ double BlurLengthHr(const CaptureGeometry& geometry, int scale) {
     }
   }
   return longest;
+}
+
+double BlurDifferenceHr(const CaptureGeometry& a, const CaptureGeometry& b, int scale) {
+  CheckCaptureGeometry(a, scale);
+  CheckCaptureGeometry(b, scale);
+  if (a.camera_hr.width != b.camera_hr.width || a.camera_hr.height != b.camera_hr.height) {
+    throw InputError("BlurDifferenceHr: the frames' HR sizes differ");
+  }
+  const PinholeCamera& camera = a.camera_hr;
+  const int lr_rows = camera.height / scale;
+  const RowExposureEnds ends_a(a, lr_rows), ends_b(b, lr_rows);
+  const SE3 T_b_world = b.T_world_cam.Inverse();
+  double sum = 0.0;
+  int count = 0;
+  for (int y = 0; y < camera.height; y = NextGridPoint(y, camera.height)) {
+    const float* depth = a.depth_hr.ptr<float>(y);
+    for (int x = 0; x < camera.width; x = NextGridPoint(x, camera.width)) {
+      const double d = depth[x];
+      if (!(d > 0.0 && d < 1e30)) continue;  // unknown depth: no blur to compare
+      const Eigen::Vector3d world = a.T_world_cam * (d * camera.Ray(x, y));
+      const Eigen::Vector3d in_b = T_b_world * world;
+      if (!(in_b.z() > 1e-9)) continue;
+      const Eigen::Vector2d pixel_b = camera.Project(in_b);
+      if (!(pixel_b.x() >= 0.0 && pixel_b.y() >= 0.0 && pixel_b.x() < camera.width && pixel_b.y() < camera.height)) {
+        continue;  // b does not see it
+      }
+      Eigen::Vector2d blur_a, blur_b;
+      if (!ends_a.Blur(camera, world, y / scale, &blur_a) ||
+          !ends_b.Blur(camera, world, static_cast<int>(pixel_b.y()) / scale, &blur_b)) {
+        continue;
+      }
+      sum += (blur_a - blur_b).norm();
+      ++count;
+    }
+  }
+  return count > 0 ? sum / count : std::numeric_limits<double>::quiet_NaN();
 }
 
 int CaptureSamples(const CaptureGeometry& geometry, const CaptureOperatorOptions& options) {

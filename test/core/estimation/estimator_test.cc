@@ -290,6 +290,11 @@ TEST(EstimatorSafety, BadOptionsAreRejected) {
   options = EstimatorOptions();
   options.image.lambda_i = std::numeric_limits<double>::infinity();
   EXPECT_THROW(options.Check(), InputError);
+  options = EstimatorOptions();
+  options.equal_blur_tolerance_px = -0.5;
+  EXPECT_THROW(options.Check(), InputError);
+  options.equal_blur_tolerance_px = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(options.Check(), InputError);
 }
 
 // Every Options::Check() names the value, its range and what it got.

@@ -373,6 +373,41 @@ TEST(EdgeWeight, FlatIsOneAndEdgesAreSmall) {
   ExpectInputError([&] { visibility.Check(); }, "visibility: source_depth_margin must be in [0, 1), got -0.1");
 }
 
+// Two consecutive frames of a constant-velocity path parallel to a
+// fronto-parallel plane blur every point alike: their blur difference is 0,
+// with a global and with a rolling shutter. Halving the second frame's
+// exposure halves its blur vectors, and the difference is then half of the
+// blur length f b / d; a second frame that sees none of the first's points
+// gives NaN (no evidence either way).
+TEST(BlurDifference, ZeroOnAConstantVelocityPathAndTheChangeOfBlurOtherwise) {
+  CaptureGeometry a = MovingGeometry(96, 72);
+  a.depth_hr.setTo(2.0f);
+  a.T_world_neighbour = SE3();
+  a.T_world_cam = Translation(0.09, 0.0, 0.0);
+  CaptureGeometry b = a;
+  b.T_world_neighbour = a.T_world_cam;
+  b.neighbour_stamp = a.stamp;
+  b.T_world_cam = Translation(0.18, 0.0, 0.0);
+  b.stamp = 2.0 * a.stamp;
+  const double blur_length = BlurLengthHr(a, 2);
+  ASSERT_GT(blur_length, 2.0);
+  EXPECT_NEAR(BlurDifferenceHr(a, b, 2), 0.0, 1e-9);
+  EXPECT_NEAR(BlurDifferenceHr(b, a, 2), 0.0, 1e-9);
+  {
+    CaptureGeometry rolling_a = a, rolling_b = b;
+    rolling_a.readout_time = rolling_b.readout_time = 0.8 * a.stamp;
+    EXPECT_NEAR(BlurDifferenceHr(rolling_a, rolling_b, 2), 0.0, 1e-9);
+  }
+  CaptureGeometry shorter = b;
+  shorter.exposure = 0.5 * a.exposure;
+  EXPECT_NEAR(BlurDifferenceHr(a, shorter, 2), 0.5 * blur_length, 1e-6 * blur_length);
+  CaptureGeometry away = b;
+  away.T_world_cam = SE3(Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitY()).toRotationMatrix(),
+                         Eigen::Vector3d(0.18, 0.0, 0.0));
+  away.T_world_neighbour = away.T_world_cam;
+  EXPECT_TRUE(std::isnan(BlurDifferenceHr(a, away, 2)));
+}
+
 }  // namespace
 }  // namespace deblur_sr_mvs
 

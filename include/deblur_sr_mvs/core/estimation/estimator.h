@@ -204,6 +204,18 @@ struct EstimatorOptions {
   // orientation error rises from 0.15 to 0.66 deg (BENCHMARKS.md "Method
   // ablation"). So it stays on.
   bool depth_input_pairs = true;
+  // kRestoredAndInput in joint mode: in the pose update, a pair (t <- s)
+  // whose frames' blurs differ by less than this many HR pixels
+  // (BlurDifferenceHr at the current structure) matches its input pair
+  // only. Two frames that move alike carry the same blur, so their
+  // up-sampled inputs compare without bias, while the restored images were
+  // fitted to the current poses and partly absorb a pose error. Where the
+  // blurs differ (hand-held, forward) the inputs are biased and the restored
+  // pair stays. 0: the restored pairs always (the behaviour before
+  // 2026-12-04). 0.5 takes the ATE at or below the baseline's on 4 of the 5
+  // benchmark sequences where it was above, at equal depth and images
+  // (BENCHMARKS.md "Equal blur: input pairs only in the pose update").
+  double equal_blur_tolerance_px = 0.5;
   // Joint mode: blur as motion evidence. The pose update also takes the
   // self-consistency term lambda_s |B_t - Psi_t I_t| (eq:IPterm) linearised
   // in the poses that fix Psi_t's blur path (P_t and its neighbours,

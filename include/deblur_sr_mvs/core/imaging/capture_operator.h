@@ -141,6 +141,15 @@ double RowDelay(const CaptureGeometry& geometry, int lr_row, int lr_rows);
 // a grid of points (every 8th HR pixel) at their own depth D_t (unknown depth
 // does not move, as in the operator). Independent of the source camera.
 double BlurLengthHr(const CaptureGeometry& geometry, int scale);
+// How much the blurs of frames a and b differ: the mean, over a grid of
+// frame a's points (every 8th HR pixel) at their depth D_a that b also sees
+// (at its pose P_b), of the length of the difference between the point's
+// blur vectors in a and in b (its image motion from the opening to the
+// closing of its row's exposure), in HR pixels. 0 when both frames move
+// alike (a constant-velocity path); NaN when no point qualifies (no known
+// depth, or b sees none of them). The two geometries must share the HR
+// camera.
+double BlurDifferenceHr(const CaptureGeometry& a, const CaptureGeometry& b, int scale);
 // M for the frame of `geometry` under `options` (options.samples unless
 // options.adaptive_samples); the same for every source camera.
 int CaptureSamples(const CaptureGeometry& geometry, const CaptureOperatorOptions& options);
