@@ -686,24 +686,25 @@ double RowOpening(const CaptureGeometry& geometry, int lr_row, int lr_rows) {
   return geometry.stamp - geometry.exposure + RowDelay(geometry, lr_row, lr_rows);
 }
 
-// World-to-camera poses at the opening and the closing of every LR row's
-// exposure window: one entry for a global shutter (every row alike).
+// The poses, from the frame of the points (T_world_points) into the camera,
+// at the opening and the closing of every LR row's exposure window: one
+// entry for a global shutter (every row alike).
 struct RowExposureEnds {
-  std::vector<SE3> T_open_world, T_close_world;
-  RowExposureEnds(const CaptureGeometry& geometry, int lr_rows) {
+  std::vector<SE3> T_open_points, T_close_points;
+  RowExposureEnds(const CaptureGeometry& geometry, int lr_rows, const SE3& T_world_points) {
     const int rows = geometry.readout_time > 0.0 ? lr_rows : 1;
     for (int y = 0; y < rows; ++y) {
       const double open = RowOpening(geometry, y, lr_rows);
-      T_open_world.push_back(PoseAtTime(geometry, open).Inverse());
-      T_close_world.push_back(PoseAtTime(geometry, open + geometry.exposure).Inverse());
+      T_open_points.push_back(PoseAtTime(geometry, open).Inverse() * T_world_points);
+      T_close_points.push_back(PoseAtTime(geometry, open + geometry.exposure).Inverse() * T_world_points);
     }
   }
-  // The blur vector (opening minus closing position, HR pixels) of a world
-  // point seen in LR row `lr_row`; false when it is behind the camera.
-  bool Blur(const PinholeCamera& camera, const Eigen::Vector3d& world, int lr_row, Eigen::Vector2d* blur) const {
-    const size_t row = std::min<size_t>(static_cast<size_t>(std::max(lr_row, 0)), T_open_world.size() - 1);
-    const Eigen::Vector3d at_open = T_open_world[row] * world;
-    const Eigen::Vector3d at_close = T_close_world[row] * world;
+  // The blur vector (opening minus closing position, HR pixels) of a point
+  // seen in LR row `lr_row`; false when it is behind the camera.
+  bool Blur(const PinholeCamera& camera, const Eigen::Vector3d& point, int lr_row, Eigen::Vector2d* blur) const {
+    const size_t row = std::min<size_t>(static_cast<size_t>(std::max(lr_row, 0)), T_open_points.size() - 1);
+    const Eigen::Vector3d at_open = T_open_points[row] * point;
+    const Eigen::Vector3d at_close = T_close_points[row] * point;
     if (!(at_open.z() > 1e-9 && at_close.z() > 1e-9)) return false;
     *blur = camera.Project(at_open) - camera.Project(at_close);
     return true;
@@ -715,27 +716,15 @@ struct RowExposureEnds {
 double BlurLengthHr(const CaptureGeometry& geometry, int scale) {
   CheckCaptureGeometry(geometry, scale);
   const PinholeCamera& camera = geometry.camera_hr;
-  const int lr_rows = camera.height / scale;
+  const RowExposureEnds ends(geometry, camera.height / scale, geometry.T_world_cam);
   double longest = 0.0;
-  double row_delay = -1.0;
-  SE3 T_open_t, T_close_t;
+  Eigen::Vector2d blur;
   for (int y = 0; y < camera.height; y = NextGridPoint(y, camera.height)) {
-    const double delay = RowDelay(geometry, y / scale, lr_rows);
-    if (delay != row_delay) {  // once for a global shutter
-      row_delay = delay;
-      const double open = RowOpening(geometry, y / scale, lr_rows);
-      T_open_t = PoseAtTime(geometry, open).Inverse() * geometry.T_world_cam;
-      T_close_t = PoseAtTime(geometry, open + geometry.exposure).Inverse() * geometry.T_world_cam;
-    }
     const float* depth = geometry.depth_hr.ptr<float>(y);
     for (int x = 0; x < camera.width; x = NextGridPoint(x, camera.width)) {
       const double d = depth[x];
       if (!(d > 0.0 && d < 1e30)) continue;  // unknown depth: the operator samples x itself
-      const Eigen::Vector3d point_t = d * camera.Ray(x, y);
-      const Eigen::Vector3d at_open = T_open_t * point_t;
-      const Eigen::Vector3d at_close = T_close_t * point_t;
-      if (!(at_open.z() > 1e-9 && at_close.z() > 1e-9)) continue;
-      longest = std::max(longest, (camera.Project(at_open) - camera.Project(at_close)).norm());
+      if (ends.Blur(camera, d * camera.Ray(x, y), y / scale, &blur)) longest = std::max(longest, blur.norm());
     }
   }
   return longest;
@@ -749,7 +738,7 @@ double BlurDifferenceHr(const CaptureGeometry& a, const CaptureGeometry& b, int 
   }
   const PinholeCamera& camera = a.camera_hr;
   const int lr_rows = camera.height / scale;
-  const RowExposureEnds ends_a(a, lr_rows), ends_b(b, lr_rows);
+  const RowExposureEnds ends_a(a, lr_rows, SE3()), ends_b(b, lr_rows, SE3());
   const SE3 T_b_world = b.T_world_cam.Inverse();
   double sum = 0.0;
   int count = 0;
