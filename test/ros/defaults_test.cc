@@ -2,7 +2,8 @@
 // names of ForEachParameter. config/default.yaml, cfg/Estimator.cfg (through
 // the generated EstimatorConfig) and the parameter table of the README must
 // agree with them, and they are the core's EstimatorOptions / StreamOptions
-// defaults but for the node's time cap of one window. The hand-written
+// defaults but for the node's time cap of one window and its refinement of
+// the published depth. The hand-written
 // reconfigure mapping is checked parameter by parameter. No ROS master needed.
 #include <cstdlib>
 #include <filesystem>
@@ -110,7 +111,9 @@ TEST(NodeDefaults, AreTheCoresDefaultsButTheTimeCap) {
   core.stream = StreamOptions();
   const std::map<std::string, Value> core_values = ValuesOf(core);
   for (const auto& [name, value] : NodeDefaults()) {
-    if (name == "max_window_seconds") continue;
+    // The node's own: its time cap of one window, and the published depth
+    // refined as estimate_sequence refines its output (NodeEstimatorOptions).
+    if (name == "max_window_seconds" || name == "depth_sweep" || name == "depth_consistency_radius") continue;
     const Value& from_core = core_values.at(name);
     EXPECT_TRUE(from_core.numeric == value.numeric &&
                 (value.numeric ? from_core.number == value.number : from_core.text == value.text))
@@ -119,6 +122,10 @@ TEST(NodeDefaults, AreTheCoresDefaultsButTheTimeCap) {
   // A live node caps each window; the core's estimator does not.
   EXPECT_GT(NodeParameters().estimator.max_seconds, 0.0);
   EXPECT_EQ(EstimatorOptions().max_seconds, 0.0);
+  EXPECT_TRUE(NodeParameters().estimator.depth_sweep.on_output);
+  EXPECT_FALSE(EstimatorOptions().depth_sweep.on_output);
+  EXPECT_EQ(NodeParameters().estimator.depth_consistency.radius, 2);
+  EXPECT_EQ(EstimatorOptions().depth_consistency.radius, 0);
   // Every default is valid, but the exposure time the user must give.
   NodeParameters params;
   EXPECT_THROW(params.Check(), InputError);

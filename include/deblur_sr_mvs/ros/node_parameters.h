@@ -24,7 +24,9 @@ StampPosition ParseStampPosition(const std::string& text);  // InputError otherw
 const char* ToString(StampPosition position);               // "start" | "middle" | "end"
 
 // The core's estimator defaults with the node's time cap of one window
-// (~max_window_seconds): a live node must not stall on one window.
+// (~max_window_seconds): a live node must not stall on one window; and the
+// published depth re-swept and made consistent across neighbouring frames
+// (~depth_sweep, ~depth_consistency_radius), as estimate_sequence does.
 EstimatorOptions NodeEstimatorOptions();
 
 // ~exposure_time: seconds, or the text "auto" (estimated from the blur of
@@ -114,6 +116,8 @@ void ForEachParameter(Params& params, Visitor&& visit) {
   visit("threads", params.estimator.num_threads);
   visit("max_window_seconds", params.estimator.max_seconds);
   visit("gain_compensation", params.estimator.gain_compensation);
+  visit("depth_sweep", params.estimator.depth_sweep.on_output);
+  visit("depth_consistency_radius", params.estimator.depth_consistency.radius);
   visit("world_frame", params.world_frame);
   visit("camera_frame", params.camera_frame);
   visit("publish_tf", params.publish_tf);

@@ -558,7 +558,7 @@ class WindowSolver {
   void RefineAllDepthEdges();
   bool SweepsSolverDepths(int iteration) const;
   void SweepSolverDepths();
-  std::vector<cv::Mat> SweptInverseDepths();
+  std::vector<cv::Mat> SweptInverseDepths(int first_frame = 0);
   bool RefineOutputDepthEdges() const;
   std::vector<cv::Mat> OutputDepths();
   std::vector<cv::Mat> ConsistentOutputDepths(const std::vector<cv::Mat>& depths);
@@ -910,39 +910,42 @@ void WindowSolver::StructurePhase(int iteration, bool isolated) {
 
 // Whether the output depth goes through the edge-aware weighted median
 // (EstimatorOptions::depth_edges), on the result's copy: the solver's state,
-// its energy and the operators stay those of the estimated D_t. Not in a
-// window that hands operators on (carried_frames): those were built with
-// the unrefined depth, which the next window must receive to use them. (A
-// stream also turns it off here and refines what it publishes.) A weighted
-// median commutes with the monotone depth = 1 / inverse depth, so the depth
-// is filtered directly.
+// its energy and the operators stay those of the estimated D_t, which the
+// result also keeps (EstimatorResult::solver_depth: what a stream's next
+// window starts from, and what the operators it hands on were built with).
+// A weighted median commutes with the monotone depth = 1 / inverse depth, so
+// the depth is filtered directly.
 bool WindowSolver::RefineOutputDepthEdges() const {
-  return options_.depth_edges.radius_px > 0 && options_.depth_edges.on_output && options_.carried_frames == 0;
+  return options_.depth_edges.radius_px > 0 && options_.depth_edges.on_output;
 }
 
 // The output D_t: the solver's, or in joint mode with the re-sweep
 // (EstimatorOptions::depth_sweep) copies re-swept against the neighbours'
-// restored images at the current poses. Not in a window that hands
-// operators on (RefineOutputDepthEdges says why).
+// restored images at the current poses (the solver's own stay in
+// EstimatorResult::solver_depth).
 std::vector<cv::Mat> WindowSolver::OutputDepths() {
   std::vector<cv::Mat> depths(num_frames_);
   for (int t = 0; t < num_frames_; ++t) depths[t] = frames_[t].depth_hr;
-  if (!joint_ || !options_.depth_sweep.on_output || options_.carried_frames > 0) return depths;
-  const std::vector<cv::Mat> swept = SweptInverseDepths();
-  for (int t = 0; t < num_frames_; ++t) depths[t] = DepthFromInverse(swept[t]);
+  if (!joint_ || !options_.depth_sweep.on_output) return depths;
+  // A stream's held leading frames were given out with the previous window.
+  const int first = options_.held_leading_latents;
+  const std::vector<cv::Mat> swept = SweptInverseDepths(first);
+  for (int t = first; t < num_frames_; ++t) depths[t] = DepthFromInverse(swept[t]);
   return depths;
 }
 
 // Copies of every solver D_t (inverse depth) re-swept against the
 // neighbours' current latent images at the current poses
-// (SweepInverseDepth, EstimatorOptions::depth_sweep).
-std::vector<cv::Mat> WindowSolver::SweptInverseDepths() {
+// (SweepInverseDepth, EstimatorOptions::depth_sweep); those of the frames
+// before `first_frame` are copied as they are.
+std::vector<cv::Mat> WindowSolver::SweptInverseDepths(int first_frame) {
   const double begin = NowMs();
   std::vector<SE3> poses(num_frames_);
   for (int t = 0; t < num_frames_; ++t) poses[t] = frames_[t].T_world_cam;
   std::vector<cv::Mat> swept(num_frames_);
-  ForEachFrame([this, &poses, &swept](int t) {
+  ForEachFrame([this, &poses, &swept, first_frame](int t) {
     swept[t] = inverse_depth_[t].clone();
+    if (t < first_frame) return;
     const std::vector<int> sources = Neighbours(t, num_frames_, options_.depth_sweep.neighbour_radius);
     SweepInverseDepth(latents_, camera_hr_, poses, t, sources, options_.depth_sweep, &swept[t]);
   });
@@ -1399,6 +1402,7 @@ EstimatorResult WindowSolver::GaugedResult() {
       result_.T_world_cam.emplace_back(pose.rotation(), pose.translation() * rescale);
     }
     result_.depth.push_back(consistent[t] * rescale);
+    result_.solver_depth.push_back(frames_[t].depth_hr * rescale);
   }
   for (const cv::Mat& latent : OutputLatents(depths)) {
     cv::Mat clamped;
@@ -1416,17 +1420,15 @@ EstimatorResult WindowSolver::GaugedResult() {
 
 // EstimatorOptions::depth_consistency: the output depth maps `depths` made
 // consistent with their neighbours' (FuseNeighbourDepths) at the solver's
-// poses; not in a window that hands operators on (RefineOutputDepthEdges
-// says why), nor over a stream's held leading frames.
+// poses, on the result's copies (RefineOutputDepthEdges); a stream's held
+// leading frames (given out with the previous window) keep theirs.
 std::vector<cv::Mat> WindowSolver::ConsistentOutputDepths(const std::vector<cv::Mat>& depths) {
-  if (options_.depth_consistency.radius <= 0 || options_.carried_frames > 0 ||
-      options_.held_leading_latents > 0) {
-    return depths;
-  }
+  if (options_.depth_consistency.radius <= 0) return depths;
   const double begin = NowMs();
   std::vector<SE3> T_world_cam;
   for (const FrameStructure& frame : frames_) T_world_cam.push_back(frame.T_world_cam);
   std::vector<cv::Mat> fused = FuseNeighbourDepths(camera_hr_, depths, T_world_cam, options_.depth_consistency);
+  for (int t = 0; t < options_.held_leading_latents && t < num_frames_; ++t) fused[t] = depths[t];
   timer_.AddSince("depth consistency", begin);
   return fused;
 }
@@ -1481,7 +1483,8 @@ void WindowSolver::RefineOutputDepthsDuringFramePass(std::vector<cv::Mat>* depth
   }
   ForEachTask(1 + num_frames_, [this, refine, raise, anchor, depths, &guides](int task) {
     if (task == 0) {
-      for (int t = 0; refine && t < num_frames_; ++t) {
+      // Not a stream's held leading frames (given out with the previous window).
+      for (int t = options_.held_leading_latents; refine && t < num_frames_; ++t) {
         (*depths)[t] = (*depths)[t].clone();
         RefineDepthEdges(guides[t], options_.depth_edges, &(*depths)[t]);
       }
@@ -1835,10 +1838,15 @@ EstimatorResult Estimator::RunRotationOnly(const EstimatorInput& input, const st
   EstimatorOptions images_only = options_;
   images_only.update_structure = false;
   images_only.keep_input_gauge = true;
+  // No depth to refine: the output depth is NaN below.
+  images_only.depth_sweep.on_output = false;
+  images_only.depth_edges.on_output = false;
+  images_only.depth_consistency.radius = 0;
   Estimator estimator(images_only);
   estimator.SetCancelFlag(cancel_);
   EstimatorResult result = estimator.RunFromStructure(input, unit_depth, held, progress);
   for (cv::Mat& depth : result.depth) depth.setTo(std::numeric_limits<float>::quiet_NaN());
+  result.solver_depth.clear();
   result.depth_observable = false;
   result.notes.push_back(kNoParallaxNote);
   return result;

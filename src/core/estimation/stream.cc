@@ -109,15 +109,12 @@ std::string ProblemWithEstimate(const EstimatorResult& result, double max_step_r
 
 namespace {
 
-// The stream's estimator options: the output depth is not refined in the
-// estimator, so that the next window starts from the solver's own depth; nor
-// re-swept (EstimatorOptions::depth_sweep): a stream does not re-sweep,
-// neither the output nor inside the iterations; nor made consistent across
-// frames (EstimatorOptions::depth_consistency, not measured in a stream).
-EstimatorOptions WithoutOutputDepthRefinement(EstimatorOptions options) {
-  options.depth_edges.on_output = false;
-  options.depth_consistency.radius = 0;
-  options.depth_sweep.on_output = false;
+// The stream's estimator options: the solver's depth is not re-swept inside
+// the iterations (EstimatorOptions::depth_sweep.before_last_structure_updates:
+// not over held leading latents). The output's refinements run as the
+// caller asks; the next window starts from the solver's own depth
+// (EstimatorResult::solver_depth).
+EstimatorOptions WithoutSweepInIterations(EstimatorOptions options) {
   options.depth_sweep.before_last_structure_updates = 0;
   return options;
 }
@@ -125,13 +122,11 @@ EstimatorOptions WithoutOutputDepthRefinement(EstimatorOptions options) {
 }  // namespace
 
 StreamEstimator::StreamEstimator(const EstimatorOptions& options)
-    : estimator_(WithoutOutputDepthRefinement(options)),
-      published_depth_edges_(options.depth_edges),
+    : estimator_(WithoutSweepInIterations(options)),
       prior_history_(options.initializer.pose_prior) {}
 
 void StreamEstimator::SetOptions(const EstimatorOptions& options) {
-  estimator_ = Estimator(WithoutOutputDepthRefinement(options));
-  published_depth_edges_ = options.depth_edges;
+  estimator_ = Estimator(WithoutSweepInIterations(options));
   estimator_.SetCancelFlag(cancel_);
   last_operators_.clear();
 }
@@ -197,22 +192,7 @@ WindowEstimate StreamEstimator::Process(const StreamWindow& window, const Pinhol
     StartSegment(input, progress, &estimate);
   }
   Remember(window, &estimate);
-  RefinePublishedDepthEdges(&estimate);
   return estimate;
-}
-
-void StreamEstimator::RefinePublishedDepthEdges(WindowEstimate* estimate) const {
-  EstimatorResult& result = estimate->result;
-  if (!result.depth_observable || !published_depth_edges_.on_output || published_depth_edges_.radius_px <= 0) return;
-  const int first = estimate->first_new;
-  const int last = static_cast<int>(std::min(result.depth.size(), result.latent.size()));
-  // One frame after the other: RefineDepthEdges runs one call at a time.
-  for (int i = first; i < last; ++i) {
-    if (result.depth[i].size() != result.latent[i].size()) continue;
-    cv::Mat refined = result.depth[i].clone();  // the remembered map stays the solver's
-    RefineDepthEdges(result.latent[i], published_depth_edges_, &refined);
-    result.depth[i] = refined;
-  }
 }
 
 StreamEstimator::SharedFrames StreamEstimator::SharedWithPrevious(const StreamWindow& window) const {
@@ -464,19 +444,24 @@ void StreamEstimator::Remember(const StreamWindow& window, WindowEstimate* estim
   last_poses_.clear();
   last_depths_.clear();
   last_latents_.clear();
+  // The solver's depth (the published one may be refined): the next window
+  // starts from it, and the operators handed on were built with it.
+  const EstimatorResult& result = estimate->result;
+  const std::vector<cv::Mat>& solver_depth =
+      result.solver_depth.size() == result.depth.size() ? result.solver_depth : result.depth;
   last_operators_ = std::move(estimate->result.carried_operators);
   estimate->result.carried_operators.clear();
   if (!estimate->continued) prior_history_.Reset();  // a new world
   for (size_t i = 0; i < window.size(); ++i) {
     last_poses_[window[i].id] = estimate->result.T_world_cam[i];
     last_latents_[window[i].id] = estimate->result.latent[i];
-    if (estimate->result.depth_observable) last_depths_[window[i].id] = estimate->result.depth[i];
+    if (estimate->result.depth_observable) last_depths_[window[i].id] = solver_depth[i];
     if (window[i].T_prior_cam) {
       prior_history_.Add(window[i].id, estimate->result.T_world_cam[i], *window[i].T_prior_cam);
     }
   }
   if (estimate->result.depth_observable) {
-    const double median = MedianDepth(estimate->result.depth);
+    const double median = MedianDepth(solver_depth);
     if (median > 0.0) reference_median_depth_ = median;
   }
   last_returned_id_ = std::max(has_returned_ ? last_returned_id_ : 0, window.back().id);

@@ -270,16 +270,5 @@ TEST(DepthSweep, CheckRejectsBadOptions) {
   EXPECT_THROW(estimator.Check(), InputError);
 }
 
-TEST(DepthSweep, AStreamDoesNotReSweep) {
-  EstimatorOptions options;
-  EXPECT_FALSE(options.depth_sweep.on_output);  // the library's default
-  options.depth_sweep.on_output = true;
-  // A stream hands its window's depth on to the next window: its window
-  // estimator does not re-sweep (nor refine), whatever the caller asks.
-  const StreamEstimator stream(options);
-  EXPECT_FALSE(stream.options().depth_sweep.on_output);
-  EXPECT_FALSE(stream.options().depth_edges.on_output);
-}
-
 }  // namespace
 }  // namespace deblur_sr_mvs

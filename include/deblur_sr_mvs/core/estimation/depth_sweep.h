@@ -32,13 +32,16 @@ namespace deblur_sr_mvs {
 struct DepthSweepOptions {
   // Whether the estimator re-sweeps the output depth of joint mode (on the
   // result's copy, before the depth-edge median; the solver's depth,
-  // energy, poses and images are unchanged). Baseline mode has no restored
-  // images and never re-sweeps; a stream (StreamEstimator, the node) does
-  // not either. On 8 sequences (Dolls, Aloe x lateral, arc, forward,
+  // energy, poses and images are unchanged; a stream's next window starts
+  // from the solver's depth, EstimatorResult::solver_depth). Baseline mode
+  // has no restored images and never re-sweeps. On 8 sequences (Dolls, Aloe
+  // x lateral, arc, forward,
   // hand-held) it lowers joint's crop depth from 0.874x to 0.799x the
   // baseline's, lower on every sequence, full frame 1.050x -> 0.950x, for
   // +8 % CPU (BENCHMARKS.md "Depth re-sweep on the restored images"):
-  // estimate_sequence turns it on by default. The library's default stays
+  // estimate_sequence and the node turn it on by default (in the node's
+  // windows: BENCHMARKS.md "The node's published depth refined as offline").
+  // The library's default stays
   // off: with it, PosePriorIterations.DepthInMetresStaysWithinTenPercentOf-
   // TheAlignedError fails (depth in metres 0.0246 -> 0.0201, scale-aligned
   // 0.0224 -> 0.0179: the same 0.0022 gap, a ratio of 1.123 against the
@@ -53,7 +56,7 @@ struct DepthSweepOptions {
   // (DepthEdgeOptions::radius_px > 0). An iteration from the swept depth
   // that raises the energy is run again
   // from the solver's depth. 0: never. Not in a window that carries
-  // operators nor in a stream. Measured, not adopted (BENCHMARKS.md "The
+  // operators nor in a stream (StreamEstimator sets 0). Measured, not adopted (BENCHMARKS.md "The
   // re-sweep inside the joint iterations"): at 2 (with the median), crop
   // depth 0.799x -> 0.778x the baseline's on 8 sequences, but ATE 0.849x ->
   // 0.861x and above the baseline on lateral / Aloe, +37 % CPU (loaded).

@@ -254,10 +254,12 @@ struct EstimatorOptions {
   // within a tolerance, by the mean of the agreeing inverse depths
   // (DepthConsistencyOptions), after the output depth's edge refinement and
   // the gauge's scale; poses and images are unchanged. Both modes (it uses
-  // only depth and poses). Not in a window that hands operators on, nor over
-  // a stream's held frames (StreamEstimator, so the node, turns it off). Off by
-  // default (radius 0; DepthConsistencyOptions::radius says why): BENCHMARKS.md
-  // "Consistency between neighbouring depth maps".
+  // only depth and poses). Not over a stream's held leading frames (given
+  // out with the previous window); the next window starts from the solver's
+  // depth (EstimatorResult::solver_depth). Off by default in the library
+  // (radius 0; DepthConsistencyOptions::radius says why), on in
+  // estimate_sequence and the node: BENCHMARKS.md "Consistency between
+  // neighbouring depth maps".
   DepthConsistencyOptions depth_consistency;
   // Multi-frame data pass (issue 12, noise): joint mode re-solves each
   // restored I_t after the last image update, with the final depth and
@@ -282,10 +284,10 @@ struct EstimatorOptions {
   // Depth re-sweep (issue 14): joint mode's output D_t re-estimated by a
   // plane sweep over the restored images with guided-filter cost
   // aggregation where it clearly disagrees with the solver's
-  // (SweepInverseDepth), before the depth-edge median; the output only, not
-  // in a window that carries operators nor in a stream. Off in the library,
-  // on in estimate_sequence (crop depth 0.874x -> 0.799x the baseline's on
-  // 8 sequences, +8 % CPU): see DepthSweepOptions.
+  // (SweepInverseDepth), before the depth-edge median; the output only (not
+  // a stream's held leading frames). Off in the library, on in
+  // estimate_sequence and the node (crop depth 0.874x -> 0.799x the
+  // baseline's on 8 sequences, +8 % CPU): see DepthSweepOptions.
   DepthSweepOptions depth_sweep;
   int num_threads = 0;  // OpenMP threads for every stage; 0 = default
   // Wall-time cap of one run (s): no outer iteration starts after it, the
@@ -358,6 +360,12 @@ struct EstimatorResult {
   PinholeCamera camera_hr;
   std::vector<cv::Mat> latent;   // HR, float in [0, 1]
   std::vector<cv::Mat> depth;    // HR CV_32FC1, NaN invalid, scale as the poses
+  // The solver's own D_t in the same gauge, before the output's refinements
+  // (depth_sweep, depth_edges, depth_consistency): what the window's
+  // operators were built with, and what a stream's next window starts from
+  // for the frames it shares. Empty where the run has no depth solver
+  // (RunRotationOnly: `depth` is all NaN).
+  std::vector<cv::Mat> solver_depth;
   std::vector<SE3> T_world_cam;  // in the output gauge (EstimatorOptions::keep_input_gauge)
   // False for a window without parallax (RunRotationOnly): the depth maps
   // are all NaN and every camera keeps one translation.

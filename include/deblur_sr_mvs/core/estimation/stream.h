@@ -171,9 +171,9 @@ class StreamEstimator {
   explicit StreamEstimator(const EstimatorOptions& options);
   // New estimator options from the next window on.
   void SetOptions(const EstimatorOptions& options);
-  // The window estimator's options: the caller's, except that
-  // depth_edges.on_output is off (the stream refines what it publishes) and
-  // depth_sweep.on_output is off (a stream does not re-sweep).
+  // The window estimator's options: the caller's, except that the solver's
+  // depth is not re-swept inside the iterations
+  // (depth_sweep.before_last_structure_updates 0).
   const EstimatorOptions& options() const { return estimator_.options(); }
   void SetCancelFlag(const std::atomic<bool>* flag);
   // Frames the next window shares with this one (StreamOptions::
@@ -240,13 +240,8 @@ class StreamEstimator {
   void StartSegment(const EstimatorInput& input, const ProgressCallback& progress, WindowEstimate* estimate);
   // Marks the frames already returned and keeps this window's poses.
   void Remember(const StreamWindow& window, WindowEstimate* estimate);
-  // The depth edges of the frames this window publishes (first_new on),
-  // refined as EstimatorOptions::depth_edges asks, after Remember kept the
-  // solver's own depth for the next window.
-  void RefinePublishedDepthEdges(WindowEstimate* estimate) const;
 
-  Estimator estimator_;  // its options never refine the output depth (RefinePublishedDepthEdges does)
-  DepthEdgeOptions published_depth_edges_;  // the caller's EstimatorOptions::depth_edges
+  Estimator estimator_;
   const std::atomic<bool>* cancel_ = nullptr;
   std::map<uint64_t, SE3> last_poses_;        // the previous window's poses, by frame id
   std::map<uint64_t, cv::Mat> last_depths_;   // its depths (HR), when observable
