@@ -73,7 +73,7 @@ TEST(ToolFlags, ParseWholeFiniteValuesInRange) {
 
 TEST(ToolFlags, HelpPrintsUsageAndExitsZero) {
   for (const char* tool : {"estimate_sequence", "evaluate_sequence", "synthesize_sequence",
-                           "make_comparison_figure", "benchmark_capture_operator"}) {
+                           "make_comparison_figure", "benchmark_capture_operator", "benchmark_stream"}) {
     for (const char* flag : {"--help", "-h"}) {
       const test::ToolRun run = RunTool(tool, {flag});
       EXPECT_EQ(run.exit_code, 0) << tool << " " << flag;
@@ -104,6 +104,12 @@ TEST(ToolFlags, BadFlagsGiveOneLineAndExitCode2) {
   ExpectOneLineError("benchmark_capture_operator", {"--repeats", "abc"}, "--repeats");
   ExpectOneLineError("benchmark_capture_operator", {"--samples", "0"}, "--samples");
   ExpectOneLineError("benchmark_capture_operator", {"--threads", "2"}, "--threads");
+  ExpectOneLineError("benchmark_stream", {"--input", scene, "--output", out, "--window-size", "2"},
+                     "--window-size");
+  ExpectOneLineError("benchmark_stream", {"--output", out}, "--input");
+  ExpectOneLineError("benchmark_stream",
+                     {"--input", scene, "--output", out, "--window-size", "4", "--window-overlap", "4"},
+                     "window_overlap");
 }
 
 // estimate_sequence: bad input gives exit code 2 and exactly one line on stderr.
