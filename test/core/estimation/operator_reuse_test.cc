@@ -99,7 +99,8 @@ TEST(OperatorReuse, OptionsRejectANegativeCount) {
 }
 
 // Two windows of 4 frames sharing 3, as the stream runs them (the second
-// holds the shared poses and latent images and starts from their depths).
+// holds the shared poses and latent images and starts from their solver
+// depths, EstimatorResult::solver_depth, the output's being refined).
 // A frame's blur path runs through the frames on both sides of it
 // (BlurPathFrames), so the first window hands on the operators of the one
 // frame whose path lies among the shared frames and stays so in the second
@@ -129,7 +130,7 @@ TEST(OperatorReuse, CarriedOperatorsEqualRebuiltOnesAndChangeNothing) {
   build_options.transposed_copy = false;
   for (const CarriedOperator& carried : first.carried_operators) {
     ExpectSameOperator(carried.entry->op, BuildCaptureOperator(carried.geometry, build_options));
-    EXPECT_TRUE(SameBits(carried.geometry.depth_hr, first.depth[2]));
+    EXPECT_TRUE(SameBits(carried.geometry.depth_hr, first.solver_depth[2]));
   }
 
   EstimatorOptions second_options = options;
@@ -137,7 +138,8 @@ TEST(OperatorReuse, CarriedOperatorsEqualRebuiltOnesAndChangeNothing) {
   second_options.held_leading_latents = 3;
   EstimatorInput input = InputOfFrames(sequence, 1, 4);
   input.initial_latents = {first.latent[1], first.latent[2], first.latent[3]};
-  const std::vector<cv::Mat> second_depth = {first.depth[1], first.depth[2], first.depth[3], gt.depth[4].clone()};
+  const std::vector<cv::Mat> second_depth = {first.solver_depth[1], first.solver_depth[2], first.solver_depth[3],
+                                             gt.depth[4].clone()};
   const std::vector<SE3> second_poses = {first.T_world_cam[1], first.T_world_cam[2], first.T_world_cam[3],
                                          gt.poses[4].T_world_cam};
   const EstimatorResult rebuilt =
