@@ -187,13 +187,18 @@ std::vector<StreamWindow> WindowsOf(const Sequence& sequence, const StreamOption
   return StreamWindowsOf(sequence.images, sequence.frames, stream_options, 100);
 }
 
-TEST(StreamEstimator, WindowsFormOneContinuousTrajectory) {
-  const Sequence& sequence = SmallSequence();
-  ASSERT_TRUE(sequence.ground_truth.has_value());
+// The small sequence's frames in windows of 5 sharing 2: frames 0-4 and 3-7.
+std::vector<StreamWindow> WindowsOfFiveSharingTwo(const Sequence& sequence) {
   StreamOptions stream_options;
   stream_options.window_size = 5;
   stream_options.window_overlap = 2;
-  const std::vector<StreamWindow> windows = WindowsOf(sequence, stream_options);
+  return WindowsOf(sequence, stream_options);
+}
+
+TEST(StreamEstimator, WindowsFormOneContinuousTrajectory) {
+  const Sequence& sequence = SmallSequence();
+  ASSERT_TRUE(sequence.ground_truth.has_value());
+  const std::vector<StreamWindow> windows = WindowsOfFiveSharingTwo(sequence);
   ASSERT_EQ(windows.size(), 2u);  // frames 0-4 and 3-7
 
   StreamEstimator stream(FastEstimatorOptions());
@@ -282,10 +287,7 @@ TEST(StreamEstimator, WindowsFormOneContinuousTrajectory) {
 // published with the first).
 TEST(StreamEstimator, RefinesThePublishedDepthAndHandsOnTheSolversOwn) {
   const Sequence& sequence = SmallSequence();
-  StreamOptions stream_options;
-  stream_options.window_size = 5;
-  stream_options.window_overlap = 2;
-  const std::vector<StreamWindow> windows = WindowsOf(sequence, stream_options);
+  const std::vector<StreamWindow> windows = WindowsOfFiveSharingTwo(sequence);
   ASSERT_EQ(windows.size(), 2u);
   EstimatorOptions refined = FastEstimatorOptions();
   refined.fusion.radius = 0;
@@ -344,10 +346,7 @@ TEST(StreamEstimator, RefinesThePublishedDepthAndHandsOnTheSolversOwn) {
 
 TEST(StreamEstimator, ResetStartsANewSegmentAndCancelStops) {
   const Sequence& sequence = SmallSequence();
-  StreamOptions stream_options;
-  stream_options.window_size = 5;
-  stream_options.window_overlap = 2;
-  const std::vector<StreamWindow> windows = WindowsOf(sequence, stream_options);
+  const std::vector<StreamWindow> windows = WindowsOfFiveSharingTwo(sequence);
   StreamEstimator stream(FastEstimatorOptions());
   std::atomic<bool> cancel{true};
   stream.SetCancelFlag(&cancel);
