@@ -27,14 +27,8 @@ const char* ToString(StampPosition position) {
 }
 
 EstimatorOptions NodeEstimatorOptions() {
-  EstimatorOptions options;
+  EstimatorOptions options = StreamDefaultEstimatorOptions();
   options.max_seconds = 60.0;
-  // The published depth refined as estimate_sequence refines its output
-  // (the library leaves both off; DepthSweepOptions::on_output and
-  // DepthConsistencyOptions::radius say why); the next window still starts
-  // from the solver's own depth (EstimatorResult::solver_depth).
-  options.depth_sweep.on_output = true;
-  options.depth_consistency.radius = 2;
   return options;
 }
 

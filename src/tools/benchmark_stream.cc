@@ -65,10 +65,7 @@ int Run(int argc, char** argv) {
                            "without ROS; writes the published frames as a result folder.");
   std::string input, output;
   dsm::StreamOptions stream_options;
-  dsm::EstimatorOptions options;
-  // The node's defaults (NodeEstimatorOptions, without its time cap).
-  options.depth_sweep.on_output = true;
-  options.depth_consistency.radius = 2;
+  dsm::EstimatorOptions options = dsm::StreamDefaultEstimatorOptions();  // the node's, without its time cap
   bool quiet = false;
   cli.add_option("--input", input, "sequence folder (camera.yaml, frames.csv, images/)")->required();
   cli.add_option("--output", output, "result folder to write")->required();

@@ -23,10 +23,10 @@ enum class StampPosition { kStart, kMiddle, kEnd };
 StampPosition ParseStampPosition(const std::string& text);  // InputError otherwise
 const char* ToString(StampPosition position);               // "start" | "middle" | "end"
 
-// The core's estimator defaults with the node's time cap of one window
-// (~max_window_seconds): a live node must not stall on one window; and the
-// published depth re-swept and made consistent across neighbouring frames
-// (~depth_sweep, ~depth_consistency_radius), as estimate_sequence does.
+// The core's options of a stream window (StreamDefaultEstimatorOptions: the
+// published depth re-swept and made consistent across neighbouring frames,
+// ~depth_sweep, ~depth_consistency_radius) with the node's time cap of one
+// window (~max_window_seconds): a live node must not stall on one window.
 EstimatorOptions NodeEstimatorOptions();
 
 // ~exposure_time: seconds, or the text "auto" (estimated from the blur of

@@ -559,6 +559,9 @@ class WindowSolver {
   bool SweepsSolverDepths(int iteration) const;
   void SweepSolverDepths();
   std::vector<cv::Mat> SweptInverseDepths(int first_frame = 0);
+  // The first frame whose output depth is refined: a stream's held leading
+  // frames were given out, refined, with the previous window.
+  int FirstRefinedOutput() const { return options_.held_leading_latents; }
   bool RefineOutputDepthEdges() const;
   std::vector<cv::Mat> OutputDepths();
   std::vector<cv::Mat> ConsistentOutputDepths(const std::vector<cv::Mat>& depths);
@@ -927,8 +930,7 @@ std::vector<cv::Mat> WindowSolver::OutputDepths() {
   std::vector<cv::Mat> depths(num_frames_);
   for (int t = 0; t < num_frames_; ++t) depths[t] = frames_[t].depth_hr;
   if (!joint_ || !options_.depth_sweep.on_output) return depths;
-  // A stream's held leading frames were given out with the previous window.
-  const int first = options_.held_leading_latents;
+  const int first = FirstRefinedOutput();
   const std::vector<cv::Mat> swept = SweptInverseDepths(first);
   for (int t = first; t < num_frames_; ++t) depths[t] = DepthFromInverse(swept[t]);
   return depths;
@@ -1428,7 +1430,7 @@ std::vector<cv::Mat> WindowSolver::ConsistentOutputDepths(const std::vector<cv::
   std::vector<SE3> T_world_cam;
   for (const FrameStructure& frame : frames_) T_world_cam.push_back(frame.T_world_cam);
   std::vector<cv::Mat> fused = FuseNeighbourDepths(camera_hr_, depths, T_world_cam, options_.depth_consistency);
-  for (int t = 0; t < options_.held_leading_latents && t < num_frames_; ++t) fused[t] = depths[t];
+  for (int t = 0; t < FirstRefinedOutput() && t < num_frames_; ++t) fused[t] = depths[t];
   timer_.AddSince("depth consistency", begin);
   return fused;
 }
@@ -1483,8 +1485,7 @@ void WindowSolver::RefineOutputDepthsDuringFramePass(std::vector<cv::Mat>* depth
   }
   ForEachTask(1 + num_frames_, [this, refine, raise, anchor, depths, &guides](int task) {
     if (task == 0) {
-      // Not a stream's held leading frames (given out with the previous window).
-      for (int t = options_.held_leading_latents; refine && t < num_frames_; ++t) {
+      for (int t = FirstRefinedOutput(); refine && t < num_frames_; ++t) {
         (*depths)[t] = (*depths)[t].clone();
         RefineDepthEdges(guides[t], options_.depth_edges, &(*depths)[t]);
       }

@@ -105,6 +105,13 @@ std::string ProblemWithEstimate(const EstimatorResult& result, double max_step_r
   return "";
 }
 
+EstimatorOptions StreamDefaultEstimatorOptions() {
+  EstimatorOptions options;
+  options.depth_sweep.on_output = true;
+  options.depth_consistency.radius = 2;
+  return options;
+}
+
 // ------------------------------------------------------------ StreamEstimator
 
 namespace {

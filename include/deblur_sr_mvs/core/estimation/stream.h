@@ -158,6 +158,14 @@ struct WindowEstimate {
   std::string note;  // how the window was tied to the previous one
 };
 
+// The estimator options of the node's windows (the ROS glue adds its time
+// cap): the library's defaults, with the published depth re-swept and made
+// consistent across neighbouring frames as estimate_sequence refines its
+// output (the library leaves both off: DepthSweepOptions::on_output and
+// DepthConsistencyOptions::radius say why). StreamEstimator refines only the
+// copies it publishes; the next window starts from the solver's depth.
+EstimatorOptions StreamDefaultEstimatorOptions();
+
 // Why an estimate must not be published, or "" when it may: a pose or a
 // latent pixel that is not finite, or a pose jump (a camera step larger than
 // max_step_ratio times the window's median step, or any step while the
