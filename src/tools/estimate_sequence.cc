@@ -27,6 +27,7 @@
 #include "deblur_sr_mvs/core/estimation/depth_confidence.h"
 #include "deblur_sr_mvs/core/estimation/estimator.h"
 #include "deblur_sr_mvs/core/estimation/exposure_estimation.h"
+#include "deblur_sr_mvs/core/estimation/initializer.h"
 #include "deblur_sr_mvs/core/estimation/stream.h"
 #include "deblur_sr_mvs/core/geometry/pose_prior.h"
 #include "deblur_sr_mvs/core/imaging/image_ops.h"
@@ -51,6 +52,7 @@ struct Flags {
   std::string mode = "joint";
   std::string structure_matching = "both";
   std::string exposure;              // "auto": estimated from the blur; empty: frames.csv's
+  std::string readout_time;          // "auto": measured from the tracks; empty: sensor.yaml's
   std::string noise_sigma = "auto";  // "auto" or 8-bit gray levels
   bool fixed_poses = false;
   bool fixed_samples = false;
@@ -385,6 +387,10 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
                  "auto: estimate the exposure from the blur (a fraction of the frame interval), "
                  "overriding frames.csv's")
       ->check(CLI::IsMember({"auto"}));
+  cli.add_option("--readout-time", flags->readout_time,
+                 "auto: measure the rolling shutter's readout time from the tracks (a fraction of the "
+                 "frame interval, 0 for a global shutter), overriding sensor.yaml's")
+      ->check(CLI::IsMember({"auto"}));
   cli.add_option("--noise-sigma", flags->noise_sigma,
                  "sensor noise of the frames, standard deviation in 8-bit gray levels, or auto: estimated "
                  "per window; sets the image TV weight (default auto)");
@@ -459,6 +465,31 @@ dsm::ExposureEstimate EstimateExposure(const dsm::EstimatorOptions& options, con
   } catch (const dsm::InitializationError& error) {
     throw dsm::InputError(input_folder + ": exposure estimation: initialisation failed: " + error.what());
   }
+}
+
+// The readout time measured from the tracks (--readout-time auto), written
+// into `input`.
+dsm::ReadoutEstimate EstimateReadout(const dsm::EstimatorOptions& options, const std::string& input_folder,
+                                     dsm::EstimatorInput* input) {
+  try {
+    const dsm::ReadoutEstimate estimate = dsm::EstimateReadoutTime(
+        input->images, input->camera, input->frames, options.initializer, dsm::ReadoutSearchOptions());
+    input->readout_time = estimate.seconds;
+    return estimate;
+  } catch (const dsm::InitializationError& error) {
+    throw dsm::InputError(input_folder + ": readout estimation: initialisation failed: " + error.what());
+  }
+}
+
+// report.json's "readout_estimate" object (null without --readout-time auto).
+dsm::Json ReadoutEstimateJson(const dsm::ReadoutEstimate& estimate) {
+  dsm::Json cost = dsm::Json::array();
+  for (const auto& point : estimate.cost) cost.push_back({dsm::JsonNumber(point.first), dsm::JsonNumber(point.second)});
+  return {{"measured", estimate.measured},
+          {"fraction", dsm::JsonNumber(estimate.fraction)},
+          {"seconds", dsm::JsonNumber(estimate.seconds)},
+          {"rms_px_by_fraction", cost},
+          {"summary", estimate.summary}};
 }
 
 // report.json's "exposure_estimate" object (null without --exposure auto).
@@ -628,6 +659,8 @@ int Run(int argc, char** argv) {
   const auto start = std::chrono::steady_clock::now();
   std::string camera_name;
   dsm::EstimatorInput input = ReadInput(flags.input, &camera_name);
+  std::optional<dsm::ReadoutEstimate> readout;
+  if (flags.readout_time == "auto") readout = EstimateReadout(options, flags.input, &input);
   std::optional<dsm::ExposureEstimate> exposure;
   if (flags.exposure == "auto") exposure = EstimateExposure(options, flags.input, &input);
   std::vector<std::optional<dsm::SE3>> prior;
@@ -638,6 +671,7 @@ int Run(int argc, char** argv) {
   dsm::EstimatorResult result = Estimate(options, input, flags.input, flags.quiet);
   if (exposure)
     result.timings.insert(result.timings.begin(), {"exposure estimation", exposure->elapsed_seconds});
+  if (readout) result.timings.insert(result.timings.begin(), {"readout estimation", readout->elapsed_seconds});
   const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
   dsm::SequenceResult out;
@@ -651,6 +685,7 @@ int Run(int argc, char** argv) {
   report["depth_confidence"] = {{"threshold", dsm::JsonNumber(flags.depth_confidence_threshold)},
                                 {"coverage", dsm::JsonNumber(depth_coverage)}};
   report["exposure_estimate"] = exposure ? ExposureEstimateJson(*exposure) : dsm::Json();
+  report["readout_estimate"] = readout ? ReadoutEstimateJson(*readout) : dsm::Json();
   if (!flags.pose_prior.empty()) {
     const dsm::PriorAlignment alignment = ApplyPosePrior(prior, &out);
     report["pose_prior"] = PosePriorJson(flags.pose_prior, alignment);

@@ -1986,6 +1986,22 @@ SparseStructure SparseStage(const PinholeCamera& camera_lr, const InitializerOpt
   return structure;
 }
 
+// Mid-exposure camera of frame f (T_world_mid) `delay` later: on the
+// quadratic through the mid-exposure poses of f-1, f and f+1 (the first
+// frame: 0, 1, 2), the rows' path of the capture model; on the geodesic
+// through f-1 and f for the last frame, and with fewer than 3 frames.
+SE3 RowPose(const std::vector<FrameRecord>& frames, const std::vector<SE3>& T_world_mid, int f, double delay) {
+  const int num_frames = static_cast<int>(frames.size());
+  const auto mid = [&frames](int t) { return frames[t].stamp - 0.5 * frames[t].exposure; };
+  if (num_frames >= 3 && f + 1 < num_frames) {
+    const int a = f > 0 ? f - 1 : f + 2;
+    return PoseOnQuadraticPath(T_world_mid[a], mid(a), T_world_mid[f + 1], mid(f + 1), T_world_mid[f], mid(f),
+                               mid(f) + delay);
+  }
+  const int n = f > 0 ? f - 1 : 1;
+  return PoseAtTime(T_world_mid[n], mid(n), T_world_mid[f], mid(f), mid(f) + delay);
+}
+
 // Rolling shutter (docs/file_formats.md#rolling-shutter): a point tracked at
 // LR row v of frame f was seen v * readout / H after row 0, by a camera that
 // had moved on. The bundle adjustment models a global shutter, so every
@@ -2013,11 +2029,8 @@ void CorrectRollingShutter(const PinholeCamera& camera, const InitializerOptions
       if (track.point_id < 0 || !structure->point_inlier[track.point_id]) continue;
       const Eigen::Vector3d& point = structure->points_world[track.point_id];
       for (int f = track.first_frame; f <= track.LastFrame(); ++f) {
-        const int n = f > 0 ? f - 1 : 1;
-        const double mid_f = frames[f].stamp - 0.5 * frames[f].exposure;
-        const double mid_n = frames[n].stamp - 0.5 * frames[n].exposure;
         const double delay = readout_time * track.At(f).y / camera.height;
-        const SE3 T_world_row = PoseAtTime(T_world_mid[n], mid_n, T_world_mid[f], mid_f, mid_f + delay);
+        const SE3 T_world_row = RowPose(frames, T_world_mid, f, delay);
         const Eigen::Vector3d p_row = T_world_row.Inverse() * point;
         const Eigen::Vector3d p_mid = structure->T_cam_world[f] * point;
         if (!(p_row.z() > 1e-9) || !(p_mid.z() > 1e-9)) continue;
@@ -2782,6 +2795,82 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
   return result;
 }
 
+// Observations of the points `inlier` selects: the count that the RMS of
+// MeasureReprojectionCost's capped squares divides by.
+int CountObservations(const std::vector<Track>& tracks, const std::vector<char>& inlier) {
+  int count = 0;
+  for (const Track& track : tracks) {
+    if (track.point_id >= 0 && inlier[track.point_id]) count += static_cast<int>(track.points.size());
+  }
+  return count;
+}
+
+// Vertex of the parabola through (x - h, a), (x, b), (x + h, c), kept
+// within [x - h, x + h]; x itself when the three do not curve upwards.
+double ParabolaMinimum(double x, double h, double a, double b, double c) {
+  const double curvature = a - 2.0 * b + c;
+  if (!(curvature > 0.0)) return x;
+  return x + std::clamp(0.5 * h * (a - c) / curvature, -h, h);
+}
+
+double MedianFrameInterval(const std::vector<FrameRecord>& frames) {
+  std::vector<double> intervals;
+  for (size_t t = 1; t < frames.size(); ++t) intervals.push_back(frames[t].stamp - frames[t - 1].stamp);
+  return Median(intervals);
+}
+
+// EstimateReadoutTime's search (initializer.h) on the tracks and the
+// global-shutter structure of the sparse stage.
+ReadoutEstimate EstimateReadoutTimeUnguarded(const std::vector<cv::Mat>& images_lr,
+                                             const PinholeCamera& camera_lr,
+                                             const std::vector<FrameRecord>& frames,
+                                             const InitializerOptions& options,
+                                             const ReadoutSearchOptions& search) {
+  const double start_ms = NowMs();
+  std::ostringstream log;
+  TrackedWindow window = TrackWindow(images_lr, camera_lr, frames, options, &log);
+  const int num_frames = static_cast<int>(images_lr.size());
+  std::optional<SparseStructure> rejected_turn, kept_turn_still;
+  const SparseStructure global = SparseStage(camera_lr, options, window.threads, num_frames,
+                                             &window.tracking.tracks, &log, &rejected_turn, &kept_turn_still);
+  const std::vector<char> inlier = global.point_inlier;
+  const int observations = std::max(1, CountObservations(window.tracking.tracks, inlier));
+  const double interval = MedianFrameInterval(frames);
+  ReadoutEstimate estimate;
+  const int steps = static_cast<int>(std::floor(search.max_fraction / search.fraction_step + 1e-9));
+  for (int k = 0; k <= steps; ++k) {
+    const double fraction = k * search.fraction_step;
+    std::vector<Track> tracks = window.tracking.tracks;
+    SparseStructure structure = global;
+    if (k > 0) {
+      std::ostringstream ignored;
+      CorrectRollingShutter(camera_lr, options, window.threads, frames, fraction * interval, &tracks, &structure,
+                            &ignored);
+    }
+    const ReprojectionCost cost =
+        MeasureReprojectionCost(camera_lr, tracks, structure, inlier, options.pnp_threshold_px);
+    estimate.cost.emplace_back(fraction, std::sqrt(cost.capped_squares / observations));
+  }
+  const auto best = std::min_element(estimate.cost.begin(), estimate.cost.end(),
+                                     [](const auto& a, const auto& b) { return a.second < b.second; });
+  const size_t k = static_cast<size_t>(best - estimate.cost.begin());
+  double fraction = best->first;
+  if (k > 0 && k + 1 < estimate.cost.size()) {
+    fraction = ParabolaMinimum(fraction, search.fraction_step, estimate.cost[k - 1].second, best->second,
+                               estimate.cost[k + 1].second);
+  }
+  const double global_rms = estimate.cost.front().second;
+  estimate.measured = k > 0 && best->second <= (1.0 - search.min_relative_gain) * global_rms;
+  estimate.fraction = estimate.measured ? fraction : 0.0;
+  estimate.seconds = estimate.fraction * interval;
+  estimate.elapsed_seconds = (NowMs() - start_ms) / 1000.0;
+  estimate.summary = Format("readout %.3f of the frame interval (%.4f s, ", estimate.fraction, estimate.seconds) +
+                     (estimate.measured ? "measured" : "no rolling shutter measured") +
+                     Format("): rms %.3f px against %.3f px with a global shutter over %.0f observations; %.1f ms",
+                            best->second, global_rms, observations, estimate.elapsed_seconds * 1000.0);
+  return estimate;
+}
+
 }  // namespace
 
 InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
@@ -2806,6 +2895,21 @@ RotationOnlyMotion EstimateRotationOnlyMotion(const std::vector<cv::Mat>& images
                                               const InitializerOptions& options) {
   return WithOpenCvErrorsAsInitializationErrors("initialisation: rotation-only motion (OpenCV: ", [&] {
     return EstimateRotationOnlyMotionUnguarded(images_lr, camera_lr, frames, options);
+  });
+}
+
+void ReadoutSearchOptions::Check() const {
+  CheckInRange("max_fraction", max_fraction, 0.05, 2.0);
+  CheckInRange("fraction_step", fraction_step, 0.01, max_fraction);
+  CheckInRange("min_relative_gain", min_relative_gain, 0.0, 0.5);
+}
+
+ReadoutEstimate EstimateReadoutTime(const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
+                                    const std::vector<FrameRecord>& frames, const InitializerOptions& options,
+                                    const ReadoutSearchOptions& search) {
+  search.Check();
+  return WithOpenCvErrorsAsInitializationErrors("readout estimation: degenerate geometry (OpenCV: ", [&] {
+    return EstimateReadoutTimeUnguarded(images_lr, camera_lr, frames, options, search);
   });
 }
 

@@ -5,6 +5,7 @@
 #include <optional>
 #include <stdexcept>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -252,5 +253,46 @@ RotationOnlyMotion EstimateRotationOnlyMotion(const std::vector<cv::Mat>& images
                                               const PinholeCamera& camera_lr,
                                               const std::vector<FrameRecord>& frames,
                                               const InitializerOptions& options);
+
+// The rolling shutter's readout time measured from the tracks (`--readout-time
+// auto`, the node's `readout_time: auto`; docs/file_formats.md#rolling-shutter).
+// A rolling shutter sees row y of frame f y x readout / H later than row 0,
+// so a camera that moves puts each tracked point where the camera of that
+// instant sees it; a global-shutter bundle adjustment absorbs the part of
+// that which constant motion explains (a shear of the scene), not the part
+// of a motion that changes. For every candidate fraction of the median frame
+// interval the tracks are corrected to a global shutter and bundle-adjusted
+// again (as InitializeStructure does with a known readout time), and the
+// reprojection cost of one fixed set of observations (the global-shutter
+// adjustment's inlier points, each error capped at pnp_threshold_px) is
+// compared: the minimum of the grid, refined by a parabola through it and
+// its neighbours.
+struct ReadoutSearchOptions {
+  double max_fraction = 1.0;   // candidates 0 .. max_fraction of the frame interval
+  double fraction_step = 0.1;  // their spacing
+  // A fraction is reported only when its cost is this much (relative) below
+  // the global shutter's; otherwise the readout is 0 (measured = false).
+  double min_relative_gain = 0.02;
+  void Check() const;  // throws InputError naming the bad field
+};
+
+struct ReadoutEstimate {
+  bool measured = false;  // false: no candidate beats a global shutter
+  double fraction = 0.0;  // of the median frame interval
+  double seconds = 0.0;   // fraction x the median frame interval
+  // (fraction, RMS reprojection error in LR px over the fixed observations,
+  // capped errors included), in increasing fraction.
+  std::vector<std::pair<double, double>> cost;
+  double elapsed_seconds = 0.0;
+  std::string summary;  // one line: the estimate, its cost against a global shutter, the time
+};
+
+// Same inputs as InitializeStructure (the frames' exposures are used as they
+// are). Throws InputError on bad inputs and InitializationError when the
+// frames cannot be initialised (NoParallaxError without parallax: a
+// rotation's readout is not measured here).
+ReadoutEstimate EstimateReadoutTime(const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
+                                    const std::vector<FrameRecord>& frames, const InitializerOptions& options,
+                                    const ReadoutSearchOptions& search);
 
 }  // namespace deblur_sr_mvs

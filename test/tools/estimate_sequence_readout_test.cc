@@ -1,0 +1,57 @@
+// estimate_sequence --readout-time auto (docs/tools.md#estimate_sequence): a
+// rolling-shutter sequence whose sensor.yaml is gone (a camera whose readout
+// time nobody knows) gets its readout time measured from the tracks, which
+// report.json (`readout_estimate`) gives; without the flag the report says
+// null.
+#include <unistd.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <string>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "tool_test_util.h"
+
+namespace deblur_sr_mvs {
+namespace {
+
+using test::ExpectOneLineError;
+using test::FileText;
+using test::RunTool;
+using test::ToolRun;
+
+TEST(EstimateSequenceReadout, AutoMeasuresTheReadoutAndReportsIt) {
+  const std::string folder = testing::TempDir() + "/dsm_readout_tool_" + std::to_string(::getpid());
+  const std::string input = folder + "/seq";
+  const std::string command = std::string(DSM_TOOL_DIR) + "/synthesize_sequence --scene " + DSM_SOURCE_DIR +
+                              "/data/middlebury/Dolls --output " + input +
+                              " --path handheld --frames 6 --hr-width 240 --hr-height 180 --seed 3 "
+                              "--readout-ratio 0.8 > /dev/null";
+  ASSERT_EQ(std::system(command.c_str()), 0);
+  ASSERT_TRUE(std::filesystem::remove(input + "/sensor.yaml"));
+
+  const ToolRun run = RunTool("estimate_sequence", {"--input", input, "--output", folder + "/auto",
+                                                    "--readout-time", "auto", "--iterations", "0", "--quiet"});
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  const nlohmann::json report = nlohmann::json::parse(FileText(folder + "/auto/report.json"));
+  const nlohmann::json& estimate = report["readout_estimate"];
+  ASSERT_TRUE(estimate.is_object()) << report.dump();
+  EXPECT_TRUE(estimate["measured"].get<bool>());
+  EXPECT_NEAR(estimate["fraction"].get<double>(), 0.8, 0.1);
+  EXPECT_NEAR(estimate["seconds"].get<double>(), estimate["fraction"].get<double>() / 30.0, 1e-6);
+  EXPECT_EQ(estimate["rms_px_by_fraction"].size(), 11u);
+  EXPECT_TRUE(report["stage_seconds"].contains("readout estimation")) << report["stage_seconds"].dump();
+
+  const ToolRun unknown = RunTool(
+      "estimate_sequence", {"--input", input, "--output", folder + "/unknown", "--iterations", "0", "--quiet"});
+  ASSERT_EQ(unknown.exit_code, 0) << unknown.err;
+  EXPECT_TRUE(nlohmann::json::parse(FileText(folder + "/unknown/report.json"))["readout_estimate"].is_null());
+  ExpectOneLineError("estimate_sequence",
+                     {"--input", input, "--output", folder + "/bad", "--readout-time", "0.01"}, "--readout-time");
+  std::filesystem::remove_all(folder);
+}
+
+}  // namespace
+}  // namespace deblur_sr_mvs
