@@ -340,7 +340,7 @@ void EstimatorNodelet::AcceptFrame(const sensor_msgs::ImageConstPtr& image,
   frame.stamp_ns = static_cast<int64_t>(stamp.toNSec());
   frame.stamp_close = (stamp - epoch_origin_).toSec() + params_.CloseOffset();
   frame.exposure = params_.exposure_time.seconds;  // auto: set by the worker
-  frame.readout_time = params_.readout_time;
+  frame.readout_time = params_.readout_time.seconds;  // auto: set by the worker
   frame.image = image01;
   for (StreamWindow& frames : windower_->Add(std::move(frame))) QueueWindow(std::move(frames));
 }
@@ -455,6 +455,7 @@ void EstimatorNodelet::ProcessWindow(PendingWindow window) {
   WindowEstimate estimate;
   try {
     clamped = ResolveExposures(params, &window, &status);
+    ResolveReadout(params, &window, &status);
     prior_lookup = LookUpPriors(params, kPriorWaitSeconds, &window);
     estimate = stream_->Process(window.frames, window.camera);
   } catch (const EstimationCancelled&) {
@@ -522,6 +523,7 @@ ros_glue::NodeParameters EstimatorNodelet::SyncWorker(const PendingWindow& windo
     stream_->Reset();
     path_.poses.clear();
     if (aligner_) aligner_->Reset();
+    measured_readouts_.clear();
     worker_epoch_ = window.epoch;
   }
   return params;
@@ -592,6 +594,40 @@ std::string EstimatorNodelet::EstimateExposures(const ros_glue::NodeParameters& 
   status->exposure_fraction = estimate.fraction;
   status->exposure_estimation_seconds = estimate.elapsed_seconds;
   return estimate.measured ? "auto" : "auto (no blur to measure: assumed)";
+}
+
+void EstimatorNodelet::ResolveReadout(const ros_glue::NodeParameters& params, PendingWindow* window,
+                                      EstimatorStatus* status) {
+  StreamWindow& frames = window->frames;
+  status->readout_measured = -1.0;
+  if (!params.readout_time.automatic) {
+    for (StreamFrame& frame : frames) frame.readout_time = params.readout_time.seconds;
+    status->readout_time = params.readout_time.seconds;
+    return;
+  }
+  EstimatorInput input;
+  input.camera = window->camera;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    input.images.push_back(frames[i].image);
+    input.frames.push_back(FrameRecord{static_cast<int>(i), frames[i].stamp_close, frames[i].exposure});
+  }
+  const ros::WallTime start = ros::WallTime::now();
+  try {
+    const ReadoutEstimate estimate = EstimateReadoutTime(input.images, input.camera, input.frames,
+                                                         params.estimator.initializer, ReadoutSearchOptions());
+    // A global shutter measures 0, which counts too: the median is the sensor's.
+    measured_readouts_.push_back(estimate.seconds);
+    status->readout_measured = estimate.seconds;
+  } catch (const InitializationError&) {
+    // No geometry to measure it on (e.g. a rotation): the earlier measurements serve.
+  }
+  if (shutting_down_) throw EstimationCancelled();
+  status->readout_estimation_seconds = (ros::WallTime::now() - start).toSec();
+  std::vector<double> sorted = measured_readouts_;
+  std::sort(sorted.begin(), sorted.end());
+  const double used = sorted.empty() ? 0.0 : sorted[sorted.size() / 2];
+  for (StreamFrame& frame : frames) frame.readout_time = used;
+  status->readout_time = used;
 }
 
 void EstimatorNodelet::SkipWindow(const std::string& message, bool restart, EstimatorStatus* status) {
@@ -763,6 +799,13 @@ void EstimatorNodelet::DescribeEstimate(const WindowEstimate& estimate, bool cla
     char text[96];
     std::snprintf(text, sizeof(text), " (estimated: %.3f of the frame interval, in %.1f s)",
                   status->exposure_fraction, status->exposure_estimation_seconds);
+    status->message += text;
+  }
+  if (status->readout_estimation_seconds > 0.0) {
+    char text[128];
+    std::snprintf(text, sizeof(text), "; readout %.4f s (auto: the median of %zu measurements; this window's %s)",
+                  status->readout_time, measured_readouts_.size(),
+                  status->readout_measured >= 0.0 ? "measured" : "not measured");
     status->message += text;
   }
   for (const std::string& note : result.notes) status->message += "; " + note;

@@ -38,7 +38,7 @@ void NodeParameters::Check() const {
     CheckAbove("exposure_time", exposure_time.seconds, 0.0);
     CheckInRange("exposure_time", exposure_time.seconds, 0.0, 10.0);
   }
-  CheckInRange("readout_time", readout_time, 0.0, 1.0);
+  if (!readout_time.automatic) CheckInRange("readout_time", readout_time.seconds, 0.0, 1.0);
   CheckAbove("max_frame_gap", max_frame_gap, 0.0);
   CheckAbove("max_step_ratio", max_step_ratio, 1.0);
   stream.Check();
@@ -114,15 +114,15 @@ class ParameterReader {
     mode = ParseEstimatorMode(text);
   }
   // A number of seconds, or the text "auto".
-  void operator()(const char* name, ExposureTime& exposure) const {
+  void operator()(const char* name, SecondsOrAuto& value) const {
     std::string text;
     if (node_.getParam(name, text)) {
       if (text != "auto")
         throw InputError(std::string(name) + " must be a number of seconds or auto, got '" + text + "'");
-      exposure.automatic = true;
+      value.automatic = true;
       return;
     }
-    Read(node_, name, &exposure.seconds);
+    Read(node_, name, &value.seconds);
   }
   void operator()(const char* name, DistortionPolicy& policy) const {
     bool assume_rectified = policy == DistortionPolicy::kAssumeRectified;

@@ -54,7 +54,7 @@ class DefaultsWriter {
   void operator()(const char* name, const std::string& value) const { (*values_)[name] = Text(value); }
   void operator()(const char* name, StampPosition value) const { (*values_)[name] = Text(ToString(value)); }
   void operator()(const char* name, EstimatorMode value) const { (*values_)[name] = Text(ToString(value)); }
-  void operator()(const char* name, const ExposureTime& value) const {
+  void operator()(const char* name, const SecondsOrAuto& value) const {
     (*values_)[name] = value.automatic ? Text("auto") : Number(value.seconds);
   }
   void operator()(const char* name, DistortionPolicy value) const {

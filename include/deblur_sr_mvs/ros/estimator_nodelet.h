@@ -105,6 +105,11 @@ class EstimatorNodelet : public nodelet::Nodelet {
   // source's name: "auto", or "auto (no blur to measure: assumed)".
   std::string EstimateExposures(const ros_glue::NodeParameters& params, PendingWindow* window,
                                 EstimatorStatus* status);
+  // Each frame's readout time: readout_time, or with readout_time auto the
+  // median of the readout times measured so far (EstimateReadoutTime on
+  // this window first; 0 until one is measured); says which in `status`.
+  // Throws EstimationCancelled when shutting down.
+  void ResolveReadout(const ros_glue::NodeParameters& params, PendingWindow* window, EstimatorStatus* status);
   // A failed window: counted, warned and said in `status`; `restart` also
   // restarts the trajectory.
   void SkipWindow(const std::string& message, bool restart, EstimatorStatus* status);
@@ -187,6 +192,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
   nav_msgs::Path path_;
   std::unique_ptr<PosePriorAligner> aligner_;  // with pose_prior_frame only
   uint32_t window_index_ = 0;
+  std::vector<double> measured_readouts_;  // readout_time auto: the windows' measurements (s), this epoch
 
   // ---- Shared counters and health.
   std::atomic<bool> shutting_down_{false};

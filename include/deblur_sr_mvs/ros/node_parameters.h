@@ -29,13 +29,15 @@ const char* ToString(StampPosition position);               // "start" | "middle
 // window (~max_window_seconds): a live node must not stall on one window.
 EstimatorOptions NodeEstimatorOptions();
 
-// ~exposure_time: seconds, or the text "auto" (estimated from the blur of
-// every window, EstimateExposure). The exposure topic wins over both.
-struct ExposureTime {
-  double seconds = 0.0;    // > 0 unless automatic
+// A parameter in seconds that may also be the text "auto": ~exposure_time
+// (estimated from the blur of every window, EstimateExposure; the exposure
+// topic wins over both) and ~readout_time (measured from the tracks of every
+// window, EstimateReadoutTime).
+struct SecondsOrAuto {
+  double seconds = 0.0;    // unless automatic
   bool automatic = false;  // "auto"
   // A number of seconds (not automatic).
-  ExposureTime& operator=(double value) {
+  SecondsOrAuto& operator=(double value) {
     seconds = value;
     automatic = false;
     return *this;
@@ -44,12 +46,13 @@ struct ExposureTime {
 
 struct NodeParameters {
   // --- Shutter: exposure time and what the header stamp marks.
-  ExposureTime exposure_time;  // s, > 0, or auto (required: the blur model needs it)
+  SecondsOrAuto exposure_time;  // s, > 0, or auto (required: the blur model needs it)
   StampPosition stamp_position = StampPosition::kEnd;
   // Rolling shutter (docs/file_formats.md#rolling-shutter): each row opens
   // readout_time * y / H after the first, whose exposure the stamp marks
-  // (s, [0, 1]; 0: a global shutter).
-  double readout_time = 0.0;
+  // (s, [0, 1]; 0: a global shutter), or auto: the median of the windows'
+  // measurements so far (0 until one is measured).
+  SecondsOrAuto readout_time;
   // A longer gap between two frames (dropped frames, a paused camera) breaks
   // the constant-velocity exposure model: the trajectory restarts (s).
   double max_frame_gap = 1.0;
@@ -94,7 +97,7 @@ struct NodeParameters {
 // order the node reads them: the one list of names. `Params` is NodeParameters
 // or const NodeParameters; the enums are StampPosition (~stamp_position),
 // EstimatorMode (~mode) and DistortionPolicy (~assume_rectified, a bool);
-// ExposureTime (~exposure_time) is a number or "auto".
+// SecondsOrAuto (~exposure_time, ~readout_time) is a number or "auto".
 template <typename Params, typename Visitor>
 void ForEachParameter(Params& params, Visitor&& visit) {
   visit("exposure_time", params.exposure_time);
