@@ -468,7 +468,7 @@ dsm::ExposureEstimate EstimateExposure(const dsm::EstimatorOptions& options, con
 }
 
 // The readout time measured from the tracks (--readout-time auto), written
-// into `input`.
+// into `input`; 0 (not measured) for a window without parallax.
 dsm::ReadoutEstimate EstimateReadout(const dsm::EstimatorOptions& options, const std::string& input_folder,
                                      dsm::EstimatorInput* input) {
   try {
@@ -476,6 +476,12 @@ dsm::ReadoutEstimate EstimateReadout(const dsm::EstimatorOptions& options, const
         input->images, input->camera, input->frames, options.initializer, dsm::ReadoutSearchOptions());
     input->readout_time = estimate.seconds;
     return estimate;
+  } catch (const dsm::NoParallaxError& error) {
+    // A rotation: nothing to measure on; the estimate runs as a global shutter.
+    dsm::ReadoutEstimate none;
+    none.summary = std::string("not measured (") + error.what() + ")";
+    input->readout_time = 0.0;
+    return none;
   } catch (const dsm::InitializationError& error) {
     throw dsm::InputError(input_folder + ": readout estimation: initialisation failed: " + error.what());
   }

@@ -53,5 +53,28 @@ TEST(EstimateSequenceReadout, AutoMeasuresTheReadoutAndReportsIt) {
   std::filesystem::remove_all(folder);
 }
 
+// A rotation has no parallax to measure on: the run goes on with readout 0
+// and the report says why.
+TEST(EstimateSequenceReadout, ARotationIsNotMeasured) {
+  const std::string folder = testing::TempDir() + "/dsm_readout_rotation_" + std::to_string(::getpid());
+  const std::string input = folder + "/seq";
+  const std::string command = std::string(DSM_TOOL_DIR) + "/synthesize_sequence --scene " + DSM_SOURCE_DIR +
+                              "/data/middlebury/Moebius --output " + input +
+                              " --path rotate --frames 5 --hr-width 160 --hr-height 120 --readout-ratio 0.5 "
+                              "> /dev/null";
+  ASSERT_EQ(std::system(command.c_str()), 0);
+  const ToolRun run = RunTool("estimate_sequence", {"--input", input, "--output", folder + "/auto",
+                                                    "--readout-time", "auto", "--iterations", "0", "--quiet"});
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  const nlohmann::json estimate =
+      nlohmann::json::parse(FileText(folder + "/auto/report.json"))["readout_estimate"];
+  ASSERT_TRUE(estimate.is_object());
+  EXPECT_FALSE(estimate["measured"].get<bool>());
+  EXPECT_EQ(estimate["seconds"].get<double>(), 0.0);
+  EXPECT_NE(estimate["summary"].get<std::string>().find("no pair of the 5 frames has parallax"), std::string::npos)
+      << estimate.dump();
+  std::filesystem::remove_all(folder);
+}
+
 }  // namespace
 }  // namespace deblur_sr_mvs
