@@ -86,6 +86,22 @@ std::string PercentText(double fraction) {
   return text;
 }
 
+// The value at which the weights of (value, weight) pairs reach half their
+// sum, in increasing value; the plain median when every weight is 0; 0 for none.
+double WeightedMedian(std::vector<std::pair<double, double>> samples) {
+  if (samples.empty()) return 0.0;
+  std::sort(samples.begin(), samples.end());
+  double total = 0.0;
+  for (const auto& sample : samples) total += std::max(sample.second, 0.0);
+  if (!(total > 0.0)) return samples[samples.size() / 2].first;
+  double sum = 0.0;
+  for (const auto& sample : samples) {
+    sum += std::max(sample.second, 0.0);
+    if (sum >= 0.5 * total) return sample.first;
+  }
+  return samples.back().first;
+}
+
 }  // namespace
 
 EstimatorNodelet::EstimatorNodelet() = default;
@@ -615,17 +631,17 @@ void EstimatorNodelet::ResolveReadout(const ros_glue::NodeParameters& params, Pe
   try {
     const ReadoutEstimate estimate = EstimateReadoutTime(input.images, input.camera, input.frames,
                                                          params.estimator.initializer, ReadoutSearchOptions());
-    // A global shutter measures 0, which counts too: the median is the sensor's.
-    measured_readouts_.push_back(estimate.seconds);
+    // A global shutter measures 0, which counts too: the median is the
+    // sensor's. A window whose motion barely changes measures the readout
+    // poorly (a flat cost): the sharpness weighs it.
+    measured_readouts_.emplace_back(estimate.seconds, estimate.sharpness);
     status->readout_measured = estimate.seconds;
   } catch (const InitializationError&) {
     // No geometry to measure it on (e.g. a rotation): the earlier measurements serve.
   }
   if (shutting_down_) throw EstimationCancelled();
   status->readout_estimation_seconds = (ros::WallTime::now() - start).toSec();
-  std::vector<double> sorted = measured_readouts_;
-  std::sort(sorted.begin(), sorted.end());
-  const double used = sorted.empty() ? 0.0 : sorted[sorted.size() / 2];
+  const double used = WeightedMedian(measured_readouts_);
   for (StreamFrame& frame : frames) frame.readout_time = used;
   status->readout_time = used;
 }
@@ -803,7 +819,8 @@ void EstimatorNodelet::DescribeEstimate(const WindowEstimate& estimate, bool cla
   }
   if (status->readout_estimation_seconds > 0.0) {
     char text[128];
-    std::snprintf(text, sizeof(text), "; readout %.4f s (auto: the median of %zu measurements; this window's %s)",
+    std::snprintf(text, sizeof(text),
+                  "; readout %.4f s (auto: the weighted median of %zu measurements; this window's %s)",
                   status->readout_time, measured_readouts_.size(),
                   status->readout_measured >= 0.0 ? "measured" : "not measured");
     status->message += text;

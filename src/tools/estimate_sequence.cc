@@ -495,6 +495,7 @@ dsm::Json ReadoutEstimateJson(const dsm::ReadoutEstimate& estimate) {
           {"fraction", dsm::JsonNumber(estimate.fraction)},
           {"seconds", dsm::JsonNumber(estimate.seconds)},
           {"rms_px_by_fraction", cost},
+          {"sharpness", dsm::JsonNumber(estimate.sharpness)},
           {"summary", estimate.summary}};
 }
 

@@ -106,8 +106,9 @@ class EstimatorNodelet : public nodelet::Nodelet {
   std::string EstimateExposures(const ros_glue::NodeParameters& params, PendingWindow* window,
                                 EstimatorStatus* status);
   // Each frame's readout time: readout_time, or with readout_time auto the
-  // median of the readout times measured so far (EstimateReadoutTime on
-  // this window first; 0 until one is measured); says which in `status`.
+  // median of the readout times measured so far, each weighted by its
+  // sharpness (EstimateReadoutTime on this window first; 0 until one is
+  // measured); says which in `status`.
   // Throws EstimationCancelled when shutting down.
   void ResolveReadout(const ros_glue::NodeParameters& params, PendingWindow* window, EstimatorStatus* status);
   // A failed window: counted, warned and said in `status`; `restart` also
@@ -192,7 +193,9 @@ class EstimatorNodelet : public nodelet::Nodelet {
   nav_msgs::Path path_;
   std::unique_ptr<PosePriorAligner> aligner_;  // with pose_prior_frame only
   uint32_t window_index_ = 0;
-  std::vector<double> measured_readouts_;  // readout_time auto: the windows' measurements (s), this epoch
+  // readout_time auto: the windows' measurements (s) and their sharpness
+  // (ReadoutEstimate::sharpness), this epoch.
+  std::vector<std::pair<double, double>> measured_readouts_;
 
   // ---- Shared counters and health.
   std::atomic<bool> shutting_down_{false};

@@ -51,7 +51,7 @@ struct NodeParameters {
   // Rolling shutter (docs/file_formats.md#rolling-shutter): each row opens
   // readout_time * y / H after the first, whose exposure the stamp marks
   // (s, [0, 1]; 0: a global shutter), or auto: the median of the windows'
-  // measurements so far (0 until one is measured).
+  // measurements so far, weighted by their sharpness (0 until one is measured).
   SecondsOrAuto readout_time;
   // A longer gap between two frames (dropped frames, a paused camera) breaks
   // the constant-velocity exposure model: the trajectory restarts (s).

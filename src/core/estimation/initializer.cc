@@ -2859,6 +2859,15 @@ ReadoutEstimate EstimateReadoutTimeUnguarded(const std::vector<cv::Mat>& images_
     fraction = ParabolaMinimum(fraction, search.fraction_step, estimate.cost[k - 1].second, best->second,
                                estimate.cost[k + 1].second);
   }
+  // ReadoutEstimate::sharpness.
+  const std::vector<std::pair<double, double>>& c = estimate.cost;
+  const double at_minimum = std::max(c[k].second, 1e-12);
+  if (k > 0 && k + 1 < c.size()) {
+    estimate.sharpness = (c[k - 1].second + c[k + 1].second - 2.0 * c[k].second) / at_minimum;
+  } else if (c.size() >= 2) {
+    const size_t neighbour = k == 0 ? 1 : k - 1;
+    estimate.sharpness = 2.0 * std::abs(c[neighbour].second - c[k].second) / at_minimum;
+  }
   const double global_rms = estimate.cost.front().second;
   estimate.measured = k > 0 && best->second <= (1.0 - search.min_relative_gain) * global_rms;
   estimate.fraction = estimate.measured ? fraction : 0.0;

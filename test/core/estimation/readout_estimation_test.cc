@@ -22,7 +22,8 @@ ReadoutEstimate Measure(const std::string& tag, double readout_ratio) {
   const EstimatorInput input = InputOf(sequence);
   const ReadoutEstimate estimate =
       EstimateReadoutTime(input.images, input.camera, input.frames, InitializerOptions(), ReadoutSearchOptions());
-  std::printf("readout %.1f: %s\n  rms by fraction:", readout_ratio, estimate.summary.c_str());
+  std::printf("readout %.1f: %s; sharpness %.4f\n  rms by fraction:", readout_ratio, estimate.summary.c_str(),
+              estimate.sharpness);
   for (const auto& point : estimate.cost) std::printf(" %.1f:%.4f", point.first, point.second);
   std::printf("\n");
   return estimate;
