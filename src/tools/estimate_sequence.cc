@@ -490,7 +490,9 @@ dsm::ReadoutEstimate EstimateReadout(const dsm::EstimatorOptions& options, const
 // report.json's "readout_estimate" object (null without --readout-time auto).
 dsm::Json ReadoutEstimateJson(const dsm::ReadoutEstimate& estimate) {
   dsm::Json cost = dsm::Json::array();
-  for (const auto& point : estimate.cost) cost.push_back({dsm::JsonNumber(point.first), dsm::JsonNumber(point.second)});
+  for (const auto& point : estimate.cost) {
+    cost.push_back({dsm::JsonNumber(point.first), dsm::JsonNumber(point.second)});
+  }
   return {{"measured", estimate.measured},
           {"fraction", dsm::JsonNumber(estimate.fraction)},
           {"seconds", dsm::JsonNumber(estimate.seconds)},
