@@ -8,6 +8,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/common/grid_minimum.h"
 #include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/common/runtime.h"
 
@@ -116,17 +117,6 @@ void AddCorrelation(const FrameEvidence& e, double fraction, CorrelationSums* su
   }
 }
 
-// The minimum of the grid refined by the parabola through it and its two
-// neighbours (the grid point itself at an end of the grid).
-double RefinedMinimum(const std::vector<std::pair<double, double>>& grid, size_t best) {
-  if (best == 0 || best + 1 >= grid.size()) return grid[best].first;
-  const double left = grid[best - 1].second, centre = grid[best].second, right = grid[best + 1].second;
-  const double curvature = left - 2.0 * centre + right;
-  if (!(curvature > 0.0)) return grid[best].first;
-  const double offset = 0.5 * (left - right) / curvature;  // in grid steps, |offset| <= 0.5
-  return grid[best].first + offset * (grid[best + 1].first - grid[best].first);
-}
-
 double Median(std::vector<double> values) {
   const auto middle = values.begin() + values.size() / 2;
   std::nth_element(values.begin(), middle, values.end());
@@ -220,7 +210,7 @@ ExposureEstimate EstimateExposureFromMotion(const std::vector<cv::Mat>& images_l
                                      [](const auto& a, const auto& b) { return a.second < b.second; });
   estimate.measured = best->second < 0.0;
   estimate.fraction = estimate.measured
-                          ? RefinedMinimum(estimate.correlation, best - estimate.correlation.begin())
+                          ? RefinedGridMinimum(estimate.correlation, best - estimate.correlation.begin())
                           : options.initial_fraction;
   estimate.seconds = estimate.fraction * Median(intervals);
   for (double interval : intervals) estimate.frame_exposures.push_back(estimate.fraction * interval);

@@ -56,6 +56,7 @@
 #include <opencv2/video/tracking.hpp>
 
 #include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/common/grid_minimum.h"
 #include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/common/runtime.h"
 #include "deblur_sr_mvs/core/geometry/pose_prior.h"
@@ -2805,14 +2806,6 @@ int CountObservations(const std::vector<Track>& tracks, const std::vector<char>&
   return count;
 }
 
-// Vertex of the parabola through (x - h, a), (x, b), (x + h, c), kept
-// within [x - h, x + h]; x itself when the three do not curve upwards.
-double ParabolaMinimum(double x, double h, double a, double b, double c) {
-  const double curvature = a - 2.0 * b + c;
-  if (!(curvature > 0.0)) return x;
-  return x + std::clamp(0.5 * h * (a - c) / curvature, -h, h);
-}
-
 double MedianFrameInterval(const std::vector<FrameRecord>& frames) {
   std::vector<double> intervals;
   for (size_t t = 1; t < frames.size(); ++t) intervals.push_back(frames[t].stamp - frames[t - 1].stamp);
@@ -2854,11 +2847,7 @@ ReadoutEstimate EstimateReadoutTimeUnguarded(const std::vector<cv::Mat>& images_
   const auto best = std::min_element(estimate.cost.begin(), estimate.cost.end(),
                                      [](const auto& a, const auto& b) { return a.second < b.second; });
   const size_t k = static_cast<size_t>(best - estimate.cost.begin());
-  double fraction = best->first;
-  if (k > 0 && k + 1 < estimate.cost.size()) {
-    fraction = ParabolaMinimum(fraction, search.fraction_step, estimate.cost[k - 1].second, best->second,
-                               estimate.cost[k + 1].second);
-  }
+  const double fraction = RefinedGridMinimum(estimate.cost, k);
   // ReadoutEstimate::sharpness.
   const std::vector<std::pair<double, double>>& c = estimate.cost;
   const double at_minimum = std::max(c[k].second, 1e-12);
