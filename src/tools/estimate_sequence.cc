@@ -29,6 +29,7 @@
 #include "deblur_sr_mvs/core/estimation/exposure_estimation.h"
 #include "deblur_sr_mvs/core/estimation/initializer.h"
 #include "deblur_sr_mvs/core/estimation/stream.h"
+#include "deblur_sr_mvs/core/estimation/windowed_run.h"
 #include "deblur_sr_mvs/core/geometry/pose_prior.h"
 #include "deblur_sr_mvs/core/imaging/image_ops.h"
 #include "deblur_sr_mvs/core/io/result_io.h"
@@ -46,6 +47,17 @@ constexpr char kDescription[] =
     "lambda_s 30, lambda_d 0.1 (see README), lambda_i 0.45, neighbours 1; pose-neighbours 2,\n"
     "structure-matching both (see README); threads 0 = all cores.";
 
+// --window-size, --window-overlap: a sequence of up to kWholeSequenceFrames
+// frames is one window (the joint problem of eq:jointEnergy over all of
+// them); a longer one runs in windows of that many sharing 2 frames.
+constexpr int kWholeSequenceFrames = 30;
+dsm::WindowedRunOptions DefaultWindowing() {
+  dsm::WindowedRunOptions windowing;
+  windowing.window_size = kWholeSequenceFrames;
+  windowing.window_overlap = 2;
+  return windowing;
+}
+
 struct Flags {
   std::string input, output;
   std::string pose_prior;  // TUM file of T_prior_cam, empty = none
@@ -58,6 +70,9 @@ struct Flags {
   bool fixed_samples = false;
   bool quiet = false;
   int output_scale = 1;  // bicubic up-sampling of the outputs ("w/o SR + Bic.")
+  // Longer sequences are estimated in windows of this many frames, as the
+  // node streams them (EstimateInWindows); 0: one window of every frame.
+  dsm::WindowedRunOptions windowing = DefaultWindowing();
   // Depth whose confidence is below this is written as NaN (0: all depth).
   double depth_confidence_threshold = dsm::DepthConfidenceOptions().threshold;
 };
@@ -76,6 +91,28 @@ double ParseNoiseSigma(const std::string& text) {
   if (end == text.c_str() || *end != '\0' || !(gray_levels >= 0.0 && gray_levels <= 255.0))
     throw dsm::InputError("--noise-sigma: expected auto or gray levels in [0, 255], got '" + text + "'");
   return gray_levels / 255.0;
+}
+
+// --window-size, --window-overlap.
+void AddWindowOptions(dsm::ToolCommandLine* cli, Flags* flags) {
+  cli->add_option("--window-size", flags->windowing.window_size,
+                  "a sequence of more frames is estimated in overlapping windows of at most this many, as the "
+                  "node streams it: memory grows with the window, not the sequence; 0: one window of every "
+                  "frame (default " + std::to_string(DefaultWindowing().window_size) + ")")
+      ->check(dsm::FlagInt(0, 64));
+  cli->add_option("--window-overlap", flags->windowing.window_overlap,
+                  "with --window-size: frames shared by consecutive windows, 2 .. window size - 1 (default " +
+                      std::to_string(DefaultWindowing().window_overlap) + ")")
+      ->check(dsm::FlagInt(2, 63));
+}
+
+// WindowedRunOptions::Check, naming the flags.
+void CheckWindowing(const dsm::WindowedRunOptions& windowing) {
+  try {
+    windowing.Check();
+  } catch (const dsm::InputError& error) {
+    throw dsm::InputError(std::string("--window-size / --window-overlap: ") + error.what());
+  }
 }
 
 // --pose-prior and the weights of its poses in the initialisation and the
@@ -401,6 +438,7 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
                  "depth whose confidence (depth_confidence/, in [0, 1]) is below this is written as NaN; "
                  "0 writes every depth (default 0.5)")
       ->check(dsm::FlagNumber(0.0, 1.0));
+  AddWindowOptions(&cli, flags);
   cli.add_flag("--quiet", flags->quiet, "no progress bar, no summary line");
   if (!cli.Parse(argc, argv)) return false;
   options->mode = dsm::ParseEstimatorMode(flags->mode);
@@ -409,6 +447,7 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   options->adaptive_samples = !flags->fixed_samples;
   options->noise_sigma = ParseNoiseSigma(flags->noise_sigma);
   options->Check();
+  CheckWindowing(flags->windowing);
   return true;
 }
 
@@ -428,9 +467,25 @@ dsm::EstimatorInput ReadInput(const std::string& input, std::string* camera_name
   return estimator_input;
 }
 
+// The frames of the first window `windowing` cuts from `input` (all of it
+// when it is one window).
+dsm::EstimatorInput FirstWindowOf(const dsm::EstimatorInput& input, const dsm::WindowedRunOptions& windowing) {
+  const dsm::FrameRange first = dsm::WindowRanges(static_cast<int>(input.images.size()), windowing).front();
+  const int count = first.last + 1;
+  if (count == static_cast<int>(input.images.size())) return input;
+  dsm::EstimatorInput window;
+  window.camera = input.camera;
+  window.readout_time = input.readout_time;
+  window.images.assign(input.images.begin(), input.images.begin() + count);
+  window.frames.assign(input.frames.begin(), input.frames.begin() + count);
+  if (!input.T_prior_cam.empty()) window.T_prior_cam.assign(input.T_prior_cam.begin(), input.T_prior_cam.begin() + count);
+  return window;
+}
+
 // Runs the estimator with a progress bar on stderr when it is a terminal.
 dsm::EstimatorResult Estimate(const dsm::EstimatorOptions& options, const dsm::EstimatorInput& input,
-                              const std::string& input_folder, bool quiet) {
+                              const std::string& input_folder, const dsm::WindowedRunOptions& windowing,
+                              bool quiet, std::vector<dsm::WindowRecord>* windows) {
   const bool draw = !quiet && isatty(STDERR_FILENO);
   dsm::ProgressCallback progress = [&](double fraction, const std::string& what) {
     if (!draw) return;
@@ -441,10 +496,9 @@ dsm::EstimatorResult Estimate(const dsm::EstimatorOptions& options, const dsm::E
                  what.c_str());
     std::fflush(stderr);
   };
-  dsm::Estimator estimator(options);
   dsm::EstimatorResult result;
   try {
-    result = estimator.Run(input, progress);
+    result = dsm::EstimateInWindows(input, options, windowing, progress, windows);
   } catch (const dsm::InitializationError& error) {
     if (draw) std::fprintf(stderr, "\n");
     throw dsm::InputError(input_folder + ": initialisation failed: " + error.what());
@@ -499,6 +553,25 @@ dsm::Json ReadoutEstimateJson(const dsm::ReadoutEstimate& estimate) {
           {"rms_px_by_fraction", cost},
           {"sharpness", dsm::JsonNumber(estimate.sharpness)},
           {"summary", estimate.summary}};
+}
+
+// report.json's "windows" array: the frames of each window, the first whose
+// outputs it gave, how it continued the previous one, its energies' first
+// and last totals.
+dsm::Json WindowsJson(const std::vector<dsm::WindowRecord>& windows) {
+  dsm::Json list = dsm::Json::array();
+  for (const dsm::WindowRecord& window : windows) {
+    const double first = window.energies.empty() ? NAN : window.energies.front().total;
+    const double last = window.energies.empty() ? NAN : window.energies.back().total;
+    list.push_back({{"first_frame", window.frames.first},
+                    {"last_frame", window.frames.last},
+                    {"first_output_frame", window.first_output},
+                    {"continued", window.continued},
+                    {"note", window.note},
+                    {"energy_first", dsm::JsonNumber(first)},
+                    {"energy_last", dsm::JsonNumber(last)}});
+  }
+  return list;
 }
 
 // report.json's "exposure_estimate" object (null without --exposure auto).
@@ -668,16 +741,28 @@ int Run(int argc, char** argv) {
   const auto start = std::chrono::steady_clock::now();
   std::string camera_name;
   dsm::EstimatorInput input = ReadInput(flags.input, &camera_name);
+  // A sequence estimated in windows measures its readout and exposure on
+  // the first window's frames, as the node's first window does.
+  dsm::EstimatorInput first_window = FirstWindowOf(input, flags.windowing);
   std::optional<dsm::ReadoutEstimate> readout;
-  if (flags.readout_time == "auto") readout = EstimateReadout(options, flags.input, &input);
+  if (flags.readout_time == "auto") {
+    readout = EstimateReadout(options, flags.input, &first_window);
+    input.readout_time = first_window.readout_time;
+  }
   std::optional<dsm::ExposureEstimate> exposure;
-  if (flags.exposure == "auto") exposure = EstimateExposure(options, flags.input, &input);
+  if (flags.exposure == "auto") {
+    exposure = EstimateExposure(options, flags.input, &first_window);
+    input.frames = dsm::WithExposureFraction(input.frames, exposure->fraction);
+    exposure->frame_exposures.clear();
+    for (const dsm::FrameRecord& frame : input.frames) exposure->frame_exposures.push_back(frame.exposure);
+  }
   std::vector<std::optional<dsm::SE3>> prior;
   if (!flags.pose_prior.empty()) {
     prior = ReadPriorAtFrames(flags.pose_prior, input.frames);
     input.T_prior_cam = prior;
   }
-  dsm::EstimatorResult result = Estimate(options, input, flags.input, flags.quiet);
+  std::vector<dsm::WindowRecord> windows;
+  dsm::EstimatorResult result = Estimate(options, input, flags.input, flags.windowing, flags.quiet, &windows);
   if (exposure)
     result.timings.insert(result.timings.begin(), {"exposure estimation", exposure->elapsed_seconds});
   if (readout) result.timings.insert(result.timings.begin(), {"readout estimation", readout->elapsed_seconds});
@@ -695,6 +780,7 @@ int Run(int argc, char** argv) {
                                 {"coverage", dsm::JsonNumber(depth_coverage)}};
   report["exposure_estimate"] = exposure ? ExposureEstimateJson(*exposure) : dsm::Json();
   report["readout_estimate"] = readout ? ReadoutEstimateJson(*readout) : dsm::Json();
+  report["windows"] = WindowsJson(windows);
   if (!flags.pose_prior.empty()) {
     const dsm::PriorAlignment alignment = ApplyPosePrior(prior, &out);
     report["pose_prior"] = PosePriorJson(flags.pose_prior, alignment);
@@ -709,9 +795,15 @@ int Run(int argc, char** argv) {
   dsm::WriteResult(flags.output, out);
   WriteConfidence(flags.output, input.frames, confidence);
   if (!flags.quiet) {
-    std::printf("estimate_sequence: %zu frames, %s, %.1f s, peak %.0f MiB, energy %.4g -> %.4g; wrote %s\n",
-                result.latent.size(), dsm::ToString(options.mode), wall, PeakMemoryMiB(),
-                result.energies.front().total, result.energies.back().total, flags.output.c_str());
+    if (windows.size() > 1) {
+      std::printf("estimate_sequence: %zu frames in %zu windows, %s, %.1f s, peak %.0f MiB; wrote %s\n",
+                  result.latent.size(), windows.size(), dsm::ToString(options.mode), wall, PeakMemoryMiB(),
+                  flags.output.c_str());
+    } else {
+      std::printf("estimate_sequence: %zu frames, %s, %.1f s, peak %.0f MiB, energy %.4g -> %.4g; wrote %s\n",
+                  result.latent.size(), dsm::ToString(options.mode), wall, PeakMemoryMiB(),
+                  result.energies.front().total, result.energies.back().total, flags.output.c_str());
+    }
   }
   return 0;
 }

@@ -8,6 +8,7 @@
 
 #include <gtest/gtest.h>
 
+#include "../support/same_bits.h"
 #include "../support/test_sequences.h"
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/estimation/estimator.h"
@@ -15,13 +16,6 @@
 
 namespace deblur_sr_mvs {
 namespace {
-
-// Bit for bit (NaN included): the bytes of continuous copies.
-bool SameBits(const cv::Mat& a, const cv::Mat& b) {
-  const cv::Mat copy_a = a.clone(), copy_b = b.clone();
-  return a.size == b.size && a.type() == b.type() &&
-         std::memcmp(copy_a.data, copy_b.data, copy_a.total() * copy_a.elemSize()) == 0;
-}
 
 bool SameResult(const EstimatorResult& a, const EstimatorResult& b) {
   if (a.latent.size() != b.latent.size() || a.energies.size() != b.energies.size()) return false;

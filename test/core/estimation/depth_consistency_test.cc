@@ -14,6 +14,7 @@
 #include <Eigen/Geometry>
 #include <gtest/gtest.h>
 
+#include "../support/same_bits.h"
 #include "deblur_sr_mvs/core/common/errors.h"
 
 namespace deblur_sr_mvs {
@@ -69,14 +70,6 @@ double RelativeError(const cv::Mat& depth, const cv::Mat& truth) {
   return cv::mean(relative)[0];
 }
 
-bool SameBytes(const cv::Mat& a, const cv::Mat& b) {
-  if (a.size() != b.size() || a.type() != b.type()) return false;
-  for (int y = 0; y < a.rows; ++y) {
-    if (std::memcmp(a.ptr(y), b.ptr(y), a.cols * a.elemSize()) != 0) return false;
-  }
-  return true;
-}
-
 DepthConsistencyOptions On(int radius, double tolerance) {
   DepthConsistencyOptions options;
   options.radius = radius;
@@ -129,7 +122,7 @@ TEST(DepthConsistency, AnOccludingNeighbourDoesNotPullTheBackground) {
   // right half, where the neighbours agree, gets closer to the truth.
   const cv::Range occluded(0, kWidth / 2 - 8);
   const cv::Range agreeing(kWidth / 2 + 8, kWidth - 4);
-  EXPECT_TRUE(SameBytes(fused[1].colRange(occluded).clone(), depths[1].colRange(occluded).clone()));
+  EXPECT_TRUE(SameBits(fused[1].colRange(occluded).clone(), depths[1].colRange(occluded).clone()));
   const auto error = [&truth](const cv::Mat& depth, const cv::Range& columns) {
     cv::Mat relative = cv::abs(depth.colRange(columns) - truth[1].colRange(columns)) / truth[1].colRange(columns);
     return cv::mean(relative)[0];
@@ -139,7 +132,7 @@ TEST(DepthConsistency, AnOccludingNeighbourDoesNotPullTheBackground) {
   // consistent neighbour and keeps its depth bit for bit.
   depths[0].setTo(0.6f);
   depths[2].setTo(0.6f);
-  EXPECT_TRUE(SameBytes(FuseNeighbourDepths(kCamera, depths, T_world_cam, On(1, 0.2))[1], depths[1]));
+  EXPECT_TRUE(SameBits(FuseNeighbourDepths(kCamera, depths, T_world_cam, On(1, 0.2))[1], depths[1]));
 }
 
 TEST(DepthConsistency, WithoutConsistentNeighboursTheDepthIsUnchangedBitForBit) {
@@ -151,20 +144,20 @@ TEST(DepthConsistency, WithoutConsistentNeighboursTheDepthIsUnchangedBitForBit) 
   // A single frame.
   const std::vector<cv::Mat> single =
       FuseNeighbourDepths(kCamera, {depths[1]}, {T_world_cam[1]}, On(2, 0.05));
-  EXPECT_TRUE(SameBytes(single[0], depths[1]));
+  EXPECT_TRUE(SameBits(single[0], depths[1]));
   // Radius 0.
   const std::vector<cv::Mat> off = FuseNeighbourDepths(kCamera, depths, T_world_cam, On(0, 0.05));
-  for (int t = 0; t < 3; ++t) EXPECT_TRUE(SameBytes(off[t], depths[t])) << t;
+  for (int t = 0; t < 3; ++t) EXPECT_TRUE(SameBits(off[t], depths[t])) << t;
   // Neighbours that see none of the plane frame 1 sees.
   std::vector<SE3> apart = T_world_cam;
   apart[0] = SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(50.0, 0.0, 0.0));
   apart[2] = SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(-50.0, 0.0, 0.0));
-  EXPECT_TRUE(SameBytes(FuseNeighbourDepths(kCamera, depths, apart, On(1, 0.05))[1], depths[1]));
+  EXPECT_TRUE(SameBits(FuseNeighbourDepths(kCamera, depths, apart, On(1, 0.05))[1], depths[1]));
   // Neighbours without a known depth.
   std::vector<cv::Mat> unknown = depths;
   unknown[0] = cv::Mat(kHeight, kWidth, CV_32FC1, cv::Scalar(std::nanf("")));
   unknown[2] = cv::Mat::zeros(kHeight, kWidth, CV_32FC1);
-  EXPECT_TRUE(SameBytes(FuseNeighbourDepths(kCamera, unknown, T_world_cam, On(1, 0.05))[1], depths[1]));
+  EXPECT_TRUE(SameBits(FuseNeighbourDepths(kCamera, unknown, T_world_cam, On(1, 0.05))[1], depths[1]));
 }
 
 TEST(DepthConsistency, UnknownDepthStaysUnknownAndTheInputsAreNotChanged) {
@@ -178,7 +171,7 @@ TEST(DepthConsistency, UnknownDepthStaysUnknownAndTheInputsAreNotChanged) {
   for (int y = 20; y < 30; ++y) {
     for (int x = 0; x < kWidth; ++x) EXPECT_TRUE(std::isnan(fused[1].at<float>(y, x)));
   }
-  for (int t = 0; t < 3; ++t) EXPECT_TRUE(SameBytes(depths[t], copies[t])) << t;
+  for (int t = 0; t < 3; ++t) EXPECT_TRUE(SameBits(depths[t], copies[t])) << t;
 }
 
 TEST(DepthConsistency, TheFramesOrderDoesNotMatter) {

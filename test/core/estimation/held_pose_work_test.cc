@@ -13,6 +13,7 @@
 #include <gtest/gtest.h>
 #include <opencv2/imgproc.hpp>
 
+#include "../support/same_bits.h"
 #include "../support/test_sequences.h"
 #include "deblur_sr_mvs/core/estimation/estimator.h"
 #include "deblur_sr_mvs/core/estimation/stream.h"
@@ -20,12 +21,6 @@
 
 namespace deblur_sr_mvs {
 namespace {
-
-bool SameBits(const cv::Mat& a, const cv::Mat& b) {
-  if (a.size() != b.size() || a.type() != b.type()) return false;
-  const cv::Mat ca = a.isContinuous() ? a : a.clone(), cb = b.isContinuous() ? b : b.clone();
-  return std::memcmp(ca.data, cb.data, ca.total() * ca.elemSize()) == 0;
-}
 
 bool SamePose(const SE3& a, const SE3& b) {
   return a.rotation() == b.rotation() && a.translation() == b.translation();

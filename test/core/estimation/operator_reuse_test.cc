@@ -9,6 +9,7 @@
 
 #include <gtest/gtest.h>
 
+#include "../support/same_bits.h"
 #include "../support/test_sequences.h"
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/estimation/estimator.h"
@@ -21,12 +22,6 @@ const Sequence& SmallSequence() {
   static const Sequence sequence =
       SynthesizedSequence("reuse_seq", "Dolls", "--frames 8 --subframes 100 --hr-width 240 --hr-height 180");
   return sequence;
-}
-
-bool SameBits(const cv::Mat& a, const cv::Mat& b) {
-  if (a.size() != b.size() || a.type() != b.type()) return false;
-  const cv::Mat ca = a.isContinuous() ? a : a.clone(), cb = b.isContinuous() ? b : b.clone();
-  return std::memcmp(ca.data, cb.data, ca.total() * ca.elemSize()) == 0;
 }
 
 template <typename T>

@@ -11,9 +11,11 @@
 #include <vector>
 
 #include <gtest/gtest.h>
+
 #include <opencv2/core.hpp>
 
 #include "../support/random_values.h"
+#include "../support/same_bits.h"
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/imaging/capture_operator.h"
 #include "deblur_sr_mvs/core/imaging/normal_product.h"
@@ -44,11 +46,6 @@ SparseMatrixRM RandomRunOperator(int rows, int cols, std::mt19937* rng) {
   a.setFromTriplets(taps.begin(), taps.end());
   a.makeCompressed();
   return a;
-}
-
-bool SameBits(const cv::Mat& a, const cv::Mat& b) {
-  return a.size() == b.size() && a.type() == b.type() &&
-         std::memcmp(a.data, b.data, a.total() * a.elemSize()) == 0;
 }
 
 void ExpectSameCsr(const SparseMatrixRM& a, const SparseMatrixRM& b) {

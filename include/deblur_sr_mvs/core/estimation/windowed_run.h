@@ -1,0 +1,65 @@
+// A long sequence estimated offline in overlapping windows, as the node
+// streams it (StreamEstimator): memory and time grow with the window, not
+// with the sequence, so a clip of hundreds of frames runs where one window
+// of all its frames would not fit in memory. Every frame's outputs come
+// from the first window that estimates it, as the node publishes them.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "deblur_sr_mvs/core/estimation/estimator.h"
+#include "deblur_sr_mvs/core/estimation/stream.h"
+
+namespace deblur_sr_mvs {
+
+// How a sequence is cut into windows.
+struct WindowedRunOptions {
+  // Frames per window; a sequence of at most this many frames is one window
+  // (Estimator::Run on all of it). 0: always one window.
+  int window_size = 0;
+  // Frames shared by consecutive windows (StreamOptions::window_overlap);
+  // the last window ends at the last frame and may share more.
+  int window_overlap = 2;
+  void Check() const;  // throws InputError naming the bad value
+};
+
+// The frame ranges [first, last] of the windows of a sequence of
+// `num_frames` frames: the fewest windows of at most window_size frames
+// that cover it with window_overlap frames shared by neighbours, all of one
+// size (the last ends on the last frame and may share more). One window of
+// every frame when window_size is 0 or not below num_frames.
+struct FrameRange {
+  int first = 0;
+  int last = 0;
+};
+std::vector<FrameRange> WindowRanges(int num_frames, const WindowedRunOptions& options);
+
+// What one window of a windowed run did (for report.json).
+struct WindowRecord {
+  FrameRange frames;
+  int first_output = 0;  // sequence index of the first frame whose outputs come from this window
+  bool continued = false;
+  std::string note;  // WindowEstimate::note
+  std::vector<EnergyRecord> energies;
+  std::string initializer_summary;
+  std::vector<std::string> notes;
+};
+
+// Estimates `input` window after window with a StreamEstimator of
+// `options`, and returns one EstimatorResult for all frames: each frame's
+// latent image, depth, solver depth and pose from one window (of the frames
+// two windows share, the first half from the earlier and the rest from the
+// later window, where each has neighbours on both sides; the later window
+// holds their poses and restored images, so only their depth differs),
+// poses and depths in the first window's world and scale (
+// docs/file_formats.md#monocular-scale), stage timings summed over the
+// windows, energies and notes of every window in order, frame gains chained
+// across windows relative to the first frame. `windows` (optional) gets one
+// record per window. With one window this is Estimator::Run. Throws as the
+// Estimator does (InitializationError names the window's frames).
+EstimatorResult EstimateInWindows(const EstimatorInput& input, const EstimatorOptions& options,
+                                  const WindowedRunOptions& windowing, const ProgressCallback& progress,
+                                  std::vector<WindowRecord>* windows = nullptr);
+
+}  // namespace deblur_sr_mvs

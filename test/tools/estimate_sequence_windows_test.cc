@@ -1,0 +1,74 @@
+// estimate_sequence --window-size / --window-overlap (docs/tools.md#estimate_sequence):
+// a sequence longer than the window runs in overlapping windows, as the node
+// streams it; every frame gets its outputs, report.json lists the windows,
+// and an exposure measured on the first window applies to every frame.
+#include <unistd.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <string>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "tool_test_util.h"
+
+namespace deblur_sr_mvs {
+namespace {
+
+using test::ExpectOneLineError;
+using test::FileText;
+using test::RunTool;
+using test::ToolRun;
+
+int CountFiles(const std::string& folder) {
+  int count = 0;
+  for (const auto& entry : std::filesystem::directory_iterator(folder)) count += entry.is_regular_file();
+  return count;
+}
+
+TEST(EstimateSequenceWindows, LongerSequencesRunInWindowsAndEveryFrameIsWritten) {
+  const std::string folder = testing::TempDir() + "/dsm_windows_tool_" + std::to_string(::getpid());
+  const std::string input = folder + "/seq";
+  const std::string command = std::string(DSM_TOOL_DIR) + "/synthesize_sequence --scene " + DSM_SOURCE_DIR +
+                              "/data/middlebury/Dolls --output " + input +
+                              " --path handheld --frames 8 --hr-width 160 --hr-height 120 --subframes 60 "
+                              "--seed 2 > /dev/null";
+  ASSERT_EQ(std::system(command.c_str()), 0);
+
+  const ToolRun run =
+      RunTool("estimate_sequence", {"--input", input, "--output", folder + "/windows", "--window-size", "5",
+                                    "--iterations", "0", "--exposure", "auto", "--quiet"});
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  EXPECT_EQ(CountFiles(folder + "/windows/latent"), 8);
+  EXPECT_EQ(CountFiles(folder + "/windows/depth"), 8);
+  const nlohmann::json report = nlohmann::json::parse(FileText(folder + "/windows/report.json"));
+  const nlohmann::json& windows = report["windows"];
+  ASSERT_EQ(windows.size(), 2u) << report.dump();
+  EXPECT_EQ(windows[0]["first_frame"].get<int>(), 0);
+  EXPECT_EQ(windows[0]["last_frame"].get<int>(), 4);
+  EXPECT_EQ(windows[1]["first_frame"].get<int>(), 3);
+  EXPECT_EQ(windows[1]["last_frame"].get<int>(), 7);
+  EXPECT_EQ(windows[1]["first_output_frame"].get<int>(), 4);
+  EXPECT_TRUE(windows[1]["continued"].get<bool>()) << windows[1].dump();
+  EXPECT_EQ(report["frame_gains"].size(), 8u);
+  EXPECT_EQ(report["exposure_estimate"]["frame_exposures"].size(), 8u);
+
+  // Up to the default window (30 frames) the sequence is one window.
+  const ToolRun whole = RunTool(
+      "estimate_sequence", {"--input", input, "--output", folder + "/whole", "--iterations", "0", "--quiet"});
+  ASSERT_EQ(whole.exit_code, 0) << whole.err;
+  const nlohmann::json one = nlohmann::json::parse(FileText(folder + "/whole/report.json"))["windows"];
+  ASSERT_EQ(one.size(), 1u);
+  EXPECT_EQ(one[0]["last_frame"].get<int>(), 7);
+
+  ExpectOneLineError("estimate_sequence", {"--input", input, "--output", folder + "/bad", "--window-size", "2"},
+                     "--window-size");
+  ExpectOneLineError("estimate_sequence",
+                     {"--input", input, "--output", folder + "/bad", "--window-size", "5", "--window-overlap", "5"},
+                     "--window-overlap");
+  std::filesystem::remove_all(folder);
+}
+
+}  // namespace
+}  // namespace deblur_sr_mvs
