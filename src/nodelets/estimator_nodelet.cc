@@ -10,6 +10,7 @@
 #include <pluginlib/class_list_macros.hpp>
 
 #include "deblur_sr_mvs/core/common/text.h"
+#include "deblur_sr_mvs/core/common/weighted_median.h"
 #include "deblur_sr_mvs/core/estimation/depth_confidence.h"
 #include "deblur_sr_mvs/core/estimation/exposure_estimation.h"
 #include "deblur_sr_mvs/core/estimation/initializer.h"
@@ -84,22 +85,6 @@ std::string PercentText(double fraction) {
   char text[32];
   std::snprintf(text, sizeof(text), "%.2g %%", 100.0 * fraction);
   return text;
-}
-
-// The value at which the weights of (value, weight) pairs reach half their
-// sum, in increasing value; the plain median when every weight is 0; 0 for none.
-double WeightedMedian(std::vector<std::pair<double, double>> samples) {
-  if (samples.empty()) return 0.0;
-  std::sort(samples.begin(), samples.end());
-  double total = 0.0;
-  for (const auto& sample : samples) total += std::max(sample.second, 0.0);
-  if (!(total > 0.0)) return samples[samples.size() / 2].first;
-  double sum = 0.0;
-  for (const auto& sample : samples) {
-    sum += std::max(sample.second, 0.0);
-    if (sum >= 0.5 * total) return sample.first;
-  }
-  return samples.back().first;
 }
 
 }  // namespace

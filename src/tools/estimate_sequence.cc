@@ -23,6 +23,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/common/weighted_median.h"
 #include "deblur_sr_mvs/core/common/runtime.h"
 #include "deblur_sr_mvs/core/estimation/depth_confidence.h"
 #include "deblur_sr_mvs/core/estimation/estimator.h"
@@ -467,25 +468,11 @@ dsm::EstimatorInput ReadInput(const std::string& input, std::string* camera_name
   return estimator_input;
 }
 
-// The frames of the first window `windowing` cuts from `input` (all of it
-// when it is one window).
-dsm::EstimatorInput FirstWindowOf(const dsm::EstimatorInput& input, const dsm::WindowedRunOptions& windowing) {
-  const dsm::FrameRange first = dsm::WindowRanges(static_cast<int>(input.images.size()), windowing).front();
-  const int count = first.last + 1;
-  if (count == static_cast<int>(input.images.size())) return input;
-  dsm::EstimatorInput window;
-  window.camera = input.camera;
-  window.readout_time = input.readout_time;
-  window.images.assign(input.images.begin(), input.images.begin() + count);
-  window.frames.assign(input.frames.begin(), input.frames.begin() + count);
-  if (!input.T_prior_cam.empty()) window.T_prior_cam.assign(input.T_prior_cam.begin(), input.T_prior_cam.begin() + count);
-  return window;
-}
-
 // Runs the estimator with a progress bar on stderr when it is a terminal.
 dsm::EstimatorResult Estimate(const dsm::EstimatorOptions& options, const dsm::EstimatorInput& input,
                               const std::string& input_folder, const dsm::WindowedRunOptions& windowing,
-                              bool quiet, std::vector<dsm::WindowRecord>* windows) {
+                              bool quiet, std::vector<dsm::WindowRecord>* windows,
+                              const dsm::WindowPreparation& prepare) {
   const bool draw = !quiet && isatty(STDERR_FILENO);
   dsm::ProgressCallback progress = [&](double fraction, const std::string& what) {
     if (!draw) return;
@@ -498,7 +485,7 @@ dsm::EstimatorResult Estimate(const dsm::EstimatorOptions& options, const dsm::E
   };
   dsm::EstimatorResult result;
   try {
-    result = dsm::EstimateInWindows(input, options, windowing, progress, windows);
+    result = dsm::EstimateInWindows(input, options, windowing, progress, windows, prepare);
   } catch (const dsm::InitializationError& error) {
     if (draw) std::fprintf(stderr, "\n");
     throw dsm::InputError(input_folder + ": initialisation failed: " + error.what());
@@ -541,6 +528,60 @@ dsm::ReadoutEstimate EstimateReadout(const dsm::EstimatorOptions& options, const
   }
 }
 
+// --readout-time auto over the windows `ranges` cuts: each window's frames
+// measure it (EstimateReadout); the sharpness-weighted median of the
+// measurements, as the node takes it over its windows, is the sensor's and
+// is written into `input`. One window: its measurement as it is.
+dsm::ReadoutEstimate MeasureReadout(const dsm::EstimatorOptions& options, const std::string& input_folder,
+                                    const std::vector<dsm::FrameRange>& ranges, dsm::EstimatorInput* input) {
+  if (ranges.size() <= 1) return EstimateReadout(options, input_folder, input);
+  std::vector<dsm::ReadoutEstimate> estimates;
+  std::vector<std::pair<double, double>> samples;
+  for (const dsm::FrameRange& range : ranges) {
+    dsm::EstimatorInput window = dsm::WindowInputOf(*input, range);
+    estimates.push_back(EstimateReadout(options, input_folder, &window));
+    samples.emplace_back(estimates.back().seconds, estimates.back().sharpness);
+  }
+  // The report keeps the sharpest window's cost curve, with the seconds used.
+  dsm::ReadoutEstimate combined = *std::max_element(
+      estimates.begin(), estimates.end(), [](const auto& a, const auto& b) { return a.sharpness < b.sharpness; });
+  const double per_second = combined.seconds > 0.0 ? combined.fraction / combined.seconds : 0.0;
+  combined.seconds = dsm::WeightedMedian(samples);
+  combined.fraction = combined.seconds * per_second;
+  combined.measured = combined.seconds > 0.0;
+  std::string each;
+  combined.elapsed_seconds = 0.0;
+  for (const dsm::ReadoutEstimate& estimate : estimates) {
+    combined.elapsed_seconds += estimate.elapsed_seconds;
+    each += (each.empty() ? "" : ", ") + std::to_string(estimate.seconds) + " s";
+  }
+  combined.summary = "sharpness-weighted median of " + std::to_string(estimates.size()) +
+                     " windows' measurements (" + each + "): " + std::to_string(combined.seconds) +
+                     " s; the sharpest window: " + combined.summary;
+  input->readout_time = combined.seconds;
+  return combined;
+}
+
+// --exposure auto over windows: the first window's estimate, with each
+// frame's exposure as the window that gave its outputs measured it, and the
+// time of every window's measurement.
+dsm::ExposureEstimate CombinedExposure(const std::vector<dsm::ExposureEstimate>& estimates,
+                                       const std::vector<dsm::WindowRecord>& windows) {
+  dsm::ExposureEstimate combined = estimates.front();
+  if (estimates.size() <= 1 || estimates.size() != windows.size()) return combined;
+  combined.frame_exposures.clear();
+  combined.elapsed_seconds = 0.0;
+  for (size_t w = 0; w < windows.size(); ++w) {
+    combined.elapsed_seconds += estimates[w].elapsed_seconds;
+    const int end = w + 1 < windows.size() ? windows[w + 1].first_output : windows[w].frames.last + 1;
+    for (int t = windows[w].first_output; t < end; ++t) {
+      combined.frame_exposures.push_back(estimates[w].frame_exposures[t - windows[w].frames.first]);
+    }
+  }
+  combined.summary = "per window (" + std::to_string(windows.size()) + "); the first: " + combined.summary;
+  return combined;
+}
+
 // report.json's "readout_estimate" object (null without --readout-time auto).
 dsm::Json ReadoutEstimateJson(const dsm::ReadoutEstimate& estimate) {
   dsm::Json cost = dsm::Json::array();
@@ -558,9 +599,11 @@ dsm::Json ReadoutEstimateJson(const dsm::ReadoutEstimate& estimate) {
 // report.json's "windows" array: the frames of each window, the first whose
 // outputs it gave, how it continued the previous one, its energies' first
 // and last totals.
-dsm::Json WindowsJson(const std::vector<dsm::WindowRecord>& windows) {
+dsm::Json WindowsJson(const std::vector<dsm::WindowRecord>& windows,
+                      const std::vector<dsm::ExposureEstimate>& exposures) {
   dsm::Json list = dsm::Json::array();
-  for (const dsm::WindowRecord& window : windows) {
+  for (size_t w = 0; w < windows.size(); ++w) {
+    const dsm::WindowRecord& window = windows[w];
     const double first = window.energies.empty() ? NAN : window.energies.front().total;
     const double last = window.energies.empty() ? NAN : window.energies.back().total;
     list.push_back({{"first_frame", window.frames.first},
@@ -570,6 +613,8 @@ dsm::Json WindowsJson(const std::vector<dsm::WindowRecord>& windows) {
                     {"note", window.note},
                     {"energy_first", dsm::JsonNumber(first)},
                     {"energy_last", dsm::JsonNumber(last)}});
+    // With --exposure auto, the exposure fraction measured on its frames.
+    if (w < exposures.size()) list.back()["exposure_fraction"] = dsm::JsonNumber(exposures[w].fraction);
   }
   return list;
 }
@@ -741,20 +786,18 @@ int Run(int argc, char** argv) {
   const auto start = std::chrono::steady_clock::now();
   std::string camera_name;
   dsm::EstimatorInput input = ReadInput(flags.input, &camera_name);
-  // A sequence estimated in windows measures its readout and exposure on
-  // the first window's frames, as the node's first window does.
-  dsm::EstimatorInput first_window = FirstWindowOf(input, flags.windowing);
+  const std::vector<dsm::FrameRange> ranges =
+      dsm::WindowRanges(static_cast<int>(input.images.size()), flags.windowing);
   std::optional<dsm::ReadoutEstimate> readout;
-  if (flags.readout_time == "auto") {
-    readout = EstimateReadout(options, flags.input, &first_window);
-    input.readout_time = first_window.readout_time;
-  }
-  std::optional<dsm::ExposureEstimate> exposure;
+  if (flags.readout_time == "auto") readout = MeasureReadout(options, flags.input, ranges, &input);
+  // --exposure auto: measured on each window's frames before it is
+  // estimated, as the node does (auto-exposure changes along a clip).
+  std::vector<dsm::ExposureEstimate> window_exposures;
+  dsm::WindowPreparation prepare;
   if (flags.exposure == "auto") {
-    exposure = EstimateExposure(options, flags.input, &first_window);
-    input.frames = dsm::WithExposureFraction(input.frames, exposure->fraction);
-    exposure->frame_exposures.clear();
-    for (const dsm::FrameRecord& frame : input.frames) exposure->frame_exposures.push_back(frame.exposure);
+    prepare = [&](int, dsm::EstimatorInput* window_input) {
+      window_exposures.push_back(EstimateExposure(options, flags.input, window_input));
+    };
   }
   std::vector<std::optional<dsm::SE3>> prior;
   if (!flags.pose_prior.empty()) {
@@ -762,9 +805,17 @@ int Run(int argc, char** argv) {
     input.T_prior_cam = prior;
   }
   std::vector<dsm::WindowRecord> windows;
-  dsm::EstimatorResult result = Estimate(options, input, flags.input, flags.windowing, flags.quiet, &windows);
-  if (exposure)
+  dsm::EstimatorResult result =
+      Estimate(options, input, flags.input, flags.windowing, flags.quiet, &windows, prepare);
+  std::optional<dsm::ExposureEstimate> exposure;
+  if (!window_exposures.empty()) {
+    exposure = CombinedExposure(window_exposures, windows);
+    // The result's frames.csv gets the exposures the outputs were estimated with.
+    for (size_t t = 0; t < input.frames.size() && t < exposure->frame_exposures.size(); ++t) {
+      input.frames[t].exposure = exposure->frame_exposures[t];
+    }
     result.timings.insert(result.timings.begin(), {"exposure estimation", exposure->elapsed_seconds});
+  }
   if (readout) result.timings.insert(result.timings.begin(), {"readout estimation", readout->elapsed_seconds});
   const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
@@ -780,7 +831,7 @@ int Run(int argc, char** argv) {
                                 {"coverage", dsm::JsonNumber(depth_coverage)}};
   report["exposure_estimate"] = exposure ? ExposureEstimateJson(*exposure) : dsm::Json();
   report["readout_estimate"] = readout ? ReadoutEstimateJson(*readout) : dsm::Json();
-  report["windows"] = WindowsJson(windows);
+  report["windows"] = WindowsJson(windows, window_exposures);
   if (!flags.pose_prior.empty()) {
     const dsm::PriorAlignment alignment = ApplyPosePrior(prior, &out);
     report["pose_prior"] = PosePriorJson(flags.pose_prior, alignment);

@@ -1,7 +1,7 @@
 // estimate_sequence --window-size / --window-overlap (docs/tools.md#estimate_sequence):
 // a sequence longer than the window runs in overlapping windows, as the node
 // streams it; every frame gets its outputs, report.json lists the windows,
-// and an exposure measured on the first window applies to every frame.
+// and the exposure and the readout time are measured per window.
 #include <unistd.h>
 
 #include <cstdlib>
@@ -11,6 +11,7 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include "deblur_sr_mvs/core/io/sequence_io.h"
 #include "tool_test_util.h"
 
 namespace deblur_sr_mvs {
@@ -38,7 +39,7 @@ TEST(EstimateSequenceWindows, LongerSequencesRunInWindowsAndEveryFrameIsWritten)
 
   const ToolRun run =
       RunTool("estimate_sequence", {"--input", input, "--output", folder + "/windows", "--window-size", "5",
-                                    "--iterations", "0", "--exposure", "auto", "--quiet"});
+                                    "--iterations", "0", "--exposure", "auto", "--readout-time", "auto", "--quiet"});
   ASSERT_EQ(run.exit_code, 0) << run.err;
   EXPECT_EQ(CountFiles(folder + "/windows/latent"), 8);
   EXPECT_EQ(CountFiles(folder + "/windows/depth"), 8);
@@ -52,7 +53,21 @@ TEST(EstimateSequenceWindows, LongerSequencesRunInWindowsAndEveryFrameIsWritten)
   EXPECT_EQ(windows[1]["first_output_frame"].get<int>(), 4);
   EXPECT_TRUE(windows[1]["continued"].get<bool>()) << windows[1].dump();
   EXPECT_EQ(report["frame_gains"].size(), 8u);
+  // The exposure is measured on each window's frames (0.8 of the frame
+  // interval, the synthesizer's default), the readout on each window and
+  // combined (a global shutter: 0).
   EXPECT_EQ(report["exposure_estimate"]["frame_exposures"].size(), 8u);
+  for (const nlohmann::json& window : windows) {
+    EXPECT_NEAR(window["exposure_fraction"].get<double>(), 0.8, 0.08) << window.dump();
+  }
+  const std::vector<FrameRecord> written = ReadFramesCsv(folder + "/windows/frames.csv");
+  ASSERT_EQ(written.size(), 8u);
+  for (size_t t = 0; t < written.size(); ++t)
+    EXPECT_DOUBLE_EQ(written[t].exposure, report["exposure_estimate"]["frame_exposures"][t].get<double>());
+  const nlohmann::json& readout = report["readout_estimate"];
+  EXPECT_NE(readout["summary"].get<std::string>().find("2 windows' measurements"), std::string::npos)
+      << readout.dump();
+  EXPECT_LT(readout["seconds"].get<double>(), 0.1 / 30.0);
 
   // Up to the default window (30 frames) the sequence is one window.
   const ToolRun whole = RunTool(

@@ -35,24 +35,36 @@ std::vector<FrameRange> WindowRanges(int num_frames, const WindowedRunOptions& o
   return ranges;
 }
 
+EstimatorInput WindowInputOf(const EstimatorInput& input, const FrameRange& range) {
+  EstimatorInput window;
+  window.camera = input.camera;
+  window.readout_time = input.readout_time;
+  window.images.assign(input.images.begin() + range.first, input.images.begin() + range.last + 1);
+  window.frames.assign(input.frames.begin() + range.first, input.frames.begin() + range.last + 1);
+  if (!input.T_prior_cam.empty()) {
+    window.T_prior_cam.assign(input.T_prior_cam.begin() + range.first, input.T_prior_cam.begin() + range.last + 1);
+  }
+  return window;
+}
+
 namespace {
 
 std::string FramesText(const FrameRange& range) {
   return "frames " + std::to_string(range.first) + "-" + std::to_string(range.last);
 }
 
-// The window's frames of `input` as the stream takes them (ids = sequence indices).
-StreamWindow WindowFrames(const EstimatorInput& input, const FrameRange& range) {
+// A window's input as the stream takes it (ids = sequence indices).
+StreamWindow StreamFramesOf(const EstimatorInput& window_input, const FrameRange& range) {
   StreamWindow window;
-  for (int t = range.first; t <= range.last; ++t) {
+  for (size_t i = 0; i < window_input.images.size(); ++i) {
     StreamFrame frame;
-    frame.id = static_cast<uint64_t>(t);
-    frame.stamp_ns = static_cast<int64_t>(t);
-    frame.stamp_close = input.frames[t].stamp;
-    frame.exposure = input.frames[t].exposure;
-    frame.readout_time = input.readout_time;
-    frame.image = input.images[t];
-    if (static_cast<size_t>(t) < input.T_prior_cam.size()) frame.T_prior_cam = input.T_prior_cam[t];
+    frame.id = static_cast<uint64_t>(range.first + i);
+    frame.stamp_ns = static_cast<int64_t>(range.first + i);
+    frame.stamp_close = window_input.frames[i].stamp;
+    frame.exposure = window_input.frames[i].exposure;
+    frame.readout_time = window_input.readout_time;
+    frame.image = window_input.images[i];
+    if (i < window_input.T_prior_cam.size()) frame.T_prior_cam = window_input.T_prior_cam[i];
     window.push_back(std::move(frame));
   }
   return window;
@@ -115,7 +127,7 @@ void Append(const WindowEstimate& estimate, const FrameRange& range, int take_fr
 
 EstimatorResult EstimateInWindows(const EstimatorInput& input, const EstimatorOptions& options,
                                   const WindowedRunOptions& windowing, const ProgressCallback& progress,
-                                  std::vector<WindowRecord>* windows) {
+                                  std::vector<WindowRecord>* windows, const WindowPreparation& prepare) {
   const int num_frames = static_cast<int>(input.images.size());
   if (static_cast<int>(input.frames.size()) != num_frames) {
     throw InputError("EstimateInWindows: one frame record per image needed");
@@ -123,7 +135,9 @@ EstimatorResult EstimateInWindows(const EstimatorInput& input, const EstimatorOp
   const std::vector<FrameRange> ranges = WindowRanges(num_frames, windowing);
   if (windows) windows->clear();
   if (ranges.size() <= 1) {
-    EstimatorResult result = Estimator(options).Run(input, progress);
+    EstimatorInput prepared = input;
+    if (prepare && !ranges.empty()) prepare(0, &prepared);
+    EstimatorResult result = Estimator(options).Run(prepared, progress);
     if (windows && !ranges.empty()) {
       windows->push_back({ranges.front(), 0, false, "one window of every frame", result.energies,
                           result.initializer_summary, result.notes});
@@ -145,7 +159,9 @@ EstimatorResult EstimateInWindows(const EstimatorInput& input, const EstimatorOp
     }
     WindowEstimate estimate;
     try {
-      estimate = stream.Process(WindowFrames(input, range), input.camera, window_progress);
+      EstimatorInput window_input = WindowInputOf(input, range);
+      if (prepare) prepare(static_cast<int>(w), &window_input);
+      estimate = stream.Process(StreamFramesOf(window_input, range), input.camera, window_progress);
     } catch (const InitializationError& error) {
       throw InitializationError(FramesText(range) + ": " + error.what());
     }

@@ -5,6 +5,7 @@
 // from the first window that estimates it, as the node publishes them.
 #pragma once
 
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -35,6 +36,15 @@ struct FrameRange {
 };
 std::vector<FrameRange> WindowRanges(int num_frames, const WindowedRunOptions& options);
 
+// The frames `range` of `input` as an input of their own (camera, readout
+// time and pose priors as `input`'s).
+EstimatorInput WindowInputOf(const EstimatorInput& input, const FrameRange& range);
+
+// Called with each window's index and input before the window is estimated:
+// the caller may set its frames' exposures and its readout time (e.g.
+// measured on those frames, as the node does per window).
+using WindowPreparation = std::function<void(int window, EstimatorInput* window_input)>;
+
 // What one window of a windowed run did (for report.json).
 struct WindowRecord {
   FrameRange frames;
@@ -56,10 +66,12 @@ struct WindowRecord {
 // docs/file_formats.md#monocular-scale), stage timings summed over the
 // windows, energies and notes of every window in order, frame gains chained
 // across windows relative to the first frame. `windows` (optional) gets one
-// record per window. With one window this is Estimator::Run. Throws as the
+// record per window; `prepare` (optional) sees each window's input first.
+// With one window this is Estimator::Run. Throws as the
 // Estimator does (InitializationError names the window's frames).
 EstimatorResult EstimateInWindows(const EstimatorInput& input, const EstimatorOptions& options,
                                   const WindowedRunOptions& windowing, const ProgressCallback& progress,
-                                  std::vector<WindowRecord>* windows = nullptr);
+                                  std::vector<WindowRecord>* windows = nullptr,
+                                  const WindowPreparation& prepare = nullptr);
 
 }  // namespace deblur_sr_mvs
