@@ -23,8 +23,8 @@
 #include <opencv2/imgproc.hpp>
 
 #include "deblur_sr_mvs/core/common/errors.h"
-#include "deblur_sr_mvs/core/common/weighted_median.h"
 #include "deblur_sr_mvs/core/common/runtime.h"
+#include "deblur_sr_mvs/core/common/weighted_median.h"
 #include "deblur_sr_mvs/core/estimation/depth_confidence.h"
 #include "deblur_sr_mvs/core/estimation/estimator.h"
 #include "deblur_sr_mvs/core/estimation/exposure_estimation.h"
@@ -545,7 +545,10 @@ dsm::ReadoutEstimate MeasureReadout(const dsm::EstimatorOptions& options, const 
   // The report keeps the sharpest window's cost curve, with the seconds used.
   dsm::ReadoutEstimate combined = *std::max_element(
       estimates.begin(), estimates.end(), [](const auto& a, const auto& b) { return a.sharpness < b.sharpness; });
-  const double per_second = combined.seconds > 0.0 ? combined.fraction / combined.seconds : 0.0;
+  double per_second = 0.0;  // fraction per second: 1 / the frame interval
+  for (const dsm::ReadoutEstimate& estimate : estimates) {
+    if (estimate.seconds > 0.0) per_second = estimate.fraction / estimate.seconds;
+  }
   combined.seconds = dsm::WeightedMedian(samples);
   combined.fraction = combined.seconds * per_second;
   combined.measured = combined.seconds > 0.0;

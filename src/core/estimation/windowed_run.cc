@@ -172,13 +172,15 @@ EstimatorResult EstimateInWindows(const EstimatorInput& input, const EstimatorOp
     // Of the frames two windows share, the earlier window gives out the
     // first half, the later one the rest: each from the window in which it
     // has neighbours on both sides (a window's last frame is matched from
-    // one side only; its depth came out 2.3x worse in the test). A shared
-    // frame keeps its pose and restored image in the later window (held);
-    // its depth is estimated again. A window that could not continue the
-    // trajectory (a new segment, in its own world and scale) gives only
-    // the frames no earlier window gave.
+    // one side only: in the test its depth rel. error is 0.052 from the
+    // earlier window, 0.035 from the later). A shared frame keeps its pose
+    // and restored image in the later window (held); its depth is
+    // estimated again. A window that could not continue the trajectory (a
+    // new segment, in its own world and scale) or has no depth (no
+    // parallax) gives only the frames no earlier window gave.
     const int shared = w == 0 ? 0 : ranges[w - 1].last - range.first + 1;
-    const int take_from = estimate.continued ? (shared + 1) / 2 : shared;
+    const int take_from =
+        estimate.continued && estimate.result.depth_observable ? (shared + 1) / 2 : shared;
     Append(estimate, range, take_from, &result);
     noise_sigma_sum += estimate.result.noise_sigma;
     lambda_i_sum += estimate.result.image_lambda_i;
@@ -188,8 +190,8 @@ EstimatorResult EstimateInWindows(const EstimatorInput& input, const EstimatorOp
                           estimate.result.notes});
     }
   }
-  // Gains chain through the shared frames; a window without them (a frame
-  // too dark or bright to read) leaves no gain for the sequence.
+  // Gains chain through the shared frames; a window without them (its
+  // frames' gains could not be read) leaves no gain for the sequence.
   if (result.frame_gains.size() != result.latent.size()) result.frame_gains.clear();
   result.noise_sigma = noise_sigma_sum / ranges.size();
   result.image_lambda_i = lambda_i_sum / ranges.size();

@@ -1,8 +1,10 @@
 // A long sequence estimated offline in overlapping windows, as the node
 // streams it (StreamEstimator): memory and time grow with the window, not
 // with the sequence, so a clip of hundreds of frames runs where one window
-// of all its frames would not fit in memory. Every frame's outputs come
-// from the first window that estimates it, as the node publishes them.
+// of all its frames would not fit in memory. Unlike the node, which
+// publishes a frame with the first window that estimates it, a frame that
+// two windows share is taken from the window where it has neighbours on
+// both sides (EstimateInWindows).
 #pragma once
 
 #include <functional>
