@@ -48,15 +48,23 @@ constexpr char kDescription[] =
     "lambda_s 30, lambda_d 0.1 (see README), lambda_i 0.45, neighbours 1; pose-neighbours 2,\n"
     "structure-matching both (see README); threads 0 = all cores.";
 
-// --window-size, --window-overlap: a sequence of up to kWholeSequenceFrames
-// frames is one window (the joint problem of eq:jointEnergy over all of
-// them); a longer one runs in windows of that many sharing 2 frames.
-constexpr int kWholeSequenceFrames = 30;
-dsm::WindowedRunOptions DefaultWindowing() {
-  dsm::WindowedRunOptions windowing;
-  windowing.window_size = kWholeSequenceFrames;
-  windowing.window_overlap = 2;
-  return windowing;
+// --window-size auto: the most frames (at most the stream's 64) whose
+// estimated memory, kBytesPerHrValue per HR pixel and channel and frame,
+// stays within kWindowMemoryBytes, and at least kMinAutoWindow. Measured
+// peaks: 145-149 bytes per HR value at 640x480 HR in colour (10 frames,
+// 1.25-1.28 GiB), 100-118 at 320x240 (24 and 60 frames; BENCHMARKS.md
+// "Window size by memory"). So a colour sequence of up to 58 frames at
+// 640x480 HR (64 at 320x240) is one window, as before; a longer one runs in
+// windows.
+constexpr double kBytesPerHrValue = 160.0;
+constexpr double kWindowMemoryBytes = 8.0 * 1024 * 1024 * 1024;
+constexpr int kMinAutoWindow = 10;
+constexpr int kMaxWindow = 64;  // StreamOptions::Check's bound
+int AutoWindowSize(const dsm::EstimatorInput& input, int scale) {
+  const double values = static_cast<double>(input.camera.width) * input.camera.height * scale * scale *
+                        (input.images.empty() ? 1 : input.images.front().channels());
+  const double frames = std::floor(kWindowMemoryBytes / (kBytesPerHrValue * values));
+  return static_cast<int>(std::clamp(frames, static_cast<double>(kMinAutoWindow), static_cast<double>(kMaxWindow)));
 }
 
 struct Flags {
@@ -71,9 +79,11 @@ struct Flags {
   bool fixed_samples = false;
   bool quiet = false;
   int output_scale = 1;  // bicubic up-sampling of the outputs ("w/o SR + Bic.")
-  // Longer sequences are estimated in windows of this many frames, as the
-  // node streams them (EstimateInWindows); 0: one window of every frame.
-  dsm::WindowedRunOptions windowing = DefaultWindowing();
+  // Longer sequences are estimated in windows of at most this many frames,
+  // as the node streams them (EstimateInWindows); 0: one window of every
+  // frame; "auto": AutoWindowSize.
+  std::string window_size = "auto";
+  dsm::WindowedRunOptions windowing;
   // Depth whose confidence is below this is written as NaN (0: all depth).
   double depth_confidence_threshold = dsm::DepthConfidenceOptions().threshold;
 };
@@ -96,14 +106,13 @@ double ParseNoiseSigma(const std::string& text) {
 
 // --window-size, --window-overlap.
 void AddWindowOptions(dsm::ToolCommandLine* cli, Flags* flags) {
-  cli->add_option("--window-size", flags->windowing.window_size,
-                  "a sequence of more frames is estimated in overlapping windows of at most this many, as the "
-                  "node streams it: memory grows with the window, not the sequence; 0: one window of every "
-                  "frame (default " + std::to_string(DefaultWindowing().window_size) + ")")
-      ->check(dsm::FlagInt(0, 64));
+  cli->add_option("--window-size", flags->window_size,
+                  "a sequence of more frames is estimated in overlapping windows of at most this many (3-64), "
+                  "as the node streams it: memory grows with the window, not the sequence; 0: one window of "
+                  "every frame; auto (default): the most frames, up to 64, that fit in about 8 GiB (at least "
+                  "10)");
   cli->add_option("--window-overlap", flags->windowing.window_overlap,
-                  "with --window-size: frames shared by consecutive windows, 2 .. window size - 1 (default " +
-                      std::to_string(DefaultWindowing().window_overlap) + ")")
+                  "with --window-size: frames shared by consecutive windows, 2 .. window size - 1 (default 2)")
       ->check(dsm::FlagInt(2, 63));
 }
 
@@ -114,6 +123,26 @@ void CheckWindowing(const dsm::WindowedRunOptions& windowing) {
   } catch (const dsm::InputError& error) {
     throw dsm::InputError(std::string("--window-size / --window-overlap: ") + error.what());
   }
+}
+
+// --window-size: -1 for "auto", else 0 or 3-64 (InputError otherwise).
+int ParseWindowSize(const std::string& text) {
+  if (text == "auto") return -1;
+  char* end = nullptr;
+  const long size = std::strtol(text.c_str(), &end, 10);
+  if (end == text.c_str() || *end != '\0' || size < 0 || size > kMaxWindow) {
+    throw dsm::InputError("--window-size: expected auto or a whole number of frames in [0, 64], got '" + text +
+                          "'");
+  }
+  return static_cast<int>(size);
+}
+
+// The windows of this input: --window-size auto resolved (AutoWindowSize).
+dsm::WindowedRunOptions Windowing(const Flags& flags, const dsm::EstimatorInput& input, int scale) {
+  dsm::WindowedRunOptions windowing = flags.windowing;
+  if (windowing.window_size < 0) windowing.window_size = AutoWindowSize(input, scale);
+  CheckWindowing(windowing);
+  return windowing;
 }
 
 // --pose-prior and the weights of its poses in the initialisation and the
@@ -448,7 +477,8 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   options->adaptive_samples = !flags->fixed_samples;
   options->noise_sigma = ParseNoiseSigma(flags->noise_sigma);
   options->Check();
-  CheckWindowing(flags->windowing);
+  flags->windowing.window_size = ParseWindowSize(flags->window_size);
+  if (flags->windowing.window_size >= 0) CheckWindowing(flags->windowing);
   return true;
 }
 
@@ -583,6 +613,21 @@ dsm::ExposureEstimate CombinedExposure(const std::vector<dsm::ExposureEstimate>&
   }
   combined.summary = "per window (" + std::to_string(windows.size()) + "); the first: " + combined.summary;
   return combined;
+}
+
+// With --exposure auto (`window_exposures` not empty): the combined
+// estimate; the frames (for the result's frames.csv) get the exposures
+// their outputs were estimated with, the timings the measurements' time.
+std::optional<dsm::ExposureEstimate> UseExposures(const std::vector<dsm::ExposureEstimate>& window_exposures,
+                                                  const std::vector<dsm::WindowRecord>& windows,
+                                                  dsm::EstimatorInput* input, dsm::EstimatorResult* result) {
+  if (window_exposures.empty()) return std::nullopt;
+  dsm::ExposureEstimate exposure = CombinedExposure(window_exposures, windows);
+  for (size_t t = 0; t < input->frames.size() && t < exposure.frame_exposures.size(); ++t) {
+    input->frames[t].exposure = exposure.frame_exposures[t];
+  }
+  result->timings.insert(result->timings.begin(), {"exposure estimation", exposure.elapsed_seconds});
+  return exposure;
 }
 
 // report.json's "readout_estimate" object (null without --readout-time auto).
@@ -789,8 +834,8 @@ int Run(int argc, char** argv) {
   const auto start = std::chrono::steady_clock::now();
   std::string camera_name;
   dsm::EstimatorInput input = ReadInput(flags.input, &camera_name);
-  const std::vector<dsm::FrameRange> ranges =
-      dsm::WindowRanges(static_cast<int>(input.images.size()), flags.windowing);
+  const dsm::WindowedRunOptions windowing = Windowing(flags, input, options.scale);
+  const std::vector<dsm::FrameRange> ranges = dsm::WindowRanges(static_cast<int>(input.images.size()), windowing);
   std::optional<dsm::ReadoutEstimate> readout;
   if (flags.readout_time == "auto") readout = MeasureReadout(options, flags.input, ranges, &input);
   // --exposure auto: measured on each window's frames before it is
@@ -809,16 +854,8 @@ int Run(int argc, char** argv) {
   }
   std::vector<dsm::WindowRecord> windows;
   dsm::EstimatorResult result =
-      Estimate(options, input, flags.input, flags.windowing, flags.quiet, &windows, prepare);
-  std::optional<dsm::ExposureEstimate> exposure;
-  if (!window_exposures.empty()) {
-    exposure = CombinedExposure(window_exposures, windows);
-    // The result's frames.csv gets the exposures the outputs were estimated with.
-    for (size_t t = 0; t < input.frames.size() && t < exposure->frame_exposures.size(); ++t) {
-      input.frames[t].exposure = exposure->frame_exposures[t];
-    }
-    result.timings.insert(result.timings.begin(), {"exposure estimation", exposure->elapsed_seconds});
-  }
+      Estimate(options, input, flags.input, windowing, flags.quiet, &windows, prepare);
+  const std::optional<dsm::ExposureEstimate> exposure = UseExposures(window_exposures, windows, &input, &result);
   if (readout) result.timings.insert(result.timings.begin(), {"readout estimation", readout->elapsed_seconds});
   const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
@@ -834,6 +871,7 @@ int Run(int argc, char** argv) {
                                 {"coverage", dsm::JsonNumber(depth_coverage)}};
   report["exposure_estimate"] = exposure ? ExposureEstimateJson(*exposure) : dsm::Json();
   report["readout_estimate"] = readout ? ReadoutEstimateJson(*readout) : dsm::Json();
+  report["window_size"] = windowing.window_size;
   report["windows"] = WindowsJson(windows, window_exposures);
   if (!flags.pose_prior.empty()) {
     const dsm::PriorAlignment alignment = ApplyPosePrior(prior, &out);

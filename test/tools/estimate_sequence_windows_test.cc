@@ -69,15 +69,22 @@ TEST(EstimateSequenceWindows, LongerSequencesRunInWindowsAndEveryFrameIsWritten)
       << readout.dump();
   EXPECT_LT(readout["seconds"].get<double>(), 0.1 / 30.0);
 
-  // Up to the default window (30 frames) the sequence is one window.
+  EXPECT_EQ(report["window_size"].get<int>(), 5);
+
+  // --window-size auto (the default): at 160x120 HR in colour 8 GiB holds
+  // far more than the stream's 64 frames, so the sequence is one window.
   const ToolRun whole = RunTool(
       "estimate_sequence", {"--input", input, "--output", folder + "/whole", "--iterations", "0", "--quiet"});
   ASSERT_EQ(whole.exit_code, 0) << whole.err;
-  const nlohmann::json one = nlohmann::json::parse(FileText(folder + "/whole/report.json"))["windows"];
+  const nlohmann::json whole_report = nlohmann::json::parse(FileText(folder + "/whole/report.json"));
+  EXPECT_EQ(whole_report["window_size"].get<int>(), 64);
+  const nlohmann::json& one = whole_report["windows"];
   ASSERT_EQ(one.size(), 1u);
   EXPECT_EQ(one[0]["last_frame"].get<int>(), 7);
 
   ExpectOneLineError("estimate_sequence", {"--input", input, "--output", folder + "/bad", "--window-size", "2"},
+                     "--window-size");
+  ExpectOneLineError("estimate_sequence", {"--input", input, "--output", folder + "/bad", "--window-size", "many"},
                      "--window-size");
   ExpectOneLineError("estimate_sequence",
                      {"--input", input, "--output", folder + "/bad", "--window-size", "5", "--window-overlap", "5"},
