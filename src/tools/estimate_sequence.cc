@@ -64,7 +64,8 @@ int AutoWindowSize(const dsm::EstimatorInput& input, int scale) {
   const double values = static_cast<double>(input.camera.width) * input.camera.height * scale * scale *
                         (input.images.empty() ? 1 : input.images.front().channels());
   const double frames = std::floor(kWindowMemoryBytes / (kBytesPerHrValue * values));
-  return static_cast<int>(std::clamp(frames, static_cast<double>(kMinAutoWindow), static_cast<double>(kMaxWindow)));
+  return static_cast<int>(
+      std::clamp(frames, static_cast<double>(kMinAutoWindow), static_cast<double>(kMaxWindow)));
 }
 
 struct Flags {
@@ -106,13 +107,15 @@ double ParseNoiseSigma(const std::string& text) {
 
 // --window-size, --window-overlap.
 void AddWindowOptions(dsm::ToolCommandLine* cli, Flags* flags) {
-  cli->add_option("--window-size", flags->window_size,
-                  "a sequence of more frames is estimated in overlapping windows of at most this many (3-64), "
-                  "as the node streams it: memory grows with the window, not the sequence; 0: one window of "
-                  "every frame; auto (default): the most frames, up to 64, that fit in about 8 GiB (at least "
-                  "10)");
+  cli->add_option(
+      "--window-size", flags->window_size,
+      "a sequence of more frames is estimated in overlapping windows of at most this many (3-64), "
+      "as the node streams it: memory grows with the window, not the sequence; 0: one window of "
+      "every frame; auto (default): the most frames, up to 64, that fit in about 8 GiB (at least "
+      "10)");
   cli->add_option("--window-overlap", flags->windowing.window_overlap,
-                  "with --window-size: frames shared by consecutive windows, 2 .. window size - 1 (default 2)")
+                  "with --window-size: frames shared by consecutive windows, 2 .. window size - 1 "
+                  "(default 2)")
       ->check(dsm::FlagInt(2, 63));
 }
 
@@ -131,8 +134,8 @@ int ParseWindowSize(const std::string& text) {
   char* end = nullptr;
   const long size = std::strtol(text.c_str(), &end, 10);
   if (end == text.c_str() || *end != '\0' || size < 0 || size > kMaxWindow) {
-    throw dsm::InputError("--window-size: expected auto or a whole number of frames in [0, 64], got '" + text +
-                          "'");
+    throw dsm::InputError("--window-size: expected auto or a whole number of frames in [0, 64], got '" +
+                          text + "'");
   }
   return static_cast<int>(size);
 }
@@ -573,8 +576,9 @@ dsm::ReadoutEstimate MeasureReadout(const dsm::EstimatorOptions& options, const 
     samples.emplace_back(estimates.back().seconds, estimates.back().sharpness);
   }
   // The report keeps the sharpest window's cost curve, with the seconds used.
-  dsm::ReadoutEstimate combined = *std::max_element(
-      estimates.begin(), estimates.end(), [](const auto& a, const auto& b) { return a.sharpness < b.sharpness; });
+  dsm::ReadoutEstimate combined =
+      *std::max_element(estimates.begin(), estimates.end(),
+                        [](const auto& a, const auto& b) { return a.sharpness < b.sharpness; });
   double per_second = 0.0;  // fraction per second: 1 / the frame interval
   for (const dsm::ReadoutEstimate& estimate : estimates) {
     if (estimate.seconds > 0.0) per_second = estimate.fraction / estimate.seconds;
@@ -835,7 +839,8 @@ int Run(int argc, char** argv) {
   std::string camera_name;
   dsm::EstimatorInput input = ReadInput(flags.input, &camera_name);
   const dsm::WindowedRunOptions windowing = Windowing(flags, input, options.scale);
-  const std::vector<dsm::FrameRange> ranges = dsm::WindowRanges(static_cast<int>(input.images.size()), windowing);
+  const std::vector<dsm::FrameRange> ranges =
+      dsm::WindowRanges(static_cast<int>(input.images.size()), windowing);
   std::optional<dsm::ReadoutEstimate> readout;
   if (flags.readout_time == "auto") readout = MeasureReadout(options, flags.input, ranges, &input);
   // --exposure auto: measured on each window's frames before it is
@@ -855,7 +860,8 @@ int Run(int argc, char** argv) {
   std::vector<dsm::WindowRecord> windows;
   dsm::EstimatorResult result =
       Estimate(options, input, flags.input, windowing, flags.quiet, &windows, prepare);
-  const std::optional<dsm::ExposureEstimate> exposure = UseExposures(window_exposures, windows, &input, &result);
+  const std::optional<dsm::ExposureEstimate> exposure =
+      UseExposures(window_exposures, windows, &input, &result);
   if (readout) result.timings.insert(result.timings.begin(), {"readout estimation", readout->elapsed_seconds});
   const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 

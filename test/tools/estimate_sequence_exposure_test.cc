@@ -20,18 +20,17 @@ namespace {
 using test::ExpectOneLineError;
 using test::FileText;
 using test::RunTool;
+using test::SynthesizeInto;
 using test::ToolRun;
 
 TEST(EstimateSequenceExposure, AutoReplacesTheExposuresAndReportsThem) {
   const std::string folder = testing::TempDir() + "/dsm_exposure_tool_" + std::to_string(::getpid());
   const std::string input = folder + "/seq";
   // A wrong exposure in frames.csv (0.8 of the interval) that auto must ignore: the blur is that of 0.4.
-  const std::string command =
-      std::string(DSM_TOOL_DIR) + "/synthesize_sequence --scene " + DSM_SOURCE_DIR +
-      "/data/middlebury/Dolls --output " + input +
-      " --frames 4 --subframes 60 --exposure-ratio 0.4 --hr-width 240 --hr-height 180 "
-      "> /dev/null";
-  ASSERT_EQ(std::system(command.c_str()), 0);
+  ASSERT_EQ(SynthesizeInto(input, "Dolls",
+                           "--frames 4 --subframes 60 --exposure-ratio 0.4 --hr-width 240 "
+                           "--hr-height 180"),
+            0);
   Sequence sequence = ReadSequence(input, false);
   const double truth = sequence.frames[1].exposure;
   for (FrameRecord& frame : sequence.frames) frame.exposure *= 2.0;

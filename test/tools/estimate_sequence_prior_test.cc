@@ -38,10 +38,7 @@ const std::string& Folder() {
 }
 
 Sequence Synthesize(const std::string& name, const std::string& flags) {
-  const std::string command = std::string(DSM_TOOL_DIR) + "/synthesize_sequence --scene " + DSM_SOURCE_DIR +
-                              "/data/middlebury/Dolls --output " + Folder() + "/" + name +
-                              " --subframes 60 " + flags + " > /dev/null";
-  EXPECT_EQ(std::system(command.c_str()), 0);
+  EXPECT_EQ(test::SynthesizeInto(Folder() + "/" + name, "Dolls", "--subframes 60 " + flags), 0);
   return ReadSequence(Folder() + "/" + name, true);
 }
 

@@ -20,16 +20,16 @@ namespace {
 using test::ExpectOneLineError;
 using test::FileText;
 using test::RunTool;
+using test::SynthesizeInto;
 using test::ToolRun;
 
 TEST(EstimateSequenceReadout, AutoMeasuresTheReadoutAndReportsIt) {
   const std::string folder = testing::TempDir() + "/dsm_readout_tool_" + std::to_string(::getpid());
   const std::string input = folder + "/seq";
-  const std::string command = std::string(DSM_TOOL_DIR) + "/synthesize_sequence --scene " + DSM_SOURCE_DIR +
-                              "/data/middlebury/Dolls --output " + input +
-                              " --path handheld --frames 6 --hr-width 240 --hr-height 180 --seed 3 "
-                              "--readout-ratio 0.8 > /dev/null";
-  ASSERT_EQ(std::system(command.c_str()), 0);
+  ASSERT_EQ(SynthesizeInto(
+                input, "Dolls",
+                "--path handheld --frames 6 --hr-width 240 --hr-height 180 --seed 3 --readout-ratio 0.8"),
+            0);
   ASSERT_TRUE(std::filesystem::remove(input + "/sensor.yaml"));
 
   const ToolRun run = RunTool("estimate_sequence", {"--input", input, "--output", folder + "/auto",
@@ -58,11 +58,9 @@ TEST(EstimateSequenceReadout, AutoMeasuresTheReadoutAndReportsIt) {
 TEST(EstimateSequenceReadout, ARotationIsNotMeasured) {
   const std::string folder = testing::TempDir() + "/dsm_readout_rotation_" + std::to_string(::getpid());
   const std::string input = folder + "/seq";
-  const std::string command = std::string(DSM_TOOL_DIR) + "/synthesize_sequence --scene " + DSM_SOURCE_DIR +
-                              "/data/middlebury/Moebius --output " + input +
-                              " --path rotate --frames 5 --hr-width 160 --hr-height 120 --readout-ratio 0.5 "
-                              "> /dev/null";
-  ASSERT_EQ(std::system(command.c_str()), 0);
+  ASSERT_EQ(SynthesizeInto(input, "Moebius",
+                           "--path rotate --frames 5 --hr-width 160 --hr-height 120 --readout-ratio 0.5"),
+            0);
   const ToolRun run = RunTool("estimate_sequence", {"--input", input, "--output", folder + "/auto",
                                                     "--readout-time", "auto", "--iterations", "0", "--quiet"});
   ASSERT_EQ(run.exit_code, 0) << run.err;

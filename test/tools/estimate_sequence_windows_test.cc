@@ -20,6 +20,7 @@ namespace {
 using test::ExpectOneLineError;
 using test::FileText;
 using test::RunTool;
+using test::SynthesizeInto;
 using test::ToolRun;
 
 int CountFiles(const std::string& folder) {
@@ -31,15 +32,14 @@ int CountFiles(const std::string& folder) {
 TEST(EstimateSequenceWindows, LongerSequencesRunInWindowsAndEveryFrameIsWritten) {
   const std::string folder = testing::TempDir() + "/dsm_windows_tool_" + std::to_string(::getpid());
   const std::string input = folder + "/seq";
-  const std::string command = std::string(DSM_TOOL_DIR) + "/synthesize_sequence --scene " + DSM_SOURCE_DIR +
-                              "/data/middlebury/Dolls --output " + input +
-                              " --path handheld --frames 8 --hr-width 160 --hr-height 120 --subframes 60 "
-                              "--seed 2 > /dev/null";
-  ASSERT_EQ(std::system(command.c_str()), 0);
+  ASSERT_EQ(
+      SynthesizeInto(input, "Dolls",
+                     "--path handheld --frames 8 --hr-width 160 --hr-height 120 --subframes 60 --seed 2"),
+      0);
 
-  const ToolRun run =
-      RunTool("estimate_sequence", {"--input", input, "--output", folder + "/windows", "--window-size", "5",
-                                    "--iterations", "0", "--exposure", "auto", "--readout-time", "auto", "--quiet"});
+  const ToolRun run = RunTool(
+      "estimate_sequence", {"--input", input, "--output", folder + "/windows", "--window-size", "5",
+                            "--iterations", "0", "--exposure", "auto", "--readout-time", "auto", "--quiet"});
   ASSERT_EQ(run.exit_code, 0) << run.err;
   EXPECT_EQ(CountFiles(folder + "/windows/latent"), 8);
   EXPECT_EQ(CountFiles(folder + "/windows/depth"), 8);
@@ -82,13 +82,15 @@ TEST(EstimateSequenceWindows, LongerSequencesRunInWindowsAndEveryFrameIsWritten)
   ASSERT_EQ(one.size(), 1u);
   EXPECT_EQ(one[0]["last_frame"].get<int>(), 7);
 
-  ExpectOneLineError("estimate_sequence", {"--input", input, "--output", folder + "/bad", "--window-size", "2"},
-                     "--window-size");
-  ExpectOneLineError("estimate_sequence", {"--input", input, "--output", folder + "/bad", "--window-size", "many"},
-                     "--window-size");
   ExpectOneLineError("estimate_sequence",
-                     {"--input", input, "--output", folder + "/bad", "--window-size", "5", "--window-overlap", "5"},
-                     "--window-overlap");
+                     {"--input", input, "--output", folder + "/bad", "--window-size", "2"}, "--window-size");
+  ExpectOneLineError("estimate_sequence",
+                     {"--input", input, "--output", folder + "/bad", "--window-size", "many"},
+                     "--window-size");
+  ExpectOneLineError(
+      "estimate_sequence",
+      {"--input", input, "--output", folder + "/bad", "--window-size", "5", "--window-overlap", "5"},
+      "--window-overlap");
   std::filesystem::remove_all(folder);
 }
 

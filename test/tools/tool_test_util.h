@@ -53,6 +53,15 @@ inline ToolRun RunTool(const std::string& tool, const std::vector<std::string>& 
   return run;
 }
 
+// synthesize_sequence of data/middlebury/`scene` into `output` with the
+// further `flags` (one string, as on a command line); its exit status.
+inline int SynthesizeInto(const std::string& output, const std::string& scene, const std::string& flags) {
+  const std::string command = std::string(DSM_TOOL_DIR) + "/synthesize_sequence --scene " + DSM_SOURCE_DIR +
+                              "/data/middlebury/" + scene + " --output " + ShellQuoted(output) + " " + flags +
+                              " > /dev/null";
+  return std::system(command.c_str());
+}
+
 inline int LineCount(const std::string& text) {
   int lines = 0;
   for (const char c : text) lines += c == '\n';

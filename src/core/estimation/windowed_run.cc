@@ -27,10 +27,12 @@ std::vector<FrameRange> WindowRanges(int num_frames, const WindowedRunOptions& o
   // one before it): k windows of `size` frames advancing by size - overlap;
   // the last one ends on the last frame and may share a little more.
   const int overlap = options.window_overlap;
-  const int count = (num_frames - overlap + options.window_size - overlap - 1) / (options.window_size - overlap);
+  const int count =
+      (num_frames - overlap + options.window_size - overlap - 1) / (options.window_size - overlap);
   const int size = (num_frames + (count - 1) * overlap + count - 1) / count;
   std::vector<FrameRange> ranges;
-  for (int k = 0; k + 1 < count; ++k) ranges.push_back({k * (size - overlap), k * (size - overlap) + size - 1});
+  for (int k = 0; k + 1 < count; ++k)
+    ranges.push_back({k * (size - overlap), k * (size - overlap) + size - 1});
   ranges.push_back({num_frames - size, num_frames - 1});
   return ranges;
 }
@@ -42,7 +44,8 @@ EstimatorInput WindowInputOf(const EstimatorInput& input, const FrameRange& rang
   window.images.assign(input.images.begin() + range.first, input.images.begin() + range.last + 1);
   window.frames.assign(input.frames.begin() + range.first, input.frames.begin() + range.last + 1);
   if (!input.T_prior_cam.empty()) {
-    window.T_prior_cam.assign(input.T_prior_cam.begin() + range.first, input.T_prior_cam.begin() + range.last + 1);
+    window.T_prior_cam.assign(input.T_prior_cam.begin() + range.first,
+                              input.T_prior_cam.begin() + range.last + 1);
   }
   return window;
 }
@@ -84,7 +87,8 @@ void AddTiming(const std::string& stage, double seconds, std::vector<StageTiming
 // Sets frame t of `result` (appended when t is the next frame) from frame i
 // of `window`, its gain relative to the window's first frame times
 // `gain_of_first`.
-void SetFrame(const EstimatorResult& window, size_t i, size_t t, double gain_of_first, EstimatorResult* result) {
+void SetFrame(const EstimatorResult& window, size_t i, size_t t, double gain_of_first,
+              EstimatorResult* result) {
   const cv::Mat& solver_depth = i < window.solver_depth.size() ? window.solver_depth[i] : window.depth[i];
   const double gain = window.frame_gains.empty() ? 1.0 : gain_of_first * window.frame_gains[i];
   if (t == result->latent.size()) {
@@ -109,8 +113,10 @@ void Append(const WindowEstimate& estimate, const FrameRange& range, int take_fr
   const EstimatorResult& window = estimate.result;
   const bool chain_gains =
       !window.frame_gains.empty() && static_cast<int>(result->frame_gains.size()) > range.first;
-  const double gain_of_first = chain_gains ? result->frame_gains[range.first] / window.frame_gains.front() : 1.0;
-  for (size_t i = take_from; i < window.latent.size(); ++i) SetFrame(window, i, range.first + i, gain_of_first, result);
+  const double gain_of_first =
+      chain_gains ? result->frame_gains[range.first] / window.frame_gains.front() : 1.0;
+  for (size_t i = take_from; i < window.latent.size(); ++i)
+    SetFrame(window, i, range.first + i, gain_of_first, result);
   for (const StageTiming& timing : window.timings) AddTiming(timing.stage, timing.seconds, &result->timings);
   result->energies.insert(result->energies.end(), window.energies.begin(), window.energies.end());
   const std::string prefix = FramesText(range) + ": ";
@@ -179,8 +185,7 @@ EstimatorResult EstimateInWindows(const EstimatorInput& input, const EstimatorOp
     // new segment, in its own world and scale) or has no depth (no
     // parallax) gives only the frames no earlier window gave.
     const int shared = w == 0 ? 0 : ranges[w - 1].last - range.first + 1;
-    const int take_from =
-        estimate.continued && estimate.result.depth_observable ? (shared + 1) / 2 : shared;
+    const int take_from = estimate.continued && estimate.result.depth_observable ? (shared + 1) / 2 : shared;
     Append(estimate, range, take_from, &result);
     noise_sigma_sum += estimate.result.noise_sigma;
     lambda_i_sum += estimate.result.image_lambda_i;

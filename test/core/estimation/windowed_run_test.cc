@@ -87,8 +87,8 @@ TEST(EstimateInWindows, StitchesTheStreamsWindowsIntoOneResult) {
   std::vector<WindowRecord> windows;
   std::vector<double> progress;
   const EstimatorResult result = EstimateInWindows(
-      input, options, Windowing(5, 2), [&progress](double fraction, const std::string&) { progress.push_back(fraction); },
-      &windows);
+      input, options, Windowing(5, 2),
+      [&progress](double fraction, const std::string&) { progress.push_back(fraction); }, &windows);
 
   ASSERT_EQ(windows.size(), 2u);
   EXPECT_EQ(windows[0].frames.first, 0);
@@ -126,7 +126,8 @@ TEST(EstimateInWindows, StitchesTheStreamsWindowsIntoOneResult) {
   const WindowEstimate first = stream.Process(stream_windows[0], input.camera);
   const WindowEstimate second = stream.Process(stream_windows[1], input.camera);
   EXPECT_EQ(cv::norm(first.result.latent[4], second.result.latent[1], cv::NORM_INF), 0.0);
-  EXPECT_EQ((first.result.T_world_cam[4].translation() - second.result.T_world_cam[1].translation()).norm(), 0.0);
+  EXPECT_EQ((first.result.T_world_cam[4].translation() - second.result.T_world_cam[1].translation()).norm(),
+            0.0);
   for (int t = 0; t < 8; ++t) {
     const EstimatorResult& window = t < 4 ? first.result : second.result;
     const int i = t < 4 ? t : t - 3;
@@ -146,8 +147,8 @@ TEST(EstimateInWindows, StitchesTheStreamsWindowsIntoOneResult) {
     const double restored = Psnr(result.latent[t], reference, 1.0);
     const double bicubic = Psnr(UpsampleBicubic(bicubic_input, 2), reference, 1.0);
     const DepthErrors depth = EvaluateDepth(result.depth[t], gt.depth[t], DepthMetricOptions());
-    std::cout << "frame " << t << ": PSNR " << restored << " dB (bicubic " << bicubic << "), depth rel. error "
-              << depth.relative_error << "\n";
+    std::cout << "frame " << t << ": PSNR " << restored << " dB (bicubic " << bicubic
+              << "), depth rel. error " << depth.relative_error << "\n";
     EXPECT_GT(restored, bicubic + 3.0) << "frame " << t;
     EXPECT_LT(depth.relative_error, 0.05) << "frame " << t;
     estimate.push_back(result.T_world_cam[t].translation());
