@@ -24,6 +24,17 @@
 #include "deblur_sr_mvs/core/imaging/noise_estimation.h"
 
 namespace deblur_sr_mvs {
+
+void AddStageSeconds(const std::string& stage, double seconds, std::vector<StageTiming>* timings) {
+  for (StageTiming& timing : *timings) {
+    if (timing.stage == stage) {
+      timing.seconds += seconds;
+      return;
+    }
+  }
+  timings->push_back({stage, seconds});
+}
+
 namespace {
 
 // Accumulates wall time per named stage, in first-seen order.
@@ -31,13 +42,7 @@ class Timer {
  public:
   void Add(const std::string& stage, double seconds) {
     std::lock_guard<std::mutex> lock(mutex_);
-    for (StageTiming& t : timings_) {
-      if (t.stage == stage) {
-        t.seconds += seconds;
-        return;
-      }
-    }
-    timings_.push_back({stage, seconds});
+    AddStageSeconds(stage, seconds, &timings_);
   }
   // Adds the wall time since start_ms (a NowMs() value).
   void AddSince(const std::string& stage, double start_ms) { Add(stage, (NowMs() - start_ms) / 1000.0); }
@@ -872,9 +877,7 @@ void WindowSolver::UpdateLatent(int t, const ImageUpdateOptions& phase_options) 
   const ImageUpdateStats stats = UpdateImage(terms, image_options, &latents_[t]);
   timer_.AddSince("image solves (thread seconds)", solve_begin);
   std::lock_guard<std::mutex> lock(work_mutex_);
-  result_.image_work.reweightings += stats.reweightings;
-  result_.image_work.cg_steps += stats.cg_steps;
-  result_.image_work.operator_passes += stats.operator_passes;
+  result_.image_work += stats;
 }
 
 // g_t of eq:regularizingTerm follows the edges of the current I_t.
@@ -1545,9 +1548,7 @@ void WindowSolver::UpdateLatentFromFrames(int t, bool raised) {
   }
   const ImageUpdateStats stats = UpdateImage(terms, image_options, &latents_[t], &anchor);
   std::lock_guard<std::mutex> lock(work_mutex_);
-  result_.image_work.reweightings += stats.reweightings;
-  result_.image_work.cg_steps += stats.cg_steps;
-  result_.image_work.operator_passes += stats.operator_passes;
+  result_.image_work += stats;
 }
 
 // TemporalFusionOptions::between_updates: the restored images fused before

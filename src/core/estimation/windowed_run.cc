@@ -73,17 +73,6 @@ StreamWindow StreamFramesOf(const EstimatorInput& window_input, const FrameRange
   return window;
 }
 
-// Adds `seconds` to the stage `stage` of `timings` (appended when new).
-void AddTiming(const std::string& stage, double seconds, std::vector<StageTiming>* timings) {
-  for (StageTiming& timing : *timings) {
-    if (timing.stage == stage) {
-      timing.seconds += seconds;
-      return;
-    }
-  }
-  timings->push_back({stage, seconds});
-}
-
 // Sets frame t of `result` (appended when t is the next frame) from frame i
 // of `window`, its gain relative to the window's first frame times
 // `gain_of_first`.
@@ -117,16 +106,14 @@ void Append(const WindowEstimate& estimate, const FrameRange& range, int take_fr
       chain_gains ? result->frame_gains[range.first] / window.frame_gains.front() : 1.0;
   for (size_t i = take_from; i < window.latent.size(); ++i)
     SetFrame(window, i, range.first + i, gain_of_first, result);
-  for (const StageTiming& timing : window.timings) AddTiming(timing.stage, timing.seconds, &result->timings);
+  for (const StageTiming& timing : window.timings) AddStageSeconds(timing.stage, timing.seconds, &result->timings);
   result->energies.insert(result->energies.end(), window.energies.begin(), window.energies.end());
   const std::string prefix = FramesText(range) + ": ";
   for (const std::string& note : window.notes) result->notes.push_back(prefix + note);
   result->initializer_summary += "window " + FramesText(range) + ":\n" + window.initializer_summary + "\n";
   result->depth_observable = result->depth_observable || window.depth_observable;
   result->operators_reused += window.operators_reused;
-  result->image_work.reweightings += window.image_work.reweightings;
-  result->image_work.cg_steps += window.image_work.cg_steps;
-  result->image_work.operator_passes += window.image_work.operator_passes;
+  result->image_work += window.image_work;
 }
 
 }  // namespace

@@ -355,6 +355,8 @@ struct StageTiming {
   std::string stage;
   double seconds = 0.0;
 };
+// Adds `seconds` to stage `stage` of `timings`, appended when new (first-seen order).
+void AddStageSeconds(const std::string& stage, double seconds, std::vector<StageTiming>* timings);
 
 struct EstimatorResult {
   PinholeCamera camera_hr;

@@ -129,6 +129,12 @@ struct ImageUpdateStats {
   int reweightings = 0;
   int cg_steps = 0;
   long operator_passes = 0;
+  ImageUpdateStats& operator+=(const ImageUpdateStats& other) {
+    reweightings += other.reweightings;
+    cg_steps += other.cg_steps;
+    operator_passes += other.operator_passes;
+    return *this;
+  }
 };
 
 // A quadratic proximity term (weight / 2) ||I - anchor||^2 over every HR
