@@ -105,7 +105,7 @@ double ParseNoiseSigma(const std::string& text) {
   return gray_levels / 255.0;
 }
 
-// --window-size, --window-overlap.
+// --window-size, --window-overlap, --tie-windows.
 void AddWindowOptions(dsm::ToolCommandLine* cli, Flags* flags) {
   cli->add_option(
       "--window-size", flags->window_size,
@@ -117,6 +117,10 @@ void AddWindowOptions(dsm::ToolCommandLine* cli, Flags* flags) {
                   "with --window-size: frames shared by consecutive windows, 2 .. window size - 1 "
                   "(default 2)")
       ->check(dsm::FlagInt(2, 63));
+  cli->add_flag("--tie-windows,!--no-tie-windows", flags->windowing.tie_to_sequence_trajectory,
+                "with more than one window: the whole sequence's trajectory from its tracks (one bundle "
+                "adjustment) holds the windows' poses together as a pose prior, unless --pose-prior gives "
+                "one (default on)");
 }
 
 // WindowedRunOptions::Check, naming the flags.

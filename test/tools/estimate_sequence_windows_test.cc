@@ -1,7 +1,8 @@
 // estimate_sequence --window-size / --window-overlap (docs/tools.md#estimate_sequence):
 // a sequence longer than the window runs in overlapping windows, as the node
 // streams it; every frame gets its outputs, report.json lists the windows,
-// and the exposure and the readout time are measured per window.
+// and the exposure and the readout time are measured per window; the
+// windows are tied to the whole sequence's trajectory (--tie-windows).
 #include <unistd.h>
 
 #include <cstdlib>
@@ -70,6 +71,23 @@ TEST(EstimateSequenceWindows, LongerSequencesRunInWindowsAndEveryFrameIsWritten)
   EXPECT_LT(readout["seconds"].get<double>(), 0.1 / 30.0);
 
   EXPECT_EQ(report["window_size"].get<int>(), 5);
+  // The windows are tied to the whole sequence's trajectory unless told not to.
+  auto says_tied = [](const nlohmann::json& notes) {
+    for (const nlohmann::json& note : notes) {
+      if (note.get<std::string>().find("windows tied to the whole sequence's trajectory") !=
+          std::string::npos)
+        return true;
+    }
+    return false;
+  };
+  EXPECT_TRUE(says_tied(report["solver_notes"])) << report["solver_notes"].dump();
+  const ToolRun untied =
+      RunTool("estimate_sequence", {"--input", input, "--output", folder + "/untied", "--window-size", "5",
+                                    "--iterations", "0", "--no-tie-windows", "--quiet"});
+  ASSERT_EQ(untied.exit_code, 0) << untied.err;
+  const nlohmann::json untied_report = nlohmann::json::parse(FileText(folder + "/untied/report.json"));
+  EXPECT_FALSE(says_tied(untied_report["solver_notes"])) << untied_report["solver_notes"].dump();
+  EXPECT_EQ(untied_report["windows"].size(), 2u);
 
   // --window-size auto (the default): at 160x120 HR in colour 8 GiB holds
   // far more than the stream's 64 frames, so the sequence is one window.

@@ -2734,6 +2734,57 @@ InitialStructure DenseStructure(const std::vector<cv::Mat>& images, const Pinhol
   return result;
 }
 
+// The sparse part of InitializeStructure: the tracks, the two-view start,
+// PnP and the bundle adjustment, the turn checks, the rolling-shutter
+// correction and the pose prior. `rejected_turn` keeps the structure with
+// the turn that the dense turn test (InitializerOptions::dense_fixation_test)
+// is to judge, when it has one to judge.
+struct SparseInitialisation {
+  TrackedWindow window;
+  SparseStructure structure;
+  std::optional<SparseStructure> rejected_turn;
+};
+
+SparseInitialisation InitializeSparse(const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
+                                      const std::vector<FrameRecord>& frames,
+                                      const InitializerOptions& options, double readout_time,
+                                      const std::vector<std::optional<SE3>>& T_prior_cam,
+                                      std::ostringstream* summary) {
+  SparseInitialisation sparse;
+  sparse.window = TrackWindow(images_lr, camera_lr, frames, options, summary);
+  TrackedWindow& window = sparse.window;
+  std::vector<Track>& tracks = window.tracking.tracks;
+  const int num_frames = static_cast<int>(images_lr.size());
+  const int threads = window.threads;
+  std::optional<SparseStructure>& rejected_turn = sparse.rejected_turn;
+  std::optional<SparseStructure> kept_turn_still;
+  SparseStructure& structure = sparse.structure;
+  structure = SparseStage(camera_lr, options, threads, num_frames, &tracks, summary, &rejected_turn,
+                          &kept_turn_still);
+  const bool has_prior =
+      std::any_of(T_prior_cam.begin(), T_prior_cam.end(), [](const auto& T) { return T.has_value(); });
+  if (!(options.dense_fixation_test || options.flow_fixation_test) || readout_time > 0.0 || has_prior) {
+    rejected_turn.reset();
+  }
+  if (kept_turn_still && options.flow_turn_check && readout_time == 0.0 && !has_prior) {
+    const bool keep_turn =
+        FlowFavoursTurn(window.gray, camera_lr, options, *kept_turn_still, structure,
+                        options.flow_turn_check_z, "flow turn check", "turn dropped", summary);
+    if (!keep_turn) structure = std::move(*kept_turn_still);
+  }
+  if (rejected_turn && options.flow_fixation_test) {
+    const bool keep_turn = FlowFavoursTurn(window.gray, camera_lr, options, structure, *rejected_turn,
+                                           options.dense_test_z, "flow turn test", "no turn", summary);
+    if (keep_turn) structure = std::move(*rejected_turn);
+    rejected_turn.reset();
+  }
+  if (readout_time > 0.0) {
+    CorrectRollingShutter(camera_lr, options, threads, frames, readout_time, &tracks, &structure, summary);
+  }
+  AdjustToPosePrior(camera_lr, options, threads, frames, T_prior_cam, tracks, &structure, summary);
+  return sparse;
+}
+
 InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images_lr,
                                               const PinholeCamera& camera_lr,
                                               const std::vector<FrameRecord>& frames,
@@ -2741,35 +2792,13 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
                                               const std::vector<std::optional<SE3>>& T_prior_cam) {
   const double start_ms = NowMs();
   std::ostringstream summary;
-  TrackedWindow window = TrackWindow(images_lr, camera_lr, frames, options, &summary);
-  TrackingResult& tracking = window.tracking;
-  const std::vector<cv::Mat>& images = window.images;
-  const int num_frames = static_cast<int>(images_lr.size());
-  const int threads = window.threads;
-  std::optional<SparseStructure> rejected_turn, kept_turn_still;
-  SparseStructure structure = SparseStage(camera_lr, options, threads, num_frames, &tracking.tracks, &summary,
-                                          &rejected_turn, &kept_turn_still);
-  const bool has_prior =
-      std::any_of(T_prior_cam.begin(), T_prior_cam.end(), [](const auto& T) { return T.has_value(); });
-  if (!(options.dense_fixation_test || options.flow_fixation_test) || readout_time > 0.0 || has_prior) {
-    rejected_turn.reset();
-  }
-  if (kept_turn_still && options.flow_turn_check && readout_time == 0.0 && !has_prior) {
-    const bool keep_turn = FlowFavoursTurn(window.gray, camera_lr, options, *kept_turn_still, structure,
-                                           options.flow_turn_check_z, "flow turn check", "turn dropped", &summary);
-    if (!keep_turn) structure = std::move(*kept_turn_still);
-  }
-  if (rejected_turn && options.flow_fixation_test) {
-    const bool keep_turn = FlowFavoursTurn(window.gray, camera_lr, options, structure, *rejected_turn,
-                                           options.dense_test_z, "flow turn test", "no turn", &summary);
-    if (keep_turn) structure = std::move(*rejected_turn);
-    rejected_turn.reset();
-  }
-  if (readout_time > 0.0) {
-    CorrectRollingShutter(camera_lr, options, threads, frames, readout_time, &tracking.tracks, &structure,
-                          &summary);
-  }
-  AdjustToPosePrior(camera_lr, options, threads, frames, T_prior_cam, tracking.tracks, &structure, &summary);
+  SparseInitialisation sparse =
+      InitializeSparse(images_lr, camera_lr, frames, options, readout_time, T_prior_cam, &summary);
+  const TrackingResult& tracking = sparse.window.tracking;
+  const std::vector<cv::Mat>& images = sparse.window.images;
+  const int threads = sparse.window.threads;
+  SparseStructure& structure = sparse.structure;
+  std::optional<SparseStructure>& rejected_turn = sparse.rejected_turn;
   std::vector<cv::Mat> data_cost;
   InitialStructure result = DenseStructure(images, camera_lr, frames, tracking.tracks, options, threads,
                                            readout_time, &structure, &summary,
@@ -2791,6 +2820,37 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
     }
   }
   NormaliseGauge(&result, &summary);
+  summary << Format("total: %.1f ms", NowMs() - start_ms);
+  result.summary = summary.str();
+  return result;
+}
+
+// InitializeTrajectory (initializer.h): the sparse part, its poses moved to
+// t_c and scaled by the median depth of the inlier points, each seen from
+// the first frame that tracks it.
+InitialTrajectory InitializeTrajectoryUnguarded(const std::vector<cv::Mat>& images_lr,
+                                                const PinholeCamera& camera_lr,
+                                                const std::vector<FrameRecord>& frames,
+                                                const InitializerOptions& options, double readout_time) {
+  const double start_ms = NowMs();
+  std::ostringstream summary;
+  SparseInitialisation sparse =
+      InitializeSparse(images_lr, camera_lr, frames, options, readout_time, {}, &summary);
+  InitialTrajectory result;
+  std::vector<SE3> T_world_mid;
+  MoveToShutterClose(frames, &sparse.structure, &result.T_world_cam, &T_world_mid, &summary);
+  std::vector<double> depths;
+  for (const Track& track : sparse.window.tracking.tracks) {
+    if (track.point_id < 0 || !sparse.structure.point_inlier[track.point_id]) continue;
+    const Eigen::Vector3d point_cam =
+        result.T_world_cam[track.first_frame].Inverse() * sparse.structure.points_world[track.point_id];
+    if (point_cam.z() > 0.0 && std::isfinite(point_cam.z())) depths.push_back(point_cam.z());
+  }
+  if (depths.empty())
+    throw InitializationError("initialisation: no triangulated point in front of the cameras");
+  const double median = Median(depths);
+  for (SE3& T : result.T_world_cam) T = SE3(T.rotation(), T.translation() / median);
+  summary << Format("gauge: world = camera 0 at t_c, median point depth 1 (%.4g pair baselines)\n", median);
   summary << Format("total: %.1f ms", NowMs() - start_ms);
   result.summary = summary.str();
   return result;
@@ -2884,6 +2944,17 @@ InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr, cons
   }
   return WithOpenCvErrorsAsInitializationErrors("initialisation: degenerate geometry (OpenCV: ", [&] {
     return InitializeStructureUnguarded(images_lr, camera_lr, frames, options, readout_time, T_prior_cam);
+  });
+}
+
+InitialTrajectory InitializeTrajectory(const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
+                                       const std::vector<FrameRecord>& frames,
+                                       const InitializerOptions& options, double readout_time) {
+  if (!std::isfinite(readout_time) || readout_time < 0.0) {
+    throw InputError("initialisation: readout_time must be finite and >= 0");
+  }
+  return WithOpenCvErrorsAsInitializationErrors("initialisation: degenerate geometry (OpenCV: ", [&] {
+    return InitializeTrajectoryUnguarded(images_lr, camera_lr, frames, options, readout_time);
   });
 }
 

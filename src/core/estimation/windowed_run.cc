@@ -1,15 +1,20 @@
 #include "deblur_sr_mvs/core/estimation/windowed_run.h"
 
 #include <algorithm>
+#include <sstream>
 #include <string>
 #include <utility>
 
 #include "deblur_sr_mvs/core/common/errors.h"
+#include "deblur_sr_mvs/core/common/options_check.h"
+#include "deblur_sr_mvs/core/common/runtime.h"
 #include "deblur_sr_mvs/core/estimation/initializer.h"
 
 namespace deblur_sr_mvs {
 
 void WindowedRunOptions::Check() const {
+  CheckAbove("tie_position_sigma", tie_position_sigma, 0.0);
+  CheckAtLeast("tie_rotation_sigma_deg", tie_rotation_sigma_deg, 0.0);
   if (window_size == 0) return;
   StreamOptions stream;
   stream.window_size = window_size;
@@ -116,6 +121,35 @@ void Append(const WindowEstimate& estimate, const FrameRange& range, int take_fr
   result->image_work += window.image_work;
 }
 
+// With WindowedRunOptions::tie_to_sequence_trajectory: the whole
+// sequence's trajectory (InitializeTrajectory) as every window's pose prior,
+// in `tied` and `tied_options`; returns a note for the result ("" when the
+// tie is off).
+std::string TieToSequenceTrajectory(const EstimatorInput& input, const EstimatorOptions& options,
+                                    const WindowedRunOptions& windowing, EstimatorInput* tied,
+                                    EstimatorOptions* tied_options) {
+  if (!windowing.tie_to_sequence_trajectory) return "";
+  const bool has_prior = std::any_of(input.T_prior_cam.begin(), input.T_prior_cam.end(),
+                                     [](const auto& T) { return T.has_value(); });
+  if (has_prior) return "windows tied by the input's pose prior";
+  InitialTrajectory trajectory;
+  try {
+    trajectory = InitializeTrajectory(input.images, input.camera, input.frames, options.initializer,
+                                      input.readout_time);
+  } catch (const InitializationError& error) {
+    return std::string("windows not tied: the whole sequence's trajectory could not be initialised (") +
+           error.what() + ")";
+  }
+  tied->T_prior_cam.assign(trajectory.T_world_cam.begin(), trajectory.T_world_cam.end());
+  tied_options->initializer.pose_prior_position_sigma = windowing.tie_position_sigma;
+  tied_options->initializer.pose_prior_rotation_sigma_deg = windowing.tie_rotation_sigma_deg;
+  std::ostringstream note;
+  note << "windows tied to the whole sequence's trajectory (its tracks in one bundle adjustment) as a pose "
+          "prior of sigma "
+       << windowing.tie_position_sigma << " median depths, " << windowing.tie_rotation_sigma_deg << " deg";
+  return note.str();
+}
+
 }  // namespace
 
 EstimatorResult EstimateInWindows(const EstimatorInput& input, const EstimatorOptions& options,
@@ -137,10 +171,18 @@ EstimatorResult EstimateInWindows(const EstimatorInput& input, const EstimatorOp
     }
     return result;
   }
-  StreamEstimator stream(options);
-  stream.SetWindowOverlap(windowing.window_overlap);
   EstimatorResult result;
   result.depth_observable = false;
+  EstimatorInput tied = input;
+  EstimatorOptions tied_options = options;
+  const double tie_begin = NowMs();
+  const std::string tie_note = TieToSequenceTrajectory(input, options, windowing, &tied, &tied_options);
+  if (!tie_note.empty()) {
+    AddStageSeconds("sequence trajectory", (NowMs() - tie_begin) / 1000.0, &result.timings);
+    result.notes.push_back(tie_note);
+  }
+  StreamEstimator stream(tied_options);
+  stream.SetWindowOverlap(windowing.window_overlap);
   double noise_sigma_sum = 0.0, lambda_i_sum = 0.0;
   for (size_t w = 0; w < ranges.size(); ++w) {
     const FrameRange& range = ranges[w];
@@ -152,7 +194,7 @@ EstimatorResult EstimateInWindows(const EstimatorInput& input, const EstimatorOp
     }
     WindowEstimate estimate;
     try {
-      EstimatorInput window_input = WindowInputOf(input, range);
+      EstimatorInput window_input = WindowInputOf(tied, range);
       if (prepare) prepare(static_cast<int>(w), &window_input);
       estimate = stream.Process(StreamFramesOf(window_input, range), input.camera, window_progress);
     } catch (const InitializationError& error) {

@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <functional>
+#include <iostream>
 #include <optional>
 #include <string>
 #include <vector>
@@ -154,6 +155,43 @@ TEST(InitializerTest, RecoversTrajectoryWithUnitMedianDepth) {
        {"tracking", "pair: frames 0-1", "two-view", "bundle adjustment", "depth", "gauge", "total"}) {
     EXPECT_NE(result.summary.find(stage), std::string::npos) << result.summary;
   }
+}
+
+// The sparse part alone (what EstimateInWindows ties long sequences to):
+// the trajectory of InitializeStructure, which runs the same sparse part,
+// up to the scale; its own scale (the median depth of the triangulated
+// points) puts the scene at about the dense depths' median.
+TEST(InitializerTest, TrajectoryAloneIsTheStructuresUpToScale) {
+  const Sequence& sequence = DollsSequence();
+  const InitialStructure& structure = DollsResult();
+  const InitialTrajectory trajectory = InitializeTrajectory(
+      FloatImages(sequence), sequence.calibration.camera, sequence.frames, InitializerOptions());
+  ASSERT_EQ(trajectory.T_world_cam.size(), structure.T_world_cam.size());
+  EXPECT_LT(trajectory.T_world_cam[0].Log().norm(), 1e-9);
+  const size_t last = structure.T_world_cam.size() - 1;
+  const double scale =
+      trajectory.T_world_cam[last].translation().norm() / structure.T_world_cam[last].translation().norm();
+  std::cout << "point-depth gauge / dense-depth gauge: " << scale << "\n";
+  EXPECT_GT(scale, 0.8);
+  EXPECT_LT(scale, 1.25);
+  for (size_t t = 1; t <= last; ++t) {
+    const Eigen::Matrix3d R =
+        structure.T_world_cam[t].rotation().transpose() * trajectory.T_world_cam[t].rotation();
+    EXPECT_LT(Eigen::AngleAxisd(R).angle(), 1e-6) << "frame " << t;
+    EXPECT_LT(
+        (trajectory.T_world_cam[t].translation() - scale * structure.T_world_cam[t].translation()).norm(),
+        1e-6 * trajectory.T_world_cam[last].translation().norm())
+        << "frame " << t;
+  }
+  EXPECT_NE(trajectory.summary.find("median point depth 1"), std::string::npos) << trajectory.summary;
+  EXPECT_EQ(trajectory.summary.find("depth pass"), std::string::npos)
+      << "no dense stage: " << trajectory.summary;
+  ExpectThrowsWith<InputError>(
+      [&] {
+        InitializeTrajectory(FloatImages(sequence), sequence.calibration.camera, sequence.frames,
+                             InitializerOptions(), -1.0);
+      },
+      "readout_time");
 }
 
 TEST(InitializerTest, RecoversDepth) {

@@ -234,6 +234,23 @@ InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr, cons
                                      const InitializerOptions& options, double readout_time = 0.0,
                                      const std::vector<std::optional<SE3>>& T_prior_cam = {});
 
+// Camera poses from the tracks alone: InitializeStructure's sparse part
+// (tracks, the two-view start, PnP, the bundle adjustment, the turn checks,
+// the rolling-shutter correction) without the dense depth maps, so cheap
+// enough for every frame of a long clip (EstimateInWindows ties its windows
+// to it). The dense turn test (InitializerOptions::dense_fixation_test) is
+// not run. T_world_cam at each frame's stamp (t_c); world = camera 0 at its
+// t_c; the scale puts the median depth of the triangulated points, each
+// seen from the first frame that tracks it, at 1. Throws as
+// InitializeStructure does (NoParallaxError without parallax).
+struct InitialTrajectory {
+  std::vector<SE3> T_world_cam;
+  std::string summary;  // as InitialStructure::summary
+};
+InitialTrajectory InitializeTrajectory(const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
+                                       const std::vector<FrameRecord>& frames,
+                                       const InitializerOptions& options, double readout_time = 0.0);
+
 // Camera orientations of a window whose motion is (close to) a pure rotation:
 // the warps between frames are then homographies K R K^-1 and depth is not
 // observable. R_world_cam at each frame's stamp (the shutter close t_c,

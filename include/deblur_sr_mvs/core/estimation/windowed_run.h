@@ -24,6 +24,22 @@ struct WindowedRunOptions {
   // Frames shared by consecutive windows (StreamOptions::window_overlap);
   // the last window ends at the last frame and may share more.
   int window_overlap = 2;
+  // Ties the windows to one trajectory of the whole sequence
+  // (InitializeTrajectory: the tracks of every frame in one bundle
+  // adjustment), given to every window as a pose prior
+  // (EstimatorInput::T_prior_cam): windows that only share a few frames
+  // otherwise let their poses drift apart along the chain (ATE 2.1x that of
+  // one window on a 60-frame hand-held clip in windows of 22, 0.96x with the
+  // tie: BENCHMARKS.md "Long sequences in windows"). Not used with a pose
+  // prior of the input's own, nor when the whole sequence cannot be
+  // initialised (the result's notes say so).
+  bool tie_to_sequence_trajectory = true;
+  // The tie's standard deviations, as InitializerOptions'
+  // pose_prior_position_sigma (per axis, in the trajectory's units: median
+  // point depths) and pose_prior_rotation_sigma_deg (0: the orientations
+  // only align it).
+  double tie_position_sigma = 0.01;
+  double tie_rotation_sigma_deg = 0.1;
   void Check() const;  // throws InputError naming the bad value
 };
 
@@ -66,7 +82,8 @@ struct WindowRecord {
 // holds their poses and restored images, so only their depth differs),
 // poses and depths in the first window's world and scale (
 // docs/file_formats.md#monocular-scale), stage timings summed over the
-// windows, energies and notes of every window in order, frame gains chained
+// windows, energies and notes of every window in order (after the tie's
+// note: WindowedRunOptions::tie_to_sequence_trajectory), frame gains chained
 // across windows relative to the first frame. `windows` (optional) gets one
 // record per window; `prepare` (optional) sees each window's input first.
 // With one window this is Estimator::Run. Throws as the
