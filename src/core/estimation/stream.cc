@@ -155,6 +155,7 @@ void StreamEstimator::Reset() {
   last_operators_.clear();
   prior_history_.Reset();
   reference_median_depth_ = 0.0;
+  last_rotation_only_ = false;
   has_returned_ = false;
 }
 
@@ -213,6 +214,7 @@ StreamEstimator::SharedFrames StreamEstimator::SharedWithPrevious(const StreamWi
     const auto latent = last_latents_.find(frame.id);
     shared.latents.push_back(latent == last_latents_.end() ? cv::Mat() : latent->second);
   }
+  shared.from_rotation_only = last_rotation_only_;
   return shared;
 }
 
@@ -308,8 +310,8 @@ StreamEstimator::StreamTie StreamEstimator::TieToStream(const InitialStructure& 
   if (depth_scale > 0.0) {
     tie.initial_to_stream = AnchorAt(shared_initial.back(), shared_previous.back(), depth_scale);
     tie.how = "through the last shared frame, scale from the shared frames' depth";
-  } else if (num_shared >= 2 && previous_path > 1e-12 && PathLength(shared_initial) > 1e-12 &&
-             shared_parallax_px >= kMinSharedParallaxPx) {
+  } else if (!shared.from_rotation_only && num_shared >= 2 && previous_path > 1e-12 &&
+             PathLength(shared_initial) > 1e-12 && shared_parallax_px >= kMinSharedParallaxPx) {
     tie.initial_to_stream = AlignPoseSequence(shared_initial, shared_previous);
     tie.how = "through " + std::to_string(num_shared) + " shared frames (no shared depth)";
   } else {
@@ -425,6 +427,28 @@ void StreamEstimator::ContinueRotationOnly(const EstimatorInput& input, const Sh
   estimate->warm_started = options.held_leading_latents;
   estimate->note = "rotation-only window, continued from the previous window's cameras" +
                    WarmStartNote(options.held_leading_latents);
+  if (PlaceOnPrior(input, shared_previous, &result.T_world_cam)) {
+    estimate->note += "; camera positions from the pose prior";
+  }
+}
+
+bool StreamEstimator::PlaceOnPrior(const EstimatorInput& input, const std::vector<SE3>& shared_previous,
+                                   std::vector<SE3>* T_world_cam) {
+  if (!input.world_to_prior || input.T_prior_cam.size() != T_world_cam->size()) return false;
+  for (size_t i = shared_previous.size(); i < T_world_cam->size(); ++i) {
+    if (!input.T_prior_cam[i]) return false;
+  }
+  const Sim3& world_to_prior = *input.world_to_prior;
+  for (size_t i = 0; i < T_world_cam->size(); ++i) {
+    const Eigen::Vector3d centre =
+        i < shared_previous.size()
+            ? shared_previous[i].translation()
+            : Eigen::Vector3d(world_to_prior.rotation.transpose() *
+                              (input.T_prior_cam[i]->translation() - world_to_prior.translation) /
+                              world_to_prior.scale);
+    (*T_world_cam)[i] = SE3((*T_world_cam)[i].rotation(), centre);
+  }
+  return true;
 }
 
 void StreamEstimator::StartSegment(const EstimatorInput& input, const ProgressCallback& progress,
@@ -471,6 +495,7 @@ void StreamEstimator::Remember(const StreamWindow& window, WindowEstimate* estim
     const double median = MedianDepth(solver_depth);
     if (median > 0.0) reference_median_depth_ = median;
   }
+  last_rotation_only_ = !estimate->result.depth_observable;
   last_returned_id_ = std::max(has_returned_ ? last_returned_id_ : 0, window.back().id);
   has_returned_ = true;
 }

@@ -211,6 +211,10 @@ class StreamEstimator {
     std::vector<SE3> poses;
     std::vector<cv::Mat> depths;
     std::vector<cv::Mat> latents;
+    // The previous window had no parallax: its orientations are a
+    // rotation-only fit and its centres held or a prior's (PlaceOnPrior),
+    // so their path does not carry the scale.
+    bool from_rotation_only = false;
   };
   SharedFrames SharedWithPrevious(const StreamWindow& window) const;
   // How this window's initial structure is carried into the stream's world
@@ -219,7 +223,8 @@ class StreamEstimator {
   // puts the last shared camera on its previous pose, with the scale from
   // those depths against the initial ones (the median ratio over their
   // pixels). Else, when the shared cameras' path carries
-  // kMinSharedParallaxPx of parallax, the similarity of AlignPoseSequence
+  // kMinSharedParallaxPx of parallax (and does not come from a rotation-only
+  // window: SharedFrames::from_rotation_only), the similarity of AlignPoseSequence
   // (scale from the path); else the last shared camera's similarity with the
   // scale from the last known median depth.
   struct StreamTie {
@@ -240,10 +245,21 @@ class StreamEstimator {
                           const ProgressCallback& progress, WindowEstimate* estimate) const;
   // A window without parallax after a previous one: orientations from the
   // rotation-only motion anchored at the first shared camera, the last
-  // shared camera's translation held, depth NaN (Estimator::RunRotationOnly);
+  // shared camera's translation held (or the pose prior's centres:
+  // PlaceOnPrior), depth NaN (Estimator::RunRotationOnly);
   // the shared frames' latent images are held as the previous window left them.
   void ContinueRotationOnly(const EstimatorInput& input, const SharedFrames& shared, const std::string& why,
                             const ProgressCallback& progress, WindowEstimate* estimate) const;
+  // A rotation-only window with a pose prior fitted to the stream
+  // (EstimatorInput::world_to_prior) and a prior pose for each new frame:
+  // the new cameras take their centres from the prior, carried into the
+  // stream's world, the shared ones keep the previous window's, so that a
+  // camera that barely translates over a window still follows the prior's
+  // path (the restored images do not depend on the centres: depth at
+  // infinity). False (poses untouched) otherwise: every camera keeps one
+  // translation.
+  static bool PlaceOnPrior(const EstimatorInput& input, const std::vector<SE3>& shared_previous,
+                           std::vector<SE3>* T_world_cam);
   // Estimates the window on its own: a new trajectory segment.
   void StartSegment(const EstimatorInput& input, const ProgressCallback& progress, WindowEstimate* estimate);
   // Marks the frames already returned and keeps this window's poses.
@@ -264,6 +280,7 @@ class StreamEstimator {
   // Median depth of the last window with observable depth (stream units; 0
   // before the first).
   double reference_median_depth_ = 0.0;
+  bool last_rotation_only_ = false;  // the previous window had no parallax
   uint64_t last_returned_id_ = 0;
   bool has_returned_ = false;
 };
