@@ -2761,8 +2761,7 @@ SparseInitialisation InitializeSparse(const std::vector<cv::Mat>& images_lr, con
   SparseStructure& structure = sparse.structure;
   structure = SparseStage(camera_lr, options, threads, num_frames, &tracks, summary, &rejected_turn,
                           &kept_turn_still);
-  const bool has_prior =
-      std::any_of(T_prior_cam.begin(), T_prior_cam.end(), [](const auto& T) { return T.has_value(); });
+  const bool has_prior = HasAnyPriorPose(T_prior_cam);
   if (!(options.dense_fixation_test || options.flow_fixation_test) || readout_time > 0.0 || has_prior) {
     rejected_turn.reset();
   }

@@ -9,6 +9,7 @@
 #include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/common/runtime.h"
 #include "deblur_sr_mvs/core/estimation/initializer.h"
+#include "deblur_sr_mvs/core/geometry/pose_prior.h"
 
 namespace deblur_sr_mvs {
 
@@ -129,9 +130,7 @@ std::string TieToSequenceTrajectory(const EstimatorInput& input, const Estimator
                                     const WindowedRunOptions& windowing, EstimatorInput* tied,
                                     EstimatorOptions* tied_options) {
   if (!windowing.tie_to_sequence_trajectory) return "";
-  const bool has_prior = std::any_of(input.T_prior_cam.begin(), input.T_prior_cam.end(),
-                                     [](const auto& T) { return T.has_value(); });
-  if (has_prior) return "windows tied by the input's pose prior";
+  if (HasAnyPriorPose(input.T_prior_cam)) return "windows tied by the input's pose prior";
   InitialTrajectory trajectory;
   try {
     trajectory = InitializeTrajectory(input.images, input.camera, input.frames, options.initializer,

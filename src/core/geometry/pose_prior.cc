@@ -292,6 +292,10 @@ void PosePriorOptions::Check() const {
   CheckAbove("outlier_distance", outlier_distance, 0.0);
 }
 
+bool HasAnyPriorPose(const std::vector<std::optional<SE3>>& T_prior_cam) {
+  return std::any_of(T_prior_cam.begin(), T_prior_cam.end(), [](const auto& T) { return T.has_value(); });
+}
+
 PriorAlignment AlignToPrior(const std::vector<SE3>& T_world_cam, const std::vector<SE3>& T_prior_cam,
                             const PosePriorOptions& options) {
   options.Check();

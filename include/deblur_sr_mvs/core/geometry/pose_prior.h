@@ -8,6 +8,7 @@
 
 #include <cstdint>
 #include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -55,6 +56,10 @@ struct PriorAlignment {
   double scale_uncertainty = 0.0;
   std::string note;  // one line: what was fitted, or why the previous fit is kept
 };
+
+// Whether a per-frame prior (T_prior_cam, none where the prior has no
+// pose) has a pose for any frame.
+bool HasAnyPriorPose(const std::vector<std::optional<SE3>>& T_prior_cam);
 
 // Robust similarity from corresponding camera poses (same frames, same
 // order): the rotation from the orientations, the scale and translation from
