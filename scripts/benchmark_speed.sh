@@ -22,6 +22,9 @@
 # Env: DSM_SPEED_REFERENCE (default 175f35b), DSM_SPEED_SEQUENCES,
 #   DSM_SPEED_FRAMES (10), DSM_SPEED_SIZE ("640 480", HR), DSM_SPEED_ARGS
 #   (extra estimate_sequence flags for both, e.g. "--iterations 1"),
+#   DSM_SPEED_NEW_ARGS (flags for the current build's runs only, e.g. the
+#   faster settings "--iterations 2 --no-depth-sweep" that the reference
+#   does not know),
 #   DSM_SPEED_CURRENT_BUILD (a build folder to take the "new" tools from
 #   instead of building this checkout) and DSM_SPEED_CURRENT_LABEL (its
 #   commit, for the header), DSM_SPEED_PERF=1 (each run under `perf record
@@ -42,6 +45,7 @@ fi
 frames="${DSM_SPEED_FRAMES:-10}"
 read -r width height <<<"${DSM_SPEED_SIZE:-640 480}"
 read -r -a extra_args <<<"${DSM_SPEED_ARGS:-}"
+read -r -a new_args <<<"${DSM_SPEED_NEW_ARGS:-}"
 tools=(synthesize_sequence estimate_sequence evaluate_sequence)
 mkdir -p "$work/bin/old" "$work/bin/new"
 
@@ -96,10 +100,11 @@ synthesize() {  # name, output folder
 # Runs one estimate_sequence under /usr/bin/time: WHICH (old|new), sequence, output.
 estimate() {
   rm -rf "$3"
-  local profiler=()
+  local profiler=() which_args=()
+  [ "$1" = new ] && which_args=("${new_args[@]}")
   [ -n "$DSM_SPEED_PERF" ] && profiler=(perf record -F 99 -o "$3.perf.data" --)
   /usr/bin/time -f "%e %U %S %M" -o "$3.time" "${profiler[@]}" "$work/bin/$1/estimate_sequence" --input "$2" \
-    --output "$3" --quiet "${extra_args[@]}" >"$3.log" 2>&1 ||
+    --output "$3" --quiet "${extra_args[@]}" "${which_args[@]}" >"$3.log" 2>&1 ||
     { echo "failed: $(tail -n 1 "$3.log")" >"$3.failed"; return 0; }
   "$work/bin/new/evaluate_sequence" --result "$3" --sequence "$2" --json "$3.eval.json" >/dev/null
   if [ -n "$DSM_SPEED_PERF" ]; then
@@ -144,7 +149,7 @@ PY
 
 dsm_benchmark_header
 echo "Reference $reference_hash (reads sensor.yaml: $reference_reads_sensor) against $current_commit;" \
-  "$frames frames, HR ${width}x${height} (LR = HR / 2), defaults${DSM_SPEED_ARGS:+ + $DSM_SPEED_ARGS}; work: $work"
+  "$frames frames, HR ${width}x${height} (LR = HR / 2), defaults${DSM_SPEED_ARGS:+ + $DSM_SPEED_ARGS}${DSM_SPEED_NEW_ARGS:+ (current only: $DSM_SPEED_NEW_ARGS)}; work: $work"
 echo
 echo "| Sequence | Wall old (s) | Wall new (s) | Old / new | CPU old / new (s) | Cores busy old / new | Peak RSS old / new (GiB) | PSNR old / new (dB) | Depth rel. old / new | ATE old / new | Top stages old (s) | Top stages new (s) |"
 echo "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---|"
