@@ -511,7 +511,7 @@ PosePriorTerms WindowPosePrior(const EstimatorOptions& options, const EstimatorI
   terms.R_world_cam.assign(T_world_cam.size(), Eigen::Matrix3d::Identity());
   for (int i : kept) {
     const int t = frame_of[i];
-    terms.centre_world[t] = R_world_prior * (prior[i].translation() - to_prior.translation) / to_prior.scale;
+    terms.centre_world[t] = InverseTransformPoint(to_prior, prior[i].translation());
     terms.R_world_cam[t] = R_world_prior * prior[i].rotation();
   }
   terms.position_sigma = init.pose_prior_position_sigma / to_prior.scale;

@@ -443,9 +443,7 @@ bool StreamEstimator::PlaceOnPrior(const EstimatorInput& input, const std::vecto
     const Eigen::Vector3d centre =
         i < shared_previous.size()
             ? shared_previous[i].translation()
-            : Eigen::Vector3d(world_to_prior.rotation.transpose() *
-                              (input.T_prior_cam[i]->translation() - world_to_prior.translation) /
-                              world_to_prior.scale);
+            : InverseTransformPoint(world_to_prior, input.T_prior_cam[i]->translation());
     (*T_world_cam)[i] = SE3((*T_world_cam)[i].rotation(), centre);
   }
   return true;

@@ -14,6 +14,10 @@ SE3 TransformPose(const Sim3& similarity, const SE3& T_world_cam) {
              similarity.scale * (similarity.rotation * T_world_cam.translation()) + similarity.translation);
 }
 
+Eigen::Vector3d InverseTransformPoint(const Sim3& similarity, const Eigen::Vector3d& target) {
+  return similarity.rotation.transpose() * (target - similarity.translation) / similarity.scale;
+}
+
 void CheckCorrespondingPoints(const std::vector<Eigen::Vector3d>& source,
                               const std::vector<Eigen::Vector3d>& target, const char* what) {
   if (source.size() != target.size()) {

@@ -98,6 +98,19 @@ void ExpectExactRecovery(const std::vector<SE3>& estimated) {
   EXPECT_LT(alignment.scale_uncertainty, 1e-9);
 }
 
+// InverseTransformPoint undoes the similarity of a camera centre
+// (TransformPose) and of a point, to rounding.
+TEST(Sim3Test, InverseTransformPointRoundTrips) {
+  const Sim3 s = KnownSimilarity();
+  const Eigen::Vector3d centre(0.4, -1.3, 2.2);
+  const SE3 moved = TransformPose(s, SE3(SO3Exp(Eigen::Vector3d(0.1, 0.2, -0.3)), centre));
+  EXPECT_LT((InverseTransformPoint(s, moved.translation()) - centre).norm(), 1e-12);
+  const Eigen::Vector3d target(-3.0, 0.5, 7.0);
+  const Eigen::Vector3d source = InverseTransformPoint(s, target);
+  EXPECT_LT((s.scale * (s.rotation * source) + s.translation - target).norm(), 1e-12);
+  EXPECT_GT((source - target).norm(), 1.0);  // a real similarity, not the identity
+}
+
 TEST(AlignToPrior, RecoversAKnownSimilarityOnACurvedPath) {
   ExpectExactRecovery(CurvedPath());
 }

@@ -22,6 +22,11 @@ struct Sim3 {
 // keeps its view; its centre moves with the world).
 SE3 TransformPose(const Sim3& similarity, const SE3& T_world_cam);
 
+// The source point that `similarity` maps to `target`:
+// rotation^T (target - translation) / scale (e.g. a pose prior's camera
+// centre carried back into the estimate's world).
+Eigen::Vector3d InverseTransformPoint(const Sim3& similarity, const Eigen::Vector3d& target);
+
 // Umeyama (1991) least-squares alignment of corresponding points.
 // Needs >= 3 corresponding points so that the rotation is determined (fewer,
 // a size mismatch, non-finite or coincident source points: InputError).
