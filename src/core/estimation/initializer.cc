@@ -2120,7 +2120,7 @@ void AdjustToPosePrior(const PinholeCamera& camera, const InitializerOptions& op
     T_cam_world = TransformPose(to_prior, T_cam_world.Inverse()).Inverse();
   }
   for (Eigen::Vector3d& point : structure->points_world) {
-    point = to_prior.scale * (to_prior.rotation * point) + to_prior.translation;
+    point = TransformPoint(to_prior, point);
   }
   structure->turn_rate /= to_prior.scale;
   structure->prior_sigma = options.pose_prior_position_sigma;

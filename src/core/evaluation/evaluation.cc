@@ -12,6 +12,7 @@
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/common/text.h"
+#include "deblur_sr_mvs/core/geometry/sim3.h"
 #include "deblur_sr_mvs/core/imaging/image_ops.h"
 
 namespace deblur_sr_mvs {
@@ -314,8 +315,7 @@ void EvaluateTrajectory(const SequenceResult& result, const SequenceGroundTruth&
     }
     double squares = 0.0;
     for (int i = 0; i < count; ++i) {
-      const Eigen::Vector3d aligned =
-          alignment.scale * (alignment.rotation * estimate[i]) + alignment.translation;
+      const Eigen::Vector3d aligned = TransformPoint(alignment, estimate[i]);
       report->frames[i].position_error = (aligned - truth[i]).norm();
       squares += (aligned - truth[i]).squaredNorm();
     }

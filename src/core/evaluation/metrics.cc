@@ -145,7 +145,7 @@ double AbsoluteTrajectoryRmse(const std::vector<Eigen::Vector3d>& estimate,
   const Sim3 sim3 = UmeyamaAlignment(estimate, ground_truth, /*with_scale=*/true);
   double squared_sum = 0.0;
   for (std::size_t i = 0; i < estimate.size(); ++i) {
-    const Eigen::Vector3d aligned = sim3.scale * (sim3.rotation * estimate[i]) + sim3.translation;
+    const Eigen::Vector3d aligned = TransformPoint(sim3, estimate[i]);
     squared_sum += (ground_truth[i] - aligned).squaredNorm();
   }
   if (alignment != nullptr) *alignment = sim3;

@@ -259,8 +259,7 @@ std::string ExtentNote(double extent) {
 double SquaredResidualSum(const Sim3& s, const std::vector<Eigen::Vector3d>& estimated,
                           const std::vector<Eigen::Vector3d>& prior, const std::vector<int>& inliers) {
   double sum = 0.0;
-  for (int i : inliers)
-    sum += (s.scale * (s.rotation * estimated[i]) + s.translation - prior[i]).squaredNorm();
+  for (int i : inliers) sum += (TransformPoint(s, estimated[i]) - prior[i]).squaredNorm();
   return sum;
 }
 

@@ -11,7 +11,11 @@ namespace deblur_sr_mvs {
 
 SE3 TransformPose(const Sim3& similarity, const SE3& T_world_cam) {
   return SE3(similarity.rotation * T_world_cam.rotation(),
-             similarity.scale * (similarity.rotation * T_world_cam.translation()) + similarity.translation);
+             TransformPoint(similarity, T_world_cam.translation()));
+}
+
+Eigen::Vector3d TransformPoint(const Sim3& similarity, const Eigen::Vector3d& point) {
+  return similarity.scale * (similarity.rotation * point) + similarity.translation;
 }
 
 Eigen::Vector3d InverseTransformPoint(const Sim3& similarity, const Eigen::Vector3d& target) {

@@ -107,7 +107,8 @@ TEST(Sim3Test, InverseTransformPointRoundTrips) {
   EXPECT_LT((InverseTransformPoint(s, moved.translation()) - centre).norm(), 1e-12);
   const Eigen::Vector3d target(-3.0, 0.5, 7.0);
   const Eigen::Vector3d source = InverseTransformPoint(s, target);
-  EXPECT_LT((s.scale * (s.rotation * source) + s.translation - target).norm(), 1e-12);
+  EXPECT_LT((TransformPoint(s, source) - target).norm(), 1e-12);
+  EXPECT_LT((TransformPoint(s, centre) - moved.translation()).norm(), 1e-12);
   EXPECT_GT((source - target).norm(), 1.0);  // a real similarity, not the identity
 }
 

@@ -22,7 +22,11 @@ struct Sim3 {
 // keeps its view; its centre moves with the world).
 SE3 TransformPose(const Sim3& similarity, const SE3& T_world_cam);
 
-// The source point that `similarity` maps to `target`:
+// scale * rotation * point + translation: `point` carried into the target
+// frame (e.g. an estimated camera centre aligned to the ground truth).
+Eigen::Vector3d TransformPoint(const Sim3& similarity, const Eigen::Vector3d& point);
+
+// The source point that `similarity` maps to `target` (TransformPoint's inverse):
 // rotation^T (target - translation) / scale (e.g. a pose prior's camera
 // centre carried back into the estimate's world).
 Eigen::Vector3d InverseTransformPoint(const Sim3& similarity, const Eigen::Vector3d& target);
