@@ -6,7 +6,8 @@
 // of the node's accuracy and work per window (docs/tools.md#benchmark_stream).
 // Usage: benchmark_stream --input SEQ --output OUT [--window-size N]
 //        [--window-overlap K] [--threads T] [--no-depth-sweep]
-//        [--depth-consistency-radius R] [--quiet]
+//        [--depth-consistency-radius R] [--iterations N]
+//        [--continued-iterations N] [--quiet]
 #include <chrono>
 #include <cstdint>
 #include <cstdio>
@@ -80,6 +81,12 @@ int Run(int argc, char** argv) {
   cli.add_option("--depth-consistency-radius", options.depth_consistency.radius,
                  "published depth made consistent with the frames up to N away (default 2, as the node; 0: off)")
       ->check(dsm::FlagInt(0, 10));
+  cli.add_option("--iterations", options.max_iterations,
+                 "joint iterations per window (default 3, as the node)")
+      ->check(dsm::FlagInt(0, 100));
+  cli.add_option("--continued-iterations", options.continued_max_iterations,
+                 "joint iterations in a window that continues the previous one (default: --iterations)")
+      ->check(dsm::FlagInt(0, 100));
   cli.add_flag("--quiet", quiet, "no per-window lines on stdout");
   if (!cli.Parse(argc, argv)) return 0;
   stream_options.Check();
