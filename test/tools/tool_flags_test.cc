@@ -107,6 +107,10 @@ TEST(ToolFlags, BadFlagsGiveOneLineAndExitCode2) {
   ExpectOneLineError("benchmark_stream", {"--input", scene, "--output", out, "--window-size", "2"},
                      "--window-size");
   ExpectOneLineError("benchmark_stream", {"--output", out}, "--input");
+  ExpectOneLineError("benchmark_stream", {"--input", scene, "--output", out, "--iterations", "-1"},
+                     "--iterations");
+  ExpectOneLineError("benchmark_stream", {"--input", scene, "--output", out, "--continued-iterations", "x"},
+                     "--continued-iterations");
   ExpectOneLineError("benchmark_stream",
                      {"--input", scene, "--output", out, "--window-size", "4", "--window-overlap", "4"},
                      "window_overlap");
