@@ -108,8 +108,19 @@ TEST(Sim3Test, InverseTransformPointRoundTrips) {
   const Eigen::Vector3d target(-3.0, 0.5, 7.0);
   const Eigen::Vector3d source = InverseTransformPoint(s, target);
   EXPECT_LT((TransformPoint(s, source) - target).norm(), 1e-12);
-  EXPECT_LT((TransformPoint(s, centre) - moved.translation()).norm(), 1e-12);
   EXPECT_GT((source - target).norm(), 1.0);  // a real similarity, not the identity
+}
+
+// TransformPoint is scale * rotation * point + translation, checked on a
+// similarity worked out by hand: a quarter turn about z, scale 2, shift x 1.
+TEST(Sim3Test, TransformPointMatchesAWorkedExample) {
+  Sim3 s;
+  s.scale = 2.0;
+  s.rotation = Eigen::AngleAxisd(M_PI / 2.0, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  s.translation = Eigen::Vector3d(1.0, 0.0, 0.0);
+  // (1, 0, 3) -> rotated (0, 1, 3) -> scaled (0, 2, 6) -> shifted (1, 2, 6).
+  EXPECT_LT((TransformPoint(s, Eigen::Vector3d(1.0, 0.0, 3.0)) - Eigen::Vector3d(1.0, 2.0, 6.0)).norm(),
+            1e-12);
 }
 
 TEST(AlignToPrior, RecoversAKnownSimilarityOnACurvedPath) {
