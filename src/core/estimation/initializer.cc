@@ -2928,6 +2928,61 @@ ReadoutEstimate EstimateReadoutTimeUnguarded(const std::vector<cv::Mat>& images_
   return estimate;
 }
 
+// The smallest half-size frame side the retry at half resolution
+// (InitializerOptions::half_resolution_retry) runs on.
+constexpr int kMinHalfResolutionSide = 48;
+
+// The frames box-downsampled by 2 (an odd last row or column dropped, as
+// PinholeCamera::Downscaled drops it).
+std::vector<cv::Mat> HalfSizeFrames(const std::vector<cv::Mat>& images_lr) {
+  std::vector<cv::Mat> half;
+  for (const cv::Mat& image : images_lr) {
+    const cv::Mat even = image(cv::Rect(0, 0, image.cols / 2 * 2, image.rows / 2 * 2));
+    cv::Mat out;
+    cv::resize(even, out, cv::Size(image.cols / 2, image.rows / 2), 0.0, 0.0, cv::INTER_AREA);
+    half.push_back(out);
+  }
+  return half;
+}
+
+// A half-size depth map bilinearly up-sampled to `size` (the pixel centres of
+// the scaling rule; a dropped odd row or column replicated).
+cv::Mat DepthAtInputSize(const cv::Mat& half, const cv::Size& size) {
+  cv::Mat up;
+  cv::resize(half, up, cv::Size(half.cols * 2, half.rows * 2), 0.0, 0.0, cv::INTER_LINEAR);
+  if (up.size() != size) {
+    cv::copyMakeBorder(up.clone(), up, 0, size.height - up.rows, 0, size.width - up.cols,
+                       cv::BORDER_REPLICATE);
+  }
+  return up;
+}
+
+// InitializerOptions::half_resolution_retry after `failure` at the input size.
+InitialStructure InitializeAtHalfResolution(const std::vector<cv::Mat>& images_lr,
+                                            const PinholeCamera& camera_lr,
+                                            const std::vector<FrameRecord>& frames,
+                                            const InitializerOptions& options, double readout_time,
+                                            const std::vector<std::optional<SE3>>& T_prior_cam,
+                                            const InitializationError& failure) {
+  const PinholeCamera half_camera = camera_lr.Downscaled(2);
+  if (!options.half_resolution_retry || half_camera.width < kMinHalfResolutionSide ||
+      half_camera.height < kMinHalfResolutionSide) {
+    throw failure;
+  }
+  InitialStructure half;
+  try {
+    half = InitializeStructureUnguarded(HalfSizeFrames(images_lr), half_camera, frames, options, readout_time,
+                                        T_prior_cam);
+  } catch (const InitializationError& again) {
+    throw InitializationError(std::string(failure.what()) + "; at half resolution: " + again.what());
+  }
+  for (cv::Mat& depth : half.depth_lr)
+    depth = DepthAtInputSize(depth, cv::Size(camera_lr.width, camera_lr.height));
+  half.summary = Format("half resolution: %.0fx%.0f px (", half_camera.width, half_camera.height) +
+                 failure.what() + " at the input size)\n" + half.summary;
+  return half;
+}
+
 }  // namespace
 
 InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
@@ -2942,7 +2997,14 @@ InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr, cons
                      std::to_string(frames.size()) + " frames");
   }
   return WithOpenCvErrorsAsInitializationErrors("initialisation: degenerate geometry (OpenCV: ", [&] {
-    return InitializeStructureUnguarded(images_lr, camera_lr, frames, options, readout_time, T_prior_cam);
+    try {
+      return InitializeStructureUnguarded(images_lr, camera_lr, frames, options, readout_time, T_prior_cam);
+    } catch (const NoParallaxError&) {
+      throw;  // a rotation: EstimateRotationOnlyMotion's case, not the retry's
+    } catch (const InitializationError& failure) {
+      return InitializeAtHalfResolution(images_lr, camera_lr, frames, options, readout_time, T_prior_cam,
+                                        failure);
+    }
   });
 }
 

@@ -31,6 +31,14 @@ struct InitializerOptions {
   int klt_levels = 3;                    // LK pyramid levels (motion up to ~2^levels px)
   double klt_max_residual = 0.08;        // mean |intensity difference| ([0,1]) of a kept match
   double max_forward_backward_px = 0.5;  // forward-backward LK disagreement to drop a track
+  // When the initialisation fails at the input size for any reason but the
+  // lack of parallax, it runs once more on the frames box-downsampled by 2
+  // (if that leaves at least 48x48 px), and its depth maps are up-sampled to
+  // the input size. Long blur smears the corners along the motion until
+  // Lucas-Kanade rejects them; at half size the blur and the motion are half
+  // as long in pixels (BENCHMARKS.md "Long blur: the initialiser at half
+  // resolution").
+  bool half_resolution_retry = true;
 
   // --- Two-view geometry of the first pair with parallax, PnP of the others.
   double ransac_threshold_px = 1.0;  // essential-matrix RANSAC threshold (LR px)
@@ -228,7 +236,10 @@ class NoParallaxError : public InitializationError {
 // bundle adjustments. T_prior_cam: empty, or per frame its pose in a pose
 // prior's frame at the frame's stamp (none where the prior has none); used
 // by the bundle adjustment (InitializerOptions::pose_prior_position_sigma).
-// The output gauge is the same with or without it.
+// The output gauge is the same with or without it. With
+// InitializerOptions::half_resolution_retry a failure at the input size is
+// followed by a try at half size (the summary then starts with "half
+// resolution"); the error thrown when both fail names both reasons.
 InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
                                      const std::vector<FrameRecord>& frames,
                                      const InitializerOptions& options, double readout_time = 0.0,
