@@ -2957,30 +2957,36 @@ cv::Mat DepthAtInputSize(const cv::Mat& half, const cv::Size& size) {
   return up;
 }
 
-// InitializerOptions::half_resolution_retry after `failure` at the input size.
-InitialStructure InitializeAtHalfResolution(const std::vector<cv::Mat>& images_lr,
-                                            const PinholeCamera& camera_lr,
-                                            const std::vector<FrameRecord>& frames,
-                                            const InitializerOptions& options, double readout_time,
-                                            const std::vector<std::optional<SE3>>& T_prior_cam,
-                                            const InitializationError& failure) {
-  const PinholeCamera half_camera = camera_lr.Downscaled(2);
-  if (!options.half_resolution_retry || half_camera.width < kMinHalfResolutionSide ||
-      half_camera.height < kMinHalfResolutionSide) {
-    throw failure;
-  }
-  InitialStructure half;
+// `attempt(images, camera)` at the input size, and with
+// InitializerOptions::half_resolution_retry, after an InitializationError
+// other than NoParallaxError (a rotation: EstimateRotationOnlyMotion's case),
+// once more on the frames box-downsampled by 2 (HalfSizeFrames) and
+// PinholeCamera::Downscaled(2); `to_input_size(result, why)` then brings the
+// half-size result to the input size and says why in its summary. When both
+// fail, the InitializationError names both reasons.
+template <typename Attempt, typename ToInputSize>
+auto WithHalfResolutionRetry(const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
+                             const InitializerOptions& options, const Attempt& attempt,
+                             const ToInputSize& to_input_size) {
   try {
-    half = InitializeStructureUnguarded(HalfSizeFrames(images_lr), half_camera, frames, options, readout_time,
-                                        T_prior_cam);
-  } catch (const InitializationError& again) {
-    throw InitializationError(std::string(failure.what()) + "; at half resolution: " + again.what());
+    return attempt(images_lr, camera_lr);
+  } catch (const NoParallaxError&) {
+    throw;
+  } catch (const InitializationError& failure) {
+    const PinholeCamera half_camera = camera_lr.Downscaled(2);
+    if (!options.half_resolution_retry || half_camera.width < kMinHalfResolutionSide ||
+        half_camera.height < kMinHalfResolutionSide) {
+      throw;
+    }
+    try {
+      auto half = attempt(HalfSizeFrames(images_lr), half_camera);
+      to_input_size(&half, Format("half resolution: %.0fx%.0f px (", half_camera.width, half_camera.height) +
+                               failure.what() + " at the input size)");
+      return half;
+    } catch (const InitializationError& again) {
+      throw InitializationError(std::string(failure.what()) + "; at half resolution: " + again.what());
+    }
   }
-  for (cv::Mat& depth : half.depth_lr)
-    depth = DepthAtInputSize(depth, cv::Size(camera_lr.width, camera_lr.height));
-  half.summary = Format("half resolution: %.0fx%.0f px (", half_camera.width, half_camera.height) +
-                 failure.what() + " at the input size)\n" + half.summary;
-  return half;
 }
 
 }  // namespace
@@ -2997,14 +3003,16 @@ InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr, cons
                      std::to_string(frames.size()) + " frames");
   }
   return WithOpenCvErrorsAsInitializationErrors("initialisation: degenerate geometry (OpenCV: ", [&] {
-    try {
-      return InitializeStructureUnguarded(images_lr, camera_lr, frames, options, readout_time, T_prior_cam);
-    } catch (const NoParallaxError&) {
-      throw;  // a rotation: EstimateRotationOnlyMotion's case, not the retry's
-    } catch (const InitializationError& failure) {
-      return InitializeAtHalfResolution(images_lr, camera_lr, frames, options, readout_time, T_prior_cam,
-                                        failure);
-    }
+    return WithHalfResolutionRetry(
+        images_lr, camera_lr, options,
+        [&](const std::vector<cv::Mat>& images, const PinholeCamera& camera) {
+          return InitializeStructureUnguarded(images, camera, frames, options, readout_time, T_prior_cam);
+        },
+        [&](InitialStructure* half, const std::string& why) {
+          for (cv::Mat& depth : half->depth_lr)
+            depth = DepthAtInputSize(depth, cv::Size(camera_lr.width, camera_lr.height));
+          half->summary = why + "\n" + half->summary;
+        });
   });
 }
 
@@ -3015,7 +3023,12 @@ InitialTrajectory InitializeTrajectory(const std::vector<cv::Mat>& images_lr, co
     throw InputError("initialisation: readout_time must be finite and >= 0");
   }
   return WithOpenCvErrorsAsInitializationErrors("initialisation: degenerate geometry (OpenCV: ", [&] {
-    return InitializeTrajectoryUnguarded(images_lr, camera_lr, frames, options, readout_time);
+    return WithHalfResolutionRetry(
+        images_lr, camera_lr, options,
+        [&](const std::vector<cv::Mat>& images, const PinholeCamera& camera) {
+          return InitializeTrajectoryUnguarded(images, camera, frames, options, readout_time);
+        },
+        [](InitialTrajectory* half, const std::string& why) { half->summary = why + "\n" + half->summary; });
   });
 }
 
@@ -3039,7 +3052,12 @@ ReadoutEstimate EstimateReadoutTime(const std::vector<cv::Mat>& images_lr, const
                                     const ReadoutSearchOptions& search) {
   search.Check();
   return WithOpenCvErrorsAsInitializationErrors("readout estimation: degenerate geometry (OpenCV: ", [&] {
-    return EstimateReadoutTimeUnguarded(images_lr, camera_lr, frames, options, search);
+    return WithHalfResolutionRetry(
+        images_lr, camera_lr, options,
+        [&](const std::vector<cv::Mat>& images, const PinholeCamera& camera) {
+          return EstimateReadoutTimeUnguarded(images, camera, frames, options, search);
+        },
+        [](ReadoutEstimate* half, const std::string& why) { half->summary = why + ": " + half->summary; });
   });
 }
 

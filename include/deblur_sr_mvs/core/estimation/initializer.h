@@ -34,7 +34,8 @@ struct InitializerOptions {
   // When the initialisation fails at the input size for any reason but the
   // lack of parallax, it runs once more on the frames box-downsampled by 2
   // (if that leaves at least 48x48 px), and its depth maps are up-sampled to
-  // the input size. Long blur smears the corners along the motion until
+  // the input size (InitializeStructure; InitializeTrajectory and
+  // EstimateReadoutTime retry the same way). Long blur smears the corners along the motion until
   // Lucas-Kanade rejects them; at half size the blur and the motion are half
   // as long in pixels (BENCHMARKS.md "Long blur: the initialiser at half
   // resolution").
@@ -309,7 +310,8 @@ struct ReadoutEstimate {
   double fraction = 0.0;  // of the median frame interval
   double seconds = 0.0;   // fraction x the median frame interval
   // (fraction, RMS reprojection error in LR px over the fixed observations,
-  // capped errors included), in increasing fraction.
+  // capped errors included), in increasing fraction; in half-size px where
+  // the frames were measured at half resolution (the summary then says so).
   std::vector<std::pair<double, double>> cost;
   // How sharply the cost rises around its minimum: the second difference of
   // the grid there over the minimum (at fraction 0 twice the first step's
