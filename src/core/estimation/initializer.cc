@@ -2963,7 +2963,8 @@ cv::Mat DepthAtInputSize(const cv::Mat& half, const cv::Size& size) {
 // once more on the frames box-downsampled by 2 (HalfSizeFrames) and
 // PinholeCamera::Downscaled(2); `to_input_size(result, why)` then brings the
 // half-size result to the input size and says why in its summary. When both
-// fail, the InitializationError names both reasons.
+// fail, the error names both reasons: a NoParallaxError when the half-size
+// frames only turn, an InitializationError otherwise.
 template <typename Attempt, typename ToInputSize>
 auto WithHalfResolutionRetry(const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
                              const InitializerOptions& options, const Attempt& attempt,
@@ -2983,6 +2984,11 @@ auto WithHalfResolutionRetry(const std::vector<cv::Mat>& images_lr, const Pinhol
       to_input_size(&half, Format("half resolution: %.0fx%.0f px (", half_camera.width, half_camera.height) +
                                failure.what() + " at the input size)");
       return half;
+    } catch (const NoParallaxError& again) {
+      // The half-size frames track, and only turn: a rotation, whose
+      // orientations EstimateRotationOnlyMotion measures (at half size too).
+      throw NoParallaxError(std::string(again.what()) +
+                            " (at half resolution; at the input size: " + failure.what() + ")");
     } catch (const InitializationError& again) {
       throw InitializationError(std::string(failure.what()) + "; at half resolution: " + again.what());
     }
@@ -3037,7 +3043,12 @@ RotationOnlyMotion EstimateRotationOnlyMotion(const std::vector<cv::Mat>& images
                                               const std::vector<FrameRecord>& frames,
                                               const InitializerOptions& options) {
   return WithOpenCvErrorsAsInitializationErrors("initialisation: rotation-only motion (OpenCV: ", [&] {
-    return EstimateRotationOnlyMotionUnguarded(images_lr, camera_lr, frames, options);
+    return WithHalfResolutionRetry(
+        images_lr, camera_lr, options,
+        [&](const std::vector<cv::Mat>& images, const PinholeCamera& camera) {
+          return EstimateRotationOnlyMotionUnguarded(images, camera, frames, options);
+        },
+        [](RotationOnlyMotion* half, const std::string& why) { half->summary = why + "\n" + half->summary; });
   });
 }
 

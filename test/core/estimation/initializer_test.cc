@@ -955,6 +955,45 @@ TEST(InitializerTest, LongBlurInitialisesAtHalfResolution) {
                InitializationError);
 }
 
+// A camera that pans fast (path `rotate`, 60 HR px of blur on 200x152
+// frames): the input-size frames show no parallax but do not track well
+// enough for the rotations; at half size they do. InitializeStructure says
+// NoParallaxError (so the caller takes the rotation-only path), and
+// EstimateRotationOnlyMotion measures the orientations at half size.
+TEST(RotationOnlyMotionTest, LongBlurRotationIsMeasuredAtHalfResolution) {
+  SynthesisOptions options;
+  options.path = CameraPathType::kRotate;
+  options.num_frames = 6;
+  options.noise_sigma = 1.0;
+  options.seed = 11;
+  options.blur_px = 60.0;
+  options.subframes = 60;
+  options.hr_width = 400;
+  options.hr_height = 304;
+  const StereoScene scene = LoadMiddleburyScene(std::string(DSM_SOURCE_DIR) + "/data/middlebury/Dolls");
+  const Sequence sequence = SynthesizeSequence(scene, options).sequence;
+  const std::vector<cv::Mat> images = FloatImages(sequence);
+  const PinholeCamera& camera = sequence.calibration.camera;
+  EXPECT_THROW(InitializeStructure(images, camera, sequence.frames, InitializerOptions()), NoParallaxError);
+  InitializerOptions without_retry;
+  without_retry.half_resolution_retry = false;
+  EXPECT_THROW(EstimateRotationOnlyMotion(images, camera, sequence.frames, without_retry),
+               InitializationError);
+
+  const RotationOnlyMotion motion =
+      EstimateRotationOnlyMotion(images, camera, sequence.frames, InitializerOptions());
+  EXPECT_EQ(motion.summary.rfind("half resolution: 100x76 px", 0), 0u) << motion.summary;
+  ASSERT_EQ(motion.R_world_cam.size(), images.size());
+  double worst = 0.0;
+  for (size_t t = 1; t < motion.R_world_cam.size(); ++t) {
+    worst = std::max(worst, RotationErrorDeg(sequence, motion.R_world_cam[t], t));
+  }
+  std::printf("worst rotation error %.3f deg\n", worst);
+  // Measured: 0.02 deg (estimate_sequence's frames). Issue 11's bound for a
+  // rotation-only window: 0.2 deg.
+  EXPECT_LT(worst, 0.2);
+}
+
 // When the half-size try fails too, the error is still one line and names
 // both failures (Reindeer at 30 HR px of blur).
 TEST(InitializerTest, FailureAtBothSizesNamesBoth) {
