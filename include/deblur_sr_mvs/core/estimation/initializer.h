@@ -34,11 +34,12 @@ struct InitializerOptions {
   // When the initialisation fails at the input size for any reason but the
   // lack of parallax, it runs once more on the frames box-downsampled by 2
   // (if that leaves at least 48x48 px), and its depth maps are up-sampled to
-  // the input size (InitializeStructure; InitializeTrajectory,
-  // EstimateReadoutTime and EstimateRotationOnlyMotion retry the same way;
-  // frames that track at half size and only turn give a NoParallaxError). Long blur smears the corners along
-  // the motion until Lucas-Kanade rejects them; at half size the blur and the motion are half as long in
-  // pixels (BENCHMARKS.md "Long blur: the initialiser at half resolution").
+  // the input size. Long blur smears the corners along the motion until
+  // Lucas-Kanade rejects them; at half size the blur and the motion are half
+  // as long in pixels (BENCHMARKS.md "Long blur: the initialiser at half
+  // resolution"). InitializeTrajectory, EstimateReadoutTime and
+  // EstimateRotationOnlyMotion retry the same way; frames that track at half
+  // size and only turn give a NoParallaxError.
   bool half_resolution_retry = true;
 
   // --- Two-view geometry of the first pair with parallax, PnP of the others.
