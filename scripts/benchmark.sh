@@ -9,7 +9,7 @@
 # handheld (non-constant velocity, rotation jitter), rolling (handheld with a
 # rolling shutter, --readout-ratio 0.8) and gain (handheld with
 # --gain-jitter 0.1). Every sequence: FRAMES frames, default size and blur,
-# scale 2, --noise 1, seed 0.
+# scale 2, --noise 1, seed SEED (0 unless DSM_BENCH_SEED says otherwise).
 #
 # Depth is written unmasked (estimate_sequence --depth-confidence-threshold 0)
 # with its confidence maps and evaluated twice: as estimated, and as
@@ -20,8 +20,9 @@
 # Usage: scripts/benchmark.sh [WORKDIR]      (default: a fresh temporary folder)
 # Env:   DSM_BENCH_SCENES="Aloe Dolls Moebius Reindeer"
 #        DSM_BENCH_PATHS="lateral arc forward handheld rolling gain"
-#        DSM_BENCH_FRAMES=10, DSM_BENCH_SKIP_BTV=1 (no BTV-L1: its runs take
-#        most of the time), DSM_BENCH_SPEED=1 (also the 640x480 speed run),
+#        DSM_BENCH_FRAMES=10, DSM_BENCH_SEED=0 (synthesize_sequence --seed:
+#        the noise, the hand-held path's shake and the gains),
+#        DSM_BENCH_SKIP_BTV=1 (no BTV-L1: its runs take most of the time), DSM_BENCH_SPEED=1 (also the 640x480 speed run),
 #        DSM_BENCH_NO_UPDATE=1 (leave BENCHMARKS.md alone).
 # A full run (4 scenes x 6 paths, 96 method runs) should take 30-40 min on 2
 # idle cores (estimated from the idle per-sequence times in BENCHMARKS.md:
@@ -33,6 +34,7 @@ work="${1:-$(mktemp -d /tmp/dsm_benchmark.XXXXXX)}"
 scenes="${DSM_BENCH_SCENES:-Aloe Dolls Moebius Reindeer}"
 paths="${DSM_BENCH_PATHS:-lateral arc forward handheld rolling gain}"
 frames="${DSM_BENCH_FRAMES:-10}"
+seed="${DSM_BENCH_SEED:-0}"
 threshold=0.5  # DepthConfidenceOptions::threshold, estimate_sequence's default
 "$DSM_REPO/scripts/install_deps.sh" --core-only
 dsm_build_plain >/dev/null
@@ -65,7 +67,7 @@ for path in $paths; do
     echo "== $path / $scene"
     # shellcheck disable=SC2086  # flags is a list of words
     tool synthesize_sequence --scene "$DSM_REPO/data/middlebury/$scene" --output "$dir/sequence" \
-      --frames "$frames" --scale 2 --noise 1 --seed 0 $flags >/dev/null
+      --frames "$frames" --scale 2 --noise 1 --seed "$seed" $flags >/dev/null
     if [ -z "$DSM_BENCH_SKIP_BTV" ]; then
       echo "   btvl1"
       tool superres_btvl1 --input "$dir/sequence" --output "$dir/btvl1" --scale 2 >/dev/null
@@ -101,7 +103,7 @@ python3 "$DSM_REPO/scripts/benchmark_tables.py" "$work" > "$work/tables.md"
 stamp="$(date -u '+%Y-%m-%d %H:%M UTC'), $(nproc) cores, commit $(git -C "$DSM_REPO" rev-parse --short HEAD 2>/dev/null || echo '?')"
 {
   echo "<!-- benchmark:begin -->"
-  echo "Command: \`DSM_BENCH_SCENES=\"$scenes\" DSM_BENCH_PATHS=\"$paths\" DSM_BENCH_FRAMES=$frames${DSM_BENCH_SKIP_BTV:+ DSM_BENCH_SKIP_BTV=1} scripts/benchmark.sh\` ($stamp)."
+  echo "Command: \`DSM_BENCH_SCENES=\"$scenes\" DSM_BENCH_PATHS=\"$paths\" DSM_BENCH_FRAMES=$frames${DSM_BENCH_SEED:+ DSM_BENCH_SEED=$seed}${DSM_BENCH_SKIP_BTV:+ DSM_BENCH_SKIP_BTV=1} scripts/benchmark.sh\` ($stamp)."
   echo
   cat "$work/tables.md"
   echo "<!-- benchmark:end -->"
