@@ -22,7 +22,8 @@
 #        DSM_BENCH_PATHS="lateral arc forward handheld rolling gain"
 #        DSM_BENCH_FRAMES=10, DSM_BENCH_SEED=0 (synthesize_sequence --seed:
 #        the noise, the hand-held path's shake and the gains),
-#        DSM_BENCH_SKIP_BTV=1 (no BTV-L1: its runs take most of the time), DSM_BENCH_SPEED=1 (also the 640x480 speed run),
+#        DSM_BENCH_SKIP_BTV=1 (no BTV-L1: its runs take most of the time),
+#        DSM_BENCH_SPEED=1 (also the 640x480 speed run),
 #        DSM_BENCH_NO_UPDATE=1 (leave BENCHMARKS.md alone).
 # A full run (4 scenes x 6 paths, 96 method runs) should take 30-40 min on 2
 # idle cores (estimated from the idle per-sequence times in BENCHMARKS.md:
