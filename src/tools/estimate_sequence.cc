@@ -408,6 +408,26 @@ void AddJointStepOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptio
                "with --joint-depth-pose-step: match the pairs within the pose radius, not only N(t)");
 }
 
+// The input pairs of joint mode's structure update (--structure-matching both).
+void AddInputPairOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptions* options) {
+  dsm::ToolCommandLine& cli = *command_line;
+  cli.add_flag("--cross-blurred-inputs,!--no-cross-blurred-inputs", options->cross_blurred_inputs,
+               "joint, --structure-matching both: input pairs each blurred by the other frame's blur");
+  cli.add_flag("--depth-input-pairs,!--no-depth-input-pairs", options->depth_input_pairs,
+               "joint, --structure-matching both: the depth update matches the input pairs too (default "
+               "on; off: restored pairs for depth, both kinds for poses)");
+  cli.add_option(
+         "--equal-blur-tolerance", options->equal_blur_tolerance_px,
+         "joint, --structure-matching both: pose-update pairs whose frames' blurs differ by less than "
+         "this (HR px) match their input pair only (0: restored pairs always)")
+      ->check(dsm::FlagNumber());
+  cli.add_option(
+         "--unequal-blur-tolerance", options->unequal_blur_tolerance_px,
+         "joint, --structure-matching both: pairs whose frames' blurs differ by more than this (HR px) "
+         "match their restored pair only, in the depth and the pose updates (0: input pairs always)")
+      ->check(dsm::FlagNumber());
+}
+
 // Parses the command line into flags and options; false after --help.
 bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions* options) {
   dsm::ToolCommandLine cli("estimate_sequence", kDescription);
@@ -438,15 +458,7 @@ bool ParseCommandLine(int argc, char** argv, Flags* flags, dsm::EstimatorOptions
   cli.add_flag("--gain-compensation,!--no-gain-compensation", options->gain_compensation,
                "estimate and divide out a per-frame gain (auto-gain), restore each image at its gain "
                "(default on)");
-  cli.add_flag("--cross-blurred-inputs,!--no-cross-blurred-inputs", options->cross_blurred_inputs,
-               "joint, --structure-matching both: input pairs each blurred by the other frame's blur");
-  cli.add_flag("--depth-input-pairs,!--no-depth-input-pairs", options->depth_input_pairs,
-               "joint, --structure-matching both: the depth update matches the input pairs too (default "
-               "on; off: restored pairs for depth, both kinds for poses)");
-  cli.add_option("--equal-blur-tolerance", options->equal_blur_tolerance_px,
-                 "joint, --structure-matching both: pose-update pairs whose frames' blurs differ by less than "
-                 "this (HR px) match their input pair only (0: restored pairs always)")
-      ->check(dsm::FlagNumber());
+  AddInputPairOptions(&cli, options);
   AddJointStepOptions(&cli, options);
   AddDepthEdgeOptions(&cli, options);
   AddFusionOptions(&cli, options);

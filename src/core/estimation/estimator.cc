@@ -580,6 +580,7 @@ class WindowSolver {
   void AppendPairs(int t, const std::vector<int>& sources, bool with_inputs, std::vector<PairMatching>* pairs,
                    HeldOperators* held);
   void DropRestoredPairsOfEqualBlur(int t, std::vector<PairMatching>* pairs) const;
+  double BlurDifference(const CaptureGeometry& geometry_t, int s) const;
   SelfConsistencyLinearization SelfConsistencyOf(int t);
   void SetInverseDepth(int t, const cv::Mat& inverse_depth);
   void SetPoses(const std::vector<SE3>& T_world_cam);
@@ -1136,10 +1137,16 @@ std::vector<BlurPoseTerm> WindowSolver::BlurPoseTerms(const StructureUpdateOptio
 }
 
 // The pairs (t <- s) of frame t with s in `sources` (eq:matchingTerm), with
-// the input pairs where the matching uses them and `with_inputs`; `held`
-// keeps their operators alive.
+// the input pairs where the matching uses them and `with_inputs`, but not
+// where the two frames' blurs differ by more than
+// EstimatorOptions::unequal_blur_tolerance_px; `held` keeps their operators
+// alive.
 void WindowSolver::AppendPairs(int t, const std::vector<int>& sources, bool with_inputs,
                                std::vector<PairMatching>* pairs, HeldOperators* held) {
+  // EstimatorOptions::unequal_blur_tolerance_px: t's blur geometry, once.
+  const bool drop_unequal = input_matching() && with_inputs && options_.unequal_blur_tolerance_px > 0.0;
+  const CaptureGeometry geometry_t =
+      drop_unequal ? MakeCaptureGeometry(frames_, camera_hr_, t, t) : CaptureGeometry();
   for (int s : sources) {
     PairMatching pair;
     pair.t = t;
@@ -1157,6 +1164,9 @@ void WindowSolver::AppendPairs(int t, const std::vector<int>& sources, bool with
     pair.observation = &latents_[t];
     pair.mask = VisibleFromSource(camera_hr_, frames_, t, s, options_.visibility);
     pairs->push_back(pair);
+    // Frames whose blurs differ: their inputs compare with a bias, the
+    // restored pair alone stays (NaN, blurs not comparable: both stay).
+    if (drop_unequal && BlurDifference(geometry_t, s) > options_.unequal_blur_tolerance_px) continue;
     if (input_matching() && with_inputs) {
       // The same pair on the up-sampled inputs, which do not depend on
       // the current structure (see StructureMatching), plain or each
@@ -1179,13 +1189,16 @@ void WindowSolver::DropRestoredPairsOfEqualBlur(int t, std::vector<PairMatching>
   std::vector<PairMatching> kept;
   for (PairMatching& pair : *pairs) {
     const bool restored = pair.blur == nullptr && pair.source == nullptr;
-    if (restored && BlurDifferenceHr(geometry_t, MakeCaptureGeometry(frames_, camera_hr_, pair.s, pair.s),
-                                     options_.scale) < options_.equal_blur_tolerance_px) {
-      continue;
-    }
+    if (restored && BlurDifference(geometry_t, pair.s) < options_.equal_blur_tolerance_px) continue;
     kept.push_back(std::move(pair));
   }
   *pairs = std::move(kept);
+}
+
+// How much the blurs of frame t (its geometry) and frame s differ, in HR px
+// (BlurDifferenceHr at the current structure; NaN: not comparable).
+double WindowSolver::BlurDifference(const CaptureGeometry& geometry_t, int s) const {
+  return BlurDifferenceHr(geometry_t, MakeCaptureGeometry(frames_, camera_hr_, s, s), options_.scale);
 }
 
 // Psi_b o B_a and Psi_a o B_b for every pair of frames within the pose
@@ -1731,6 +1744,13 @@ void EstimatorOptions::Check() const {
   CheckAtLeast("max_seconds", max_seconds, 0.0);
   CheckAbove("pose_prior_weight", pose_prior_weight, 0.0);
   CheckInRange("equal_blur_tolerance_px", equal_blur_tolerance_px, 0.0, 1000.0);
+  CheckInRange("unequal_blur_tolerance_px", unequal_blur_tolerance_px, 0.0, 1000.0);
+  if (equal_blur_tolerance_px > 0.0 && unequal_blur_tolerance_px > 0.0 &&
+      !(unequal_blur_tolerance_px > equal_blur_tolerance_px)) {
+    throw InputError("unequal_blur_tolerance_px must exceed equal_blur_tolerance_px when both are on, got " +
+                     std::to_string(unequal_blur_tolerance_px) + " and " +
+                     std::to_string(equal_blur_tolerance_px));
+  }
   CheckInRange("model_error_sigma", model_error_sigma, 1e-6, 1.0);
   if (noise_sigma > 1.0) throw InputError("noise_sigma must be <= 1 (intensity units; negative: auto)");
   gain.Check();

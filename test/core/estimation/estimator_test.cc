@@ -295,6 +295,14 @@ TEST(EstimatorSafety, BadOptionsAreRejected) {
   EXPECT_THROW(options.Check(), InputError);
   options.equal_blur_tolerance_px = std::numeric_limits<double>::quiet_NaN();
   EXPECT_THROW(options.Check(), InputError);
+  options = EstimatorOptions();
+  options.unequal_blur_tolerance_px = -1.0;
+  EXPECT_THROW(options.Check(), InputError);
+  options.unequal_blur_tolerance_px = 0.4;  // on, but not above the equal-blur rule's tolerance
+  options.equal_blur_tolerance_px = 0.5;
+  EXPECT_THROW(options.Check(), InputError);
+  options.unequal_blur_tolerance_px = 2.0;
+  EXPECT_NO_THROW(options.Check());
 }
 
 // Every Options::Check() names the value, its range and what it got.
