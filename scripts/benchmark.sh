@@ -25,9 +25,9 @@
 #        DSM_BENCH_SKIP_BTV=1 (no BTV-L1: its runs take most of the time),
 #        DSM_BENCH_SPEED=1 (also the 640x480 speed run),
 #        DSM_BENCH_NO_UPDATE=1 (leave BENCHMARKS.md alone).
-# A full run (4 scenes x 6 paths, 96 method runs) should take 30-40 min on 2
-# idle cores (estimated from the idle per-sequence times in BENCHMARKS.md:
-# BTV-L1 ~40 s, joint ~15 s, baseline ~4 s); not yet measured.
+# A full run (4 scenes x 6 paths) without BTV-L1 took 10 min on 2 idle cores
+# (2026-12-05, DSM_BENCH_SKIP_BTV=1: 48 method runs); BTV-L1 adds about 40 s
+# per sequence.
 set -eo pipefail
 source "$(dirname "$0")/common.sh"
 
