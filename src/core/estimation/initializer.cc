@@ -2932,15 +2932,12 @@ ReadoutEstimate EstimateReadoutTimeUnguarded(const std::vector<cv::Mat>& images_
 // (InitializerOptions::half_resolution_retry) runs on.
 constexpr int kMinHalfResolutionSide = 48;
 
-// The frames box-downsampled by 2 (an odd last row or column dropped, as
-// PinholeCamera::Downscaled drops it).
+// The frames box-downsampled by 2 (DownsampleBox; an odd last row or column
+// dropped, as PinholeCamera::Downscaled drops it).
 std::vector<cv::Mat> HalfSizeFrames(const std::vector<cv::Mat>& images_lr) {
   std::vector<cv::Mat> half;
   for (const cv::Mat& image : images_lr) {
-    const cv::Mat even = image(cv::Rect(0, 0, image.cols / 2 * 2, image.rows / 2 * 2));
-    cv::Mat out;
-    cv::resize(even, out, cv::Size(image.cols / 2, image.rows / 2), 0.0, 0.0, cv::INTER_AREA);
-    half.push_back(out);
+    half.push_back(DownsampleBox(image(cv::Rect(0, 0, image.cols / 2 * 2, image.rows / 2 * 2)), 2));
   }
   return half;
 }
