@@ -391,8 +391,9 @@ void AddJointStepOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptio
                options->structure.joint_depth_pose_step,
                "the structure update moves all depths and the free poses in one Gauss-Newton step "
                "(default on; off: per-frame depth updates)");
-  cli.add_option("--joint-coarse-levels", options->structure.joint_coarse_levels,
-                 "with the joint step: coarse-to-fine, this many levels at 1/2, 1/4, ... first (0: off)")
+  cli.add_option(
+         "--joint-coarse-levels", options->structure.joint_coarse_levels,
+         "with the joint step: coarse-to-fine, this many levels at 1/2, 1/4, ... first (0: off; default 1)")
       ->check(dsm::FlagInt());
   cli.add_option("--joint-pose-damping", options->structure.joint_pose_damping,
                  "with --joint-depth-pose-step: Levenberg-Marquardt damping of the poses, relative to "
