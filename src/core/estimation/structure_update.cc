@@ -2112,7 +2112,12 @@ void UpdateDepthAndPoses(const PinholeCamera& camera_hr, const std::vector<cv::M
                          const StructureUpdateOptions& options, int num_fixed, std::vector<SE3>* T_world_cam,
                          std::vector<cv::Mat>* inverse_depths, const PosePriorTerms* prior) {
   options.Check();
-  for (int level = options.joint_coarse_levels; level >= 1; --level) {
+  // The coarse levels move the poses along the bas-relief trade faster
+  // (StructureUpdateOptions::joint_coarse_levels); a pose prior holds them
+  // there itself, and the levels' depth increments then only shift the depth
+  // in metres: skipped.
+  const int coarse_levels = (prior != nullptr && prior->any()) ? 0 : options.joint_coarse_levels;
+  for (int level = coarse_levels; level >= 1; --level) {
     CoarseJointStep(camera_hr, latents, frames, parallax_scale, options, 1 << level, num_fixed, T_world_cam,
                     inverse_depths, prior);
   }

@@ -639,6 +639,41 @@ TEST(UpdateDepthAndPoses, CoarseLevelTakesThePosesFurther) {
   }
 }
 
+// Under a pose prior the step skips the coarse levels: the prior holds the
+// poses, and the levels' depth increments would only shift the depth in
+// metres. One update with a prior at the true poses gives the same poses and
+// depths with the coarse level asked for as without it; without a prior
+// the coarse level changes them.
+TEST(UpdateDepthAndPoses, CoarseLevelsAreSkippedUnderAPosePrior) {
+  const PlaneScene scene;
+  PosePriorTerms prior;
+  prior.position_sigma = 0.01;
+  prior.rotation_sigma = 0.1 * M_PI / 180.0;
+  for (const SE3& pose : scene.T_world_cam) {
+    prior.centre_world.push_back(pose.translation());
+    prior.R_world_cam.push_back(pose.rotation());
+  }
+  const auto run = [&scene](int levels, const PosePriorTerms* terms) {
+    StructureUpdateOptions options;
+    options.joint_coarse_levels = levels;
+    std::vector<cv::Mat> rho(2);
+    for (cv::Mat& r : rho) r = cv::Mat(72, 96, CV_32FC1, cv::Scalar(cv::mean(scene.inverse_depths[0])[0]));
+    std::vector<SE3> poses = scene.T_world_cam;
+    poses[1] = SE3::Exp((Vector6d() << 0.0, 0.006, 0.004, 0.004, -0.003, 0.002).finished()) * poses[1];
+    UpdateDepthAndPoses(scene.camera, scene.images, scene.Terms(cv::Mat()), scene.camera.fx * 0.12, options,
+                        1, &poses, &rho, terms);
+    return std::make_pair(poses[1], rho[1]);
+  };
+  const auto with_prior_fine = run(0, &prior);
+  const auto with_prior_coarse = run(1, &prior);
+  EXPECT_EQ((with_prior_coarse.first.translation() - with_prior_fine.first.translation()).norm(), 0.0);
+  EXPECT_EQ((with_prior_coarse.first.rotation() - with_prior_fine.first.rotation()).norm(), 0.0);
+  EXPECT_EQ(cv::norm(with_prior_coarse.second, with_prior_fine.second, cv::NORM_INF), 0.0);
+  const auto fine = run(0, nullptr);
+  const auto coarse = run(1, nullptr);
+  EXPECT_GT(PoseError(coarse.first, fine.first), 0.0);
+}
+
 // Depth rel. error after one joint step from a fronto-parallel start (true
 // poses), with `levels` coarse levels first (joint_coarse_levels) and
 // `reweightings` per level.
