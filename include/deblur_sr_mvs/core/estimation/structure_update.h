@@ -100,13 +100,14 @@ struct StructureUpdateOptions {
   // iteration to the next (hand-held / Reindeer, seed 2: joint 3.94, 3.77,
   // 3.50, 3.23 mm after 0-3 iterations, 2.72 after 6). The coarse level
   // adds two cheap reweightings along that low-frequency trade.
-  // 1 (default) on the 72 benchmark sequences of seeds 0, 2 and 3 against
-  // 0: ATE 0.90-0.98x on lateral, arc, hand-held, gain-jitter and rolling
-  // paths, full-frame depth 0.91-0.96x and +0.02 to +0.11 dB there, about
-  // 3 % more time; the centre-crop depth within 1 % of before except on
-  // forward paths (1.04x, full-frame 1.00x, ATE 1.01x). The baseline's
-  // ATE falls too (0.95-0.97x) and its crop depth rises 1.03-1.04x
-  // (BENCHMARKS.md "One coarse level of the joint step by default").
+  // 1 (default) against 0 on the 96 benchmark sequences of seeds 0-3, per
+  // path: ATE 0.90-0.98x on lateral, arc, hand-held and gain-jitter paths
+  // (forward 1.01x, rolling 1.02x), full-frame depth 0.91-0.96x on all but
+  // forward (1.00x), +0.02 to +0.11 dB on all six, about 3 % more time;
+  // the centre-crop depth within 0.5 % of before except on forward (1.04x)
+  // and rolling (1.02x) paths. The baseline's ATE falls too (0.97x) and
+  // its crop depth rises (1.04x) (BENCHMARKS.md "One coarse level of the
+  // joint step by default").
   // Skipped where a pose prior enters the step: with an exact prior on 8
   // sequences the level raised the depth error in metres on 6 (up to 1.06x)
   // while the prior already held the poses. 0: off.
