@@ -3,13 +3,13 @@
 // restored pair only. On a constant-velocity path every pair carries the
 // same blur, so the rule changes nothing, bit for bit; on a hand-held path
 // the blurs differ and the rule changes the estimate.
-#include <cstring>
 #include <vector>
 
 #include <opencv2/core.hpp>
 
 #include <gtest/gtest.h>
 
+#include "../support/same_bits.h"
 #include "../support/test_sequences.h"
 #include "deblur_sr_mvs/core/estimation/estimator.h"
 
@@ -28,18 +28,12 @@ EstimatorResult RunWithTolerance(const Sequence& sequence, double tolerance_px) 
   return Estimator(options).RunFromStructure(InputOf(sequence), sequence.ground_truth->depth, poses);
 }
 
-// Equal bits (NaN depth included).
-bool SameBits(const cv::Mat& a, const cv::Mat& b) {
-  if (a.size() != b.size() || a.type() != b.type()) return false;
-  const cv::Mat ca = a.isContinuous() ? a : a.clone(), cb = b.isContinuous() ? b : b.clone();
-  return std::memcmp(ca.data, cb.data, ca.total() * ca.elemSize()) == 0;
-}
-
 bool SameEstimate(const EstimatorResult& a, const EstimatorResult& b) {
   if (a.latent.size() != b.latent.size()) return false;
   for (size_t t = 0; t < a.latent.size(); ++t) {
     if (!SameBits(a.latent[t], b.latent[t]) || !SameBits(a.depth[t], b.depth[t])) return false;
     if (!(a.T_world_cam[t].translation() == b.T_world_cam[t].translation())) return false;
+    if (!(a.T_world_cam[t].rotation() == b.T_world_cam[t].rotation())) return false;
   }
   return true;
 }
