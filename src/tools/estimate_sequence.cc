@@ -420,12 +420,14 @@ void AddInputPairOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptio
   cli.add_option(
          "--equal-blur-tolerance", options->equal_blur_tolerance_px,
          "joint, --structure-matching both: pose-update pairs whose frames' blurs differ by less than "
-         "this (HR px) match their input pair only (0: restored pairs always)")
+         "this (HR px) match their input pair only (0: restored pairs always; default 0.5; off under a pose "
+         "prior)")
       ->check(dsm::FlagNumber());
   cli.add_option(
          "--unequal-blur-tolerance", options->unequal_blur_tolerance_px,
          "joint, --structure-matching both: pairs whose frames' blurs differ by more than this (HR px) "
-         "match their restored pair only, in the depth and the pose updates (0: input pairs always)")
+         "match their restored pair only, in the depth and the pose updates (0: input pairs always; default "
+         "2)")
       ->check(dsm::FlagNumber());
 }
 

@@ -1182,9 +1182,11 @@ void WindowSolver::AppendPairs(int t, const std::vector<int>& sources, bool with
 // The pose update's pairs of frame t without the restored pairs whose two
 // frames carry the same blur (EstimatorOptions::equal_blur_tolerance_px):
 // their input pairs, which stay, compare them without bias. A pair whose
-// blurs cannot be compared (BlurDifferenceHr NaN) keeps both.
+// blurs cannot be compared (BlurDifferenceHr NaN) keeps both. Off where a
+// pose prior enters the update: there the prior holds the poses, and the rule
+// cost the depth's metric scale (EstimatorOptions::equal_blur_tolerance_px).
 void WindowSolver::DropRestoredPairsOfEqualBlur(int t, std::vector<PairMatching>* pairs) const {
-  if (!input_matching() || options_.equal_blur_tolerance_px <= 0.0) return;
+  if (!input_matching() || options_.equal_blur_tolerance_px <= 0.0 || pose_prior_.any()) return;
   const CaptureGeometry geometry_t = MakeCaptureGeometry(frames_, camera_hr_, t, t);
   std::vector<PairMatching> kept;
   for (PairMatching& pair : *pairs) {

@@ -24,6 +24,7 @@ EstimatorResult RunWithTolerance(const Sequence& sequence, double tolerance_px) 
   EstimatorOptions options;
   options.max_iterations = 1;
   options.num_threads = 1;
+  options.equal_blur_tolerance_px = 0.0;  // the unequal-blur rule alone
   options.unequal_blur_tolerance_px = tolerance_px;
   return Estimator(options).RunFromStructure(InputOf(sequence), sequence.ground_truth->depth, poses);
 }

@@ -211,29 +211,28 @@ struct EstimatorOptions {
   // up-sampled inputs compare without bias, while the restored images were
   // fitted to the current poses and partly absorb a pose error. Where the
   // blurs differ (hand-held, forward) the inputs are biased and the restored
-  // pair stays. 0 (default): the restored pairs always. 0.5 took the ATE at
-  // or below the baseline's on 4 of the 5 benchmark sequences where it was
-  // above, at equal depth and images, but raised it on arc / Reindeer from
-  // 0.98x to 1.25x the baseline's, and in the node's windows (4 frames at
-  // 96x72) with an exact pose prior the depth in metres rose from 1.07x to
-  // 1.16x the scale-aligned error, past issue 11's 1.1x: so it stays off
-  // (BENCHMARKS.md "Equal blur: input pairs only in the pose update").
-  double equal_blur_tolerance_px = 0.0;
+  // pair stays. 0: the restored pairs always. Off where a pose prior enters
+  // the structure update: in the node's windows (4 frames at 96x72) with an
+  // exact prior the rule took the depth in metres from 1.06x to 1.18x the
+  // scale-aligned error, past issue 11's 1.1x. Default 0.5 with
+  // unequal_blur_tolerance_px 2 and joint_coarse_levels 1: on the 96
+  // benchmark sequences of four seeds, depth below the baseline's on 96
+  // (88 without the two rules), ATE at or below it on 68 (60), +0.09 to
+  // +0.39 dB per seed; forward ATE at or below on 6 of 16 (9)
+  // (BENCHMARKS.md "The two blur rules by default").
+  double equal_blur_tolerance_px = 0.5;
   // kRestoredAndInput in joint mode: the counterpart. A pair (t <- s) whose
   // frames' blurs differ by more than this many HR pixels (BlurDifferenceHr
   // at the current structure) matches its restored pair only, in the depth
   // update, the joint depth + pose step and the pose update: its up-sampled
   // inputs carry different blurs and compare with a bias. Above
-  // equal_blur_tolerance_px where both are on. 0 (default): the input pairs
-  // always. 2 on the benchmark's hand-held, gain-jitter and rolling-shutter
-  // sequences of three seeds (36): +0.05 to +1.10 dB, depth error -14 to
-  // +2 % and below the baseline's on 36 (32 without), ATE -4 % on average,
-  // but at or below the baseline's on 25 (28 without): Moebius's rose by
-  // 8-12 % on all six hand-held and gain sequences. Forward, lateral and
-  // arc pairs differ by less and are unchanged (BENCHMARKS.md "Unequal
-  // blur: restored pairs only"). Off for that ATE; worth it where images
-  // and depth matter more than poses.
-  double unequal_blur_tolerance_px = 0.0;
+  // equal_blur_tolerance_px where both are on. 0: the input pairs always.
+  // Default 2: only hand-held, gain-jitter and rolling-shutter pairs differ
+  // by that much (lateral, arc and forward pairs by 0.5-1.8 px); there the
+  // depth error falls by up to 14 % and the images gain up to 1.1 dB
+  // (measurements with equal_blur_tolerance_px above; BENCHMARKS.md
+  // "Unequal blur: restored pairs only").
+  double unequal_blur_tolerance_px = 2.0;
   // Joint mode: blur as motion evidence. The pose update also takes the
   // self-consistency term lambda_s |B_t - Psi_t I_t| (eq:IPterm) linearised
   // in the poses that fix Psi_t's blur path (P_t and its neighbours,
