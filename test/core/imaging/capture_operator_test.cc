@@ -613,14 +613,21 @@ TEST(CaptureOperator, AdaptiveSamplesFollowTheBlurLength) {
   options.samples_per_pixel = 2.0;
   EXPECT_EQ(CaptureSamples(geometry, options), static_cast<int>(std::ceil(2.0 * expected)));
   {
-    // A rolling shutter's reprojected depths span the exposure plus the
-    // readout of all but the last LR row: M follows the motion over it.
+    // A rolling shutter: each row's M samples span its own exposure, so M
+    // is the global shutter's; its reprojected depths span the exposure plus
+    // the readout of all but the last LR row, and their number K follows the
+    // motion over that span, at twice the samples' density.
     CaptureGeometry rolling = geometry;
     rolling.readout_time = 0.8 * (geometry.stamp - geometry.neighbour_stamp);
     const int lr_rows = geometry.camera_hr.height / 2;
     const double span = geometry.exposure + rolling.readout_time * (lr_rows - 1) / lr_rows;
-    EXPECT_EQ(CaptureSamples(rolling, options),
-              static_cast<int>(std::ceil(2.0 * expected * span / geometry.exposure)));
+    EXPECT_EQ(CaptureSamples(rolling, options), static_cast<int>(std::ceil(2.0 * expected)));
+    EXPECT_EQ(DepthCameraCount(rolling, options),
+              static_cast<int>(std::ceil(2.0 * 2.0 * expected * span / geometry.exposure)));
+    EXPECT_EQ(DepthCameraCount(geometry, options), CaptureSamples(geometry, options));  // global: K = M
+    options.adaptive_samples = false;
+    EXPECT_EQ(DepthCameraCount(rolling, options), options.samples);
+    options.adaptive_samples = true;
   }
   options.samples = 5;  // the cap
   EXPECT_EQ(CaptureSamples(geometry, options), 5);

@@ -32,11 +32,12 @@ struct CaptureOperatorOptions {
   // adaptive_samples, the most a frame gets.
   int samples = 50;
   // Adaptive M: each frame gets about `samples_per_pixel` virtual cameras per
-  // HR pixel of its blur (the largest image motion over the exposure, see
-  // BlurLengthHr; with a rolling shutter, over the exposure plus the
-  // readout, which its M reprojected depths span), at least `min_samples`
-  // and at most `samples`. Sampling the exposure finer than the bilinear taps
-  // resolve adds work, not accuracy.
+  // HR pixel of its blur (the largest image motion over a row's exposure,
+  // see BlurLengthHr), at least `min_samples` and at most `samples`; a
+  // rolling shutter's reprojected depths, which span the exposure plus the
+  // readout, follow the motion over that span (DepthCameraCount). Sampling
+  // the exposure finer than the bilinear taps resolve adds work, not
+  // accuracy.
   bool adaptive_samples = false;
   double samples_per_pixel = 1.0;
   int min_samples = 4;
@@ -153,6 +154,13 @@ double BlurDifferenceHr(const CaptureGeometry& a, const CaptureGeometry& b, int 
 // M for the frame of `geometry` under `options` (options.samples unless
 // options.adaptive_samples); the same for every source camera.
 int CaptureSamples(const CaptureGeometry& geometry, const CaptureOperatorOptions& options);
+// K, the number of depths D_tau reprojected from D_t for the frame of
+// `geometry`: M for a global shutter (one per virtual camera); for a rolling
+// shutter, whose M virtual cameras per LR row each read the nearest of K
+// depths spread over the exposure plus the readout, about samples_per_pixel
+// per HR pixel of the motion over that span (options.samples unless
+// adaptive), clamped as M is.
+int DepthCameraCount(const CaptureGeometry& geometry, const CaptureOperatorOptions& options);
 
 // The depths D_tau the virtual cameras of one frame see, reprojected from D_t
 // (paper, Sec. 3). They depend on D_t, P_t, P_neighbour, the stamps, the
