@@ -1,8 +1,12 @@
-// The unequal-blur rule (EstimatorOptions::unequal_blur_tolerance_px): a
-// pair whose frames' blurs differ by more than the tolerance matches its
-// restored pair only. On a constant-velocity path every pair carries the
-// same blur, so the rule changes nothing, bit for bit; on a hand-held path
-// the blurs differ and the rule changes the estimate.
+// The two blur rules. The unequal-blur rule
+// (EstimatorOptions::unequal_blur_tolerance_px): a pair whose frames' blurs
+// differ by more than the tolerance matches its restored pair only. On a
+// constant-velocity path every pair carries the same blur, so the rule
+// changes nothing, bit for bit; on a hand-held path the blurs differ and the
+// rule changes the estimate. The equal-blur rule
+// (EstimatorOptions::equal_blur_tolerance_px) changes the pose update's
+// pairs on a constant-velocity path, except where a pose prior enters the
+// structure update.
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -16,17 +20,32 @@
 namespace deblur_sr_mvs {
 namespace {
 
-// One joint iteration from the true structure, on one thread (so that two
-// runs with the same pairs give the same bits).
-EstimatorResult RunWithTolerance(const Sequence& sequence, double tolerance_px) {
+std::vector<SE3> TruePoses(const Sequence& sequence) {
   std::vector<SE3> poses;
   for (const StampedPose& p : sequence.ground_truth->poses) poses.push_back(p.T_world_cam);
+  return poses;
+}
+
+// One joint iteration from the true structure with the two rules'
+// tolerances, on one thread (so that two runs with the same pairs give the
+// same bits); with `prior`, the true poses as a pose prior.
+EstimatorResult RunWithTolerances(const Sequence& sequence, double equal_px, double unequal_px,
+                                  bool prior = false) {
   EstimatorOptions options;
   options.max_iterations = 1;
   options.num_threads = 1;
-  options.equal_blur_tolerance_px = 0.0;  // the unequal-blur rule alone
-  options.unequal_blur_tolerance_px = tolerance_px;
-  return Estimator(options).RunFromStructure(InputOf(sequence), sequence.ground_truth->depth, poses);
+  options.equal_blur_tolerance_px = equal_px;
+  options.unequal_blur_tolerance_px = unequal_px;
+  EstimatorInput input = InputOf(sequence);
+  if (prior) {
+    for (const SE3& pose : TruePoses(sequence)) input.T_prior_cam.emplace_back(pose);
+  }
+  return Estimator(options).RunFromStructure(input, sequence.ground_truth->depth, TruePoses(sequence));
+}
+
+// The unequal-blur rule alone.
+EstimatorResult RunWithTolerance(const Sequence& sequence, double tolerance_px) {
+  return RunWithTolerances(sequence, 0.0, tolerance_px);
 }
 
 bool SameEstimate(const EstimatorResult& a, const EstimatorResult& b) {
@@ -50,6 +69,16 @@ TEST(UnequalBlur, HandHeldPairsOfDifferentBlurLoseTheirInputPair) {
                                                 "--path handheld --frames 4 --subframes 60 --seed 2");
   ASSERT_TRUE(sequence.ground_truth.has_value());
   EXPECT_FALSE(SameEstimate(RunWithTolerance(sequence, 0.0), RunWithTolerance(sequence, 1e-3)));
+}
+
+// Pairs of a lateral path carry equal blurs, so the equal-blur rule takes
+// their restored pairs out of the pose update; under a pose prior it is off.
+TEST(EqualBlur, RuleChangesTheEstimateExceptUnderAPosePrior) {
+  const Sequence sequence = SynthesizedSequence("equal_blur_lateral", "Dolls", "--frames 4 --subframes 60");
+  ASSERT_TRUE(sequence.ground_truth.has_value());
+  EXPECT_FALSE(SameEstimate(RunWithTolerances(sequence, 0.0, 0.0), RunWithTolerances(sequence, 0.5, 0.0)));
+  EXPECT_TRUE(SameEstimate(RunWithTolerances(sequence, 0.0, 0.0, /*prior=*/true),
+                           RunWithTolerances(sequence, 0.5, 0.0, /*prior=*/true)));
 }
 
 }  // namespace
