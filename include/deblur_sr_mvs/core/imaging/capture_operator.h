@@ -157,9 +157,9 @@ int CaptureSamples(const CaptureGeometry& geometry, const CaptureOperatorOptions
 // K, the number of depths D_tau reprojected from D_t for the frame of
 // `geometry`: M for a global shutter (one per virtual camera); for a rolling
 // shutter, whose M virtual cameras per LR row each read the nearest of K
-// depths spread over the exposure plus the readout, about samples_per_pixel
-// per HR pixel of the motion over that span (options.samples unless
-// adaptive), clamped as M is.
+// depths spread over the exposure plus the readout, about twice
+// samples_per_pixel per HR pixel of the motion over that span
+// (options.samples unless adaptive), clamped as M is.
 int DepthCameraCount(const CaptureGeometry& geometry, const CaptureOperatorOptions& options);
 
 // The depths D_tau the virtual cameras of one frame see, reprojected from D_t
