@@ -778,17 +778,20 @@ int SamplesForMotion(double motion_hr, const CaptureOperatorOptions& options) {
       std::clamp(wanted, static_cast<double>(floor), static_cast<double>(options.samples)));
 }
 
-}  // namespace
+// M and K of a frame (CaptureSamples, DepthCameraCount) from one
+// measurement of its blur.
+struct SampleCounts {
+  int samples = 1;        // M, virtual cameras per exposure window
+  int depth_cameras = 1;  // K, depths reprojected from D_t
+};
 
-int CaptureSamples(const CaptureGeometry& geometry, const CaptureOperatorOptions& options) {
-  if (!options.adaptive_samples) return options.samples;
+SampleCounts CountSamples(const CaptureGeometry& geometry, const CaptureOperatorOptions& options) {
+  if (!options.adaptive_samples) return {options.samples, options.samples};
   // Each row's M samples span its own exposure window, so M follows the blur
   // (BlurLengthHr: the longest over the rows' windows) for either shutter.
-  return SamplesForMotion(BlurLengthHr(geometry, options.scale), options);
-}
-
-int DepthCameraCount(const CaptureGeometry& geometry, const CaptureOperatorOptions& options) {
-  if (geometry.readout_time == 0.0 || !options.adaptive_samples) return CaptureSamples(geometry, options);
+  const double blur = BlurLengthHr(geometry, options.scale);
+  const int samples = SamplesForMotion(blur, options);
+  if (geometry.readout_time == 0.0) return {samples, samples};
   // A rolling shutter's reprojected depths span every row's window (the
   // exposure plus the readout): K follows the motion over that span, at
   // twice the samples' density, since each virtual camera reads the nearest
@@ -797,18 +800,29 @@ int DepthCameraCount(const CaptureGeometry& geometry, const CaptureOperatorOptio
   // global shutter's 0.03-0.09 dB).
   const int lr_rows = geometry.camera_hr.height / options.scale;
   const double span = geometry.exposure + RowDelay(geometry, lr_rows - 1, lr_rows);
-  return SamplesForMotion(2.0 * BlurLengthHr(geometry, options.scale) * span / geometry.exposure, options);
+  return {samples, SamplesForMotion(2.0 * blur * span / geometry.exposure, options)};
+}
+
+}  // namespace
+
+int CaptureSamples(const CaptureGeometry& geometry, const CaptureOperatorOptions& options) {
+  return CountSamples(geometry, options).samples;
+}
+
+int DepthCameraCount(const CaptureGeometry& geometry, const CaptureOperatorOptions& options) {
+  return CountSamples(geometry, options).depth_cameras;
 }
 
 void VirtualDepths::Compute(const CaptureGeometry& geometry, const CaptureOperatorOptions& options) {
   options.Check();
   CheckCaptureGeometry(geometry, options.scale);
   const double start = NowMs();
-  samples_ = CaptureSamples(geometry, options);
+  const SampleCounts counts = CountSamples(geometry, options);
+  samples_ = counts.samples;
   scale_ = options.scale;
   reprojected_ = options.reproject_depth;
   depth_t_ = geometry.depth_hr;
-  T_depth_t_ = DepthCameras(geometry, options.scale, samples_, DepthCameraCount(geometry, options));
+  T_depth_t_ = DepthCameras(geometry, options.scale, samples_, counts.depth_cameras);
   if (reprojected_) {
     // D_tau by reprojecting D_t into each depth camera (paper Sec. 3).
     const int num_depths = static_cast<int>(T_depth_t_.size());
@@ -844,12 +858,12 @@ void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, CaptureOpera
 void CaptureOperatorBuilder::Build(const CaptureGeometry& geometry, const VirtualDepths& shared,
                                    CaptureOperator* op) {
   CheckCaptureGeometry(geometry, options_.scale);
-  const int samples = CaptureSamples(geometry, options_);
-  bool same = shared.samples_ == samples && shared.scale_ == options_.scale &&
+  const SampleCounts counts = CountSamples(geometry, options_);
+  bool same = shared.samples_ == counts.samples && shared.scale_ == options_.scale &&
               shared.reprojected_ == options_.reproject_depth &&
               shared.depth_t_.data == geometry.depth_hr.data;
   const std::vector<SE3> T_depth_t =
-      same ? DepthCameras(geometry, options_.scale, samples, DepthCameraCount(geometry, options_))
+      same ? DepthCameras(geometry, options_.scale, counts.samples, counts.depth_cameras)
            : std::vector<SE3>();
   for (size_t k = 0; same && k < T_depth_t.size(); ++k) same = SamePose(T_depth_t[k], shared.T_depth_t_[k]);
   if (!same || T_depth_t.size() != shared.T_depth_t_.size()) {
