@@ -2,8 +2,8 @@
 // docs/ros_interface.md#pose-prior): nodelets loaded in this process get a
 // small synthesized sequence as a camera and, on tf, the camera's pose in a
 // fixed frame at every image stamp: the ground truth plus noise (a metric
-// prior), the exact ground truth, or a prior that does not move (which
-// cannot fix the scale).
+// prior), the same in a world 20 times larger, the exact ground truth, or a
+// prior that does not move (which cannot fix the scale).
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -41,10 +41,16 @@ constexpr double kExactPositionBound = 0.01;  // m, with an exact prior
 // a noisy prior over a 7-17 cm path is a few percent off (the status'
 // scale_note gives the fit's uncertainty, docs/ros_interface.md#pose-prior),
 // so issue 11's 1.1 x criterion is printed, not asserted, with this prior;
-// with an exact prior it is asserted. Unscaled
+// it is asserted with an exact prior, and with this prior over a path 20
+// times longer. Unscaled
 // (monocular units) the error would be |1/s - 1| for the fit's scale s:
 // over 0.4 for this scene (median depth 1.7 m) in either gauge.
 constexpr double kMetricDepthMargin = 0.10;
+// A frame's depth scale is off by the prior fit's error (its uncertainty in
+// the status) and by the frame's own scale error as estimated, which with an
+// exact prior reaches 0.5 % (frames 5-7 of that run): allowed 1 % beside
+// 3 of the fit's standard deviations.
+constexpr double kFrameScaleError = 0.01;
 
 const Sequence& TestSequence() {
   static const Sequence sequence = test::SynthesizedDolls(
@@ -149,8 +155,11 @@ struct MetricDepth {
 // noise of `noise_rms` metres (3D RMS; 0: exact). Published poses must land
 // on the prior's positions without any alignment (within 3 noise RMS, or 1
 // cm for an exact prior), each frame's depth scale within 3 of the fit's
-// uncertainties, and the tf tree and path in the prior's frame.
-void RunWithPrior(const std::string& ns, const PriorFrames& names, double noise_rms, MetricDepth* result) {
+// uncertainties (and kFrameScaleError), and the tf tree and path in the
+// prior's frame. `world_scale`: the synthesizer's world (positions and
+// depths) that many times larger; the images are the same.
+void RunWithPrior(const std::string& ns, const PriorFrames& names, double noise_rms, MetricDepth* result,
+                  double world_scale = 1.0) {
   const Sequence& sequence = TestSequence();
   ASSERT_TRUE(sequence.ground_truth.has_value());
   tf2_ros::Buffer tf_buffer;
@@ -167,7 +176,9 @@ void RunWithPrior(const std::string& ns, const PriorFrames& names, double noise_
   std::normal_distribution<double> noise(0.0, noise_rms / std::sqrt(3.0));
   std::vector<Eigen::Vector3d> truth;  // camera positions in the prior's frame
   for (int t = 0; t < kFrames; ++t) {
-    const SE3 T_odom_cam = T_odom_world * sequence.ground_truth->poses[t].T_world_cam;
+    const SE3& T_world_cam = sequence.ground_truth->poses[t].T_world_cam;
+    const SE3 T_odom_cam =
+        T_odom_world * SE3(T_world_cam.rotation(), world_scale * T_world_cam.translation());
     truth.push_back(T_odom_cam.translation());
     const Eigen::Vector3d noisy =
         T_odom_cam.translation() + Eigen::Vector3d(noise(random), noise(random), noise(random));
@@ -200,8 +211,9 @@ void RunWithPrior(const std::string& ns, const PriorFrames& names, double noise_
     position_max = std::max(position_max, error);
     position_sq += error * error;
     const cv::Mat depth = test::DepthOf(*node.depths[t]);
-    const DepthErrors in_metres = EvaluateDepth(depth, sequence.ground_truth->depth[t], metres);
-    const DepthErrors scaled = EvaluateDepth(depth, sequence.ground_truth->depth[t], aligned);
+    const cv::Mat truth_depth = world_scale * sequence.ground_truth->depth[t];
+    const DepthErrors in_metres = EvaluateDepth(depth, truth_depth, metres);
+    const DepthErrors scaled = EvaluateDepth(depth, truth_depth, aligned);
     result->in_metres += in_metres.relative_error / kFrames;
     result->scale_aligned += scaled.relative_error / kFrames;
     // The published depth is 1 / scale times the truth: its scale error is
@@ -213,7 +225,7 @@ void RunWithPrior(const std::string& ns, const PriorFrames& names, double noise_
               << scaled.scale << "); scale error " << scale_error << ", fit's uncertainty " << uncertainty
               << "\n";
     if (noise_rms > 0.0) {
-      EXPECT_LE(std::abs(scale_error), 3.0 * uncertainty) << "frame " << t;
+      EXPECT_LE(std::abs(scale_error), 3.0 * uncertainty + kFrameScaleError) << "frame " << t;
     }
     EXPECT_TRUE(
         tf_buffer.canTransform(names.prior, names.camera + "_estimated", FrameStamp(t), ros::Duration(2.0)))
@@ -245,6 +257,17 @@ TEST(PosePrior, PosesInThePriorFrameAndDepthInMetres) {
 TEST(PosePrior, ExactPriorGivesDepthInMetresWithinTenPercentOfTheAligned) {
   MetricDepth depth;
   RunWithPrior("/exact", {"exact_odom", "exact_camera"}, 0.0, &depth);
+  EXPECT_LE(depth.in_metres, 1.1 * depth.scale_aligned);
+}
+
+// The same images in a world 20 times larger, as a vehicle's camera sees a
+// scene 34 m away from a path of 1.4-3.4 m: 1 cm of prior noise is small
+// against the path, the scale is fixed to a fraction of a percent, and
+// issue 11's criterion (depth in metres within 10 % of the scale-aligned
+// error) holds with the noisy prior as with the exact one.
+TEST(PosePrior, NoisyPriorOverMetresGivesDepthInMetresWithinTenPercentOfTheAligned) {
+  MetricDepth depth;
+  RunWithPrior("/vehicle", {"vehicle_odom", "vehicle_camera"}, kPriorNoise, &depth, 20.0);
   EXPECT_LE(depth.in_metres, 1.1 * depth.scale_aligned);
 }
 
