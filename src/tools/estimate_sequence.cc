@@ -429,6 +429,12 @@ void AddInputPairOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptio
          "match their restored pair only, in the depth and the pose updates (0: input pairs always; default "
          "2)")
       ->check(dsm::FlagNumber());
+  cli.add_option(
+         "--equal-blur-input-weight", options->equal_blur_input_weight,
+         "joint, --structure-matching both: an input pair's weight in the depth update where its "
+         "frames' blurs are equal, falling to 0 at --unequal-blur-tolerance (0: every input pair at 1; "
+         "default 1.5)")
+      ->check(dsm::FlagNumber());
 }
 
 // Parses the command line into flags and options; false after --help.

@@ -577,8 +577,9 @@ class WindowSolver {
   void UpdateDepthsAndPosesJointly(int iteration, bool isolated,
                                    const StructureUpdateOptions& structure_options);
   std::vector<BlurPoseTerm> BlurPoseTerms(const StructureUpdateOptions& structure_options);
-  void AppendPairs(int t, const std::vector<int>& sources, bool with_inputs, std::vector<PairMatching>* pairs,
-                   HeldOperators* held);
+  void AppendPairs(int t, const std::vector<int>& sources, bool with_inputs, bool weigh_inputs,
+                   std::vector<PairMatching>* pairs, HeldOperators* held);
+  float InputPairWeight(double blur_difference) const;
   void DropRestoredPairsOfEqualBlur(int t, std::vector<PairMatching>* pairs) const;
   double BlurDifference(const CaptureGeometry& geometry_t, int s) const;
   SelfConsistencyLinearization SelfConsistencyOf(int t);
@@ -1006,7 +1007,7 @@ void WindowSolver::UpdateFrameDepth(int t, int iteration, bool isolated, const s
   const cv::Mat saved = inverse_depth_[t].clone();
   std::vector<PairMatching> pairs;
   HeldOperators held;
-  AppendPairs(t, neighbours_[t], options_.depth_input_pairs, &pairs, &held);
+  AppendPairs(t, neighbours_[t], options_.depth_input_pairs, /*weigh_inputs=*/true, &pairs, &held);
   SelfConsistencyLinearization self;
   if (blurred_matching()) self = SelfConsistencyOf(t);
   const double depth_begin = NowMs();
@@ -1038,7 +1039,7 @@ void WindowSolver::UpdateDepthsAndPosesJointly(int iteration, bool isolated,
     const std::vector<int> sources = structure_options.joint_step_pose_pairs
                                          ? Neighbours(t, num_frames_, PoseRadius())
                                          : neighbours_[t];
-    AppendPairs(t, sources, options_.depth_input_pairs, &terms[t].pairs, &held[t]);
+    AppendPairs(t, sources, options_.depth_input_pairs, /*weigh_inputs=*/true, &terms[t].pairs, &held[t]);
     if (blurred_matching()) {
       selves[t] = SelfConsistencyOf(t);
       terms[t].self = &selves[t];
@@ -1081,7 +1082,7 @@ void WindowSolver::UpdateAllPoses(int iteration, bool isolated, const std::vecto
     if (t < held_poses) {
       sources.erase(sources.begin(), std::lower_bound(sources.begin(), sources.end(), held_poses));
     }
-    AppendPairs(t, sources, /*with_inputs=*/true, &frame_pairs[t], &held[t]);
+    AppendPairs(t, sources, /*with_inputs=*/true, /*weigh_inputs=*/false, &frame_pairs[t], &held[t]);
     DropRestoredPairsOfEqualBlur(t, &frame_pairs[t]);
   });
   std::vector<PairMatching> pairs;
@@ -1139,9 +1140,10 @@ std::vector<BlurPoseTerm> WindowSolver::BlurPoseTerms(const StructureUpdateOptio
 // The pairs (t <- s) of frame t with s in `sources` (eq:matchingTerm), with
 // the input pairs where the matching uses them and `with_inputs`, but not
 // where the two frames' blurs differ by more than
-// EstimatorOptions::unequal_blur_tolerance_px; `held` keeps their operators
-// alive.
-void WindowSolver::AppendPairs(int t, const std::vector<int>& sources, bool with_inputs,
+// EstimatorOptions::unequal_blur_tolerance_px, and with `weigh_inputs` at
+// the weight of their blur difference (InputPairWeight); `held` keeps their
+// operators alive.
+void WindowSolver::AppendPairs(int t, const std::vector<int>& sources, bool with_inputs, bool weigh_inputs,
                                std::vector<PairMatching>* pairs, HeldOperators* held) {
   // EstimatorOptions::unequal_blur_tolerance_px: t's blur geometry, once.
   const bool drop_unequal = input_matching() && with_inputs && options_.unequal_blur_tolerance_px > 0.0;
@@ -1166,7 +1168,8 @@ void WindowSolver::AppendPairs(int t, const std::vector<int>& sources, bool with
     pairs->push_back(pair);
     // Frames whose blurs differ: their inputs compare with a bias, the
     // restored pair alone stays (NaN, blurs not comparable: both stay).
-    if (drop_unequal && BlurDifference(geometry_t, s) > options_.unequal_blur_tolerance_px) continue;
+    const double blur_difference = drop_unequal ? BlurDifference(geometry_t, s) : NAN;
+    if (blur_difference > options_.unequal_blur_tolerance_px) continue;
     if (input_matching() && with_inputs) {
       // The same pair on the up-sampled inputs, which do not depend on
       // the current structure (see StructureMatching), plain or each
@@ -1174,9 +1177,22 @@ void WindowSolver::AppendPairs(int t, const std::vector<int>& sources, bool with
       const int radius = PoseRadius();
       pair.observation = cross_blurred_inputs() ? &cross_blurred_[t][s - t + radius] : &bicubic_[t];
       pair.source = cross_blurred_inputs() ? &cross_blurred_[s][t - s + radius] : &bicubic_[s];
+      if (weigh_inputs) pair.weight = InputPairWeight(blur_difference);
       pairs->push_back(pair);
     }
   }
+}
+
+// An input pair's weight in the depth update and the joint step
+// (EstimatorOptions::equal_blur_input_weight): the input pairs compare
+// without bias as far as their frames' blurs agree. 1 where the rule is
+// off or the blurs cannot be compared (NaN, also where the blur difference
+// is not measured: unequal_blur_tolerance_px 0).
+float WindowSolver::InputPairWeight(double blur_difference) const {
+  const double weight = options_.equal_blur_input_weight;
+  if (weight <= 0.0 || !std::isfinite(blur_difference)) return 1.0f;
+  return static_cast<float>(weight *
+                            std::max(0.0, 1.0 - blur_difference / options_.unequal_blur_tolerance_px));
 }
 
 // The pose update's pairs of frame t without the restored pairs whose two
@@ -1747,6 +1763,7 @@ void EstimatorOptions::Check() const {
   CheckAbove("pose_prior_weight", pose_prior_weight, 0.0);
   CheckInRange("equal_blur_tolerance_px", equal_blur_tolerance_px, 0.0, 1000.0);
   CheckInRange("unequal_blur_tolerance_px", unequal_blur_tolerance_px, 0.0, 1000.0);
+  CheckInRange("equal_blur_input_weight", equal_blur_input_weight, 0.0, 100.0);
   if (equal_blur_tolerance_px > 0.0 && unequal_blur_tolerance_px > 0.0 &&
       !(unequal_blur_tolerance_px > equal_blur_tolerance_px)) {
     throw InputError("unequal_blur_tolerance_px must exceed equal_blur_tolerance_px when both are on, got " +

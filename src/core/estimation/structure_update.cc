@@ -1050,6 +1050,7 @@ class DepthNormalEquations {
       cv::Mat weight;
       const cv::Mat mask = ObservationMask(pair, lin.valid);
       L1Weights(residual, mask, options_.residual_epsilon, &weight);
+      if (pair.weight != 1.0f) weight *= pair.weight;  // PairMatching::weight
       if (measure_residuals_) MeasureResidual(residual, mask);
       cv::multiply(residual, weight, predicted_);
       PredictAdjoint(pair, predicted_, &back_);

@@ -303,6 +303,12 @@ TEST(EstimatorSafety, BadOptionsAreRejected) {
   EXPECT_THROW(options.Check(), InputError);
   options.unequal_blur_tolerance_px = 2.0;
   EXPECT_NO_THROW(options.Check());
+  options.equal_blur_input_weight = -0.5;
+  EXPECT_THROW(options.Check(), InputError);
+  options.equal_blur_input_weight = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(options.Check(), InputError);
+  options.equal_blur_input_weight = 0.0;  // off
+  EXPECT_NO_THROW(options.Check());
 }
 
 // Every Options::Check() names the value, its range and what it got.

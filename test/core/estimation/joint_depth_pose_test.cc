@@ -733,5 +733,58 @@ TEST(StructureUpdateOptions, RejectsNegativeJointPoseDamping) {
   EXPECT_ANY_THROW(options.Check());
 }
 
+// PairMatching::weight scales a pair's IRLS weights in the depth update and
+// the joint step: weight 0 is the pair left out, weight 2 the pair entered
+// twice (up to float rounding), and a weight changes the step.
+TEST(PairWeight, ScalesThePairInTheDepthUpdateAndTheJointStep) {
+  const PlaneScene scene(/*third=*/true);
+  const std::vector<FrameDepthTerms> terms = scene.Terms(cv::Mat());
+  const StructureUpdateOptions options;
+  const double parallax_scale = scene.camera.fx * 0.12;
+  const double mean_rho = cv::mean(scene.inverse_depths[0])[0];
+  auto depth_from = [&](const std::vector<PairMatching>& pairs) {
+    cv::Mat rho(72, 96, CV_32FC1, cv::Scalar(mean_rho));
+    UpdateDepth(scene.camera, scene.T_world_cam, scene.images, pairs, nullptr, cv::Mat(), parallax_scale,
+                options, &rho);
+    return rho;
+  };
+  const PairMatching near = terms[0].pairs[0], far = terms[0].pairs[1];  // 0 <- 1, 0 <- 2
+  PairMatching unweighted = far, doubled = far;
+  unweighted.weight = 0.0f;
+  doubled.weight = 2.0f;
+  const cv::Mat alone = depth_from({near}), with_zero = depth_from({near, unweighted});
+  const cv::Mat once = depth_from({near, far}), twice = depth_from({near, far, far});
+  const cv::Mat weighted = depth_from({near, doubled});
+  const double size = cv::norm(once, cv::NORM_INF);
+  const double zero_gap = cv::norm(alone, with_zero, cv::NORM_INF),
+               double_gap = cv::norm(twice, weighted, cv::NORM_INF);
+  const double weight_effect = cv::norm(once, weighted, cv::NORM_INF);
+  std::printf("depth update: weight 0 vs absent %.2e, weight 2 vs twice %.2e, weight 2 vs 1 %.2e (of %.3f)\n",
+              zero_gap, double_gap, weight_effect, size);
+  EXPECT_LE(zero_gap, 1e-6 * size);
+  EXPECT_LE(double_gap, 1e-5 * size);
+  EXPECT_GT(weight_effect, 1e-3 * size);
+
+  // The joint step: frame 0's far pair at weight 0 against without it.
+  auto joint_from = [&](const std::vector<FrameDepthTerms>& frame_terms, std::vector<SE3>* poses) {
+    std::vector<cv::Mat> rho(3);
+    for (cv::Mat& r : rho) r = cv::Mat(72, 96, CV_32FC1, cv::Scalar(mean_rho));
+    *poses = scene.T_world_cam;
+    (*poses)[2] = SE3::Exp((Vector6d() << 0.0, 0.006, 0.004, 0.004, -0.003, 0.002).finished()) * (*poses)[2];
+    UpdateDepthAndPoses(scene.camera, scene.images, frame_terms, parallax_scale, options, 1, poses, &rho);
+    return rho;
+  };
+  std::vector<FrameDepthTerms> without = terms, zero = terms;
+  without[0].pairs = {near};
+  zero[0].pairs = {near, unweighted};
+  std::vector<SE3> poses_without, poses_zero;
+  const std::vector<cv::Mat> rho_without = joint_from(without, &poses_without);
+  const std::vector<cv::Mat> rho_zero = joint_from(zero, &poses_zero);
+  for (int t = 0; t < 3; ++t) {
+    EXPECT_LE(cv::norm(rho_without[t], rho_zero[t], cv::NORM_INF), 1e-6 * size) << "frame " << t;
+    EXPECT_LE(PoseError(poses_without[t], poses_zero[t]), 1e-9) << "frame " << t;
+  }
+}
+
 }  // namespace
 }  // namespace deblur_sr_mvs

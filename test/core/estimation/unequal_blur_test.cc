@@ -6,7 +6,10 @@
 // rule changes the estimate. The equal-blur rule
 // (EstimatorOptions::equal_blur_tolerance_px) changes the pose update's
 // pairs on a constant-velocity path, except where a pose prior enters the
-// structure update.
+// structure update. The input pairs' weight by their blur difference
+// (EstimatorOptions::equal_blur_input_weight) changes the estimate on a
+// constant-velocity path, and only with the unequal-blur rule on (it
+// measures the blur difference).
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -28,14 +31,16 @@ std::vector<SE3> TruePoses(const Sequence& sequence) {
 
 // One joint iteration from the true structure with the two rules'
 // tolerances, on one thread (so that two runs with the same pairs give the
-// same bits); with `prior`, the true poses as a pose prior.
+// same bits); with `prior`, the true poses as a pose prior; every input
+// pair at weight 1 unless `input_weight` (equal_blur_input_weight) is set.
 EstimatorResult RunWithTolerances(const Sequence& sequence, double equal_px, double unequal_px,
-                                  bool prior = false) {
+                                  bool prior = false, double input_weight = 0.0) {
   EstimatorOptions options;
   options.max_iterations = 1;
   options.num_threads = 1;
   options.equal_blur_tolerance_px = equal_px;
   options.unequal_blur_tolerance_px = unequal_px;
+  options.equal_blur_input_weight = input_weight;
   EstimatorInput input = InputOf(sequence);
   if (prior) {
     for (const SE3& pose : TruePoses(sequence)) input.T_prior_cam.emplace_back(pose);
@@ -79,6 +84,17 @@ TEST(EqualBlur, RuleChangesTheEstimateExceptUnderAPosePrior) {
   EXPECT_FALSE(SameEstimate(RunWithTolerances(sequence, 0.0, 0.0), RunWithTolerances(sequence, 0.5, 0.0)));
   EXPECT_TRUE(SameEstimate(RunWithTolerances(sequence, 0.0, 0.0, /*prior=*/true),
                            RunWithTolerances(sequence, 0.5, 0.0, /*prior=*/true)));
+}
+
+// On a lateral path the blurs are equal, so the input pairs weigh 1.5 in the
+// depth update; without the unequal-blur rule the weight is not applied.
+TEST(EqualBlurInputWeight, ChangesTheEstimateWhereTheBlurDifferenceIsMeasured) {
+  const Sequence sequence = SynthesizedSequence("equal_blur_lateral", "Dolls", "--frames 4 --subframes 60");
+  ASSERT_TRUE(sequence.ground_truth.has_value());
+  EXPECT_FALSE(SameEstimate(RunWithTolerances(sequence, 0.0, 2.0, false, 0.0),
+                            RunWithTolerances(sequence, 0.0, 2.0, false, 1.5)));
+  EXPECT_TRUE(SameEstimate(RunWithTolerances(sequence, 0.0, 0.0, false, 0.0),
+                           RunWithTolerances(sequence, 0.0, 0.0, false, 1.5)));
 }
 
 }  // namespace

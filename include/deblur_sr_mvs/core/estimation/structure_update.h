@@ -155,6 +155,10 @@ struct PairMatching {
   cv::Mat mask;                           // Omega_ts on the observation grid (CV_8UC1)
   const cv::Mat* source = nullptr;        // image of s warped into t; nullptr: latents[s]
                                           // (HR pairs: another image pair, e.g. the inputs)
+  // Scales the pair's IRLS weights in the depth update and the joint depth +
+  // pose step (UpdateDepth, UpdateDepthAndPoses; 0: as if the pair were
+  // absent). UpdatePoses takes every pair at weight 1.
+  float weight = 1.0f;
 };
 
 // Residual images of the linearisation for one pair at the current structure:
