@@ -1185,9 +1185,9 @@ void WindowSolver::AppendPairs(int t, const std::vector<int>& sources, bool with
 
 // An input pair's weight in the depth update and the joint step
 // (EstimatorOptions::equal_blur_input_weight): the input pairs compare
-// without bias as far as their frames' blurs agree. 1 where the rule is
-// off or the blurs cannot be compared (NaN, also where the blur difference
-// is not measured: unequal_blur_tolerance_px 0).
+// without bias as far as their frames' blurs agree. 1 where
+// equal_blur_input_weight is 0 or the blurs cannot be compared (NaN, also
+// where the blur difference is not measured: unequal_blur_tolerance_px 0).
 float WindowSolver::InputPairWeight(double blur_difference) const {
   const double weight = options_.equal_blur_input_weight;
   if (weight <= 0.0 || !std::isfinite(blur_difference)) return 1.0f;

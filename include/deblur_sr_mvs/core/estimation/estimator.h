@@ -240,11 +240,12 @@ struct EstimatorOptions {
   // (BlurDifferenceHr at the current structure; 1 where it is NaN): w where
   // the blurs are equal, falling to 0 where the pair is dropped. The pose
   // update keeps every input pair at 1. 0: every input pair at 1 (before
-  // 2026-12-06). Default 1.5: on the 24 benchmark sequences of seeds 3 and
-  // 4 each, full-frame depth error 0.910x -> 0.897x / 0.917x -> 0.910x the
-  // baseline's, ATE at or below it on 16 (14) / 22 (21), below it in depth
-  // on all 24; with 2, arc / Aloe (its turn missed) rose above the baseline
-  // (BENCHMARKS.md "How much the input pairs weigh in the depth update").
+  // 2026-12-06). Default 1.5: on the 24 benchmark sequences of each of
+  // seeds 4, 3 and 0, full-frame depth error 0.917x -> 0.910x, 0.910x ->
+  // 0.897x, 0.931x -> 0.902x the baseline's, ATE at or below it on 22 (21),
+  // 16 (14), 22 (20), depth below it on all 24; with 2, arc / Aloe (its
+  // turn missed) rose above the baseline (BENCHMARKS.md "How much the input
+  // pairs weigh in the depth update").
   double equal_blur_input_weight = 1.5;
   // Joint mode: blur as motion evidence. The pose update also takes the
   // self-consistency term lambda_s |B_t - Psi_t I_t| (eq:IPterm) linearised
