@@ -2050,12 +2050,28 @@ void CorrectRollingShutter(const PinholeCamera& camera, const InitializerOptions
       readout_time, mean_shift, rms, NowMs() - start_ms);
 }
 
+// Each frame's pose at its shutter close t_c from the mid-exposure poses
+// (t_c - exposure / 2): along the geodesic through the mid-exposure poses of
+// frames t-1 and t (eq:interpolatingP, extrapolated by half an exposure;
+// frame 0 uses frames 0-1). Needs >= 2 frames.
+std::vector<SE3> MidExposureToShutterClose(const std::vector<FrameRecord>& frames,
+                                           const std::vector<SE3>& T_world_mid) {
+  const int num_frames = static_cast<int>(frames.size());
+  std::vector<SE3> T_world_cam(num_frames);
+  for (int t = 0; t < num_frames; ++t) {
+    const int a = t > 0 ? t - 1 : 0;
+    const int b = t > 0 ? t : 1;
+    const double mid_a = frames[a].stamp - 0.5 * frames[a].exposure;
+    const double mid_b = frames[b].stamp - 0.5 * frames[b].exposure;
+    T_world_cam[t] = PoseAtTime(T_world_mid[a], mid_a, T_world_mid[b], mid_b, frames[t].stamp);
+  }
+  return T_world_cam;
+}
+
 // Each frame's pose prior at its mid-exposure (t_c - exposure / 2), the time
 // of the sparse poses: on the prior's geodesic through frames t-1 and t
-// (frame 0: 0 and 1, extrapolated; an interpolation between the two stamps
-// otherwise, whose acceleration bias is below half that of the geodesic
-// extrapolation MidExposureToShutterClose replaced); the frame's own prior
-// pose where that neighbour has none.
+// (frame 0: 0 and 1, extrapolated), the way MidExposureToShutterClose goes
+// the other way; the frame's own prior pose where that neighbour has none.
 std::vector<std::optional<SE3>> PriorAtMidExposure(const std::vector<FrameRecord>& frames,
                                                    const std::vector<std::optional<SE3>>& T_prior_cam) {
   const int num_frames = static_cast<int>(frames.size());
@@ -3051,22 +3067,6 @@ ReadoutEstimate EstimateReadoutTime(const std::vector<cv::Mat>& images_lr, const
         },
         [](ReadoutEstimate* half, const std::string& why) { half->summary = why + ": " + half->summary; });
   });
-}
-
-std::vector<SE3> MidExposureToShutterClose(const std::vector<FrameRecord>& frames,
-                                           const std::vector<SE3>& T_world_mid) {
-  const int num_frames = static_cast<int>(frames.size());
-  if (num_frames < 2 || static_cast<int>(T_world_mid.size()) != num_frames) {
-    throw InputError(
-        Format("MidExposureToShutterClose: needs one mid-exposure pose for each of >= 2 frames, "
-               "got %.0f poses for %.0f frames",
-               T_world_mid.size(), num_frames));
-  }
-  std::vector<SE3> T_world_cam(num_frames);
-  for (int t = 0; t < num_frames; ++t) {
-    T_world_cam[t] = RowPose(frames, T_world_mid, t, 0.5 * frames[t].exposure);
-  }
-  return T_world_cam;
 }
 
 }  // namespace deblur_sr_mvs

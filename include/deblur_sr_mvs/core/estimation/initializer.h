@@ -264,21 +264,6 @@ InitialTrajectory InitializeTrajectory(const std::vector<cv::Mat>& images_lr, co
                                        const std::vector<FrameRecord>& frames,
                                        const InitializerOptions& options, double readout_time = 0.0);
 
-// Each frame's camera at its shutter close t_c (its stamp) from the cameras
-// at mid-exposure (t_c - exposure / 2), where the tracks of blurred frames
-// put them (they follow the blur centroids). T_world_mid: one per frame, >= 2
-// frames. Frame t moves along the quadratic in se(3) through the
-// mid-exposure cameras of t-1, t and t+1 (frame 0: 0, 1 and 2), the blur path
-// of the capture model (eq:interpolatingP, PoseOnQuadraticPath), which
-// follows an accelerating camera; the last frame, which has no later
-// neighbour, and 2-frame windows along the geodesic through t-1 and t
-// (frame 0: 0 and 1). The geodesic for every frame (before 2026-12-06) puts
-// an accelerating camera behind where it is: by (e / 4 + e^2 / 8) a for an
-// exposure of e frame intervals and an acceleration a per interval squared
-// (0.28 a at e = 0.8). Throws InputError on a count mismatch.
-std::vector<SE3> MidExposureToShutterClose(const std::vector<FrameRecord>& frames,
-                                           const std::vector<SE3>& T_world_mid);
-
 // Camera orientations of a window whose motion is (close to) a pure rotation:
 // the warps between frames are then homographies K R K^-1 and depth is not
 // observable. R_world_cam at each frame's stamp (the shutter close t_c,
