@@ -2765,7 +2765,7 @@ SparseInitialisation InitializeSparse(const std::vector<cv::Mat>& images_lr, con
   if (!(options.dense_fixation_test || options.flow_fixation_test) || readout_time > 0.0 || has_prior) {
     rejected_turn.reset();
   }
-  if (kept_turn_still && options.flow_turn_check && readout_time == 0.0 && !has_prior) {
+  if (kept_turn_still && options.flow_turn_check && !has_prior) {
     const bool keep_turn =
         FlowFavoursTurn(window.gray, camera_lr, options, *kept_turn_still, structure,
                         options.flow_turn_check_z, "flow turn check", "turn dropped", summary);
