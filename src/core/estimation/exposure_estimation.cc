@@ -49,17 +49,27 @@ void WhitenedGradient(const cv::Mat& image, double sigma_px, FrameEvidence* evid
 }
 
 // Image motion of frame t's pixels over one frame interval before t along
-// its blur path (SetBlurPath: P_{t-1} itself for t > 0; for frame 0 the path
-// extrapolated backwards), for depth `depth` (empty: at infinity); its sign
-// does not matter to the correlation.
+// its blur path `path` (SetBlurPath: P_{t-1} itself for t > 0; for frame 0
+// the path extrapolated backwards), for depth `depth` (empty: at infinity);
+// its sign does not matter to the correlation. With a rolling shutter, row
+// y's interval ends readout_time x y / H after `stamp`, and the motion is
+// mapped into the frame's rows (EstimateExposureFromMotion).
 void FrameMotion(const PinholeCamera& camera, const cv::Mat& depth, const SE3& T_world_cam,
-                 const SE3& T_world_before, double min_motion_px, FrameEvidence* evidence) {
-  const SE3 T_n_t = T_world_before.Inverse() * T_world_cam;
+                 const CaptureGeometry& path, double stamp, double interval, double readout_time,
+                 double min_motion_px, FrameEvidence* evidence) {
   const cv::Size size(camera.width, camera.height);
   evidence->ux.create(size, CV_32FC1);
   evidence->uy.create(size, CV_32FC1);
   evidence->vn.create(size, CV_32FC1);
+  // The fraction of the interval between two rows' closing times: a motion
+  // of m px per interval moves the image m x this per row.
+  const double interval_per_row = readout_time / interval / size.height;
+  SE3 T_n_t = PoseAtTime(path, stamp - interval).Inverse() * T_world_cam;
   for (int y = 0; y < size.height; ++y) {
+    if (readout_time > 0.0) {
+      const double delay = readout_time * y / size.height;
+      T_n_t = PoseAtTime(path, stamp + delay - interval).Inverse() * PoseAtTime(path, stamp + delay);
+    }
     for (int x = 0; x < size.width; ++x) {
       const float d = depth.empty() ? 1.0f : depth.at<float>(y, x);
       float ux = kNaN, uy = kNaN, vn = kNaN;
@@ -68,7 +78,11 @@ void FrameMotion(const PinholeCamera& camera, const cv::Mat& depth, const SE3& T
         const Eigen::Vector3d seen =
             depth.empty() ? Eigen::Vector3d(T_n_t.rotation() * ray) : Eigen::Vector3d(T_n_t * (d * ray));
         if (seen.z() > 0.0) {
-          const Eigen::Vector2d motion = Eigen::Vector2d(x, y) - camera.Project(seen);
+          Eigen::Vector2d motion = Eigen::Vector2d(x, y) - camera.Project(seen);
+          const double sx = motion.x() * interval_per_row, sy = motion.y() * interval_per_row;
+          if (readout_time > 0.0 && sy < 0.5) {
+            motion = Eigen::Vector2d(motion.x() + sx * motion.y() / (1.0 - sy), motion.y() / (1.0 - sy));
+          }
           if (motion.norm() >= min_motion_px) {
             vn = static_cast<float>(motion.norm());
             ux = static_cast<float>(motion.x() / motion.norm());
@@ -181,7 +195,7 @@ ExposureEstimate EstimateExposureFromMotion(const std::vector<cv::Mat>& images_l
                                             const std::vector<FrameRecord>& frames,
                                             const std::vector<cv::Mat>& depth_lr,
                                             const std::vector<SE3>& T_world_cam,
-                                            const ExposureEstimationOptions& options) {
+                                            const ExposureEstimationOptions& options, double readout_time) {
   options.Check();
   const std::vector<double> intervals = FrameIntervals(frames);
   const size_t n = frames.size();
@@ -194,8 +208,8 @@ ExposureEstimate EstimateExposureFromMotion(const std::vector<cv::Mat>& images_l
     WhitenedGradient(images_lr[t], options.highpass_sigma_px, &evidence[t]);
     CaptureGeometry path;
     SetBlurPath(T_world_cam, stamps, static_cast<int>(t), &path);
-    FrameMotion(camera_lr, depth_lr.empty() ? cv::Mat() : depth_lr[t], T_world_cam[t],
-                PoseAtTime(path, stamps[t] - intervals[t]), options.min_motion_px, &evidence[t]);
+    FrameMotion(camera_lr, depth_lr.empty() ? cv::Mat() : depth_lr[t], T_world_cam[t], path, stamps[t],
+                intervals[t], readout_time, options.min_motion_px, &evidence[t]);
   }
   ExposureEstimate estimate;
   const int steps = static_cast<int>(
@@ -235,8 +249,8 @@ ExposureEstimate EstimateExposure(const EstimatorInput& input, const EstimatorOp
   InitialiseAtFraction(input, estimator_options, options.initial_fraction, &depth_lr, &T_world_cam);
   if (cancel != nullptr && cancel->load()) throw EstimationCancelled();
   const double search_start = NowMs();
-  ExposureEstimate estimate =
-      EstimateExposureFromMotion(input.images, input.camera, input.frames, depth_lr, T_world_cam, options);
+  ExposureEstimate estimate = EstimateExposureFromMotion(input.images, input.camera, input.frames, depth_lr,
+                                                         T_world_cam, options, input.readout_time);
   estimate.elapsed_seconds = (NowMs() - start) / 1000.0;
   char time[96];
   std::snprintf(time, sizeof(time), "; %.2f s (initialisation %.2f s, search %.2f s)",

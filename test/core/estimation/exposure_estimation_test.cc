@@ -54,6 +54,36 @@ TEST_P(ExposureRatio, EstimateWithinTenPercentAndPsnrWithinHalfDb) {
 
 INSTANTIATE_TEST_SUITE_P(Ratios, ExposureRatio, testing::Values(0.25, 0.5, 0.9));
 
+// With a rolling shutter (readout 0.8 of the frame interval) each row's blur
+// is the motion over its own, later window, and the rows below see the
+// moving image later: a hand-held clip of a leafy scene (Aloe, exposure
+// ratio 0.8, seed 6). Measured: 0.755 of the interval (-5.6 %), against
+// 0.668 (-16.5 %) when the search took every row at row 0's time.
+TEST(ExposureEstimation, RollingShutterEstimateWithinTenPercentAndPsnrWithinHalfDb) {
+  const Sequence sequence = SynthesizedSequence(
+      "exposure_rolling", "Aloe",
+      std::string("--frames 6 --subframes 100 --hr-width 240 --hr-height 180 --path handheld --seed 6 "
+                  "--readout-ratio 0.8 --noise 1"));
+  ASSERT_TRUE(sequence.ground_truth.has_value());
+  ASSERT_GT(sequence.readout_time, 0.0);
+  const EstimatorInput known = InputOf(sequence);
+  const double truth = sequence.frames[2].exposure;
+  const EstimatorOptions options = FastEstimatorOptions();
+  const ExposureEstimate estimate = EstimateExposure(known, options, ExposureEstimationOptions());
+  std::printf("rolling shutter: %s\n", estimate.summary.c_str());
+  EXPECT_TRUE(estimate.measured);
+  EXPECT_NEAR(estimate.seconds, truth, 0.10 * truth);
+
+  EstimatorInput automatic = known;
+  for (size_t t = 0; t < automatic.frames.size(); ++t)
+    automatic.frames[t].exposure = estimate.frame_exposures[t];
+  const double psnr_known = MeanPsnr(Estimator(options).Run(known).latent, sequence.ground_truth->latent);
+  const double psnr_auto = MeanPsnr(Estimator(options).Run(automatic).latent, sequence.ground_truth->latent);
+  std::printf("rolling shutter: truth %.5f s, estimate %.5f s (%+.1f %%), PSNR known %.2f dB, auto %.2f dB\n",
+              truth, estimate.seconds, 100.0 * (estimate.seconds - truth) / truth, psnr_known, psnr_auto);
+  EXPECT_GT(psnr_auto, psnr_known - 0.5);
+}
+
 TEST(ExposureEstimation, FractionsOfTheFrameInterval) {
   std::vector<FrameRecord> frames = {{0, 0.10, 0.0}, {1, 0.14, 0.0}, {2, 0.16, 0.0}};
   const std::vector<FrameRecord> scaled = WithExposureFraction(frames, 0.5);

@@ -73,13 +73,18 @@ std::vector<FrameRecord> WithExposureFraction(const std::vector<FrameRecord>& fr
 
 // The search of the header on LR frames (float [0, 1], 1 or 3 channels) of
 // `camera_lr`, given each frame's LR depth (CV_32FC1, NaN/0 unknown; empty:
-// depth at infinity, a rotation) and its pose at shutter close.
-ExposureEstimate EstimateExposureFromMotion(const std::vector<cv::Mat>& images_lr,
-                                            const PinholeCamera& camera_lr,
-                                            const std::vector<FrameRecord>& frames,
-                                            const std::vector<cv::Mat>& depth_lr,
-                                            const std::vector<SE3>& T_world_cam,
-                                            const ExposureEstimationOptions& options);
+// depth at infinity, a rotation) and its pose at shutter close. With a
+// rolling shutter (`readout_time` > 0, docs/file_formats.md#rolling-shutter)
+// each row's motion is taken over the interval that ends when that row
+// closes (its delay readout_time x y / H after row 0), and the lag is
+// mapped into the frame's own rows, which see the moving image later the
+// lower they are: a lag d of the image at row 0's time is J^-1 d in the
+// frame, J = [[1, -s_x], [0, 1 - s_y]], s = the image motion per row time
+// (the row's motion per interval x readout_time / interval / H).
+ExposureEstimate EstimateExposureFromMotion(
+    const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
+    const std::vector<FrameRecord>& frames, const std::vector<cv::Mat>& depth_lr,
+    const std::vector<SE3>& T_world_cam, const ExposureEstimationOptions& options, double readout_time = 0.0);
 
 // The exposure of the window `input` (its frames' exposures are ignored):
 // the initialisation with `estimator_options.initializer`, then
