@@ -18,22 +18,16 @@ namespace {
 
 const char kFlags[] = "--frames 5 --subframes 100 --hr-width 240 --hr-height 180";
 
-class ExposureRatio : public testing::TestWithParam<double> {};
-
-TEST_P(ExposureRatio, EstimateWithinTenPercentAndPsnrWithinHalfDb) {
-  const double ratio = GetParam();
-  const Sequence sequence =
-      SynthesizedSequence("exposure_" + std::to_string(static_cast<int>(ratio * 100)), "Dolls",
-                          std::string(kFlags) + " --exposure-ratio " + std::to_string(ratio));
+// The window's exposure estimated from the blur lies within 10 % of the
+// truth, per frame too, and the images restored with it are within 0.5 dB
+// of those restored with the true exposure.
+void ExpectEstimateWithinTenPercentAndPsnrWithinHalfDb(const Sequence& sequence, const std::string& label) {
   ASSERT_TRUE(sequence.ground_truth.has_value());
   const EstimatorInput known = InputOf(sequence);
-  const double interval = sequence.frames[1].stamp - sequence.frames[0].stamp;
   const double truth = sequence.frames[2].exposure;
-  ASSERT_NEAR(truth / interval, ratio, 1e-6);
-
   const EstimatorOptions options = FastEstimatorOptions();
   const ExposureEstimate estimate = EstimateExposure(known, options, ExposureEstimationOptions());
-  std::printf("ratio %.2f: %s\n", ratio, estimate.summary.c_str());
+  std::printf("%s: %s\n", label.c_str(), estimate.summary.c_str());
   for (const auto& point : estimate.correlation) std::printf("  %.3f %.4f\n", point.first, point.second);
   EXPECT_TRUE(estimate.measured);
   EXPECT_NEAR(estimate.seconds, truth, 0.10 * truth);
@@ -46,10 +40,22 @@ TEST_P(ExposureRatio, EstimateWithinTenPercentAndPsnrWithinHalfDb) {
     automatic.frames[t].exposure = estimate.frame_exposures[t];
   const double psnr_known = MeanPsnr(Estimator(options).Run(known).latent, sequence.ground_truth->latent);
   const double psnr_auto = MeanPsnr(Estimator(options).Run(automatic).latent, sequence.ground_truth->latent);
-  std::printf("ratio %.2f: truth %.5f s, estimate %.5f s (%+.1f %%), PSNR known %.2f dB, auto %.2f dB\n",
-              ratio, truth, estimate.seconds, 100.0 * (estimate.seconds - truth) / truth, psnr_known,
+  std::printf("%s: truth %.5f s, estimate %.5f s (%+.1f %%), PSNR known %.2f dB, auto %.2f dB\n",
+              label.c_str(), truth, estimate.seconds, 100.0 * (estimate.seconds - truth) / truth, psnr_known,
               psnr_auto);
   EXPECT_GT(psnr_auto, psnr_known - 0.5);
+}
+
+class ExposureRatio : public testing::TestWithParam<double> {};
+
+TEST_P(ExposureRatio, EstimateWithinTenPercentAndPsnrWithinHalfDb) {
+  const double ratio = GetParam();
+  const Sequence sequence =
+      SynthesizedSequence("exposure_" + std::to_string(static_cast<int>(ratio * 100)), "Dolls",
+                          std::string(kFlags) + " --exposure-ratio " + std::to_string(ratio));
+  const double interval = sequence.frames[1].stamp - sequence.frames[0].stamp;
+  ASSERT_NEAR(sequence.frames[2].exposure / interval, ratio, 1e-6);
+  ExpectEstimateWithinTenPercentAndPsnrWithinHalfDb(sequence, "ratio " + std::to_string(ratio));
 }
 
 INSTANTIATE_TEST_SUITE_P(Ratios, ExposureRatio, testing::Values(0.25, 0.5, 0.9));
@@ -58,30 +64,15 @@ INSTANTIATE_TEST_SUITE_P(Ratios, ExposureRatio, testing::Values(0.25, 0.5, 0.9))
 // is the motion over its own, later window, and the rows below see the
 // moving image later: a hand-held clip of a leafy scene (Aloe, exposure
 // ratio 0.8, seed 6). Measured: 0.755 of the interval (-5.6 %), against
-// 0.668 (-16.5 %) when the search took every row at row 0's time.
+// 0.668 (-16.5 %) when the search took every row at row 0's time; PSNR
+// 27.09 dB with the estimate, 27.50 dB with the true exposure.
 TEST(ExposureEstimation, RollingShutterEstimateWithinTenPercentAndPsnrWithinHalfDb) {
   const Sequence sequence = SynthesizedSequence(
       "exposure_rolling", "Aloe",
       std::string("--frames 6 --subframes 100 --hr-width 240 --hr-height 180 --path handheld --seed 6 "
                   "--readout-ratio 0.8 --noise 1"));
-  ASSERT_TRUE(sequence.ground_truth.has_value());
   ASSERT_GT(sequence.readout_time, 0.0);
-  const EstimatorInput known = InputOf(sequence);
-  const double truth = sequence.frames[2].exposure;
-  const EstimatorOptions options = FastEstimatorOptions();
-  const ExposureEstimate estimate = EstimateExposure(known, options, ExposureEstimationOptions());
-  std::printf("rolling shutter: %s\n", estimate.summary.c_str());
-  EXPECT_TRUE(estimate.measured);
-  EXPECT_NEAR(estimate.seconds, truth, 0.10 * truth);
-
-  EstimatorInput automatic = known;
-  for (size_t t = 0; t < automatic.frames.size(); ++t)
-    automatic.frames[t].exposure = estimate.frame_exposures[t];
-  const double psnr_known = MeanPsnr(Estimator(options).Run(known).latent, sequence.ground_truth->latent);
-  const double psnr_auto = MeanPsnr(Estimator(options).Run(automatic).latent, sequence.ground_truth->latent);
-  std::printf("rolling shutter: truth %.5f s, estimate %.5f s (%+.1f %%), PSNR known %.2f dB, auto %.2f dB\n",
-              truth, estimate.seconds, 100.0 * (estimate.seconds - truth) / truth, psnr_known, psnr_auto);
-  EXPECT_GT(psnr_auto, psnr_known - 0.5);
+  ExpectEstimateWithinTenPercentAndPsnrWithinHalfDb(sequence, "rolling shutter");
 }
 
 TEST(ExposureEstimation, FractionsOfTheFrameInterval) {
