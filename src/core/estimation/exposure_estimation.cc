@@ -51,24 +51,24 @@ void WhitenedGradient(const cv::Mat& image, double sigma_px, FrameEvidence* evid
 // Image motion of frame t's pixels over one frame interval before t along
 // its blur path `path` (SetBlurPath: P_{t-1} itself for t > 0; for frame 0
 // the path extrapolated backwards), for depth `depth` (empty: at infinity);
-// its sign does not matter to the correlation. With a rolling shutter, row
-// y's interval ends readout_time x y / H after `stamp`, and the motion is
-// mapped into the frame's rows (EstimateExposureFromMotion).
-void FrameMotion(const PinholeCamera& camera, const cv::Mat& depth, const SE3& T_world_cam,
-                 const CaptureGeometry& path, double stamp, double interval, double readout_time,
-                 double min_motion_px, FrameEvidence* evidence) {
+// its sign does not matter to the correlation. With a rolling shutter
+// (path.readout_time > 0), row y's interval ends RowDelay after the stamp,
+// and the motion is mapped into the frame's rows (EstimateExposureFromMotion).
+void FrameMotion(const PinholeCamera& camera, const cv::Mat& depth, const CaptureGeometry& path,
+                 double interval, double min_motion_px, FrameEvidence* evidence) {
   const cv::Size size(camera.width, camera.height);
   evidence->ux.create(size, CV_32FC1);
   evidence->uy.create(size, CV_32FC1);
   evidence->vn.create(size, CV_32FC1);
   // The fraction of the interval between two rows' closing times: a motion
   // of m px per interval moves the image m x this per row.
-  const double interval_per_row = readout_time / interval / size.height;
-  SE3 T_n_t = PoseAtTime(path, stamp - interval).Inverse() * T_world_cam;
+  const bool rolling = path.readout_time > 0.0;
+  const double interval_per_row = path.readout_time / interval / size.height;
+  SE3 T_n_t = PoseAtTime(path, path.stamp - interval).Inverse() * path.T_world_cam;
   for (int y = 0; y < size.height; ++y) {
-    if (readout_time > 0.0) {
-      const double delay = readout_time * y / size.height;
-      T_n_t = PoseAtTime(path, stamp + delay - interval).Inverse() * PoseAtTime(path, stamp + delay);
+    if (rolling) {
+      const double row_close = path.stamp + RowDelay(path, y, size.height);
+      T_n_t = PoseAtTime(path, row_close - interval).Inverse() * PoseAtTime(path, row_close);
     }
     for (int x = 0; x < size.width; ++x) {
       const float d = depth.empty() ? 1.0f : depth.at<float>(y, x);
@@ -80,7 +80,7 @@ void FrameMotion(const PinholeCamera& camera, const cv::Mat& depth, const SE3& T
         if (seen.z() > 0.0) {
           Eigen::Vector2d motion = Eigen::Vector2d(x, y) - camera.Project(seen);
           const double sx = motion.x() * interval_per_row, sy = motion.y() * interval_per_row;
-          if (readout_time > 0.0 && sy < 0.5) {
+          if (rolling && sy < 0.5) {
             motion = Eigen::Vector2d(motion.x() + sx * motion.y() / (1.0 - sy), motion.y() / (1.0 - sy));
           }
           if (motion.norm() >= min_motion_px) {
@@ -208,8 +208,9 @@ ExposureEstimate EstimateExposureFromMotion(const std::vector<cv::Mat>& images_l
     WhitenedGradient(images_lr[t], options.highpass_sigma_px, &evidence[t]);
     CaptureGeometry path;
     SetBlurPath(T_world_cam, stamps, static_cast<int>(t), &path);
-    FrameMotion(camera_lr, depth_lr.empty() ? cv::Mat() : depth_lr[t], T_world_cam[t], path, stamps[t],
-                intervals[t], readout_time, options.min_motion_px, &evidence[t]);
+    path.readout_time = readout_time;
+    FrameMotion(camera_lr, depth_lr.empty() ? cv::Mat() : depth_lr[t], path, intervals[t],
+                options.min_motion_px, &evidence[t]);
   }
   ExposureEstimate estimate;
   const int steps = static_cast<int>(
