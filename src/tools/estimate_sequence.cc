@@ -174,6 +174,11 @@ void AddPosePriorOptions(dsm::ToolCommandLine* command_line, Flags* flags, dsm::
                  "initialisation: one-sided normal quantile of the test that keeps a turning camera's "
                  "rotation prior (a turn towards a fixation point) against the prior of no turn (default 6)")
       ->check(dsm::FlagNumber(1e-12));
+  cli.add_option(
+         "--track-consistency-z", options->initializer.track_consistency_z,
+         "initialisation: one-sided normal quantile of the chi-square test that leaves out the tracks "
+         "the first bundle adjustment does not explain to the tracking noise (0: off; default 5)")
+      ->check(dsm::FlagNumber(0.0));
   cli.add_flag("--dense-fixation-test,!--no-dense-fixation-test", options->initializer.dense_fixation_test,
                "initialisation: where the tracks reject a turning camera, decide the turn again by the "
                "dense depths' data cost of both solutions (a second depth stage; default off)");

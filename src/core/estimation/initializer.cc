@@ -1193,6 +1193,66 @@ double MedianPointDepth(const SparseStructure& structure) {
   return depths.empty() ? 0.0 : Median(depths);
 }
 
+// Leaves out the tracks that the adjusted poses and their own point do not
+// explain to the tracking noise (track_consistency_z). A Lucas-Kanade track
+// that slides along an occlusion boundary (a leaf's edge, a T-junction)
+// follows no single point, yet each of its observations can stay within the
+// outlier threshold, where the Cauchy loss (ba_loss_px) weighs it almost
+// fully; a few such tracks pull the poses (BENCHMARKS.md "Tracks that follow
+// no point"). A track's squared reprojection errors within pnp_threshold_px,
+// over n of them, are sigma^2 chi-square with 2n - 3 degrees of freedom
+// (its point takes 3) where it follows a point; sigma^2 is their sum over
+// all tracks divided by the sum of the degrees of freedom, leaving out
+// tracks beyond 9x the median of those ratios. A track beyond the
+// chi-square quantile at track_consistency_z has its point marked an
+// outlier. Returns how many were; *sigma_px is sigma.
+int DropInconsistentTracks(const PinholeCamera& camera, const InitializerOptions& options,
+                           const std::vector<Track>& tracks, SparseStructure* structure, double* sigma_px) {
+  struct TrackError {
+    int point_id = -1;
+    double squares = 0.0;
+    int degrees_of_freedom = -3;
+  };
+  std::vector<TrackError> errors;
+  for (const Track& track : tracks) {
+    if (track.point_id < 0 || !structure->point_inlier[track.point_id]) continue;
+    TrackError error;
+    error.point_id = track.point_id;
+    for (int f = track.first_frame; f <= track.LastFrame(); ++f) {
+      const double e = ReprojectionError(camera, structure->T_cam_world[f],
+                                         structure->points_world[track.point_id], track.At(f));
+      if (e > options.pnp_threshold_px) continue;
+      error.squares += e * e;
+      error.degrees_of_freedom += 2;
+    }
+    if (error.degrees_of_freedom > 0) errors.push_back(error);
+  }
+  *sigma_px = 0.0;
+  if (errors.empty()) return 0;
+  std::vector<double> ratios;
+  for (const TrackError& error : errors) ratios.push_back(error.squares / error.degrees_of_freedom);
+  const double cap = 9.0 * Median(ratios);
+  double squares = 0.0;
+  int degrees_of_freedom = 0;
+  for (const TrackError& error : errors) {
+    if (error.squares > cap * error.degrees_of_freedom) continue;
+    squares += error.squares;
+    degrees_of_freedom += error.degrees_of_freedom;
+  }
+  if (degrees_of_freedom == 0 || !(squares > 0.0)) return 0;
+  const double sigma_squared = squares / degrees_of_freedom;
+  *sigma_px = std::sqrt(sigma_squared);
+  int dropped = 0;
+  for (const TrackError& error : errors) {
+    if (error.squares >
+        sigma_squared * ChiSquareQuantile(error.degrees_of_freedom, options.track_consistency_z)) {
+      structure->point_inlier[error.point_id] = 0;
+      ++dropped;
+    }
+  }
+  return dropped;
+}
+
 // Decides the turn rate kappa of the RotationPrior (model selection between
 // a camera that expects no turn and one that keeps a point in view): the
 // structure, adjusted with kappa = 0, is adjusted again from there with kappa
@@ -1758,6 +1818,7 @@ void InitializerOptions::Check() const {
   CheckAbove(prefix + "ba_loss_px", ba_loss_px, 0.0);
   CheckAbove(prefix + "rotation_prior_px", rotation_prior_px, 0.0);
   CheckAbove(prefix + "fixation_test_z", fixation_test_z, 0.0);
+  CheckAtLeast(prefix + "track_consistency_z", track_consistency_z, 0.0);
   CheckAtLeast(prefix + "dense_test_block_px", dense_test_block_px, 1);
   CheckAtLeast(prefix + "flow_test_tile_px", flow_test_tile_px, 1);
   CheckAtLeast(prefix + "flow_test_min_gap", flow_test_min_gap, 1);
@@ -1980,6 +2041,13 @@ SparseStructure SparseStage(const PinholeCamera& camera_lr, const InitializerOpt
   stage_ms = NowMs();
   int observations = 0;
   double rms = BundleAdjust(camera_lr, options, threads, *tracks, &structure, &observations);
+  if (options.track_consistency_z > 0.0) {
+    double sigma_px = 0.0;
+    const int dropped = DropInconsistentTracks(camera_lr, options, *tracks, &structure, &sigma_px);
+    *summary << Format("track consistency: %.0f tracks follow no point (sigma %.3f px, rms %.3f px before)\n",
+                       dropped, sigma_px, rms);
+    if (dropped > 0) rms = BundleAdjust(camera_lr, options, threads, *tracks, &structure, &observations);
+  }
   rms = SelectFixationTurn(camera_lr, options, threads, *tracks, rms, &structure, &observations, summary,
                            rejected_turn, kept_turn_still);
   *summary << Format("bundle adjustment: %.0f points, %.0f observations, rms %.3f px; %.1f ms\n",

@@ -529,21 +529,22 @@ double MeanRotationErrorDeg(const Sequence& sequence, const InitialStructure& re
   return sum / (result.T_world_cam.size() - 1);
 }
 
-// The default initialisation of `sequence` and one with `change` applied to
-// its options, with their mean rotation errors (deg) and depth rel. errors.
+// The initialisation of `sequence` with `base` options and one with `change`
+// applied to them, with their mean rotation errors (deg) and depth rel.
+// errors.
 struct InitialisationPair {
   InitialStructure plain, changed;
   double plain_rotation = 0.0, changed_rotation = 0.0, plain_depth = 0.0, changed_depth = 0.0;
 };
 
 InitialisationPair InitialiseTwice(const Sequence& sequence,
-                                   const std::function<void(InitializerOptions*)>& change) {
+                                   const std::function<void(InitializerOptions*)>& change,
+                                   const InitializerOptions& base = InitializerOptions()) {
   const std::vector<cv::Mat> images = FloatImages(sequence);
   const PinholeCamera& camera = sequence.calibration.camera;
   InitialisationPair pair;
-  pair.plain =
-      InitializeStructure(images, camera, sequence.frames, InitializerOptions(), sequence.readout_time);
-  InitializerOptions options;
+  pair.plain = InitializeStructure(images, camera, sequence.frames, base, sequence.readout_time);
+  InitializerOptions options = base;
   change(&options);
   pair.changed = InitializeStructure(images, camera, sequence.frames, options, sequence.readout_time);
   pair.plain_rotation = MeanRotationErrorDeg(sequence, pair.plain);
@@ -551,6 +552,55 @@ InitialisationPair InitialiseTwice(const Sequence& sequence,
   pair.plain_depth = MeanDepthError(pair.plain.depth_lr, sequence);
   pair.changed_depth = MeanDepthError(pair.changed.depth_lr, sequence);
   return pair;
+}
+
+// Prints the plain run's summary and both runs' errors.
+void PrintPair(const InitialisationPair& pair, const std::string& changed_label) {
+  std::printf("%s\nmean rotation error %.3f deg (%s: %.3f deg), depth rel. error %.4f (%.4f)\n",
+              pair.plain.summary.c_str(), pair.plain_rotation, changed_label.c_str(), pair.changed_rotation,
+              pair.plain_depth, pair.changed_depth);
+}
+
+// A clip of `num_frames` frames with noise sigma 1 of `scene_name` on `path`
+// (seed, readout ratio and sub-frames per exposure as given), made with the
+// synthesizer API as `synthesize_sequence` makes it.
+Sequence NoisyClip(const std::string& scene_name, CameraPathType path, std::uint64_t seed,
+                   double readout_ratio, int num_frames, int subframes) {
+  SynthesisOptions synthesis;
+  synthesis.path = path;
+  synthesis.num_frames = num_frames;
+  synthesis.subframes = subframes;
+  synthesis.noise_sigma = 1.0;
+  synthesis.seed = seed;
+  synthesis.readout_ratio = readout_ratio;
+  const StereoScene scene =
+      LoadMiddleburyScene(std::string(DSM_SOURCE_DIR) + "/data/middlebury/" + scene_name);
+  return SynthesizeSequence(scene, synthesis).sequence;
+}
+
+// The benchmark's clips: 10 frames, 200 sub-frames per exposure.
+Sequence TenFrameSequence(const std::string& scene_name, CameraPathType path, std::uint64_t seed,
+                          double readout_ratio) {
+  return NoisyClip(scene_name, path, seed, readout_ratio, 10, SynthesisOptions().subframes);
+}
+
+// InitializerOptions::track_consistency_z: an 8-frame lateral Aloe clip with
+// sensor noise (sigma 1 gray level), where Lucas-Kanade tracks slide along
+// the leaves' edges. Measured when the test was written: 94 tracks left out
+// of the adjustment; mean rotation error 0.056 deg against 1.121 without
+// the test, LR depth rel. error 0.0266 against 0.0447 (the tool's clip of
+// the same arguments, `estimate_sequence --iterations 0`: 0.46 against 0.97
+// deg, ATE 0.42 against 0.56 mm).
+TEST(InitializerTest, TracksThatFollowNoPointLeaveTheAdjustment) {
+  const Sequence sequence = NoisyClip("Aloe", CameraPathType::kLateral, 3, 0.0, 8, 60);
+  const InitialisationPair pair =
+      InitialiseTwice(sequence, [](InitializerOptions* o) { o->track_consistency_z = 0.0; });
+  PrintPair(pair, "without the test");
+  EXPECT_NE(pair.plain.summary.find("tracks follow no point"), std::string::npos) << pair.plain.summary;
+  EXPECT_EQ(pair.changed.summary.find("track consistency"), std::string::npos) << pair.changed.summary;
+  // At least a quarter of the rotation error and a tenth of the depth error go.
+  EXPECT_LT(pair.plain_rotation, 0.75 * pair.changed_rotation);
+  EXPECT_LT(pair.plain_depth, 0.9 * pair.changed_depth);
 }
 
 TEST(InitializerTest, ArcPathTurnIsNotTakenForSidewaysMotion) {
@@ -725,7 +775,9 @@ TEST(InitializerTest, FlowTurnTestWithoutPairsKeepsNoTurn) {
 // An arc around a scene of little depth range (Aloe, the fixation point
 // twice the median depth away, noise 1): the tracks leave the turn open, a
 // turn test decides it. Returns the test's summary and errors, beside the
-// default's.
+// default's. Both with track_consistency_z 0: with the inconsistent tracks
+// left out, the tracks find this turn themselves (202.9 sigma^2, bound 46.9;
+// mean rotation error 0.334 deg), and the turn tests have nothing to decide.
 InitialisationPair ArcTurnTest(const std::function<void(InitializerOptions*)>& change,
                                const std::string& test_name) {
   SynthesisOptions synthesis;
@@ -735,7 +787,9 @@ InitialisationPair ArcTurnTest(const std::function<void(InitializerOptions*)>& c
   synthesis.noise_sigma = 1.0;
   const StereoScene scene = LoadMiddleburyScene(std::string(DSM_SOURCE_DIR) + "/data/middlebury/Aloe");
   const Sequence sequence = SynthesizeSequence(scene, synthesis).sequence;
-  InitialisationPair pair = InitialiseTwice(sequence, change);
+  InitializerOptions base;
+  base.track_consistency_z = 0.0;
+  InitialisationPair pair = InitialiseTwice(sequence, change, base);
   std::printf("%s\nmean rotation error %.3f deg (tracks only: %.3f deg), depth rel. error %.4f (%.4f)\n",
               pair.changed.summary.c_str(), pair.changed_rotation, pair.plain_rotation, pair.changed_depth,
               pair.plain_depth);
@@ -775,31 +829,19 @@ TEST(InitializerTest, FlowTurnTestFindsTheArcTurnThatTheTracksLeaveOpen) {
   EXPECT_LT(pair.changed_depth, pair.plain_depth);
 }
 
-// A 10-frame clip with noise sigma 1 of `scene_name` on `path` (seed and
-// readout ratio as given), made with the synthesizer API as
-// `synthesize_sequence` makes it.
-Sequence TenFrameSequence(const std::string& scene_name, CameraPathType path, std::uint64_t seed,
-                          double readout_ratio) {
-  SynthesisOptions synthesis;
-  synthesis.path = path;
-  synthesis.num_frames = 10;
-  synthesis.noise_sigma = 1.0;
-  synthesis.seed = seed;
-  synthesis.readout_ratio = readout_ratio;
-  const StereoScene scene =
-      LoadMiddleburyScene(std::string(DSM_SOURCE_DIR) + "/data/middlebury/" + scene_name);
-  return SynthesizeSequence(scene, synthesis).sequence;
-}
-
 // The tracks keep a turn that the camera does not make (flow_turn_check
 // off), and the flow turn check drops it, which lowers the rotation error
-// at least fourfold and the depth error too.
+// at least fourfold and the depth error too. Both with track_consistency_z
+// 0, the tracks as they were when these tests were written: leaving out the
+// tracks that follow no point removes the false turn of the rolling-shutter
+// clip below by itself (45.8 sigma^2, bound 46.9; 0.448 deg), not that of
+// the lateral one.
 void ExpectFlowCheckDropsTheTracksTurn(const Sequence& sequence) {
-  const InitialisationPair pair =
-      InitialiseTwice(sequence, [](InitializerOptions* o) { o->flow_turn_check = false; });
-  std::printf("%s\nmean rotation error %.3f deg (tracks only: %.3f deg), depth rel. error %.4f (%.4f)\n",
-              pair.plain.summary.c_str(), pair.plain_rotation, pair.changed_rotation, pair.plain_depth,
-              pair.changed_depth);
+  InitializerOptions base;
+  base.track_consistency_z = 0.0;
+  const InitialisationPair pair = InitialiseTwice(
+      sequence, [](InitializerOptions* o) { o->flow_turn_check = false; }, base);
+  PrintPair(pair, "tracks only");
   EXPECT_NE(pair.changed.summary.find("): kept"), std::string::npos) << pair.changed.summary;
   EXPECT_NE(pair.plain.summary.find("): turn dropped"), std::string::npos) << pair.plain.summary;
   EXPECT_LT(pair.plain_rotation, 0.25 * pair.changed_rotation);
