@@ -1253,6 +1253,20 @@ int DropInconsistentTracks(const PinholeCamera& camera, const InitializerOptions
   return dropped;
 }
 
+// DropInconsistentTracks after an adjustment whose RMS error is `rms`, with
+// its line in the summary, and the adjustment again where it dropped any
+// (track_consistency_z > 0). Returns the RMS error of the structure kept.
+double LeaveOutInconsistentTracks(const PinholeCamera& camera, const InitializerOptions& options, int threads,
+                                  const std::vector<Track>& tracks, double rms, SparseStructure* structure,
+                                  int* num_observations, std::ostringstream* summary) {
+  if (!(options.track_consistency_z > 0.0)) return rms;
+  double sigma_px = 0.0;
+  const int dropped = DropInconsistentTracks(camera, options, tracks, structure, &sigma_px);
+  *summary << Format("track consistency: %.0f tracks follow no point (sigma %.3f px, rms %.3f px before)\n",
+                     dropped, sigma_px, rms);
+  return dropped > 0 ? BundleAdjust(camera, options, threads, tracks, structure, num_observations) : rms;
+}
+
 // Decides the turn rate kappa of the RotationPrior (model selection between
 // a camera that expects no turn and one that keeps a point in view): the
 // structure, adjusted with kappa = 0, is adjusted again from there with kappa
@@ -2015,8 +2029,8 @@ SE3 PredictPose(const SparseStructure& structure, const std::vector<char>& has_p
 // as frames are added, then all together. The poses are those of
 // mid-exposure (T_cam_world) in the pair's gauge.
 SparseStructure SparseStage(const PinholeCamera& camera_lr, const InitializerOptions& options, int threads,
-                            int num_frames, std::vector<Track>* tracks, std::ostringstream* summary,
-                            std::optional<SparseStructure>* rejected_turn,
+                            int num_frames, bool track_consistency, std::vector<Track>* tracks,
+                            std::ostringstream* summary, std::optional<SparseStructure>* rejected_turn,
                             std::optional<SparseStructure>* kept_turn_still) {
   double stage_ms = NowMs();
   SparseStructure structure;
@@ -2041,12 +2055,9 @@ SparseStructure SparseStage(const PinholeCamera& camera_lr, const InitializerOpt
   stage_ms = NowMs();
   int observations = 0;
   double rms = BundleAdjust(camera_lr, options, threads, *tracks, &structure, &observations);
-  if (options.track_consistency_z > 0.0) {
-    double sigma_px = 0.0;
-    const int dropped = DropInconsistentTracks(camera_lr, options, *tracks, &structure, &sigma_px);
-    *summary << Format("track consistency: %.0f tracks follow no point (sigma %.3f px, rms %.3f px before)\n",
-                       dropped, sigma_px, rms);
-    if (dropped > 0) rms = BundleAdjust(camera_lr, options, threads, *tracks, &structure, &observations);
+  if (track_consistency) {
+    rms = LeaveOutInconsistentTracks(camera_lr, options, threads, *tracks, rms, &structure, &observations,
+                                     summary);
   }
   rms = SelectFixationTurn(camera_lr, options, threads, *tracks, rms, &structure, &observations, summary,
                            rejected_turn, kept_turn_still);
@@ -2079,10 +2090,11 @@ SE3 RowPose(const std::vector<FrameRecord>& frames, const std::vector<SE3>& T_wo
 // delay on the path through the neighbouring mid-exposure poses,
 // eq:interpolatingP), and the adjustment runs again; twice, as the
 // corrections follow the poses. The tracks become the corrected ones.
-void CorrectRollingShutter(const PinholeCamera& camera, const InitializerOptions& options, int threads,
-                           const std::vector<FrameRecord>& frames, double readout_time,
-                           std::vector<Track>* tracks, SparseStructure* structure,
-                           std::ostringstream* summary) {
+// Returns the last adjustment's RMS error.
+double CorrectRollingShutter(const PinholeCamera& camera, const InitializerOptions& options, int threads,
+                             const std::vector<FrameRecord>& frames, double readout_time,
+                             std::vector<Track>* tracks, SparseStructure* structure,
+                             std::ostringstream* summary) {
   const double start_ms = NowMs();
   const int num_frames = static_cast<int>(frames.size());
   const std::vector<Track> observed = *tracks;
@@ -2116,6 +2128,7 @@ void CorrectRollingShutter(const PinholeCamera& camera, const InitializerOptions
   *summary << Format(
       "rolling shutter (readout %.4f s): observations moved %.2f px on average; rms %.3f px; %.1f ms\n",
       readout_time, mean_shift, rms, NowMs() - start_ms);
+  return rms;
 }
 
 // Each frame's pose at its shutter close t_c from the mid-exposure poses
@@ -2827,8 +2840,11 @@ SparseInitialisation InitializeSparse(const std::vector<cv::Mat>& images_lr, con
   std::optional<SparseStructure>& rejected_turn = sparse.rejected_turn;
   std::optional<SparseStructure> kept_turn_still;
   SparseStructure& structure = sparse.structure;
-  structure = SparseStage(camera_lr, options, threads, num_frames, &tracks, summary, &rejected_turn,
-                          &kept_turn_still);
+  // With a rolling shutter the tracks are tested after the rows' delays are
+  // corrected: before, a global-shutter adjustment leaves the delays in the
+  // errors of the tracks that carry them.
+  structure = SparseStage(camera_lr, options, threads, num_frames, /*track_consistency=*/readout_time == 0.0,
+                          &tracks, summary, &rejected_turn, &kept_turn_still);
   const bool has_prior = HasAnyPriorPose(T_prior_cam);
   if (!(options.dense_fixation_test || options.flow_fixation_test) || readout_time > 0.0 || has_prior) {
     rejected_turn.reset();
@@ -2846,7 +2862,10 @@ SparseInitialisation InitializeSparse(const std::vector<cv::Mat>& images_lr, con
     rejected_turn.reset();
   }
   if (readout_time > 0.0) {
-    CorrectRollingShutter(camera_lr, options, threads, frames, readout_time, &tracks, &structure, summary);
+    const double rms = CorrectRollingShutter(camera_lr, options, threads, frames, readout_time, &tracks,
+                                             &structure, summary);
+    int observations = 0;
+    LeaveOutInconsistentTracks(camera_lr, options, threads, tracks, rms, &structure, &observations, summary);
   }
   AdjustToPosePrior(camera_lr, options, threads, frames, T_prior_cam, tracks, &structure, summary);
   return sparse;
@@ -2951,8 +2970,11 @@ ReadoutEstimate EstimateReadoutTimeUnguarded(const std::vector<cv::Mat>& images_
   TrackedWindow window = TrackWindow(images_lr, camera_lr, frames, options, &log);
   const int num_frames = static_cast<int>(images_lr.size());
   std::optional<SparseStructure> rejected_turn, kept_turn_still;
-  const SparseStructure global = SparseStage(camera_lr, options, window.threads, num_frames,
-                                             &window.tracking.tracks, &log, &rejected_turn, &kept_turn_still);
+  // The tracks untested: a global-shutter adjustment would take those that
+  // carry the rows' delays for tracks that follow no point.
+  const SparseStructure global =
+      SparseStage(camera_lr, options, window.threads, num_frames, /*track_consistency=*/false,
+                  &window.tracking.tracks, &log, &rejected_turn, &kept_turn_still);
   const std::vector<char> inlier = global.point_inlier;
   const int observations = std::max(1, CountObservations(window.tracking.tracks, inlier));
   const double interval = MedianFrameInterval(frames);
