@@ -80,6 +80,8 @@ void FrameMotion(const PinholeCamera& camera, const cv::Mat& depth, const Captur
         if (seen.z() > 0.0) {
           Eigen::Vector2d motion = Eigen::Vector2d(x, y) - camera.Project(seen);
           const double sx = motion.x() * interval_per_row, sy = motion.y() * interval_per_row;
+          // J^-1 grows without bound as s_y nears 1 (the image keeps pace
+          // with the readout); past half of it the lag is left unmapped.
           if (rolling && sy < 0.5) {
             motion = Eigen::Vector2d(motion.x() + sx * motion.y() / (1.0 - sy), motion.y() / (1.0 - sy));
           }
