@@ -170,9 +170,11 @@ void AddPosePriorOptions(dsm::ToolCommandLine* command_line, Flags* flags, dsm::
                  "with --pose-prior: standard deviation of its orientations (degrees) in the bundle "
                  "adjustment; 0: its orientations only align the output (default 0.1)")
       ->check(dsm::FlagNumber(0.0));
-  cli.add_option("--fixation-test-z", options->initializer.fixation_test_z,
-                 "initialisation: one-sided normal quantile of the test that keeps a turning camera's "
-                 "rotation prior (a turn towards a fixation point) against the prior of no turn (default 6)")
+  cli.add_option(
+         "--fixation-test-z", options->initializer.fixation_test_z,
+         "initialisation: one-sided normal quantile of the test that keeps a turning camera's "
+         "rotation prior (a turn towards a fixation point) against the prior of no turn; --flow-turn-check "
+         "then confirms it (default 4)")
       ->check(dsm::FlagNumber(1e-12));
   cli.add_option(
          "--track-consistency-z", options->initializer.track_consistency_z,
