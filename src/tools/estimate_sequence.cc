@@ -176,6 +176,10 @@ void AddPosePriorOptions(dsm::ToolCommandLine* command_line, Flags* flags, dsm::
          "rotation prior (a turn towards a fixation point) against the prior of no turn; --flow-turn-check "
          "then confirms it (default 4)")
       ->check(dsm::FlagNumber(1e-12));
+  cli.add_option("--fixation-test-alone-z", options->initializer.fixation_test_alone_z,
+                 "initialisation: that quantile where no flow turn check follows (--no-flow-turn-check, "
+                 "--pose-prior, the readout search of --readout-time auto; default 6)")
+      ->check(dsm::FlagNumber(1e-12));
   cli.add_option(
          "--track-consistency-z", options->initializer.track_consistency_z,
          "initialisation: one-sided normal quantile of the chi-square test that leaves out the tracks "

@@ -1276,11 +1276,12 @@ double LeaveOutInconsistentTracks(const PinholeCamera& camera, const Initializer
 // residuals); a camera that turns (the arc path: kappa = 0 takes the turn for
 // sideways motion and bends the inverse depths, RotationPrior) gains far
 // more. The free solution is kept when the gain in reprojection cost exceeds
-// the chi-square quantile of fixation_test_z. Returns the RMS reprojection
-// error of the solution kept.
-double SelectFixationTurn(const PinholeCamera& camera, const InitializerOptions& options, int threads,
-                          const std::vector<Track>& tracks, double rms, SparseStructure* structure,
-                          int* num_observations, std::ostringstream* summary,
+// the chi-square quantile of `test_z` (fixation_test_z where the flow turn
+// check follows, fixation_test_alone_z where it does not). Returns the RMS
+// reprojection error of the solution kept.
+double SelectFixationTurn(const PinholeCamera& camera, const InitializerOptions& options, double test_z,
+                          int threads, const std::vector<Track>& tracks, double rms,
+                          SparseStructure* structure, int* num_observations, std::ostringstream* summary,
                           std::optional<SparseStructure>* rejected_turn,
                           std::optional<SparseStructure>* kept_turn_still) {
   if (!options.fixation_prior || structure->T_cam_world.size() < 3) return rms;
@@ -1302,7 +1303,7 @@ double SelectFixationTurn(const PinholeCamera& camera, const InitializerOptions&
   const int parameters = 3 * points + 6 * num_frames - 6;  // 7 gauge freedoms, kappa
   const double sigma2 = turned.inlier_squares / std::max(1, residuals - parameters);
   const double gain = (still.capped_squares - turned.capped_squares) / std::max(sigma2, 1e-12);
-  const double bound = ChiSquareQuantile(1, options.fixation_test_z);
+  const double bound = ChiSquareQuantile(1, test_z);
   const bool turns = gain > bound && turning.turn_rate != 0.0;
   const double median_depth = MedianPointDepth(turning);
   *summary << Format(
@@ -1832,6 +1833,7 @@ void InitializerOptions::Check() const {
   CheckAbove(prefix + "ba_loss_px", ba_loss_px, 0.0);
   CheckAbove(prefix + "rotation_prior_px", rotation_prior_px, 0.0);
   CheckAbove(prefix + "fixation_test_z", fixation_test_z, 0.0);
+  CheckAbove(prefix + "fixation_test_alone_z", fixation_test_alone_z, 0.0);
   CheckAtLeast(prefix + "track_consistency_z", track_consistency_z, 0.0);
   CheckAtLeast(prefix + "dense_test_block_px", dense_test_block_px, 1);
   CheckAtLeast(prefix + "flow_test_tile_px", flow_test_tile_px, 1);
@@ -2027,10 +2029,13 @@ SE3 PredictPose(const SparseStructure& structure, const std::vector<char>& has_p
 // Stages 2-3: the two-view pair, then every other frame by PnP (those
 // between the pair, then forward, then backward), triangulating new points
 // as frames are added, then all together. The poses are those of
-// mid-exposure (T_cam_world) in the pair's gauge.
+// mid-exposure (T_cam_world) in the pair's gauge. flow_check_follows: the
+// caller confirms a kept turn by the flow (the track test then screens at
+// fixation_test_z, otherwise it decides at fixation_test_alone_z).
 SparseStructure SparseStage(const PinholeCamera& camera_lr, const InitializerOptions& options, int threads,
-                            int num_frames, bool track_consistency, std::vector<Track>* tracks,
-                            std::ostringstream* summary, std::optional<SparseStructure>* rejected_turn,
+                            int num_frames, bool track_consistency, bool flow_check_follows,
+                            std::vector<Track>* tracks, std::ostringstream* summary,
+                            std::optional<SparseStructure>* rejected_turn,
                             std::optional<SparseStructure>* kept_turn_still) {
   double stage_ms = NowMs();
   SparseStructure structure;
@@ -2059,8 +2064,9 @@ SparseStructure SparseStage(const PinholeCamera& camera_lr, const InitializerOpt
     rms = LeaveOutInconsistentTracks(camera_lr, options, threads, *tracks, rms, &structure, &observations,
                                      summary);
   }
-  rms = SelectFixationTurn(camera_lr, options, threads, *tracks, rms, &structure, &observations, summary,
-                           rejected_turn, kept_turn_still);
+  const double test_z = flow_check_follows ? options.fixation_test_z : options.fixation_test_alone_z;
+  rms = SelectFixationTurn(camera_lr, options, test_z, threads, *tracks, rms, &structure, &observations,
+                           summary, rejected_turn, kept_turn_still);
   *summary << Format("bundle adjustment: %.0f points, %.0f observations, rms %.3f px; %.1f ms\n",
                      structure.points_world.size(), observations, rms, NowMs() - stage_ms);
   return structure;
@@ -2843,9 +2849,10 @@ SparseInitialisation InitializeSparse(const std::vector<cv::Mat>& images_lr, con
   // With a rolling shutter the tracks are tested after the rows' delays are
   // corrected: before, a global-shutter adjustment leaves the delays in the
   // errors of the tracks that carry them.
-  structure = SparseStage(camera_lr, options, threads, num_frames, /*track_consistency=*/readout_time == 0.0,
-                          &tracks, summary, &rejected_turn, &kept_turn_still);
   const bool has_prior = HasAnyPriorPose(T_prior_cam);
+  structure = SparseStage(camera_lr, options, threads, num_frames, /*track_consistency=*/readout_time == 0.0,
+                          /*flow_check_follows=*/options.flow_turn_check && !has_prior, &tracks, summary,
+                          &rejected_turn, &kept_turn_still);
   if (!(options.dense_fixation_test || options.flow_fixation_test) || readout_time > 0.0 || has_prior) {
     rejected_turn.reset();
   }
@@ -2972,9 +2979,9 @@ ReadoutEstimate EstimateReadoutTimeUnguarded(const std::vector<cv::Mat>& images_
   std::optional<SparseStructure> rejected_turn, kept_turn_still;
   // The tracks untested: a global-shutter adjustment would take those that
   // carry the rows' delays for tracks that follow no point.
-  const SparseStructure global =
-      SparseStage(camera_lr, options, window.threads, num_frames, /*track_consistency=*/false,
-                  &window.tracking.tracks, &log, &rejected_turn, &kept_turn_still);
+  const SparseStructure global = SparseStage(
+      camera_lr, options, window.threads, num_frames, /*track_consistency=*/false,
+      /*flow_check_follows=*/false, &window.tracking.tracks, &log, &rejected_turn, &kept_turn_still);
   const std::vector<char> inlier = global.point_inlier;
   const int observations = std::max(1, CountObservations(window.tracking.tracks, inlier));
   const double interval = MedianFrameInterval(frames);

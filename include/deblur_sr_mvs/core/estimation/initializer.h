@@ -101,6 +101,11 @@ struct InitializerOptions {
   // no rotation.
   bool fixation_prior = true;
   double fixation_test_z = 4.0;
+  // Where no flow check follows the track test (flow_turn_check off, a pose
+  // prior in the window, the readout search of EstimateReadoutTime), the
+  // tracks decide alone, at this quantile: 6, the bound (46.9 sigma^2) that
+  // rejects the false turns of ~25-40 sigma^2 without the flow.
+  double fixation_test_alone_z = 6.0;
   // Where the tracks reject the turn (the test above), decide it again by
   // the dense images: the depths of stage 4 are computed for both solutions
   // (no turn, and the turn the free kappa fitted), and the turn is kept when
