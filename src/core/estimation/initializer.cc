@@ -2074,8 +2074,9 @@ SparseStructure SparseStage(const PinholeCamera& camera_lr, const InitializerOpt
 
 // Mid-exposure camera of frame f (T_world_mid) `delay` later: on the
 // quadratic through the mid-exposure poses of f-1, f and f+1 (the first
-// frame: 0, 1, 2), the rows' path of the capture model; on the geodesic
-// through f-1 and f for the last frame, and with fewer than 3 frames.
+// frame: 0, 1, 2), the path of the capture model's rows and of the shutter
+// close (MidExposureToShutterClose); on the geodesic through f-1 and f for
+// the last frame, and with fewer than 3 frames.
 SE3 RowPose(const std::vector<FrameRecord>& frames, const std::vector<SE3>& T_world_mid, int f, double delay) {
   const int num_frames = static_cast<int>(frames.size());
   const auto mid = [&frames](int t) { return frames[t].stamp - 0.5 * frames[t].exposure; };
@@ -2137,28 +2138,40 @@ double CorrectRollingShutter(const PinholeCamera& camera, const InitializerOptio
   return rms;
 }
 
-// Each frame's pose at its shutter close t_c from the mid-exposure poses
-// (t_c - exposure / 2): along the geodesic through the mid-exposure poses of
-// frames t-1 and t (eq:interpolatingP, extrapolated by half an exposure;
-// frame 0 uses frames 0-1). Needs >= 2 frames.
+}  // namespace
+
+// RowPose half an exposure after mid-exposure: the quadratic through the
+// mid-exposure poses of t-1, t and t+1 interpolates there (Lagrange weights
+// -0.12 / 0.84 / 0.28 at an exposure of 0.8 frame intervals); the last frame
+// extrapolates the geodesic through t-1 and t (eq:interpolatingP), and frame
+// 0 stays on the geodesic through frames 0 and 1 (the variant measured in
+// BENCHMARKS.md "The first frame's blur on the curve").
 std::vector<SE3> MidExposureToShutterClose(const std::vector<FrameRecord>& frames,
                                            const std::vector<SE3>& T_world_mid) {
+  if (frames.size() < 2 || T_world_mid.size() != frames.size()) {
+    throw InputError("MidExposureToShutterClose: needs >= 2 frames and one pose per frame");
+  }
   const int num_frames = static_cast<int>(frames.size());
   std::vector<SE3> T_world_cam(num_frames);
   for (int t = 0; t < num_frames; ++t) {
-    const int a = t > 0 ? t - 1 : 0;
-    const int b = t > 0 ? t : 1;
-    const double mid_a = frames[a].stamp - 0.5 * frames[a].exposure;
-    const double mid_b = frames[b].stamp - 0.5 * frames[b].exposure;
-    T_world_cam[t] = PoseAtTime(T_world_mid[a], mid_a, T_world_mid[b], mid_b, frames[t].stamp);
+    if (t == 0) {
+      const double mid_0 = frames[0].stamp - 0.5 * frames[0].exposure;
+      const double mid_1 = frames[1].stamp - 0.5 * frames[1].exposure;
+      T_world_cam[0] = PoseAtTime(T_world_mid[0], mid_0, T_world_mid[1], mid_1, frames[0].stamp);
+    } else {
+      T_world_cam[t] = RowPose(frames, T_world_mid, t, 0.5 * frames[t].exposure);
+    }
   }
   return T_world_cam;
 }
 
+namespace {
+
 // Each frame's pose prior at its mid-exposure (t_c - exposure / 2), the time
 // of the sparse poses: on the prior's geodesic through frames t-1 and t
-// (frame 0: 0 and 1, extrapolated), the way MidExposureToShutterClose goes
-// the other way; the frame's own prior pose where that neighbour has none.
+// (frame 0: 0 and 1, extrapolated), an interpolation between the stamps
+// for every other frame; the frame's own prior pose where that neighbour
+// has none.
 std::vector<std::optional<SE3>> PriorAtMidExposure(const std::vector<FrameRecord>& frames,
                                                    const std::vector<std::optional<SE3>>& T_prior_cam) {
   const int num_frames = static_cast<int>(frames.size());

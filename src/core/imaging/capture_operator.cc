@@ -163,8 +163,9 @@ std::vector<int> BlurPathFrames(int t, int num_frames) {
   if (num_frames < 2 || t < 0 || t >= num_frames) {
     throw InputError("BlurPathFrames: needs >= 2 frames and a frame inside them");
   }
-  if (t == 0) return {1};
-  if (t == num_frames - 1) return {t - 1};
+  if (num_frames == 2) return {1 - t};
+  if (t == 0) return {1, 2};
+  if (t == num_frames - 1) return {t - 1, t - 2};
   return {t - 1, t + 1};
 }
 

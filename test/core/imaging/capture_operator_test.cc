@@ -502,9 +502,9 @@ TEST(CaptureOperator, SharedVirtualDepthsOfAnotherStructureAreRejected) {
 TEST(BlurPath, FramesOfTheFirstInteriorAndLastFrame) {
   EXPECT_EQ(BlurPathFrames(0, 2), (std::vector<int>{1}));
   EXPECT_EQ(BlurPathFrames(1, 2), (std::vector<int>{0}));
-  EXPECT_EQ(BlurPathFrames(0, 5), (std::vector<int>{1}));
+  EXPECT_EQ(BlurPathFrames(0, 5), (std::vector<int>{1, 2}));
   EXPECT_EQ(BlurPathFrames(2, 5), (std::vector<int>{1, 3}));
-  EXPECT_EQ(BlurPathFrames(4, 5), (std::vector<int>{3}));
+  EXPECT_EQ(BlurPathFrames(4, 5), (std::vector<int>{3, 2}));
   EXPECT_THROW(BlurPathFrames(0, 1), InputError);
   EXPECT_THROW(BlurPathFrames(5, 5), InputError);
   std::vector<SE3> poses;

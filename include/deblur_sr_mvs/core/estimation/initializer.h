@@ -288,6 +288,17 @@ InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr, cons
                                      const InitializerOptions& options, double readout_time = 0.0,
                                      const std::vector<std::optional<SE3>>& T_prior_cam = {});
 
+// Each frame's pose at its shutter close t_c (its stamp) from its pose at
+// mid-exposure, t_c - exposure / 2 (the time the tracks of blurred frames
+// observe: they follow the blur centroids), on the path through the
+// neighbouring frames' mid-exposure poses: the quadratic through t-1, t and
+// t+1, exact on a path of constant acceleration in se(3); the first frame on
+// the geodesic through frames 0 and 1, the last on the geodesic through t-1
+// and t (eq:interpolatingP), exact at constant velocity. Throws InputError with fewer than 2 frames or
+// a pose count that differs from the frames'.
+std::vector<SE3> MidExposureToShutterClose(const std::vector<FrameRecord>& frames,
+                                           const std::vector<SE3>& T_world_mid);
+
 // Camera poses from the tracks alone: InitializeStructure's sparse part
 // (tracks, the two-view start, PnP, the bundle adjustment, the turn checks,
 // the rolling-shutter correction) without the dense depth maps, so cheap

@@ -113,13 +113,18 @@ SE3 PoseAtTime(const CaptureGeometry& geometry, double tau);
 
 // The frames, besides t, whose poses fix frame t's blur path in a sequence of
 // `num_frames` >= 2 frames, the neighbour P_s first: t-1 and t+1 inside the
-// sequence (the curve); the other frame at either end (the geodesic of
-// eq:interpolatingP: the last frame interpolates towards t-1, the first
-// extrapolates backwards from frame 1). The curve through frames 1 and 2
-// for the first frame follows a hand-held path better with the true poses,
-// but extrapolated over its exposure it multiplies the pose errors of an
-// estimate (about 3x at an exposure of 0.8 frame intervals): its depth
-// collapsed (BENCHMARKS.md, "Curved blur paths").
+// sequence; at either end the curve through the next two frames inwards
+// (frame 0: 1 and 2, extrapolated backwards over its exposure; the last frame
+// t-1 and t-2); with 2 frames the geodesic of eq:interpolatingP through both.
+// On a hand-held path (ground truth, noise-free) the geodesic extrapolated
+// from frame 1 reproduces the first frame's blur to 27-32 dB and the
+// geodesic towards t-1 the last frame's to 44-48 dB (42-55 dB for the
+// interior frames); the curves to 44-46 dB and 49-54 dB. The first frame's
+// curve multiplies the errors of the poses it extrapolates from (Lagrange
+// weights 2.52 / -2.24 / 0.72 at an exposure of 0.8 frame intervals, against
+// 1.8 / -0.8): it pays only with shutter-close poses that follow the
+// acceleration too (MidExposureToShutterClose; BENCHMARKS.md "The first
+// frame's blur on the curve").
 std::vector<int> BlurPathFrames(int t, int num_frames);
 // Sets the path of `geometry` (P_t, t and the neighbours) to frame t's among
 // the poses (at shutter close) and stamps of a sequence (BlurPathFrames).
