@@ -2074,9 +2074,9 @@ SparseStructure SparseStage(const PinholeCamera& camera_lr, const InitializerOpt
 
 // Mid-exposure camera of frame f (T_world_mid) `delay` later: on the
 // quadratic through the mid-exposure poses of f-1, f and f+1 (the first
-// frame: 0, 1, 2), the path of the capture model's rows and of the shutter
-// close (MidExposureToShutterClose); on the geodesic through f-1 and f for
-// the last frame, and with fewer than 3 frames.
+// frame: 0, 1, 2), the path of the capture model's rows and of the interior
+// frames' shutter close (MidExposureToShutterClose); on the geodesic through
+// f-1 and f for the last frame, and with fewer than 3 frames.
 SE3 RowPose(const std::vector<FrameRecord>& frames, const std::vector<SE3>& T_world_mid, int f, double delay) {
   const int num_frames = static_cast<int>(frames.size());
   const auto mid = [&frames](int t) { return frames[t].stamp - 0.5 * frames[t].exposure; };

@@ -294,8 +294,8 @@ InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr, cons
 // neighbouring frames' mid-exposure poses: the quadratic through t-1, t and
 // t+1, exact on a path of constant acceleration in se(3); the first frame on
 // the geodesic through frames 0 and 1, the last on the geodesic through t-1
-// and t (eq:interpolatingP), exact at constant velocity. Throws InputError with fewer than 2 frames or
-// a pose count that differs from the frames'.
+// and t (eq:interpolatingP), exact at constant velocity. Throws InputError
+// with fewer than 2 frames or a pose count that differs from the frames'.
 std::vector<SE3> MidExposureToShutterClose(const std::vector<FrameRecord>& frames,
                                            const std::vector<SE3>& T_world_mid);
 
