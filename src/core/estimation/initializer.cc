@@ -2260,7 +2260,8 @@ void AdjustToPosePrior(const PinholeCamera& camera, const InitializerOptions& op
 // sparse poses are those of mid-exposure, t_c - exposure / 2 (exact for
 // motion that is linear in the image over an exposure). The output poses
 // are at the shutter close t_c (docs/file_formats.md#exposure), by
-// MidExposureToShutterClose (eq:interpolatingP). World = camera 0 at t_c
+// MidExposureToShutterClose (the quadratic through the neighbours'
+// mid-exposure poses; eq:interpolatingP at the ends). World = camera 0 at t_c
 // (re-anchored here; the points follow); the scale stays the pair's
 // (|c_b - c_a| = 1 at mid-exposure) until NormaliseGauge.
 void MoveToShutterClose(const std::vector<FrameRecord>& frames, SparseStructure* structure,
