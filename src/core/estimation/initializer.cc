@@ -2077,9 +2077,13 @@ SparseStructure SparseStage(const PinholeCamera& camera_lr, const InitializerOpt
 // frame: 0, 1, 2), the path of the capture model's rows and of the interior
 // frames' shutter close (MidExposureToShutterClose); on the geodesic through
 // f-1 and f for the last frame, and with fewer than 3 frames.
+double MidExposureTime(const FrameRecord& frame) {
+  return frame.stamp - 0.5 * frame.exposure;
+}
+
 SE3 RowPose(const std::vector<FrameRecord>& frames, const std::vector<SE3>& T_world_mid, int f, double delay) {
   const int num_frames = static_cast<int>(frames.size());
-  const auto mid = [&frames](int t) { return frames[t].stamp - 0.5 * frames[t].exposure; };
+  const auto mid = [&frames](int t) { return MidExposureTime(frames[t]); };
   if (num_frames >= 3 && f + 1 < num_frames) {
     const int a = f > 0 ? f - 1 : f + 2;
     return PoseOnQuadraticPath(T_world_mid[a], mid(a), T_world_mid[f + 1], mid(f + 1), T_world_mid[f], mid(f),
@@ -2154,13 +2158,9 @@ std::vector<SE3> MidExposureToShutterClose(const std::vector<FrameRecord>& frame
   const int num_frames = static_cast<int>(frames.size());
   std::vector<SE3> T_world_cam(num_frames);
   for (int t = 0; t < num_frames; ++t) {
-    if (t == 0) {
-      const double mid_0 = frames[0].stamp - 0.5 * frames[0].exposure;
-      const double mid_1 = frames[1].stamp - 0.5 * frames[1].exposure;
-      T_world_cam[0] = PoseAtTime(T_world_mid[0], mid_0, T_world_mid[1], mid_1, frames[0].stamp);
-    } else {
-      T_world_cam[t] = RowPose(frames, T_world_mid, t, 0.5 * frames[t].exposure);
-    }
+    T_world_cam[t] = t > 0 ? RowPose(frames, T_world_mid, t, 0.5 * frames[t].exposure)
+                           : PoseAtTime(T_world_mid[0], MidExposureTime(frames[0]), T_world_mid[1],
+                                        MidExposureTime(frames[1]), frames[0].stamp);
   }
   return T_world_cam;
 }
@@ -2180,7 +2180,7 @@ std::vector<std::optional<SE3>> PriorAtMidExposure(const std::vector<FrameRecord
     if (!T_prior_cam[t]) continue;
     const int a = t > 0 ? t - 1 : 0;
     const int b = t > 0 ? t : 1;
-    const double mid = frames[t].stamp - 0.5 * frames[t].exposure;
+    const double mid = MidExposureTime(frames[t]);
     T_prior_mid[t] = T_prior_cam[a] && T_prior_cam[b] ? PoseAtTime(*T_prior_cam[a], frames[a].stamp,
                                                                    *T_prior_cam[b], frames[b].stamp, mid)
                                                       : *T_prior_cam[t];
