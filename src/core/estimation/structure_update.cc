@@ -352,33 +352,40 @@ cv::Mat BlurDerivativeWrtInverseDepth(const CaptureGeometry& geometry, int sampl
 namespace {
 
 // The poses of a self-consistency geometry's blur path, in the order of
-// BlurPoseJacobian's frames: P_t, P_neighbour, P_second_neighbour (if set).
+// BlurPoseJacobian's frames: P_t, P_neighbour, then P_second_neighbour and
+// P_third_neighbour where set.
 int PathPoseCount(const CaptureGeometry& geometry) {
-  return geometry.T_world_second_neighbour.has_value() ? 3 : 2;
+  return 2 + (geometry.T_world_second_neighbour.has_value() ? 1 : 0) +
+         (geometry.T_world_third_neighbour.has_value() ? 1 : 0);
 }
 SE3* PathPose(CaptureGeometry* geometry, int k) {
   if (k == 0) return &geometry->T_world_cam;
   if (k == 1) return &geometry->T_world_neighbour;
-  return &*geometry->T_world_second_neighbour;
+  if (k == 2) return &*geometry->T_world_second_neighbour;
+  return &*geometry->T_world_third_neighbour;
 }
 
 // The instant tau of virtual camera m of M over the exposure of rows that
 // open `row_delay` later (as the operator samples it), and the basis of the
-// path's pose derivative at tau: phi_1 = (tau - t) / exposure, phi_2 = phi_1^2.
+// path's pose derivative at tau: phi_1 = (tau - t) / exposure, phi_b = phi_1^b
+// up to the cubic of the longest path (PoseOnPolynomialPath: four poses).
+constexpr int kPathBasisSize = 3;
+using PathBasisVector = Eigen::Matrix<double, kPathBasisSize, 1>;
 double VirtualCameraTime(const CaptureGeometry& geometry, int samples, double row_delay, int m) {
   return geometry.stamp - geometry.exposure + row_delay + (m + 0.5) / samples * geometry.exposure;
 }
-Eigen::Vector2d PathBasis(const CaptureGeometry& geometry, double tau) {
+PathBasisVector PathBasis(const CaptureGeometry& geometry, double tau) {
   const double phi = (tau - geometry.stamp) / geometry.exposure;
-  return {phi, phi * phi};
+  return {phi, phi * phi, phi * phi * phi};
 }
 
 // d delta(tau) / d eps (6 x 6F) of the virtual camera at tau relative to P_t,
 // T_t_tau = P_t^-1 P(tau), with Exp(delta) T_t_tau(eps) ~ T_t_tau(eps + d eps)
 // ... by central differences over the 6 axes of each path pose, at 8
 // instants spanning the exposure and the readout, fitted by least squares as
-// phi_1(tau) C_1 + phi_2(tau) C_2 (the path passes through P_t at t, so
-// delta(t) = 0). Returns [C_1; C_2] (12 x 6F).
+// sum_b phi_b(tau) C_b (the path passes through P_t at t, so delta(t) = 0;
+// exact for the polynomial paths of up to four poses). Returns [C_1; C_2;
+// C_3] (6 kPathBasisSize x 6F).
 Eigen::MatrixXd PathPoseChain(const CaptureGeometry& geometry) {
   const int frames = PathPoseCount(geometry);
   const int nodes = 8;
@@ -409,11 +416,11 @@ Eigen::MatrixXd PathPoseChain(const CaptureGeometry& geometry) {
       }
     }
   }
-  Eigen::MatrixXd phi(nodes, 2);
+  Eigen::MatrixXd phi(nodes, kPathBasisSize);
   for (int i = 0; i < nodes; ++i) phi.row(i) = PathBasis(geometry, taus[i]).transpose();
-  const Eigen::MatrixXd fit = (phi.transpose() * phi).ldlt().solve(phi.transpose() * y);  // 2 x 36F
-  Eigen::MatrixXd chain(12, 6 * frames);
-  for (int b = 0; b < 2; ++b) {
+  const Eigen::MatrixXd fit = (phi.transpose() * phi).ldlt().solve(phi.transpose() * y);  // K x 36F
+  Eigen::MatrixXd chain(6 * kPathBasisSize, 6 * frames);
+  for (int b = 0; b < kPathBasisSize; ++b) {
     for (int r = 0; r < 6; ++r) chain.row(6 * b + r) = fit.block(b, 6 * frames * r, 1, 6 * frames);
   }
   return chain;
@@ -424,7 +431,7 @@ Eigen::MatrixXd PathPoseChain(const CaptureGeometry& geometry) {
 struct BlurPoseCamera {
   Eigen::Matrix3d h;
   Eigen::Vector3d kt;
-  Eigen::Vector2d basis;
+  PathBasisVector basis;
 };
 
 // At most max_samples of the M virtual cameras, evenly spread (the middle
@@ -451,7 +458,7 @@ std::vector<BlurPoseCamera> BlurPoseCameras(const CaptureGeometry& geometry, int
 }
 
 // Adds, for HR pixel (x, y) of t at inverse depth rho seen by `camera`,
-// scale_weight x g^T d pixel / d delta x phi_b into moments[(2 c + b) 6 + j]
+// scale_weight x g^T d pixel / d delta x phi_b into moments[(K c + b) 6 + j]
 // (g the gradient of channel c of I_t at the warp, delta the virtual
 // camera's pose relative to P_t).
 void AddBlurPoseMoments(const PinholeCamera& hr, const BlurPoseCamera& camera, int x, int y, double rho,
@@ -474,8 +481,8 @@ void AddBlurPoseMoments(const PinholeCamera& hr, const BlurPoseCamera& camera, i
   for (int c = 0; c < channels; ++c) {
     const Eigen::Matrix<double, 1, 6> a =
         scale_weight * (grad_x[c] * jacobian.row(0) + grad_y[c] * jacobian.row(1));
-    for (int b = 0; b < 2; ++b) {
-      double* out = moments + (2 * c + b) * 6;
+    for (int b = 0; b < kPathBasisSize; ++b) {
+      double* out = moments + (kPathBasisSize * c + b) * 6;
       for (int j = 0; j < 6; ++j) out[j] += camera.basis(b) * a(j);
     }
   }
@@ -500,7 +507,7 @@ cv::Mat BlurPoseJacobian(const CaptureGeometry& geometry, int samples, int scale
   int used = 0;
   const std::vector<BlurPoseCamera> cameras =
       BlurPoseCameras(geometry, samples, max_samples, num_sets, lr_rows, &used);
-  const Eigen::MatrixXd chain = PathPoseChain(geometry);  // [C_1; C_2]
+  const Eigen::MatrixXd chain = PathPoseChain(geometry);  // [C_1; C_2; C_3]
   cv::Mat gx, gy;
   Gradients(latent, &gx, &gy);
   cv::Mat jacobian = cv::Mat::zeros(lr_rows, lr_cols, CV_32FC(channels * frames * 6));
@@ -508,7 +515,7 @@ cv::Mat BlurPoseJacobian(const CaptureGeometry& geometry, int samples, int scale
 #pragma omp parallel for schedule(static)
   for (int ly = 0; ly < lr_rows; ++ly) {
     std::vector<float> grad_x(channels), grad_y(channels);
-    Eigen::VectorXd moments(channels * 12);
+    Eigen::VectorXd moments(channels * 6 * kPathBasisSize);
     const BlurPoseCamera* set = &cameras[(num_sets > 1 ? ly : 0) * used];
     float* out = jacobian.ptr<float>(ly);
     for (int lx = 0; lx < lr_cols; ++lx) {
@@ -525,10 +532,12 @@ cv::Mat BlurPoseJacobian(const CaptureGeometry& geometry, int samples, int scale
           }
         }
       }
-      // J_c = A_c1 C_1 + A_c2 C_2 (A_cb the 6 moments of channel c, basis b).
+      // J_c = sum_b A_cb C_b (A_cb the 6 moments of channel c, basis b).
       for (int c = 0; c < channels; ++c) {
-        const Eigen::RowVectorXd row = moments.segment<6>(12 * c).transpose() * chain.topRows<6>() +
-                                       moments.segment<6>(12 * c + 6).transpose() * chain.bottomRows<6>();
+        Eigen::RowVectorXd row = Eigen::RowVectorXd::Zero(6 * frames);
+        for (int b = 0; b < kPathBasisSize; ++b) {
+          row += moments.segment<6>(6 * (kPathBasisSize * c + b)).transpose() * chain.middleRows<6>(6 * b);
+        }
         for (int i = 0; i < 6 * frames; ++i) out[(lx * channels + c) * 6 * frames + i] = static_cast<float>(row(i));
       }
     }

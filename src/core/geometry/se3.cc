@@ -194,12 +194,22 @@ SE3 PoseAtTime(const SE3& T_world_s, double s, const SE3& T_world_t, double t, d
 
 SE3 PoseOnQuadraticPath(const SE3& T_world_a, double a, const SE3& T_world_b, double b, const SE3& T_world_t,
                         double t, double tau) {
+  return PoseOnPolynomialPath({{T_world_a, a}, {T_world_b, b}}, T_world_t, t, tau);
+}
+
+SE3 PoseOnPolynomialPath(const std::vector<TimedPose>& nodes, const SE3& T_world_t, double t, double tau) {
   const SE3 T_t_world = T_world_t.Inverse();
-  const Vector6d xi_a = (T_world_a * T_t_world).Log();
-  const Vector6d xi_b = (T_world_b * T_t_world).Log();
-  const double weight_a = (tau - t) * (tau - b) / ((a - t) * (a - b));
-  const double weight_b = (tau - t) * (tau - a) / ((b - t) * (b - a));
-  return SE3::Exp(weight_a * xi_a + weight_b * xi_b) * T_world_t;
+  Vector6d xi = Vector6d::Zero();
+  for (size_t k = 0; k < nodes.size(); ++k) {
+    // L_k(tau) = prod over the other nodes j (and t) of (tau - t_j) / (t_k - t_j).
+    const double t_k = nodes[k].stamp;
+    double weight = (tau - t) / (t_k - t);
+    for (size_t j = 0; j < nodes.size(); ++j) {
+      if (j != k) weight *= (tau - nodes[j].stamp) / (t_k - nodes[j].stamp);
+    }
+    xi += weight * (nodes[k].T_world_cam * T_t_world).Log();
+  }
+  return SE3::Exp(xi) * T_world_t;
 }
 
 Eigen::Matrix<double, 3, 6> DLeftPerturbedPointDEps(const Eigen::Vector3d& transformed_point) {

@@ -149,9 +149,12 @@ void Multiply(const Matrix& a, const cv::Size& in_size, const cv::Size& out_size
 
 SE3 PoseAtTime(const CaptureGeometry& geometry, double tau) {
   if (geometry.T_world_second_neighbour.has_value()) {
-    return PoseOnQuadraticPath(geometry.T_world_neighbour, geometry.neighbour_stamp,
-                               *geometry.T_world_second_neighbour, geometry.second_neighbour_stamp,
-                               geometry.T_world_cam, geometry.stamp, tau);
+    std::vector<TimedPose> nodes = {{geometry.T_world_neighbour, geometry.neighbour_stamp},
+                                    {*geometry.T_world_second_neighbour, geometry.second_neighbour_stamp}};
+    if (geometry.T_world_third_neighbour.has_value()) {
+      nodes.push_back({*geometry.T_world_third_neighbour, geometry.third_neighbour_stamp});
+    }
+    return PoseOnPolynomialPath(nodes, geometry.T_world_cam, geometry.stamp, tau);
   }
   // eq:interpolatingP: alpha = (tau - s) / (t - s) also extrapolates
   // backwards when s follows t, and forwards past t.
@@ -166,7 +169,9 @@ std::vector<int> BlurPathFrames(int t, int num_frames) {
   if (num_frames == 2) return {1 - t};
   if (t == 0) return {1, 2};
   if (t == num_frames - 1) return {t - 1, t - 2};
-  return {t - 1, t + 1};
+  if (num_frames == 3) return {0, 2};
+  if (t == 1) return {0, 2, 3};
+  return {t - 1, t + 1, t - 2};
 }
 
 void SetBlurPath(const std::vector<SE3>& T_world_cam, const std::vector<double>& stamps, int t,
@@ -179,9 +184,15 @@ void SetBlurPath(const std::vector<SE3>& T_world_cam, const std::vector<double>&
   geometry->neighbour_stamp = stamps[path[0]];
   geometry->T_world_second_neighbour.reset();
   geometry->second_neighbour_stamp = 0.0;
+  geometry->T_world_third_neighbour.reset();
+  geometry->third_neighbour_stamp = 0.0;
   if (path.size() > 1) {
     geometry->T_world_second_neighbour = T_world_cam[path[1]];
     geometry->second_neighbour_stamp = stamps[path[1]];
+  }
+  if (path.size() > 2) {
+    geometry->T_world_third_neighbour = T_world_cam[path[2]];
+    geometry->third_neighbour_stamp = stamps[path[2]];
   }
 }
 
@@ -193,6 +204,10 @@ void MoveBlurPath(const SE3& T_world_target, double target_stamp, CaptureGeometr
   if (geometry->T_world_second_neighbour.has_value()) {
     geometry->T_world_second_neighbour = T_target_cam * *geometry->T_world_second_neighbour;
     geometry->second_neighbour_stamp += shift;
+  }
+  if (geometry->T_world_third_neighbour.has_value()) {
+    geometry->T_world_third_neighbour = T_target_cam * *geometry->T_world_third_neighbour;
+    geometry->third_neighbour_stamp += shift;
   }
   geometry->T_world_cam = T_world_target;
   geometry->stamp = target_stamp;
@@ -948,13 +963,18 @@ bool SameCaptureGeometry(const CaptureGeometry& a, const CaptureGeometry& b) {
       a.exposure != b.exposure || a.readout_time != b.readout_time ||
       !SamePose(a.T_world_cam, b.T_world_cam) || !SamePose(a.T_world_neighbour, b.T_world_neighbour) ||
       a.T_world_source.has_value() != b.T_world_source.has_value() ||
-      a.T_world_second_neighbour.has_value() != b.T_world_second_neighbour.has_value()) {
+      a.T_world_second_neighbour.has_value() != b.T_world_second_neighbour.has_value() ||
+      a.T_world_third_neighbour.has_value() != b.T_world_third_neighbour.has_value()) {
     return false;
   }
   if (a.T_world_source.has_value() && !SamePose(*a.T_world_source, *b.T_world_source)) return false;
   if (a.T_world_second_neighbour.has_value() &&
       (a.second_neighbour_stamp != b.second_neighbour_stamp ||
        !SamePose(*a.T_world_second_neighbour, *b.T_world_second_neighbour)))
+    return false;
+  if (a.T_world_third_neighbour.has_value() &&
+      (a.third_neighbour_stamp != b.third_neighbour_stamp ||
+       !SamePose(*a.T_world_third_neighbour, *b.T_world_third_neighbour)))
     return false;
   return SameBytes(a.depth_hr, b.depth_hr);
 }

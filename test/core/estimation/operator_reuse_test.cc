@@ -93,50 +93,52 @@ TEST(OperatorReuse, OptionsRejectANegativeCount) {
   EXPECT_NO_THROW(stream.SetWindowOverlap(0));
 }
 
-// Two windows of 4 frames sharing 3, as the stream runs them (the second
+// Two windows of 5 frames sharing 4, as the stream runs them (the second
 // holds the shared poses and latent images and starts from their solver
 // depths, EstimatorResult::solver_depth, the output's being refined).
-// A frame's blur path runs through the frames on both sides of it
-// (BlurPathFrames), so the first window hands on the operators of the one
-// frame whose path lies among the shared frames and stays so in the second
-// window (frame 2: path 1-3; frame 3, the last, gains frame 4 there): Psi_2
-// sampling I_1, I_2 and I_3, each equal to a fresh build from the structure
-// it carries, and the second window gives the same result with them as
-// without.
+// An interior frame's blur path runs through two frames before it and one
+// after it (BlurPathFrames), so the first window hands on the operators of
+// the one frame whose path lies among the shared frames and stays so in the
+// second window (frame 3: path 1-4 in both; frame 2's path runs through
+// frame 0 in the first window and frame 4 in the second; frame 4, the last,
+// gains frame 5): Psi_3 sampling I_2, I_3 and I_4, each equal to a fresh
+// build from the structure it carries, and the second window gives the same
+// result with them as without.
 TEST(OperatorReuse, CarriedOperatorsEqualRebuiltOnesAndChangeNothing) {
   const Sequence& sequence = SmallSequence();
   ASSERT_TRUE(sequence.ground_truth.has_value());
   const SequenceGroundTruth& gt = *sequence.ground_truth;
   EstimatorOptions options = FastEstimatorOptions();
   options.keep_input_gauge = true;
-  options.carried_frames = 3;
+  options.carried_frames = 4;
   std::vector<cv::Mat> depth;
   std::vector<SE3> poses;
-  for (int t = 0; t < 4; ++t) {
+  for (int t = 0; t < 5; ++t) {
     depth.push_back(gt.depth[t].clone());
     poses.push_back(gt.poses[t].T_world_cam);
   }
   const EstimatorResult first =
-      Estimator(options).RunFromStructure(InputOfFrames(sequence, 0, 4), depth, poses);
+      Estimator(options).RunFromStructure(InputOfFrames(sequence, 0, 5), depth, poses);
   EXPECT_EQ(first.operators_reused, 0);
-  ASSERT_EQ(first.carried_operators.size(), 3u);  // Psi_2 sampling I_1, I_2 and I_3
+  ASSERT_EQ(first.carried_operators.size(), 3u);  // Psi_3 sampling I_2, I_3 and I_4
   CaptureOperatorOptions build_options = first.carried_operators[0].options;
   build_options.num_threads = 1;
   build_options.transposed_copy = false;
   for (const CarriedOperator& carried : first.carried_operators) {
     ExpectSameOperator(carried.entry->op, BuildCaptureOperator(carried.geometry, build_options));
-    EXPECT_TRUE(SameBits(carried.geometry.depth_hr, first.solver_depth[2]));
+    EXPECT_TRUE(SameBits(carried.geometry.depth_hr, first.solver_depth[3]));
   }
 
   EstimatorOptions second_options = options;
-  second_options.fixed_leading_poses = 3;
-  second_options.held_leading_latents = 3;
-  EstimatorInput input = InputOfFrames(sequence, 1, 4);
-  input.initial_latents = {first.latent[1], first.latent[2], first.latent[3]};
-  const std::vector<cv::Mat> second_depth = {first.solver_depth[1], first.solver_depth[2], first.solver_depth[3],
-                                             gt.depth[4].clone()};
+  second_options.fixed_leading_poses = 4;
+  second_options.held_leading_latents = 4;
+  EstimatorInput input = InputOfFrames(sequence, 1, 5);
+  input.initial_latents = {first.latent[1], first.latent[2], first.latent[3], first.latent[4]};
+  const std::vector<cv::Mat> second_depth = {first.solver_depth[1], first.solver_depth[2],
+                                             first.solver_depth[3], first.solver_depth[4],
+                                             gt.depth[5].clone()};
   const std::vector<SE3> second_poses = {first.T_world_cam[1], first.T_world_cam[2], first.T_world_cam[3],
-                                         gt.poses[4].T_world_cam};
+                                         first.T_world_cam[4], gt.poses[5].T_world_cam};
   const EstimatorResult rebuilt =
       Estimator(second_options).RunFromStructure(input, second_depth, second_poses);
   input.carried_operators = first.carried_operators;
@@ -148,25 +150,26 @@ TEST(OperatorReuse, CarriedOperatorsEqualRebuiltOnesAndChangeNothing) {
 
   // A structure that differs in one pixel is not reused.
   std::vector<cv::Mat> nudged = second_depth;
-  nudged[1] = second_depth[1].clone();
-  nudged[1].at<float>(90, 120) *= 1.01f;
+  nudged[2] = second_depth[2].clone();
+  nudged[2].at<float>(90, 120) *= 1.01f;
   EXPECT_EQ(Estimator(second_options).RunFromStructure(input, nudged, second_poses).operators_reused, 0);
 }
 
-// The stream: windows of 4 sharing 3 on the first 6 frames (windows 0-3,
-// 1-4, 2-5). The third window uses the second's operators of its frame 1
-// (frame 2 of the second window, whose blur path runs through the shared
+// The stream: windows of 5 sharing 4 on the first 7 frames (windows 0-4,
+// 1-5, 2-6). The third window uses the second's operators of its frame 2
+// (frame 3 of the second window, whose blur path runs through the shared
 // frames on both sides); with the hand-over switched off (overlap 0) every
 // window is the same bit for bit. At the stream's default overlap of 2 no
 // frame's path lies among the shared frames in both windows: nothing is
-// reused.
+// reused (with the quadratic paths before 2026-12-06 an overlap of 3 was
+// enough).
 TEST(OperatorReuse, StreamWindowsAreTheSameWithAndWithoutReuse) {
   const Sequence& sequence = SmallSequence();
-  const std::vector<cv::Mat> images(sequence.images.begin(), sequence.images.begin() + 6);
-  const std::vector<FrameRecord> frames(sequence.frames.begin(), sequence.frames.begin() + 6);
+  const std::vector<cv::Mat> images(sequence.images.begin(), sequence.images.begin() + 7);
+  const std::vector<FrameRecord> frames(sequence.frames.begin(), sequence.frames.begin() + 7);
   StreamOptions stream_options;
-  stream_options.window_size = 4;
-  stream_options.window_overlap = 3;
+  stream_options.window_size = 5;
+  stream_options.window_overlap = 4;
   const std::vector<StreamWindow> windows = StreamWindowsOf(images, frames, stream_options, 100);
   ASSERT_EQ(windows.size(), 3u);
   // One thread: the pose update's sums then run in one order, and two runs
@@ -190,8 +193,8 @@ TEST(OperatorReuse, StreamWindowsAreTheSameWithAndWithoutReuse) {
               << " thread-s against " << StageSeconds(b.result, kBuildStage) << " thread-s building all\n";
   }
   // The first window starts a segment (output gauge): nothing is carried
-  // from it; the second hands 3 operators (Psi of its frame 2 sampling its
-  // frames 1-3) to the third.
+  // from it; the second hands 3 operators (Psi of its frame 3 sampling its
+  // frames 2-4) to the third.
   EXPECT_EQ(reused, 3);
 }
 

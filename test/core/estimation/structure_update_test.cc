@@ -286,8 +286,15 @@ TEST(StructureUpdateOptions, RejectsBadValues) {
 
 // ---- Blur as motion evidence: three frames 0.1 s apart on an accelerating
 // path with rotation, a slanted plane at depth ~2, exposure 0.06 s (about
-// 3 HR px of blur); frame 1's path is the quadratic through all three.
+// 3 HR px of blur); frame 1's path is the quadratic through all three. With
+// `fourth_frame`, a fourth whose acceleration differs: frame 2's path is the
+// cubic through all four.
 struct BlurScene {
+  explicit BlurScene(bool fourth_frame) : BlurScene() {
+    if (!fourth_frame) return;
+    stamps.push_back(0.3);
+    poses.push_back(SE3::Exp((Vector6d() << 0.26, 0.05, 0.06, 0.035, -0.03, 0.01).finished()));
+  }
   PinholeCamera camera{96, 72, 80.0, 82.0, 47.3, 35.6};
   cv::Mat depth = cv::Mat(72, 96, CV_32FC1);
   cv::Mat inverse_depth = cv::Mat(72, 96, CV_32FC1);
@@ -322,24 +329,28 @@ struct BlurScene {
 };
 
 // J of BlurPoseJacobian against central differences of Psi_t I_t, the
-// operator rebuilt for every pose of frame 1's blur path moved along each
-// axis. The operator samples D_t at every virtual camera (no reprojection:
-// the Jacobian's D_tau ~ D_t) with the Jacobian's 16 virtual cameras; the
+// operator rebuilt for every pose of frame t's blur path moved along each
+// axis: frame 1 of three (the quadratic) and frame 2 of four (the cubic).
+// The operator samples D_t at every virtual camera (no reprojection: the
+// Jacobian's D_tau ~ D_t) with the Jacobian's 16 virtual cameras; the
 // relative error of each column (over the interior LR pixels) stays within
-// 5 %; with the reprojected depths and M = 50 within 10 %.
-TEST(BlurPoseJacobian, MatchesNumericDifferencesOfTheOperator) {
-  const BlurScene scene;
-  const int t = 1;
+// 5 %; with the reprojected depths and M = 50 (`with_reprojection`) within
+// 10 %. The cubic's frame 2 moves farther over its exposure than the
+// quadratic's frame 1, and D_tau ~ D_t costs it up to 17 % with the
+// reprojected depths: the path's derivative is what its test checks.
+void ExpectBlurPoseJacobianMatches(const BlurScene& scene, int t, const std::vector<int>& path,
+                                   bool with_reprojection) {
+  const int frames = static_cast<int>(path.size());
   const cv::Mat jacobian = BlurPoseJacobian(scene.Geometry(scene.poses, t), 16, 2, scene.inverse_depth,
                                             scene.latent, 16, 1);
-  const std::vector<int> path = {1, 0, 2};  // P_t, P_neighbour, P_second_neighbour
-  ASSERT_EQ(jacobian.channels(), 3 * 18);
+  ASSERT_EQ(jacobian.channels(), 3 * 6 * frames);
   for (const bool reproject : {false, true}) {
+    if (reproject && !with_reprojection) continue;
     CaptureOperatorOptions options;
     options.samples = reproject ? 50 : 16;
     options.reproject_depth = reproject;
     double worst = 0.0;
-    for (int k = 0; k < 3; ++k) {
+    for (int k = 0; k < frames; ++k) {
       for (int j = 0; j < 6; ++j) {
         const double h = 1e-4;
         std::vector<SE3> plus = scene.poses, minus = scene.poses;
@@ -353,21 +364,30 @@ TEST(BlurPoseJacobian, MatchesNumericDifferencesOfTheOperator) {
           for (int x = 4; x < 44; ++x) {
             for (int c = 0; c < 3; ++c) {
               const double n = numeric.at<cv::Vec3f>(y, x)[c];
-              const double a = jacobian.ptr<float>(y)[(x * 3 + c) * 18 + 6 * k + j];
+              const double a = jacobian.ptr<float>(y)[(x * 3 + c) * 6 * frames + 6 * k + j];
               error += (a - n) * (a - n);
               norm += n * n;
             }
           }
         }
         const double relative = std::sqrt(error / norm);
-        std::printf("reproject %d, pose %d axis %d: |J| %.3f, relative error %.4f\n", reproject, k, j,
-                    std::sqrt(norm), relative);
+        std::printf("frame %d, reproject %d, pose %d axis %d: |J| %.3f, relative error %.4f\n", t, reproject,
+                    k, j, std::sqrt(norm), relative);
         EXPECT_GT(norm, 1e-2);  // the column is not trivially zero
         worst = std::max(worst, relative);
       }
     }
     EXPECT_LT(worst, reproject ? 0.10 : 0.05);
   }
+}
+
+TEST(BlurPoseJacobian, MatchesNumericDifferencesOfTheOperator) {
+  ExpectBlurPoseJacobianMatches(BlurScene(), 1, {1, 0, 2}, true);  // P_t, P_neighbour, P_second_neighbour
+}
+
+TEST(BlurPoseJacobian, MatchesNumericDifferencesOnTheCubicPath) {
+  // P_t, P_neighbour, P_second_neighbour, P_third_neighbour.
+  ExpectBlurPoseJacobianMatches(BlurScene(/*fourth_frame=*/true), 2, {2, 1, 3, 0}, false);
 }
 
 // The pose error of frame 1 before and after 4 rounds of the pose update

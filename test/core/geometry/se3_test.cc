@@ -193,5 +193,34 @@ TEST(SE3, QuadraticPathFollowsAnAcceleratingPath) {
   EXPECT_LT(curved_error, 0.05 * straight_error) << curved_error << " " << straight_error;
 }
 
+// The cubic through four poses: through each at its time, and exact on a
+// path whose twist relative to P_t is cubic in time (a changing
+// acceleration), where the quadratic through three of them is not.
+TEST(SE3, CubicPathFollowsAChangingAcceleration) {
+  const Vector6d velocity = (Vector6d() << 1.0, 0.2, 0.0, 0.1, 0.3, 0.0).finished();
+  const Vector6d acceleration = (Vector6d() << 0.0, 4.0, 1.0, 0.0, 0.0, 2.0).finished();
+  const Vector6d jerk = (Vector6d() << 30.0, 0.0, -20.0, 10.0, 0.0, 5.0).finished();
+  auto path = [&](double tau) {
+    return SE3::Exp(tau * velocity + 0.5 * tau * tau * acceleration + tau * tau * tau / 6.0 * jerk);
+  };
+  const double h = 0.05;
+  const std::vector<TimedPose> nodes = {{path(-h), -h}, {path(h), h}, {path(-2 * h), -2 * h}};
+  for (const TimedPose& node : nodes) {
+    EXPECT_LT(
+        MaxAbs(PoseOnPolynomialPath(nodes, path(0.0), 0.0, node.stamp).Matrix() - node.T_world_cam.Matrix()),
+        1e-12);
+  }
+  for (double fraction : {0.0, 0.3, 0.8}) {  // over an exposure of 0.8 intervals, ending at t
+    const double tau = -fraction * h;
+    const double cubic_error =
+        MaxAbs(PoseOnPolynomialPath(nodes, path(0.0), 0.0, tau).Matrix() - path(tau).Matrix());
+    EXPECT_LT(cubic_error, 1e-12) << tau;
+    if (fraction == 0.0) continue;
+    const double quadratic_error = MaxAbs(
+        PoseOnQuadraticPath(path(-h), -h, path(h), h, path(0.0), 0.0, tau).Matrix() - path(tau).Matrix());
+    EXPECT_GT(quadratic_error, 1e-5) << tau;
+  }
+}
+
 }  // namespace
 }  // namespace deblur_sr_mvs

@@ -502,8 +502,12 @@ TEST(CaptureOperator, SharedVirtualDepthsOfAnotherStructureAreRejected) {
 TEST(BlurPath, FramesOfTheFirstInteriorAndLastFrame) {
   EXPECT_EQ(BlurPathFrames(0, 2), (std::vector<int>{1}));
   EXPECT_EQ(BlurPathFrames(1, 2), (std::vector<int>{0}));
+  EXPECT_EQ(BlurPathFrames(0, 3), (std::vector<int>{1, 2}));
+  EXPECT_EQ(BlurPathFrames(1, 3), (std::vector<int>{0, 2}));
+  EXPECT_EQ(BlurPathFrames(2, 3), (std::vector<int>{1, 0}));
   EXPECT_EQ(BlurPathFrames(0, 5), (std::vector<int>{1, 2}));
-  EXPECT_EQ(BlurPathFrames(2, 5), (std::vector<int>{1, 3}));
+  EXPECT_EQ(BlurPathFrames(1, 5), (std::vector<int>{0, 2, 3}));
+  EXPECT_EQ(BlurPathFrames(2, 5), (std::vector<int>{1, 3, 0}));
   EXPECT_EQ(BlurPathFrames(4, 5), (std::vector<int>{3, 2}));
   EXPECT_THROW(BlurPathFrames(0, 1), InputError);
   EXPECT_THROW(BlurPathFrames(5, 5), InputError);
@@ -519,7 +523,8 @@ TEST(BlurPath, FramesOfTheFirstInteriorAndLastFrame) {
     const std::vector<int> path = BlurPathFrames(t, 5);
     EXPECT_EQ(geometry.stamp, stamps[t]);
     EXPECT_EQ(geometry.neighbour_stamp, stamps[path[0]]);
-    EXPECT_EQ(geometry.T_world_second_neighbour.has_value(), path.size() == 2);
+    EXPECT_EQ(geometry.T_world_second_neighbour.has_value(), path.size() >= 2);
+    EXPECT_EQ(geometry.T_world_third_neighbour.has_value(), path.size() == 3);
     // Through every pose that fixes it, at its stamp.
     EXPECT_LT((PoseAtTime(geometry, stamps[t]).translation() - poses[t].translation()).norm(), 1e-12);
     for (int frame : path) {
@@ -535,6 +540,21 @@ TEST(BlurPath, FramesOfTheFirstInteriorAndLastFrame) {
       const double tau = stamps[t] - fraction * 0.1;
       EXPECT_LT(std::abs(PoseAtTime(geometry, tau).translation().x() - tau * tau), 1e-12)
           << t << " " << fraction;
+    }
+  }
+  // On a changing acceleration (x = (tau / 0.1)^3 / 100) the cubic paths of
+  // the interior frames follow it over their exposures; the quadratics of
+  // the first and last frames do not.
+  for (int t = 0; t < 5; ++t) poses[t] = Translation(0.01 * t * t * t, 0.0, 0.0);
+  for (int t = 0; t < 5; ++t) {
+    CaptureGeometry geometry;
+    SetBlurPath(poses, stamps, t, &geometry);
+    const double tau = stamps[t] - 0.8 * 0.1;
+    const double error = std::abs(PoseAtTime(geometry, tau).translation().x() - 10.0 * tau * tau * tau);
+    if (t == 0 || t == 4) {
+      EXPECT_GT(error, 1e-4) << t;
+    } else {
+      EXPECT_LT(error, 1e-12) << t;
     }
   }
 }
@@ -578,7 +598,18 @@ TEST(BlurPath, VirtualCamerasFollowTheCurve) {
   moved = constant;
   moved.second_neighbour_stamp += 1e-6;
   EXPECT_FALSE(SameCaptureGeometry(constant, moved));
+  CaptureGeometry cubic = constant;
+  cubic.T_world_third_neighbour = SE3::Exp((Vector6d() << -0.02, 0.0, 0.01, 0.0, 0.01, 0.0).finished());
+  cubic.third_neighbour_stamp = -1.0 / 30.0;
+  EXPECT_FALSE(SameCaptureGeometry(constant, cubic));
+  moved = cubic;
+  moved.T_world_third_neighbour = Translation(0.0, 0.001, 0.0) * *cubic.T_world_third_neighbour;
+  EXPECT_FALSE(SameCaptureGeometry(cubic, moved));
+  moved = cubic;
+  moved.third_neighbour_stamp += 1e-6;
+  EXPECT_FALSE(SameCaptureGeometry(cubic, moved));
   EXPECT_TRUE(SameCaptureGeometry(constant, CaptureGeometry(constant)));
+  EXPECT_TRUE(SameCaptureGeometry(cubic, CaptureGeometry(cubic)));
 }
 
 // MoveBlurPath keeps the motion in the camera frame: P_t^-1 P(tau) is the
@@ -587,6 +618,8 @@ TEST(BlurPath, MovedPathKeepsTheRelativeMotion) {
   CaptureGeometry geometry = MovingGeometry(48, 36);
   geometry.T_world_second_neighbour = SE3::Exp((Vector6d() << 0.05, -0.01, 0.0, 0.0, 0.02, -0.01).finished());
   geometry.second_neighbour_stamp = 2.0 / 30.0;
+  geometry.T_world_third_neighbour = SE3::Exp((Vector6d() << -0.02, 0.0, 0.01, 0.0, 0.01, 0.0).finished());
+  geometry.third_neighbour_stamp = -1.0 / 30.0;
   CaptureGeometry moved = geometry;
   const SE3 T_world_target = SE3::Exp((Vector6d() << -0.3, 0.1, 0.2, 0.1, -0.2, 0.05).finished());
   MoveBlurPath(T_world_target, 5.0, &moved);

@@ -6,6 +6,8 @@
 // rotation, and Exp(xi) = [[Exp_SO3(phi), J_l(phi) rho], [0, 1]].
 #pragma once
 
+#include <vector>
+
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
@@ -69,6 +71,19 @@ SE3 PoseAtTime(const SE3& T_world_s, double s, const SE3& T_world_t, double t, d
 // it is that path: eq:interpolatingP's geodesic, PoseAtTime above.
 SE3 PoseOnQuadraticPath(const SE3& T_world_a, double a, const SE3& T_world_b, double b, const SE3& T_world_t,
                         double t, double tau);
+// One node of a polynomial path: a pose and its time.
+struct TimedPose {
+  SE3 T_world_cam;
+  double stamp = 0.0;
+};
+// The polynomial path in se(3), relative to P_t, through P_t at t and every
+// node at its time (times distinct):
+//   P_tau = exp(xi(tau)) P_t,  xi(tau) = sum_k L_k(tau) log(P_k P_t^-1),
+// L_k the Lagrange weight of node k on the nodes and t. One node: the
+// geodesic of eq:interpolatingP; two: PoseOnQuadraticPath; three: the cubic,
+// which follows a camera whose acceleration changes. On a constant-velocity
+// path it is that path for any number of nodes.
+SE3 PoseOnPolynomialPath(const std::vector<TimedPose>& nodes, const SE3& T_world_t, double t, double tau);
 
 // Derivative of (Exp(eps) T) * p with respect to eps at eps = 0, for the
 // transformed point q = T p: [I, -Hat(q)] (3x6). Used by the structure update

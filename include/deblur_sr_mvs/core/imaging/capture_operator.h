@@ -70,11 +70,15 @@ struct CaptureGeometry {
                                  // at constant velocity.
   // A second neighbouring frame's pose and stamp (s2, distinct from s and t):
   // the path is then the quadratic in se(3) through P_s, P_t and P_s2
-  // (PoseOnQuadraticPath), which follows an accelerating camera and is the
+  // (PoseOnPolynomialPath), which follows an accelerating camera and is the
   // geodesic of eq:interpolatingP when the three lie on one constant-velocity
   // path. Empty: the geodesic through P_s and P_t. SetBlurPath fills both.
   std::optional<SE3> T_world_second_neighbour;
   double second_neighbour_stamp = 0.0;
+  // A third (s3, distinct from the others; only with a second): the cubic
+  // through the four poses, which follows a changing acceleration too.
+  std::optional<SE3> T_world_third_neighbour;
+  double third_neighbour_stamp = 0.0;
   double exposure = 0.0;         // t_c - t_o, seconds, 0 < exposure
   // Rolling shutter (docs/file_formats.md#rolling-shutter): LR row y of H is
   // exposed over [t_o + y r / H, t_c + y r / H], r = readout_time (0: a
@@ -112,20 +116,26 @@ void MultiplySparse(const RowRunMatrix& a, const cv::Mat& in, cv::Mat* out, int 
 SE3 PoseAtTime(const CaptureGeometry& geometry, double tau);
 
 // The frames, besides t, whose poses fix frame t's blur path in a sequence of
-// `num_frames` >= 2 frames, the neighbour P_s first: t-1 and t+1 inside the
-// sequence; at either end the curve through the next two frames inwards
-// (frame 0: 1 and 2, extrapolated backwards over its exposure; the last frame
-// t-1 and t-2); with 2 frames the geodesic of eq:interpolatingP through both.
-// On seed 3's hand-held path (ground truth, noise-free) the geodesic
-// extrapolated from frame 1 reproduces the first frame's blur to 27-32 dB
-// and the geodesic towards t-1 the last frame's to 44-48 dB (42-55 dB for
-// the interior frames); the curves to 44-46 dB and 49-54 dB. A better model
-// on average, not on every shake (other seeds: -4 to +11 dB). The first frame's
-// curve multiplies the errors of the poses it extrapolates from (Lagrange
-// weights 2.52 / -2.24 / 0.72 at an exposure of 0.8 frame intervals, against
-// 1.8 / -0.8): it pays only with shutter-close poses that follow the
-// acceleration too (MidExposureToShutterClose; BENCHMARKS.md "The first
-// frame's blur on the curve").
+// `num_frames` >= 2 frames, the neighbour P_s first. Frame t's exposure lies
+// between t-1 and t, so with 4 or more frames an interior frame's path is the
+// cubic through t-2, t-1, t and t+1 (t = 1: 0, 2 and 3), interpolating over
+// the exposure and past t (a rolling shutter's rows) up to t+1; with 3 frames
+// the quadratic through all three. At either end the quadratic through the
+// next two frames inwards: the first frame's extrapolated backwards over its
+// exposure, the last frame's forwards over a rolling shutter's readout (a
+// cubic extrapolated there weighs the poses' errors more: the last frame's
+// cubic lost depth on the rolling-shutter benchmark). With 2 frames the
+// geodesic of eq:interpolatingP through both.
+// Model agreement from the ground truth on noise-free hand-held clips
+// (BENCHMARKS.md "A cubic blur path"): the quadratic through t-1, t and t+1
+// reproduced the interior frames' blur to 39-55 dB, the cubic +2 to +5 dB
+// better on most of them; the first frame's quadratic to 33-46 dB where the
+// geodesic extrapolated from frame 1 gave 27-32 dB on most seeds (not every
+// shake: BENCHMARKS.md "The first frame's blur on the curve"). The first
+// frame's curve multiplies the errors of the poses it extrapolates from
+// (Lagrange weights 2.52 / -2.24 / 0.72 at an exposure of 0.8 frame
+// intervals, against 1.8 / -0.8): it pays only with shutter-close poses that
+// follow the acceleration too (MidExposureToShutterClose).
 std::vector<int> BlurPathFrames(int t, int num_frames);
 // Sets the path of `geometry` (P_t, t and the neighbours) to frame t's among
 // the poses (at shutter close) and stamps of a sequence (BlurPathFrames).
