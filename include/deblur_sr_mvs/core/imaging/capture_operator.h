@@ -127,11 +127,13 @@ SE3 PoseAtTime(const CaptureGeometry& geometry, double tau);
 // cubic lost depth on the rolling-shutter benchmark). With 2 frames the
 // geodesic of eq:interpolatingP through both.
 // Model agreement from the ground truth on noise-free hand-held clips
-// (BENCHMARKS.md "A cubic blur path"): the quadratic through t-1, t and t+1
-// reproduced the interior frames' blur to 39-55 dB, the cubic +2 to +5 dB
-// better on most of them; the first frame's quadratic to 33-46 dB where the
-// geodesic extrapolated from frame 1 gave 27-32 dB on most seeds (not every
-// shake: BENCHMARKS.md "The first frame's blur on the curve"). The first
+// (BENCHMARKS.md "A cubic blur path for the interior frames"): the
+// quadratic through t-1, t and t+1 reproduced the interior frames' blur to
+// 39-55 dB, the cubic 0.3-2.2 dB better on average (-2.5 to +5.8 dB per
+// frame, the losses mostly at frame 1); the first frame's quadratic to
+// 33-46 dB where the geodesic extrapolated from frame 1 gave 27-32 dB on
+// most seeds (not every shake: BENCHMARKS.md "The first frame's blur on
+// the curve"). The first
 // frame's curve multiplies the errors of the poses it extrapolates from
 // (Lagrange weights 2.52 / -2.24 / 0.72 at an exposure of 0.8 frame
 // intervals, against 1.8 / -0.8): it pays only with shutter-close poses that
