@@ -2074,9 +2074,12 @@ SparseStructure SparseStage(const PinholeCamera& camera_lr, const InitializerOpt
 
 // Mid-exposure camera of frame f (T_world_mid) `delay` later: on the
 // quadratic through the mid-exposure poses of f-1, f and f+1 (the first
-// frame: 0, 1, 2), the path of the capture model's rows and of the interior
-// frames' shutter close (MidExposureToShutterClose); on the geodesic through
-// f-1 and f for the last frame, and with fewer than 3 frames.
+// frame: 0, 1, 2), the path of the tracks' rows and of the interior frames'
+// shutter close (MidExposureToShutterClose); on the geodesic through f-1
+// and f for the last frame, and with fewer than 3 frames. (The capture
+// model's interior paths are cubics through f-2 .. f+1, BlurPathFrames; a
+// cubic here raised the hand-held ATE: BENCHMARKS.md "A cubic blur path for
+// the interior frames".)
 double MidExposureTime(const FrameRecord& frame) {
   return frame.stamp - 0.5 * frame.exposure;
 }

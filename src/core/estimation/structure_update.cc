@@ -365,12 +365,14 @@ SE3* PathPose(CaptureGeometry* geometry, int k) {
   return &*geometry->T_world_third_neighbour;
 }
 
-// The instant tau of virtual camera m of M over the exposure of rows that
-// open `row_delay` later (as the operator samples it), and the basis of the
-// path's pose derivative at tau: phi_1 = (tau - t) / exposure, phi_b = phi_1^b
-// up to the cubic of the longest path (PoseOnPolynomialPath: four poses).
+// The basis of the path's pose derivative: powers of tau - t up to the
+// cubic of the longest path (PoseOnPolynomialPath through four poses).
 constexpr int kPathBasisSize = 3;
 using PathBasisVector = Eigen::Matrix<double, kPathBasisSize, 1>;
+
+// The instant tau of virtual camera m of M over the exposure of rows that
+// open `row_delay` later (as the operator samples it), and the basis at tau:
+// phi_1 = (tau - t) / exposure, phi_b = phi_1^b.
 double VirtualCameraTime(const CaptureGeometry& geometry, int samples, double row_delay, int m) {
   return geometry.stamp - geometry.exposure + row_delay + (m + 0.5) / samples * geometry.exposure;
 }

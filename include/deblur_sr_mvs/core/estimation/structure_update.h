@@ -218,9 +218,8 @@ struct BlurPoseTerm {
 // J = d (Psi_t I_t) / d eps (LR, C x 6F channels: channel c of the
 // observation, frame k of the geometry's path (P_t, P_neighbour, then
 // P_second_neighbour and P_third_neighbour if set), axis j at channel
-// (c * F + k) * 6 + j), for
-// the self-consistency geometry of frame t (its T_world_source must be
-// empty: the operator samples I_t). The virtual cameras of Psi_t see
+// (c * F + k) * 6 + j), for the self-consistency geometry of frame t (its
+// T_world_source must be empty: the operator samples I_t). The virtual cameras of Psi_t see
 // I_t(W^{tau_m->t}(x)) at depth D_t (D_tau ~ D_t, as in
 // BlurDerivativeWrtInverseDepth, `inverse_depth` standing for the
 // geometry's depth); the pose derivative of each virtual camera relative to

@@ -133,11 +133,11 @@ SE3 PoseAtTime(const CaptureGeometry& geometry, double tau);
 // frame, the losses mostly at frame 1); the first frame's quadratic to
 // 33-46 dB where the geodesic extrapolated from frame 1 gave 27-32 dB on
 // most seeds (not every shake: BENCHMARKS.md "The first frame's blur on
-// the curve"). The first
-// frame's curve multiplies the errors of the poses it extrapolates from
-// (Lagrange weights 2.52 / -2.24 / 0.72 at an exposure of 0.8 frame
-// intervals, against 1.8 / -0.8): it pays only with shutter-close poses that
-// follow the acceleration too (MidExposureToShutterClose).
+// the curve"). The first frame's curve multiplies the errors of the poses
+// it extrapolates from (Lagrange weights 2.52 / -2.24 / 0.72 at an exposure
+// of 0.8 frame intervals, against 1.8 / -0.8): it pays only with
+// shutter-close poses that follow the acceleration too
+// (MidExposureToShutterClose).
 std::vector<int> BlurPathFrames(int t, int num_frames);
 // Sets the path of `geometry` (P_t, t and the neighbours) to frame t's among
 // the poses (at shutter close) and stamps of a sequence (BlurPathFrames).
