@@ -199,6 +199,29 @@ TEST(SynthesizerRendererTest, View5PointsSeenFromView1MatchView1) {
   EXPECT_LT(colour_error, 15.0);  // SOURCES.md: warping error 6.4 on Dolls
 }
 
+// The primary view is the one nearer to the camera; RenderOptions::
+// primary_view fixes it (as the synthesizer does for a whole exposure): the
+// nearer one gives the default render bit for bit, the other a different one.
+TEST(SynthesizerRendererTest, PrimaryViewIsTheNearerOneUnlessFixed) {
+  const StereoScene& scene = Dolls();
+  const Eigen::Vector3d c0 = scene.views[0].T_world_cam.translation();
+  const Eigen::Vector3d c1 = scene.views[1].T_world_cam.translation();
+  const PinholeCamera& camera = scene.views[0].camera;
+  for (const double fraction : {0.45, 0.55}) {  // just either side of the views' bisector
+    const SE3 T_world_cam(Eigen::Matrix3d::Identity(), c0 + fraction * (c1 - c0));
+    const int nearer = fraction < 0.5 ? 0 : 1;
+    EXPECT_EQ(DollsRenderer().PrimaryView(T_world_cam), nearer);
+    const RenderResult automatic = DollsRenderer().Render(camera, T_world_cam);
+    RenderOptions options;
+    options.primary_view = nearer;
+    const RenderResult same = DollsRenderer().Render(camera, T_world_cam, options);
+    options.primary_view = 1 - nearer;
+    const RenderResult other = DollsRenderer().Render(camera, T_world_cam, options);
+    EXPECT_EQ(cv::norm(automatic.image, same.image, cv::NORM_INF), 0.0);
+    EXPECT_GT(cv::norm(automatic.image, other.image, cv::NORM_L1), 0.0);
+  }
+}
+
 // Soft splatting resamples smoothly: a sub-pixel camera shift changes the
 // image gradually, not by whole-pixel jumps, and leaves no cracks.
 TEST(SynthesizerRendererTest, SubPixelShiftIsSmoothAndCrackFree) {

@@ -76,6 +76,11 @@ struct RenderOptions {
   bool fill_holes = true;
   // -1: both views (the nearer one primary); 0 or 1: only that view (tests).
   int only_view = -1;
+  // With both views: 0 or 1 makes that view primary; -1 the view nearer to
+  // the rendered camera (SceneRenderer::PrimaryView). The synthesizer fixes
+  // it per frame, so that every sub-frame of an exposure and its ground
+  // truth come from the same view.
+  int primary_view = -1;
 };
 
 struct RenderResult {
@@ -124,6 +129,9 @@ class SceneRenderer {
   SceneRenderer CulledFor(const PinholeCamera& camera, const std::vector<SE3>& T_world_cams) const;
 
   int NumPoints(int view) const { return static_cast<int>(points_[view].x.size()); }
+  // The view whose centre is nearer to a camera at T_world_cam: it sees the
+  // most similar surfaces, so it is primary and the other fills its holes.
+  int PrimaryView(const SE3& T_world_cam) const;
 
  private:
   SceneRenderer() = default;
