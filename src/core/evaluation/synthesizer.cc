@@ -551,8 +551,14 @@ void FillHoles(const SplatGrid& grid, RenderWorkspace* workspace, RenderResult* 
 }  // namespace
 
 int SceneRenderer::PrimaryView(const SE3& T_world_cam) const {
+  // A camera on the views' bisector (the rotate path turns about the
+  // midpoint) takes view 0: compared exactly, rounding would pick either
+  // view from one pose to the next.
+  const double baseline = (view_centres_world_[1] - view_centres_world_[0]).norm();
   const Eigen::Vector3d centre = T_world_cam.translation();
-  return (centre - view_centres_world_[1]).norm() < (centre - view_centres_world_[0]).norm() ? 1 : 0;
+  const double nearer_by =
+      (centre - view_centres_world_[0]).norm() - (centre - view_centres_world_[1]).norm();
+  return nearer_by > 1e-9 * baseline ? 1 : 0;
 }
 
 void SceneRenderer::Render(const PinholeCamera& camera, const SE3& T_world_cam, const RenderOptions& options,

@@ -129,8 +129,9 @@ class SceneRenderer {
   SceneRenderer CulledFor(const PinholeCamera& camera, const std::vector<SE3>& T_world_cams) const;
 
   int NumPoints(int view) const { return static_cast<int>(points_[view].x.size()); }
-  // The view whose centre is nearer to a camera at T_world_cam: it sees the
-  // most similar surfaces, so it is primary and the other fills its holes.
+  // The view whose centre is nearer to a camera at T_world_cam (view 0 on
+  // their bisector, to within 1e-9 of the baseline): it sees the most
+  // similar surfaces, so it is primary and the other fills its holes.
   int PrimaryView(const SE3& T_world_cam) const;
 
  private:
