@@ -1217,10 +1217,10 @@ void SynthesizeFrame(int i, const SceneRenderer& renderer, const SynthesisOption
   // nearer to the camera at the shutter close. Chosen per sub-frame, the
   // exposure that the path crosses the views' bisector in (one frame of most
   // hand-held clips) blended renders of both views, which differ slightly in
-  // colour and geometry: a blur that no single latent image explains (39-45
-  // dB of model agreement from the ground truth there, against 47-57 dB for
-  // the other frames; BENCHMARKS.md "A cubic blur path for the interior
-  // frames").
+  // colour and geometry: a blur that no single latent image explains (39-48
+  // dB of model agreement from the ground truth there, against 47-53 dB for
+  // the other interior frames; BENCHMARKS.md "One primary view per
+  // exposure").
   RenderOptions render_options;
   render_options.primary_view = renderer.PrimaryView(T_world_close);
   RenderResult sharp;
