@@ -220,6 +220,12 @@ TEST(SynthesizerRendererTest, PrimaryViewIsTheNearerOneUnlessFixed) {
     EXPECT_EQ(cv::norm(automatic.image, same.image, cv::NORM_INF), 0.0);
     EXPECT_GT(cv::norm(automatic.image, other.image, cv::NORM_L1), 0.0);
   }
+  // On the bisector (where the rotate path turns) view 0, whatever the
+  // rounding of the two distances: every frame of such a path renders alike.
+  for (const double along : {0.0, 0.3, -0.7}) {
+    const Eigen::Vector3d on_bisector = 0.5 * (c0 + c1) + Eigen::Vector3d(0.0, along, 1.3 * along);
+    EXPECT_EQ(DollsRenderer().PrimaryView(SE3(Eigen::Matrix3d::Identity(), on_bisector)), 0) << along;
+  }
 }
 
 // Soft splatting resamples smoothly: a sub-pixel camera shift changes the
