@@ -428,6 +428,10 @@ void AddInputPairOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptio
   cli.add_flag("--depth-input-pairs,!--no-depth-input-pairs", options->depth_input_pairs,
                "joint, --structure-matching both: the depth update matches the input pairs too (default "
                "on; off: restored pairs for depth, both kinds for poses)");
+  cli.add_flag(
+      "--recentred-depth-pass,!--no-recentred-depth-pass", options->recentred_depth_pass,
+      "joint, --structure-matching both, with --depth-input-pairs: the last structure update ends with "
+      "a depth update whose input pairs are re-centred on the shutter close (default on)");
   cli.add_option(
          "--equal-blur-tolerance", options->equal_blur_tolerance_px,
          "joint, --structure-matching both: pose-update pairs whose frames' blurs differ by less than "

@@ -571,14 +571,14 @@ class WindowSolver {
   std::vector<cv::Mat> OutputDepths();
   std::vector<cv::Mat> ConsistentOutputDepths(const std::vector<cv::Mat>& depths);
   void UpdateFrameDepth(int t, int iteration, bool isolated, const std::vector<SE3>& poses,
-                        const StructureUpdateOptions& structure_options);
+                        const StructureUpdateOptions& structure_options, bool recentred_inputs = false);
   void UpdateAllPoses(int iteration, bool isolated, const std::vector<SE3>& poses,
                       const StructureUpdateOptions& structure_options);
   void UpdateDepthsAndPosesJointly(int iteration, bool isolated,
                                    const StructureUpdateOptions& structure_options);
   std::vector<BlurPoseTerm> BlurPoseTerms(const StructureUpdateOptions& structure_options);
   void AppendPairs(int t, const std::vector<int>& sources, bool with_inputs, bool weigh_inputs,
-                   std::vector<PairMatching>* pairs, HeldOperators* held);
+                   std::vector<PairMatching>* pairs, HeldOperators* held, bool recentred_inputs = false);
   float InputPairWeight(double blur_difference) const;
   void DropRestoredPairsOfEqualBlur(int t, std::vector<PairMatching>* pairs) const;
   double BlurDifference(const CaptureGeometry& geometry_t, int s) const;
@@ -625,6 +625,11 @@ class WindowSolver {
                               : std::max(options_.neighbour_radius, options_.pose_neighbour_radius);
   }
   void BuildCrossBlurredInputs();
+  bool RecentredDepthPass() const {
+    return input_matching() && options_.depth_input_pairs && options_.recentred_depth_pass &&
+           !cross_blurred_inputs();
+  }
+  void BuildRecentredInputs();
 
   const EstimatorOptions& options_;
   const std::atomic<bool>* cancel_;
@@ -646,6 +651,9 @@ class WindowSolver {
   // b's blur (EstimatorOptions::cross_blurred_inputs), for |a - b| within
   // the pose radius; rebuilt at every structure update.
   std::vector<std::vector<cv::Mat>> cross_blurred_;
+  // B_t up-sampled and re-centred on the shutter close, and where that holds
+  // (RecentreOnShutterClose); filled for the re-centred depth pass only.
+  std::vector<cv::Mat> recentred_inputs_, recentred_valid_;
   std::vector<cv::Mat> latents_;        // I_t (HR)
   std::vector<FrameStructure> frames_;  // D_t, P_t, stamps, exposures
   std::vector<cv::Mat> inverse_depth_;  // rho_t = 1 / D_t (HR, holes filled)
@@ -911,6 +919,17 @@ void WindowSolver::StructurePhase(int iteration, bool isolated) {
   std::vector<SE3> poses(num_frames_);
   for (int t = 0; t < num_frames_; ++t) poses[t] = frames_[t].T_world_cam;
   if (options_.update_poses) UpdateAllPoses(iteration, isolated, poses, structure_options);
+  // The last structure update ends with a depth update on the input pairs
+  // re-centred on the shutter close (EstimatorOptions::recentred_depth_pass).
+  if (RecentredDepthPass() && iteration == options_.max_iterations) {
+    BuildRecentredInputs();
+    for (int t = 0; t < num_frames_; ++t) poses[t] = frames_[t].T_world_cam;
+    ForEachFrame([this, iteration, isolated, &poses, &structure_options](int t) {
+      UpdateFrameDepth(t, iteration, isolated, poses, structure_options, /*recentred_inputs=*/true);
+    });
+    recentred_inputs_.clear();
+    recentred_valid_.clear();
+  }
   ++steps_done_;
   timer_.AddSince("structure update", begin);
   result_.energies.push_back(TotalEnergy(iteration, "structure"));
@@ -998,7 +1017,7 @@ void WindowSolver::RefineAllDepthEdges() {
 // D_t from the pairs (t <- s), s in N(t), and, for kBlurred, the
 // self-consistency term linearised in depth.
 void WindowSolver::UpdateFrameDepth(int t, int iteration, bool isolated, const std::vector<SE3>& poses,
-                                    const StructureUpdateOptions& structure_options) {
+                                    const StructureUpdateOptions& structure_options, bool recentred_inputs) {
   if (omp_get_thread_num() == 0) {
     Report(double(t) / (num_frames_ + 1),
            "iteration " + std::to_string(iteration) + ": structure " + std::to_string(t));
@@ -1007,7 +1026,8 @@ void WindowSolver::UpdateFrameDepth(int t, int iteration, bool isolated, const s
   const cv::Mat saved = inverse_depth_[t].clone();
   std::vector<PairMatching> pairs;
   HeldOperators held;
-  AppendPairs(t, neighbours_[t], options_.depth_input_pairs, /*weigh_inputs=*/true, &pairs, &held);
+  AppendPairs(t, neighbours_[t], options_.depth_input_pairs, /*weigh_inputs=*/true, &pairs, &held,
+              recentred_inputs);
   SelfConsistencyLinearization self;
   if (blurred_matching()) self = SelfConsistencyOf(t);
   const double depth_begin = NowMs();
@@ -1144,7 +1164,7 @@ std::vector<BlurPoseTerm> WindowSolver::BlurPoseTerms(const StructureUpdateOptio
 // the weight of their blur difference (InputPairWeight); `held` keeps their
 // operators alive.
 void WindowSolver::AppendPairs(int t, const std::vector<int>& sources, bool with_inputs, bool weigh_inputs,
-                               std::vector<PairMatching>* pairs, HeldOperators* held) {
+                               std::vector<PairMatching>* pairs, HeldOperators* held, bool recentred_inputs) {
   // EstimatorOptions::unequal_blur_tolerance_px: t's blur geometry, once.
   const bool drop_unequal = input_matching() && with_inputs && options_.unequal_blur_tolerance_px > 0.0;
   const CaptureGeometry geometry_t =
@@ -1177,6 +1197,19 @@ void WindowSolver::AppendPairs(int t, const std::vector<int>& sources, bool with
       const int radius = PoseRadius();
       pair.observation = cross_blurred_inputs() ? &cross_blurred_[t][s - t + radius] : &bicubic_[t];
       pair.source = cross_blurred_inputs() ? &cross_blurred_[s][t - s + radius] : &bicubic_[s];
+      if (recentred_inputs) {
+        // Re-centred on the shutter close (BuildRecentredInputs), without
+        // the pixels of t whose mid-exposure point leaves the image.
+        pair.observation = &recentred_inputs_[t];
+        pair.source = &recentred_inputs_[s];
+        cv::Mat mask;
+        if (pair.mask.empty()) {
+          mask = recentred_valid_[t].clone();
+        } else {
+          cv::bitwise_and(pair.mask, recentred_valid_[t], mask);
+        }
+        pair.mask = mask;
+      }
       if (weigh_inputs) pair.weight = InputPairWeight(blur_difference);
       pairs->push_back(pair);
     }
@@ -1217,6 +1250,19 @@ void WindowSolver::DropRestoredPairsOfEqualBlur(int t, std::vector<PairMatching>
 // (BlurDifferenceHr at the current structure; NaN: not comparable).
 double WindowSolver::BlurDifference(const CaptureGeometry& geometry_t, int s) const {
   return BlurDifferenceHr(geometry_t, MakeCaptureGeometry(frames_, camera_hr_, s, s), options_.scale);
+}
+
+// Every B_t up-sampled, re-centred on the shutter close at the current depth
+// and poses (RecentreOnShutterClose; EstimatorOptions::recentred_depth_pass).
+void WindowSolver::BuildRecentredInputs() {
+  const double begin = NowMs();
+  recentred_inputs_.assign(num_frames_, cv::Mat());
+  recentred_valid_.assign(num_frames_, cv::Mat());
+  ForEachFrame([this](int t) {
+    RecentreOnShutterClose(MakeCaptureGeometry(frames_, camera_hr_, t, t), scale_, inverse_depth_[t],
+                           bicubic_[t], &recentred_inputs_[t], &recentred_valid_[t]);
+  });
+  timer_.AddSince("re-centred inputs", begin);
 }
 
 // Psi_b o B_a and Psi_a o B_b for every pair of frames within the pose

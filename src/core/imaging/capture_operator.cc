@@ -9,6 +9,8 @@
 #include <sstream>
 #include <type_traits>
 
+#include <opencv2/imgproc.hpp>
+
 #include "deblur_sr_mvs/core/common/errors.h"
 #include "deblur_sr_mvs/core/common/options_check.h"
 #include "deblur_sr_mvs/core/common/runtime.h"
@@ -239,6 +241,44 @@ std::vector<SE3> VirtualCameraPoses(const CaptureGeometry& geometry, int samples
 
 double RowDelay(const CaptureGeometry& geometry, int lr_row, int lr_rows) {
   return geometry.readout_time * lr_row / lr_rows;
+}
+
+void RecentreOnShutterClose(const CaptureGeometry& geometry, int scale, const cv::Mat& inverse_depth,
+                            const cv::Mat& image, cv::Mat* out, cv::Mat* valid) {
+  const PinholeCamera& camera = geometry.camera_hr;
+  const int width = inverse_depth.cols, height = inverse_depth.rows;
+  const int lr_rows = std::max(1, height / scale);
+  cv::Mat map_x(inverse_depth.size(), CV_32FC1), map_y(inverse_depth.size(), CV_32FC1);
+  valid->create(inverse_depth.size(), CV_8UC1);
+  int transfer_row = -1;
+  SE3 T_mid_close;
+  for (int y = 0; y < height; ++y) {
+    // The mid-exposure camera of this row's LR row (one per image with a
+    // global shutter).
+    const int lr_row = geometry.readout_time > 0.0 ? std::min(y / scale, lr_rows - 1) : 0;
+    if (lr_row != transfer_row) {
+      const double tau = geometry.stamp - 0.5 * geometry.exposure + RowDelay(geometry, lr_row, lr_rows);
+      T_mid_close = PoseAtTime(geometry, tau).Inverse() * geometry.T_world_cam;
+      transfer_row = lr_row;
+    }
+    const float* rho = inverse_depth.ptr<float>(y);
+    float* u_out = map_x.ptr<float>(y);
+    float* v_out = map_y.ptr<float>(y);
+    uint8_t* ok = valid->ptr<uint8_t>(y);
+    for (int x = 0; x < width; ++x) {
+      u_out[x] = static_cast<float>(x);
+      v_out[x] = static_cast<float>(y);
+      ok[x] = 0;
+      if (!(rho[x] > 0.0f && std::isfinite(rho[x]))) continue;
+      const Eigen::Vector3d point = T_mid_close * (camera.Ray(x, y) / rho[x]);
+      if (!(point.z() > 0.0)) continue;
+      const Eigen::Vector2d uv = camera.Project(point);
+      u_out[x] = static_cast<float>(uv.x());
+      v_out[x] = static_cast<float>(uv.y());
+      if (uv.x() >= 1.0 && uv.y() >= 1.0 && uv.x() <= width - 2.0 && uv.y() <= height - 2.0) ok[x] = 255;
+    }
+  }
+  cv::remap(image, *out, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_REPLICATE);
 }
 
 void CaptureOperatorOptions::Check() const {

@@ -9,7 +9,8 @@
 // structure update. The input pairs' weight by their blur difference
 // (EstimatorOptions::equal_blur_input_weight) changes the estimate on a
 // constant-velocity path, and only with the unequal-blur rule on (it
-// measures the blur difference).
+// measures the blur difference). The re-centred depth pass moves the depth
+// and leaves the poses.
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -95,6 +96,36 @@ TEST(EqualBlurInputWeight, ChangesTheEstimateWhereTheBlurDifferenceIsMeasured) {
                             RunWithTolerances(sequence, 0.0, 2.0, false, 1.5)));
   EXPECT_TRUE(SameEstimate(RunWithTolerances(sequence, 0.0, 0.0, false, 0.0),
                            RunWithTolerances(sequence, 0.0, 0.0, false, 1.5)));
+}
+
+// The re-centred depth pass (EstimatorOptions::recentred_depth_pass) ends the
+// last structure update, after its pose update: it moves the depth and leaves
+// the poses, up to the window's scale (the output's median depth is 1, and
+// the pass moves the depth): the same rotations bit for bit, the
+// translations in one ratio.
+TEST(RecentredDepthPass, MovesTheDepthAndLeavesThePoses) {
+  const Sequence sequence = SynthesizedSequence("equal_blur_lateral", "Dolls", "--frames 4 --subframes 60");
+  ASSERT_TRUE(sequence.ground_truth.has_value());
+  const auto run = [&sequence](bool pass) {
+    EstimatorOptions options;
+    options.max_iterations = 1;
+    options.num_threads = 1;
+    options.recentred_depth_pass = pass;
+    return Estimator(options).RunFromStructure(InputOf(sequence), sequence.ground_truth->depth,
+                                               TruePoses(sequence));
+  };
+  const EstimatorResult with = run(true), without = run(false);
+  ASSERT_EQ(with.depth.size(), without.depth.size());
+  ASSERT_GE(with.depth.size(), 2u);
+  const double ratio = with.T_world_cam[1].translation().norm() / without.T_world_cam[1].translation().norm();
+  bool depth_moved = false;
+  for (size_t t = 0; t < with.depth.size(); ++t) {
+    depth_moved = depth_moved || !SameBits(with.depth[t], without.depth[t]);
+    EXPECT_TRUE(with.T_world_cam[t].rotation() == without.T_world_cam[t].rotation()) << t;
+    const Eigen::Vector3d scaled = ratio * without.T_world_cam[t].translation();
+    EXPECT_LE((with.T_world_cam[t].translation() - scaled).norm(), 1e-12 + 1e-9 * scaled.norm()) << t;
+  }
+  EXPECT_TRUE(depth_moved);
 }
 
 }  // namespace

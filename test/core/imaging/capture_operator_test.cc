@@ -684,5 +684,61 @@ TEST(CaptureOperator, AdaptiveSamplesFollowTheBlurLength) {
   EXPECT_EQ(CaptureSamples(geometry, options), options.min_samples);
 }
 
+// A blurred frame re-centred on the shutter close shows the close camera's
+// content: the operator's blur of a ramp (which a symmetric blur leaves a
+// ramp, moved by half the blur) comes back to the ramp itself, on a global
+// and a rolling shutter (each row at its own mid-exposure), the previous or
+// the next frame as the path's neighbour; pixels whose mid-exposure point
+// leaves the image are not valid.
+TEST(RecentreOnShutterClose, BlurredRampComesBackOnTheCloseCamera) {
+  const int width = 120, height = 40;
+  const double depth = 2.0, baseline = 0.1, frame_interval = 1.0 / 30.0;
+  const double exposure = 0.75 * frame_interval;
+  cv::Mat ramp(height, width, CV_32FC1);
+  for (int y = 0; y < height; ++y) {
+    for (int x = 0; x < width; ++x) ramp.at<float>(y, x) = 0.01f * x + 0.002f * y + 0.1f;
+  }
+  const cv::Mat inverse_depth(height, width, CV_32FC1, cv::Scalar(1.0 / depth));
+  for (bool neighbour_is_next : {false, true}) {
+    for (double readout : {0.0, 0.6 * frame_interval}) {
+      CaptureGeometry geometry;
+      geometry.camera_hr = PinholeCamera(width, height, 300.0, 300.0, 59.5, 19.5);
+      geometry.depth_hr = cv::Mat(height, width, CV_32FC1, cv::Scalar(depth));
+      geometry.stamp = 1.0;
+      geometry.exposure = exposure;
+      geometry.readout_time = readout;
+      geometry.T_world_neighbour = Translation(neighbour_is_next ? baseline : -baseline, 0, 0);
+      geometry.neighbour_stamp = neighbour_is_next ? 1.0 + frame_interval : 1.0 - frame_interval;
+      CaptureOperatorOptions options;
+      options.scale = 1;  // blurred at HR, as the up-sampled inputs
+      options.samples = 50;
+      cv::Mat blurred, recentred, valid;
+      BuildCaptureOperator(geometry, options).Apply(ramp, &blurred);
+      RecentreOnShutterClose(geometry, 1, inverse_depth, blurred, &recentred, &valid);
+      ASSERT_EQ(recentred.size(), ramp.size());
+      // The blur is f b / Z e / dt = 11.25 px (the last row's centre moves
+      // by up to 0.6 / 0.75 of it more with the readout); away from the
+      // borders (one pixel at the top and the bottom) every pixel is covered
+      // and valid.
+      int checked = 0;
+      for (int y = 1; y < height - 1; ++y) {
+        for (int x = 25; x < width - 25; ++x) {
+          ASSERT_EQ(valid.at<uint8_t>(y, x), 255) << x << " " << y;
+          EXPECT_NEAR(recentred.at<float>(y, x), ramp.at<float>(y, x), 2e-4) << x << " " << y;
+          ++checked;
+        }
+      }
+      EXPECT_GT(checked, 2000);
+      // The camera moves towards +x (previous neighbour at -b): the
+      // mid-exposure camera lies behind, points appear further right, and
+      // the rightmost column's leave the image (the other way round when the
+      // path is extrapolated backwards from the next frame: it is the same
+      // motion).
+      EXPECT_EQ(valid.at<uint8_t>(height / 2, width - 1), 0);
+      EXPECT_EQ(valid.at<uint8_t>(height / 2, 1), 255);
+    }
+  }
+}
+
 }  // namespace
 }  // namespace deblur_sr_mvs

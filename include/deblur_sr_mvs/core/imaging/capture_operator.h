@@ -155,6 +155,21 @@ std::vector<SE3> VirtualCameraPoses(const CaptureGeometry& geometry, int samples
 // The delay of LR row `lr_row` of `lr_rows` (y r / H; 0 for a global shutter).
 double RowDelay(const CaptureGeometry& geometry, int lr_row, int lr_rows);
 
+// An up-sampled blurred frame re-centred on the shutter close: out(x) =
+// image(x_mid), x_mid the projection of the point that HR pixel x of the
+// latent image shows (inverse depth rho(x) at P_t, geometry.camera_hr) into
+// the camera at mid-exposure on the frame's blur path (PoseAtTime at t - e/2,
+// plus x's LR row's delay with a rolling shutter; `scale` HR rows per LR
+// row), bilinear. A blurred frame is centred on its mid-exposure camera,
+// while the latent image, D_t and the pairs' warps are the close camera's:
+// at depth edges the plain input shows its content half a blur away from
+// where D_t puts it (EstimatorOptions::recentred_depth_pass). `valid`
+// (CV_8UC1, 255 / 0): rho(x) usable and x_mid in front of the camera and at
+// least one pixel inside the image. Where rho(x) is unusable or x_mid behind
+// the camera out(x) = image(x); outside the image the border is replicated.
+void RecentreOnShutterClose(const CaptureGeometry& geometry, int scale, const cv::Mat& inverse_depth,
+                            const cv::Mat& image, cv::Mat* out, cv::Mat* valid);
+
 // The blur length of the frame: the largest displacement, in HR pixels, of an
 // image point between the opening and the closing of its row's exposure, over
 // a grid of points (every 8th HR pixel) at their own depth D_t (unknown depth
