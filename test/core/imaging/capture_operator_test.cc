@@ -729,11 +729,10 @@ TEST(RecentreOnShutterClose, BlurredRampComesBackOnTheCloseCamera) {
         }
       }
       EXPECT_GT(checked, 2000);
-      // The camera moves towards +x (previous neighbour at -b): the
-      // mid-exposure camera lies behind, points appear further right, and
-      // the rightmost column's leave the image (the other way round when the
-      // path is extrapolated backwards from the next frame: it is the same
-      // motion).
+      // The camera moves towards +x in both cases (the previous frame at -b,
+      // or the next at +b): in the middle row the mid-exposure camera lies
+      // behind, points appear further right, and the rightmost column's
+      // leave the image.
       EXPECT_EQ(valid.at<uint8_t>(height / 2, width - 1), 0);
       EXPECT_EQ(valid.at<uint8_t>(height / 2, 1), 255);
     }
