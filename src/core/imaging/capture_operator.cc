@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <optional>
 #include <sstream>
 #include <type_traits>
 
@@ -251,14 +252,14 @@ void RecentreOnShutterClose(const CaptureGeometry& geometry, int scale, const cv
   cv::Mat map_x(inverse_depth.size(), CV_32FC1), map_y(inverse_depth.size(), CV_32FC1);
   valid->create(inverse_depth.size(), CV_8UC1);
   int transfer_row = -1;
-  SE3 T_mid_close;
+  std::optional<PixelTransfer> close_to_mid;
   for (int y = 0; y < height; ++y) {
     // The mid-exposure camera of this row's LR row (one per image with a
     // global shutter).
     const int lr_row = geometry.readout_time > 0.0 ? std::min(y / scale, lr_rows - 1) : 0;
     if (lr_row != transfer_row) {
       const double tau = geometry.stamp - 0.5 * geometry.exposure + RowDelay(geometry, lr_row, lr_rows);
-      T_mid_close = PoseAtTime(geometry, tau).Inverse() * geometry.T_world_cam;
+      close_to_mid.emplace(camera, PoseAtTime(geometry, tau).Inverse() * geometry.T_world_cam);
       transfer_row = lr_row;
     }
     const float* rho = inverse_depth.ptr<float>(y);
@@ -269,10 +270,8 @@ void RecentreOnShutterClose(const CaptureGeometry& geometry, int scale, const cv
       u_out[x] = static_cast<float>(x);
       v_out[x] = static_cast<float>(y);
       ok[x] = 0;
-      if (!(rho[x] > 0.0f && std::isfinite(rho[x]))) continue;
-      const Eigen::Vector3d point = T_mid_close * (camera.Ray(x, y) / rho[x]);
-      if (!(point.z() > 0.0)) continue;
-      const Eigen::Vector2d uv = camera.Project(point);
+      Eigen::Vector2d uv;
+      if (!(rho[x] > 0.0f && std::isfinite(rho[x])) || !close_to_mid->Warp(x, y, 1.0 / rho[x], &uv)) continue;
       u_out[x] = static_cast<float>(uv.x());
       v_out[x] = static_cast<float>(uv.y());
       if (uv.x() >= 1.0 && uv.y() >= 1.0 && uv.x() <= width - 2.0 && uv.y() <= height - 2.0) ok[x] = 255;
