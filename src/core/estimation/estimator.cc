@@ -919,14 +919,17 @@ void WindowSolver::StructurePhase(int iteration, bool isolated) {
   std::vector<SE3> poses(num_frames_);
   for (int t = 0; t < num_frames_; ++t) poses[t] = frames_[t].T_world_cam;
   if (options_.update_poses) UpdateAllPoses(iteration, isolated, poses, structure_options);
-  // The last structure update ends with a depth update on the input pairs
-  // re-centred on the shutter close (EstimatorOptions::recentred_depth_pass).
+  // The last structure update ends with depth updates on the input pairs
+  // re-centred on the shutter close (EstimatorOptions::recentred_depth_pass,
+  // recentred_depth_passes times).
   if (RecentredDepthPass() && iteration == options_.max_iterations) {
-    BuildRecentredInputs();
     for (int t = 0; t < num_frames_; ++t) poses[t] = frames_[t].T_world_cam;
-    ForEachFrame([this, iteration, isolated, &poses, &structure_options](int t) {
-      UpdateFrameDepth(t, iteration, isolated, poses, structure_options, /*recentred_inputs=*/true);
-    });
+    for (int pass = 0; pass < options_.recentred_depth_passes; ++pass) {
+      BuildRecentredInputs();
+      ForEachFrame([this, iteration, isolated, &poses, &structure_options](int t) {
+        UpdateFrameDepth(t, iteration, isolated, poses, structure_options, /*recentred_inputs=*/true);
+      });
+    }
     recentred_inputs_.clear();
     recentred_valid_.clear();
   }
@@ -1800,6 +1803,7 @@ void EstimatorOptions::Check() const {
   CheckAtLeast("threads", num_threads, 0);
   CheckAtLeast("fixed_leading_poses", fixed_leading_poses, 1);
   CheckAtLeast("held_leading_latents", held_leading_latents, 0);
+  CheckInRange("recentred_depth_passes", recentred_depth_passes, 1, 10);
   CheckAtLeast("carried_frames", carried_frames, 0);
   CheckInRange("continued_joint_irls_iterations", continued_joint_irls_iterations, 0, 20);
   CheckInRange("continued_joint_cg_iterations", continued_joint_cg_iterations, 0, 1000);

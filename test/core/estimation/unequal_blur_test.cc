@@ -102,30 +102,36 @@ TEST(EqualBlurInputWeight, ChangesTheEstimateWhereTheBlurDifferenceIsMeasured) {
 // last structure update, after its pose update: it moves the depth and leaves
 // the poses, up to the window's scale (the output's median depth is 1, and
 // the pass moves the depth): the same rotations bit for bit, the
-// translations in one ratio.
+// translations in one ratio. So does each further alternation of
+// re-centring and depth update (recentred_depth_passes).
 TEST(RecentredDepthPass, MovesTheDepthAndLeavesThePoses) {
   const Sequence sequence = SynthesizedSequence("equal_blur_lateral", "Dolls", "--frames 4 --subframes 60");
   ASSERT_TRUE(sequence.ground_truth.has_value());
-  const auto run = [&sequence](bool pass) {
+  const auto run = [&sequence](bool pass, int passes) {
     EstimatorOptions options;
     options.max_iterations = 1;
     options.num_threads = 1;
     options.recentred_depth_pass = pass;
+    options.recentred_depth_passes = passes;
     return Estimator(options).RunFromStructure(InputOf(sequence), sequence.ground_truth->depth,
                                                TruePoses(sequence));
   };
-  const EstimatorResult with = run(true), without = run(false);
-  ASSERT_EQ(with.depth.size(), without.depth.size());
-  ASSERT_GE(with.depth.size(), 2u);
-  const double ratio = with.T_world_cam[1].translation().norm() / without.T_world_cam[1].translation().norm();
-  bool depth_moved = false;
-  for (size_t t = 0; t < with.depth.size(); ++t) {
-    depth_moved = depth_moved || !SameBits(with.depth[t], without.depth[t]);
-    EXPECT_TRUE(with.T_world_cam[t].rotation() == without.T_world_cam[t].rotation()) << t;
-    const Eigen::Vector3d scaled = ratio * without.T_world_cam[t].translation();
-    EXPECT_LE((with.T_world_cam[t].translation() - scaled).norm(), 1e-12 + 1e-9 * scaled.norm()) << t;
+  const EstimatorResult without = run(false, 1), once = run(true, 1), twice = run(true, 2);
+  for (const EstimatorResult* with : {&once, &twice}) {
+    const EstimatorResult& before = with == &once ? without : once;
+    ASSERT_EQ(with->depth.size(), before.depth.size());
+    ASSERT_GE(with->depth.size(), 2u);
+    const double ratio =
+        with->T_world_cam[1].translation().norm() / before.T_world_cam[1].translation().norm();
+    bool depth_moved = false;
+    for (size_t t = 0; t < with->depth.size(); ++t) {
+      depth_moved = depth_moved || !SameBits(with->depth[t], before.depth[t]);
+      EXPECT_TRUE(with->T_world_cam[t].rotation() == before.T_world_cam[t].rotation()) << t;
+      const Eigen::Vector3d scaled = ratio * before.T_world_cam[t].translation();
+      EXPECT_LE((with->T_world_cam[t].translation() - scaled).norm(), 1e-12 + 1e-9 * scaled.norm()) << t;
+    }
+    EXPECT_TRUE(depth_moved) << (with == &once ? "one pass against none" : "two passes against one");
   }
-  EXPECT_TRUE(depth_moved);
 }
 
 }  // namespace
