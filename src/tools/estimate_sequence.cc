@@ -431,7 +431,8 @@ void AddInputPairOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptio
   cli.add_flag(
       "--recentred-depth-pass,!--no-recentred-depth-pass", options->recentred_depth_pass,
       "joint, --structure-matching both, with --depth-input-pairs: the last structure update ends with "
-      "a depth update whose input pairs are re-centred on the shutter close (default on)");
+      "depth updates (--recentred-depth-passes) whose input pairs are re-centred on the shutter close "
+      "(default on)");
   cli.add_option("--recentred-depth-passes", options->recentred_depth_passes,
                  "with --recentred-depth-pass: how many times the re-centring and the depth update "
                  "alternate (default 3)")
