@@ -437,6 +437,14 @@ void AddInputPairOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptio
                  "with --recentred-depth-pass: how many times the re-centring and the depth update "
                  "alternate (default 3)")
       ->check(dsm::FlagInt(1, 10));
+  cli.add_option("--recentred-depth-cg-iterations", options->recentred_depth_cg_iterations,
+                 "with --recentred-depth-pass: CG steps per reweighted system of each pass's depth update "
+                 "(default 60)")
+      ->check(dsm::FlagInt(1, 1000));
+  cli.add_option("--recentred-depth-cg-tolerance", options->recentred_depth_cg_tolerance,
+                 "with --recentred-depth-pass: each pass's CG stops once its residual is below this fraction "
+                 "of the right-hand side's (0: all steps; default 0.005)")
+      ->check(dsm::FlagNumber(0.0, 1.0));
   cli.add_option(
          "--equal-blur-tolerance", options->equal_blur_tolerance_px,
          "joint, --structure-matching both: pose-update pairs whose frames' blurs differ by less than "

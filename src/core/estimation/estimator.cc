@@ -924,10 +924,13 @@ void WindowSolver::StructurePhase(int iteration, bool isolated) {
   // recentred_depth_passes times).
   if (RecentredDepthPass() && iteration == options_.max_iterations) {
     for (int t = 0; t < num_frames_; ++t) poses[t] = frames_[t].T_world_cam;
+    StructureUpdateOptions pass_options = structure_options;
+    pass_options.depth_cg_iterations = options_.recentred_depth_cg_iterations;
+    pass_options.depth_cg_tolerance = options_.recentred_depth_cg_tolerance;
     for (int pass = 0; pass < options_.recentred_depth_passes; ++pass) {
       BuildRecentredInputs();
-      ForEachFrame([this, iteration, isolated, &poses, &structure_options](int t) {
-        UpdateFrameDepth(t, iteration, isolated, poses, structure_options, /*recentred_inputs=*/true);
+      ForEachFrame([this, iteration, isolated, &poses, &pass_options](int t) {
+        UpdateFrameDepth(t, iteration, isolated, poses, pass_options, /*recentred_inputs=*/true);
       });
     }
     recentred_inputs_.clear();
@@ -1804,6 +1807,8 @@ void EstimatorOptions::Check() const {
   CheckAtLeast("fixed_leading_poses", fixed_leading_poses, 1);
   CheckAtLeast("held_leading_latents", held_leading_latents, 0);
   CheckInRange("recentred_depth_passes", recentred_depth_passes, 1, 10);
+  CheckInRange("recentred_depth_cg_iterations", recentred_depth_cg_iterations, 1, 1000);
+  CheckInRange("recentred_depth_cg_tolerance", recentred_depth_cg_tolerance, 0.0, 1.0);
   CheckAtLeast("carried_frames", carried_frames, 0);
   CheckInRange("continued_joint_irls_iterations", continued_joint_irls_iterations, 0, 20);
   CheckInRange("continued_joint_cg_iterations", continued_joint_cg_iterations, 0, 1000);

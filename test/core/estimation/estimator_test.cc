@@ -309,6 +309,16 @@ TEST(EstimatorSafety, BadOptionsAreRejected) {
   EXPECT_THROW(options.Check(), InputError);
   options.equal_blur_input_weight = 0.0;  // off
   EXPECT_NO_THROW(options.Check());
+  options = EstimatorOptions();
+  options.recentred_depth_cg_iterations = 0;
+  EXPECT_THROW(options.Check(), InputError);
+  options = EstimatorOptions();
+  options.recentred_depth_cg_tolerance = -0.1;
+  EXPECT_THROW(options.Check(), InputError);
+  options.recentred_depth_cg_tolerance = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(options.Check(), InputError);
+  options.recentred_depth_cg_tolerance = 0.0;  // every step
+  EXPECT_NO_THROW(options.Check());
 }
 
 // Every Options::Check() names the value, its range and what it got.

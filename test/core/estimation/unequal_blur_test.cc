@@ -103,22 +103,29 @@ TEST(EqualBlurInputWeight, ChangesTheEstimateWhereTheBlurDifferenceIsMeasured) {
 // the poses, up to the window's scale (the output's median depth is 1, and
 // the pass moves the depth): the same rotations bit for bit, the
 // translations in one ratio. So does each further alternation of
-// re-centring and depth update (recentred_depth_passes).
+// re-centring and depth update (recentred_depth_passes), and a pass solved
+// to the structure update's own looser CG stop instead of the passes'
+// (recentred_depth_cg_iterations / _tolerance).
 TEST(RecentredDepthPass, MovesTheDepthAndLeavesThePoses) {
   const Sequence sequence = SynthesizedSequence("equal_blur_lateral", "Dolls", "--frames 4 --subframes 60");
   ASSERT_TRUE(sequence.ground_truth.has_value());
-  const auto run = [&sequence](bool pass, int passes) {
+  const auto run = [&sequence](bool pass, int passes, bool loose_cg = false) {
     EstimatorOptions options;
     options.max_iterations = 1;
     options.num_threads = 1;
     options.recentred_depth_pass = pass;
     options.recentred_depth_passes = passes;
+    if (loose_cg) {
+      options.recentred_depth_cg_iterations = options.structure.depth_cg_iterations;
+      options.recentred_depth_cg_tolerance = options.structure.depth_cg_tolerance;
+    }
     return Estimator(options).RunFromStructure(InputOf(sequence), sequence.ground_truth->depth,
                                                TruePoses(sequence));
   };
-  const EstimatorResult without = run(false, 1), once = run(true, 1), twice = run(true, 2);
-  for (const EstimatorResult* with : {&once, &twice}) {
-    const EstimatorResult& before = with == &once ? without : once;
+  const EstimatorResult without = run(false, 1), once = run(true, 1), twice = run(true, 2),
+                        once_loose = run(true, 1, /*loose_cg=*/true);
+  for (const EstimatorResult* with : {&once, &twice, &once_loose}) {
+    const EstimatorResult& before = with == &twice ? once : with == &once_loose ? once : without;
     ASSERT_EQ(with->depth.size(), before.depth.size());
     ASSERT_GE(with->depth.size(), 2u);
     const double ratio =
@@ -130,7 +137,9 @@ TEST(RecentredDepthPass, MovesTheDepthAndLeavesThePoses) {
       const Eigen::Vector3d scaled = ratio * before.T_world_cam[t].translation();
       EXPECT_LE((with->T_world_cam[t].translation() - scaled).norm(), 1e-12 + 1e-9 * scaled.norm()) << t;
     }
-    EXPECT_TRUE(depth_moved) << (with == &once ? "one pass against none" : "two passes against one");
+    EXPECT_TRUE(depth_moved) << (with == &once    ? "one pass against none"
+                                 : with == &twice ? "two passes against one"
+                                                  : "a loosely solved pass against the default");
   }
 }
 

@@ -231,6 +231,21 @@ struct EstimatorOptions {
   // them. Each pass costs about 2.5 % of a run's CPU (BENCHMARKS.md
   // "Re-centred depth passes").
   int recentred_depth_passes = 3;
+  // With recentred_depth_pass: each pass's depth update solves its
+  // reweighted systems (CG on the normal equations of eq:taylorExpansion)
+  // in at most this many steps, or fewer once the residual is below this
+  // fraction of the right-hand side's norm: tighter than the structure
+  // update's own (StructureUpdateOptions::depth_cg_iterations 15,
+  // depth_cg_tolerance 0.05), whose steps the next reweighting or
+  // iteration takes further.
+  // The passes end the estimation, so nothing takes them further. 60 /
+  // 0.005 against 15 / 0.05 on 48 benchmark sequences (seeds 0, 4, 5):
+  // full-frame depth error 0.92x (lower on all 48), crop 0.99x (up by at
+  // most 1.4 % on 11), poses unchanged, +0.02-0.04 dB, about 2-3 % more
+  // time; 200 / 0.001 another 0.96x full frame at 11-13 % more time
+  // (BENCHMARKS.md "The re-centred passes solved further").
+  int recentred_depth_cg_iterations = 60;
+  double recentred_depth_cg_tolerance = 0.005;
   // kRestoredAndInput in joint mode: in the pose update, a pair (t <- s)
   // whose frames' blurs differ by less than this many HR pixels
   // (BlurDifferenceHr at the current structure) matches its input pair
