@@ -228,8 +228,9 @@ struct EstimatorOptions {
   // On the benchmark's seed 0 (24 sequences) joint's crop depth error falls
   // by 0.8 % with 2 passes against 1 and by 1.3 % with 3 (full frame 1.2 /
   // 2.1 %), the poses unchanged, +0.01 dB; 5 passes gain 0.5 % more on 8 of
-  // them. Each pass costs about 2.5 % of a run's CPU (BENCHMARKS.md
-  // "Re-centred depth passes").
+  // them. Each pass cost about 2.5 % of a run's CPU with the structure
+  // update's CG stop, a little more with the passes' own (below)
+  // (BENCHMARKS.md "Re-centred depth passes").
   int recentred_depth_passes = 3;
   // With recentred_depth_pass: each pass's depth update solves its
   // reweighted systems (CG on the normal equations of eq:taylorExpansion)
@@ -237,8 +238,7 @@ struct EstimatorOptions {
   // fraction of the right-hand side's norm: tighter than the structure
   // update's own (StructureUpdateOptions::depth_cg_iterations 15,
   // depth_cg_tolerance 0.05), whose steps the next reweighting or
-  // iteration takes further.
-  // The passes end the estimation, so nothing takes them further. 60 /
+  // iteration takes further; the passes end the estimation. 60 /
   // 0.005 against 15 / 0.05 on 48 benchmark sequences (seeds 0, 4, 5):
   // full-frame depth error 0.92x (lower on all 48), crop 0.99x (up by at
   // most 1.4 % on 11), poses unchanged, +0.02-0.04 dB, about 2-3 % more
