@@ -7,7 +7,7 @@
 // Usage: benchmark_stream --input SEQ --output OUT [--window-size N]
 //        [--window-overlap K] [--threads T] [--no-depth-sweep]
 //        [--depth-consistency-radius R] [--iterations N]
-//        [--continued-iterations N] [--quiet]
+//        [--continued-iterations N] [--continued-recentred-passes N] [--quiet]
 #include <chrono>
 #include <cstdint>
 #include <cstdio>
@@ -87,6 +87,9 @@ int Run(int argc, char** argv) {
   cli.add_option("--continued-iterations", options.continued_max_iterations,
                  "joint iterations in a window that continues the previous one (default: --iterations)")
       ->check(dsm::FlagInt(0, 100));
+  cli.add_option("--continued-recentred-passes", options.continued_recentred_depth_passes,
+                 "re-centred depth passes in a continued window (default 0: as in any window)")
+      ->check(dsm::FlagInt(0, 10));
   cli.add_flag("--quiet", quiet, "no per-window lines on stdout");
   if (!cli.Parse(argc, argv)) return 0;
   stream_options.Check();

@@ -1814,6 +1814,7 @@ void EstimatorOptions::Check() const {
   CheckInRange("continued_joint_cg_iterations", continued_joint_cg_iterations, 0, 1000);
   CheckInRange("continued_pose_iterations", continued_pose_iterations, 0, 100);
   CheckInRange("continued_max_iterations", continued_max_iterations, -1, 100);
+  CheckInRange("continued_recentred_depth_passes", continued_recentred_depth_passes, 0, 10);
   CheckAtLeast("max_seconds", max_seconds, 0.0);
   CheckAbove("pose_prior_weight", pose_prior_weight, 0.0);
   CheckInRange("equal_blur_tolerance_px", equal_blur_tolerance_px, 0.0, 1000.0);

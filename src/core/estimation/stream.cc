@@ -285,6 +285,9 @@ void ApplyContinuedBudget(EstimatorOptions* options) {
   }
   if (options->continued_pose_iterations > 0) options->structure.pose_iterations = options->continued_pose_iterations;
   if (options->continued_max_iterations >= 0) options->max_iterations = options->continued_max_iterations;
+  if (options->continued_recentred_depth_passes > 0) {
+    options->recentred_depth_passes = options->continued_recentred_depth_passes;
+  }
 }
 
 }  // namespace

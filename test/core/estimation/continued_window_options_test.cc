@@ -1,6 +1,6 @@
 // EstimatorOptions::continued_*: a continued stream window's own budget of
-// joint-step reweightings and CG steps, pose Gauss-Newton steps and
-// iterations of Algorithm 1. Each applies to continued windows only (the
+// joint-step reweightings and CG steps, pose Gauss-Newton steps,
+// iterations of Algorithm 1 and re-centred depth passes. Each applies to continued windows only (the
 // first window keeps the general options), and a knob set to the value it
 // replaces changes nothing bit for bit.
 #include <cstring>
@@ -69,6 +69,11 @@ TEST(ContinuedWindowOptions, CheckRejectsOutOfRangeValues) {
   options = EstimatorOptions();
   options.continued_max_iterations = -2;
   EXPECT_THROW(options.Check(), InputError);
+  options = EstimatorOptions();
+  options.continued_recentred_depth_passes = -1;
+  EXPECT_THROW(options.Check(), InputError);
+  options.continued_recentred_depth_passes = 11;
+  EXPECT_THROW(options.Check(), InputError);
 }
 
 // The energy records of a window with n kept iterations: the initial
@@ -92,6 +97,7 @@ TEST(ContinuedWindowOptions, KnobsAtTheValuesTheyReplaceChangeNothing) {
   same.continued_joint_cg_iterations = defaults.structure.joint_cg_iterations;
   same.continued_pose_iterations = defaults.structure.pose_iterations;
   same.continued_max_iterations = defaults.max_iterations;
+  same.continued_recentred_depth_passes = defaults.recentred_depth_passes;
   const std::vector<WindowEstimate> a = RunStream(defaults), b = RunStream(same);
   ASSERT_EQ(a.size(), 2u);
   ASSERT_EQ(b.size(), 2u);
@@ -99,18 +105,33 @@ TEST(ContinuedWindowOptions, KnobsAtTheValuesTheyReplaceChangeNothing) {
   EXPECT_TRUE(SameResult(a[1].result, b[1].result));
 }
 
-// One reweighting and one pose step in the continued window: the first
-// window is the same bit for bit, the continued one is not.
-TEST(ContinuedWindowOptions, StructureBudgetAppliesToContinuedWindowsOnly) {
-  const EstimatorOptions defaults = TwoIterations();
-  EstimatorOptions cheaper = defaults;
-  cheaper.continued_joint_irls_iterations = 1;
-  cheaper.continued_pose_iterations = 1;
+// A cheaper continued window: the first window is the same bit for bit,
+// the continued one is not.
+void ExpectOnlyTheContinuedWindowChanges(const EstimatorOptions& defaults, const EstimatorOptions& cheaper) {
   const std::vector<WindowEstimate> a = RunStream(defaults), b = RunStream(cheaper);
   ASSERT_EQ(a.size(), 2u);
   ASSERT_EQ(b.size(), 2u);
   EXPECT_TRUE(SameResult(a[0].result, b[0].result));
   EXPECT_FALSE(SameResult(a[1].result, b[1].result));
+}
+
+// One reweighting and one pose step in the continued window.
+TEST(ContinuedWindowOptions, StructureBudgetAppliesToContinuedWindowsOnly) {
+  const EstimatorOptions defaults = TwoIterations();
+  EstimatorOptions cheaper = defaults;
+  cheaper.continued_joint_irls_iterations = 1;
+  cheaper.continued_pose_iterations = 1;
+  ExpectOnlyTheContinuedWindowChanges(defaults, cheaper);
+}
+
+// One re-centred depth pass in the continued window instead of the
+// default's three.
+TEST(ContinuedWindowOptions, RecentredPassesApplyToContinuedWindowsOnly) {
+  const EstimatorOptions defaults = TwoIterations();
+  ASSERT_GT(defaults.recentred_depth_passes, 1);
+  EstimatorOptions cheaper = defaults;
+  cheaper.continued_recentred_depth_passes = 1;
+  ExpectOnlyTheContinuedWindowChanges(defaults, cheaper);
 }
 
 }  // namespace
