@@ -1,8 +1,8 @@
 // EstimatorOptions::continued_*: a continued stream window's own budget of
-// joint-step reweightings and CG steps, pose Gauss-Newton steps,
-// iterations of Algorithm 1 and re-centred depth passes. Each applies to continued windows only (the
-// first window keeps the general options), and a knob set to the value it
-// replaces changes nothing bit for bit.
+// joint-step reweightings and CG steps, pose Gauss-Newton steps, iterations
+// of Algorithm 1 and re-centred depth passes. Each applies to continued
+// windows only (the first window keeps the general options), and a knob set
+// to the value it replaces changes nothing bit for bit.
 #include <cstring>
 #include <vector>
 
