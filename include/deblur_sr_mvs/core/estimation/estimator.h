@@ -177,10 +177,10 @@ struct EstimatorOptions {
   // ... and the iterations of Algorithm 1 there (-1: max_iterations).
   int continued_max_iterations = -1;
   // ... and the re-centred depth passes there (0: recentred_depth_passes).
-  // One pass instead of three shortens the node's continued 320x240 windows
-  // by about a fifth, at +0.5-0.9 % crop and up to +11 % full-frame depth
-  // error (BENCHMARKS.md "One re-centred pass in continued windows"): not
-  // the default.
+  // One pass instead of three saves about a tenth of the node's continued
+  // 320x240 window for +0.5-0.9 % crop and +3 % (up to +11 %) full-frame
+  // depth error, two passes half that for +1 % (BENCHMARKS.md "Fewer
+  // re-centred passes in continued windows"): not the default.
   int continued_recentred_depth_passes = 0;
   // Output gauge (docs/file_formats.md#monocular-scale). false: world = the
   // first camera, monocular scale such that the median scene depth of the
