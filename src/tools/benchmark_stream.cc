@@ -60,6 +60,30 @@ void Publish(const dsm::Sequence& sequence, const dsm::WindowEstimate& estimate,
   }
 }
 
+// One window through the stream: its time and stages into the run's
+// report, its new frames into the run's result.
+void ProcessWindow(const dsm::Sequence& sequence, const dsm::StreamWindow& window, bool quiet,
+                   dsm::StreamEstimator* stream, StreamRun* run) {
+  const auto begin = std::chrono::steady_clock::now();
+  const dsm::WindowEstimate estimate = stream->Process(window, sequence.calibration.camera);
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - begin).count();
+  run->seconds += seconds;
+  nlohmann::json stages = nlohmann::json::object();
+  for (const dsm::StageTiming& timing : estimate.result.timings) stages[timing.stage] = timing.seconds;
+  run->windows.push_back({{"first_frame", window.front().id - 1},
+                          {"last_frame", window.back().id - 1},
+                          {"seconds", seconds},
+                          {"continued", estimate.continued},
+                          {"note", estimate.note},
+                          {"stage_seconds", stages}});
+  if (!quiet) {
+    std::printf("window %llu-%llu: %.2f s%s\n", static_cast<unsigned long long>(window.front().id - 1),
+                static_cast<unsigned long long>(window.back().id - 1), seconds,
+                estimate.continued ? " (continued)" : "");
+  }
+  Publish(sequence, estimate, run);
+}
+
 int Run(int argc, char** argv) {
   dsm::ToolCommandLine cli("benchmark_stream",
                            "Runs a sequence folder through the node's streaming estimator (windows, defaults) "
@@ -90,6 +114,10 @@ int Run(int argc, char** argv) {
   cli.add_option("--continued-recentred-passes", options.continued_recentred_depth_passes,
                  "re-centred depth passes in a continued window (default 0: as in any window)")
       ->check(dsm::FlagInt(0, 10));
+  cli.add_flag(
+      "--recentred-passes-on-held-frames", options.recentred_passes_on_held_frames,
+      "the re-centred depth passes also update the frames a continued window shares with the previous "
+      "one (default off)");
   cli.add_flag("--quiet", quiet, "no per-window lines on stdout");
   if (!cli.Parse(argc, argv)) return 0;
   stream_options.Check();
@@ -101,24 +129,7 @@ int Run(int argc, char** argv) {
   StreamRun run;
   for (size_t i = 0; i < sequence.images.size(); ++i) {
     for (const dsm::StreamWindow& window : windower.Add(FrameOf(sequence, i))) {
-      const auto begin = std::chrono::steady_clock::now();
-      const dsm::WindowEstimate estimate = stream.Process(window, sequence.calibration.camera);
-      const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - begin).count();
-      run.seconds += seconds;
-      nlohmann::json stages = nlohmann::json::object();
-      for (const dsm::StageTiming& timing : estimate.result.timings) stages[timing.stage] = timing.seconds;
-      run.windows.push_back({{"first_frame", window.front().id - 1},
-                             {"last_frame", window.back().id - 1},
-                             {"seconds", seconds},
-                             {"continued", estimate.continued},
-                             {"note", estimate.note},
-                             {"stage_seconds", stages}});
-      if (!quiet) {
-        std::printf("window %llu-%llu: %.2f s%s\n", static_cast<unsigned long long>(window.front().id - 1),
-                    static_cast<unsigned long long>(window.back().id - 1), seconds,
-                    estimate.continued ? " (continued)" : "");
-      }
-      Publish(sequence, estimate, &run);
+      ProcessWindow(sequence, window, quiet, &stream, &run);
     }
   }
   if (run.result.latent.size() != sequence.images.size()) {

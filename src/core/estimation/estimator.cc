@@ -567,6 +567,11 @@ class WindowSolver {
   // The first frame whose output depth is refined: a stream's held leading
   // frames were given out, refined, with the previous window.
   int FirstRefinedOutput() const { return options_.held_leading_latents; }
+  // The first frame whose depth the re-centred passes update
+  // (EstimatorOptions::recentred_passes_on_held_frames).
+  int FirstRecentredFrame() const {
+    return options_.recentred_passes_on_held_frames ? 0 : options_.held_leading_latents;
+  }
   bool RefineOutputDepthEdges() const;
   std::vector<cv::Mat> OutputDepths();
   std::vector<cv::Mat> ConsistentOutputDepths(const std::vector<cv::Mat>& depths);
@@ -921,7 +926,7 @@ void WindowSolver::StructurePhase(int iteration, bool isolated) {
   if (options_.update_poses) UpdateAllPoses(iteration, isolated, poses, structure_options);
   // The last structure update ends with depth updates on the input pairs
   // re-centred on the shutter close (EstimatorOptions::recentred_depth_pass,
-  // recentred_depth_passes times).
+  // recentred_depth_passes times), of the frames from FirstRecentredFrame.
   if (RecentredDepthPass() && iteration == options_.max_iterations) {
     for (int t = 0; t < num_frames_; ++t) poses[t] = frames_[t].T_world_cam;
     StructureUpdateOptions pass_options = structure_options;
@@ -930,6 +935,7 @@ void WindowSolver::StructurePhase(int iteration, bool isolated) {
     for (int pass = 0; pass < options_.recentred_depth_passes; ++pass) {
       BuildRecentredInputs();
       ForEachFrame([this, iteration, isolated, &poses, &pass_options](int t) {
+        if (t < FirstRecentredFrame()) return;
         UpdateFrameDepth(t, iteration, isolated, poses, pass_options, /*recentred_inputs=*/true);
       });
     }

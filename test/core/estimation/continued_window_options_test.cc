@@ -2,7 +2,9 @@
 // joint-step reweightings and CG steps, pose Gauss-Newton steps, iterations
 // of Algorithm 1 and re-centred depth passes. Each applies to continued
 // windows only (the first window keeps the general options), and a knob set
-// to the value it replaces changes nothing bit for bit.
+// to the value it replaces changes nothing bit for bit. And
+// recentred_passes_on_held_frames, which only a continued window's held
+// frames feel.
 #include <cstring>
 #include <vector>
 
@@ -132,6 +134,39 @@ TEST(ContinuedWindowOptions, RecentredPassesApplyToContinuedWindowsOnly) {
   EstimatorOptions cheaper = defaults;
   cheaper.continued_recentred_depth_passes = 1;
   ExpectOnlyTheContinuedWindowChanges(defaults, cheaper);
+}
+
+// EstimatorOptions::recentred_passes_on_held_frames: by default the passes
+// leave a continued window's held frames (the two shared with the first
+// window). Everything before the passes is the same whatever their count,
+// so the held frames' solver depth is the same bit for bit after three
+// passes and after one, while the new frames' depth is not; with the option
+// on, the held frames' depth differs too. The first window has no held
+// frames: the option changes nothing there.
+TEST(ContinuedWindowOptions, RecentredPassesLeaveTheHeldFramesByDefault) {
+  const EstimatorOptions defaults = TwoIterations();
+  ASSERT_TRUE(defaults.recentred_depth_pass);
+  ASSERT_GT(defaults.recentred_depth_passes, 1);
+  ASSERT_FALSE(defaults.recentred_passes_on_held_frames);
+  EstimatorOptions one_pass = defaults;
+  one_pass.continued_recentred_depth_passes = 1;
+  EstimatorOptions on_held = defaults, on_held_one_pass = one_pass;
+  on_held.recentred_passes_on_held_frames = on_held_one_pass.recentred_passes_on_held_frames = true;
+  const std::vector<WindowEstimate> a = RunStream(defaults), b = RunStream(one_pass), c = RunStream(on_held),
+                                    d = RunStream(on_held_one_pass);
+  for (const auto* run : {&a, &b, &c, &d}) {
+    ASSERT_EQ(run->size(), 2u);
+    ASSERT_TRUE((*run)[1].continued);
+    ASSERT_EQ((*run)[1].result.solver_depth.size(), 4u);
+  }
+  EXPECT_TRUE(SameResult(a[0].result, c[0].result));
+  for (int t = 0; t < 2; ++t) {
+    EXPECT_TRUE(SameBits(a[1].result.solver_depth[t], b[1].result.solver_depth[t])) << "held frame " << t;
+    EXPECT_FALSE(SameBits(c[1].result.solver_depth[t], d[1].result.solver_depth[t])) << "held frame " << t;
+  }
+  for (int t = 2; t < 4; ++t) {
+    EXPECT_FALSE(SameBits(a[1].result.solver_depth[t], b[1].result.solver_depth[t])) << "new frame " << t;
+  }
 }
 
 }  // namespace

@@ -182,6 +182,17 @@ struct EstimatorOptions {
   // depth error, two passes half that for +1 % (BENCHMARKS.md "Fewer
   // re-centred passes in continued windows"): not the default.
   int continued_recentred_depth_passes = 0;
+  // Whether the re-centred depth passes also update the held leading
+  // frames' depth (held_leading_latents: a continued window's frames shared
+  // with the previous window, given out with it). false: they keep the
+  // depth the last pose update left; their re-centred inputs still serve
+  // the other frames' pairs, which is all their passes reached. Leaving
+  // them out saves a third of the passes of the node's continued windows
+  // (6 frames, 2 held): about 2 of 6 depth-update thread-seconds, 5 % of a
+  // continued 320x240 window's CPU, for +0.2 % crop and +0.15 % full-frame
+  // depth error on average (worst +0.8 %) and no change of PSNR or ATE over
+  // 29 streams (BENCHMARKS.md "Re-centred passes skip the held frames").
+  bool recentred_passes_on_held_frames = false;
   // Output gauge (docs/file_formats.md#monocular-scale). false: world = the
   // first camera, monocular scale such that the median scene depth of the
   // window is 1 unit. true: the world and scale of the structure given to
