@@ -7,7 +7,8 @@
 // Usage: benchmark_stream --input SEQ --output OUT [--window-size N]
 //        [--window-overlap K] [--threads T] [--no-depth-sweep]
 //        [--depth-consistency-radius R] [--iterations N]
-//        [--continued-iterations N] [--continued-recentred-passes N] [--quiet]
+//        [--continued-iterations N] [--continued-recentred-passes N]
+//        [--recentred-passes-on-held-frames] [--quiet]
 #include <chrono>
 #include <cstdint>
 #include <cstdio>

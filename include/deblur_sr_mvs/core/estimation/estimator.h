@@ -180,7 +180,8 @@ struct EstimatorOptions {
   // One pass instead of three saves about a tenth of the node's continued
   // 320x240 window for +0.5-0.9 % crop and +3 % (up to +11 %) full-frame
   // depth error, two passes half that for +1 % (BENCHMARKS.md "Fewer
-  // re-centred passes in continued windows"): not the default.
+  // re-centred passes in continued windows"; measured while the passes
+  // still updated the held frames too, see below): not the default.
   int continued_recentred_depth_passes = 0;
   // Whether the re-centred depth passes also update the held leading
   // frames' depth (held_leading_latents: a continued window's frames shared
