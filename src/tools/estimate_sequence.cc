@@ -220,6 +220,14 @@ void AddPosePriorOptions(dsm::ToolCommandLine* command_line, Flags* flags, dsm::
                  "with --pose-prior-iterations: weight of the prior's terms against the photometric ones "
                  "(default 1e4)")
       ->check(dsm::FlagNumber(1e-12));
+  cli.add_option("--track-pose-weight", options->track_pose_weight,
+                 "joint: weight of the initialiser's feature tracks in the pose steps, against the "
+                 "photometric terms; 0 = off (default 1000)")
+      ->check(dsm::FlagNumber(0.0));
+  cli.add_option("--track-pose-gate", options->track_pose_gate_start,
+                 "with --track-pose-weight: the tracks act where the poses raise their cost more than this "
+                 "fraction above its least value (default 0.2)")
+      ->check(dsm::FlagNumber(0.0));
 }
 
 // --blur-pose-evidence and its sampling and weight.

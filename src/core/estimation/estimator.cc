@@ -522,6 +522,27 @@ PosePriorTerms WindowPosePrior(const EstimatorOptions& options, const EstimatorI
   return terms;
 }
 
+// The tracks' pose terms of a window (EstimatorOptions::track_pose_weight):
+// none in baseline mode, with the weight 0, or without tracks. Their
+// mid-exposure offsets and gate are set by RefreshTrackTerms.
+TrackPoseTerms WindowTrackTerms(const EstimatorOptions& options, const EstimatorInput& input, bool joint) {
+  TrackPoseTerms terms;
+  if (!joint || !(options.track_pose_weight > 0.0)) return terms;
+  const int num_frames = static_cast<int>(input.images.size());
+  for (const FeatureTrack& track : input.tracks) {
+    if (track.first_frame >= 0 && track.first_frame < num_frames && track.points.size() >= 2) {
+      terms.tracks.push_back(track);
+    }
+  }
+  terms.camera = input.camera;
+  terms.weight = options.track_pose_weight;
+  terms.sigma_px = options.track_pose_sigma_px;
+  terms.gate_start = options.track_pose_gate_start;
+  terms.gate_width = options.track_pose_gate_width;
+  terms.T_cam_mid.assign(num_frames, SE3());
+  return terms;
+}
+
 // Algorithm 1 (alg:optimization) on one window from a given structure. The
 // object holds the window's state: observations B_t, latent images I_t, the
 // frame structures (D_t, P_t), inverse depths, edge weights g_t, the
@@ -579,6 +600,7 @@ class WindowSolver {
                         const StructureUpdateOptions& structure_options, bool recentred_inputs = false);
   void UpdateAllPoses(int iteration, bool isolated, const std::vector<SE3>& poses,
                       const StructureUpdateOptions& structure_options);
+  void RefreshTrackTerms();
   void UpdateDepthsAndPosesJointly(int iteration, bool isolated,
                                    const StructureUpdateOptions& structure_options);
   std::vector<BlurPoseTerm> BlurPoseTerms(const StructureUpdateOptions& structure_options);
@@ -742,6 +764,7 @@ WindowSolver::WindowSolver(const EstimatorOptions& options, int threads, const E
   }
   std::string prior_note;
   pose_prior_ = WindowPosePrior(options_, input, T_world_cam, &prior_note);
+  pose_prior_.tracks = WindowTrackTerms(options_, input, joint_);
   anchor_ = AnchorSettings(options_.denoised_anchor, options_.noise_sigma, options_.lambda_s,
                            options_.model_error_sigma);
   if (!prior_note.empty()) result_.notes.push_back(prior_note);
@@ -1057,6 +1080,23 @@ void WindowSolver::UpdateFrameDepth(int t, int iteration, bool isolated, const s
 // updates (with joint_step_pose_pairs, from the pairs within the pose
 // radius); the pose update with its longer baselines follows. With
 // `isolated` (baseline) the step is kept only if it lowers the energy.
+// The tracks' terms at the current structure: each frame's mid-exposure
+// pose on its blur path (the tracks observe the blur centroid), then the
+// tracks' least cost over the poses for the gate (TrackPoseTerms).
+void WindowSolver::RefreshTrackTerms() {
+  TrackPoseTerms& terms = pose_prior_.tracks;
+  if (!terms.any()) return;
+  std::vector<SE3> poses(num_frames_);
+  for (int f = 0; f < num_frames_; ++f) {
+    const FrameStructure& frame = frames_[f];
+    const CaptureGeometry geometry = MakeCaptureGeometry(frames_, camera_hr_, f, f);
+    terms.T_cam_mid[f] =
+        frame.T_world_cam.Inverse() * PoseAtTime(geometry, frame.stamp - 0.5 * frame.exposure);
+    poses[f] = frame.T_world_cam;
+  }
+  terms.min_cost = TrackCostMinimum(terms, poses, options_.fixed_leading_poses);
+}
+
 void WindowSolver::UpdateDepthsAndPosesJointly(int iteration, bool isolated,
                                                const StructureUpdateOptions& structure_options) {
   Report(0.0, "iteration " + std::to_string(iteration) + ": joint depth + pose step");
@@ -1081,6 +1121,7 @@ void WindowSolver::UpdateDepthsAndPosesJointly(int iteration, bool isolated,
     inverse_depths[t] = inverse_depth_[t].clone();
   });
   const std::vector<SE3> saved_poses = poses;
+  RefreshTrackTerms();
   const double begin = NowMs();
   UpdateDepthAndPoses(camera_hr_, latents_, terms, ParallaxScale(), structure_options,
                       options_.fixed_leading_poses, &poses, &inverse_depths, &pose_prior_);
@@ -1125,6 +1166,7 @@ void WindowSolver::UpdateAllPoses(int iteration, bool isolated, const std::vecto
   const bool blur_evidence = joint_ && options_.blur_pose_evidence;
   const std::vector<BlurPoseTerm> blur_terms =
       blur_evidence ? BlurPoseTerms(structure_options) : std::vector<BlurPoseTerm>();
+  RefreshTrackTerms();
   const double pose_begin = NowMs();
   UpdatePoses(camera_hr_, inverse_depth_, latents_, pairs, structure_options, &updated,
               options_.fixed_leading_poses, &pose_prior_, blur_evidence ? &blur_terms : nullptr);
@@ -1741,12 +1783,11 @@ EstimatorResult Estimator::RunGainCompensated(const EstimatorInput& input, const
   if (!readable) return run(&estimator, input);
   const double start = NowMs();
   const std::vector<double> gains = EstimateFrameGains(input.images, options_.gain);
-  EstimatorInput compensated;
-  compensated.camera = input.camera;
-  compensated.frames = input.frames;
-  compensated.readout_time = input.readout_time;
-  compensated.carried_operators = input.carried_operators;
-  compensated.T_prior_cam = input.T_prior_cam;
+  // Everything but the images and the warm start as given (the stream's
+  // world_to_prior and the tracks included).
+  EstimatorInput compensated = input;
+  compensated.images.clear();
+  compensated.initial_latents.clear();
   for (size_t t = 0; t < gains.size(); ++t) compensated.images.push_back(input.images[t] * (1.0 / gains[t]));
   // A warm start has its frame's brightness, as the latent images given out.
   for (size_t t = 0; t < input.initial_latents.size() && t < gains.size(); ++t) {
@@ -1823,6 +1864,10 @@ void EstimatorOptions::Check() const {
   CheckInRange("continued_recentred_depth_passes", continued_recentred_depth_passes, 0, 10);
   CheckAtLeast("max_seconds", max_seconds, 0.0);
   CheckAbove("pose_prior_weight", pose_prior_weight, 0.0);
+  CheckAtLeast("track_pose_weight", track_pose_weight, 0.0);
+  CheckAbove("track_pose_sigma_px", track_pose_sigma_px, 0.0);
+  CheckAtLeast("track_pose_gate_start", track_pose_gate_start, 0.0);
+  CheckAbove("track_pose_gate_width", track_pose_gate_width, 0.0);
   CheckInRange("equal_blur_tolerance_px", equal_blur_tolerance_px, 0.0, 1000.0);
   CheckInRange("unequal_blur_tolerance_px", unequal_blur_tolerance_px, 0.0, 1000.0);
   CheckInRange("equal_blur_input_weight", equal_blur_input_weight, 0.0, 100.0);
@@ -1916,7 +1961,9 @@ EstimatorResult Estimator::Run(const EstimatorInput& input, const ProgressCallba
   ThrowIfCancelled();
   const std::vector<cv::Mat> depth_hr = UpsampleInitialDepth(initial.depth_lr, options_.scale);
   const double init_seconds = (NowMs() - start) / 1000.0;
-  EstimatorResult result = RunFromStructure(input, depth_hr, initial.T_world_cam, progress);
+  EstimatorInput tracked = input;
+  tracked.tracks = std::move(initial.tracks);
+  EstimatorResult result = RunFromStructure(tracked, depth_hr, initial.T_world_cam, progress);
   result.timings.insert(result.timings.begin(), StageTiming{"initialization", init_seconds});
   result.initializer_summary = initial.summary;
   return result;

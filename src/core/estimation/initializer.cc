@@ -2895,6 +2895,19 @@ SparseInitialisation InitializeSparse(const std::vector<cv::Mat>& images_lr, con
   return sparse;
 }
 
+// The tracks of the points `structure` keeps as inliers.
+std::vector<FeatureTrack> KeptTracks(const std::vector<Track>& tracks, const SparseStructure& structure) {
+  std::vector<FeatureTrack> kept;
+  for (const Track& track : tracks) {
+    if (track.point_id < 0 || !structure.point_inlier[track.point_id]) continue;
+    FeatureTrack out;
+    out.first_frame = track.first_frame;
+    for (const cv::Point2f& p : track.points) out.points.emplace_back(p.x, p.y);
+    kept.push_back(std::move(out));
+  }
+  return kept;
+}
+
 InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images_lr,
                                               const PinholeCamera& camera_lr,
                                               const std::vector<FrameRecord>& frames,
@@ -2910,6 +2923,7 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
   SparseStructure& structure = sparse.structure;
   std::optional<SparseStructure>& rejected_turn = sparse.rejected_turn;
   std::vector<cv::Mat> data_cost;
+  bool kept_turn = false;
   InitialStructure result = DenseStructure(images, camera_lr, frames, tracking.tracks, options, threads,
                                            readout_time, &structure, &summary,
                                            rejected_turn ? &data_cost : nullptr);
@@ -2927,8 +2941,10 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
     if (keep_turn) {
       summary << turn_summary.str();
       result = std::move(turned);
+      kept_turn = true;
     }
   }
+  result.tracks = KeptTracks(tracking.tracks, kept_turn ? *rejected_turn : structure);
   NormaliseGauge(&result, &summary);
   summary << Format("total: %.1f ms", NowMs() - start_ms);
   result.summary = summary.str();
@@ -3128,6 +3144,10 @@ InitialStructure InitializeStructure(const std::vector<cv::Mat>& images_lr, cons
         [&](InitialStructure* half, const std::string& why) {
           for (cv::Mat& depth : half->depth_lr)
             depth = DepthAtInputSize(depth, cv::Size(camera_lr.width, camera_lr.height));
+          // Half-size pixel u is input pixel 2 u + 0.5 (PinholeCamera::Upscaled).
+          for (FeatureTrack& track : half->tracks) {
+            for (Eigen::Vector2d& point : track.points) point = 2.0 * point + Eigen::Vector2d(0.5, 0.5);
+          }
           half->summary = why + "\n" + half->summary;
         });
   });

@@ -372,6 +372,7 @@ bool StreamEstimator::ContinueTrajectory(const EstimatorInput& input, const Shar
   // scale, as their poses).
   EstimatorInput warm_input = input;
   warm_input.carried_operators = last_operators_;
+  warm_input.tracks = std::move(initial.tracks);
   const cv::Size hr_size(input.camera.width * options.scale, input.camera.height * options.scale);
   if (AllOfSize(shared.latents, hr_size, input.images[0].channels())) {
     warm_input.initial_latents = shared.latents;

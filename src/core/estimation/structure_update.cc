@@ -1474,6 +1474,187 @@ void AddPosePriorNormalEquations(const PosePriorTerms& prior, const std::vector<
 
 namespace {
 
+// One track linearised at the poses: its point re-triangulated (DLT, then
+// Gauss-Newton), then per observation the residual (projection - pixel) and
+// its Jacobians in the frame's tangent eps (the left perturbation of
+// T_world_cam, which moves T_world_mid the same way) and in the point.
+struct TrackLinearization {
+  int first = 0;
+  std::vector<Eigen::Matrix<double, 2, 6>> j_eps;
+  std::vector<Eigen::Matrix<double, 2, 3>> j_point;
+  std::vector<Eigen::Vector2d> residual;
+};
+
+Eigen::Vector3d TriangulateDlt(const FeatureTrack& track, const PinholeCamera& camera,
+                               const std::vector<SE3>& T_mid_world, int last) {
+  const int first = track.first_frame;
+  Eigen::MatrixXd A(2 * (last - first + 1), 4);
+  for (int f = first; f <= last; ++f) {
+    const Eigen::Vector3d ray = camera.Ray(track.points[f - first].x(), track.points[f - first].y());
+    Eigen::Matrix<double, 3, 4> P;
+    P.leftCols<3>() = T_mid_world[f].rotation();
+    P.col(3) = T_mid_world[f].translation();
+    A.row(2 * (f - first)) = ray.x() * P.row(2) - P.row(0);
+    A.row(2 * (f - first) + 1) = ray.y() * P.row(2) - P.row(1);
+  }
+  Eigen::JacobiSVD<Eigen::MatrixXd> svd(A, Eigen::ComputeFullV);
+  const Eigen::Vector4d h = svd.matrixV().col(3);
+  if (std::abs(h[3]) < 1e-12) return Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN());
+  return h.head<3>() / h[3];
+}
+
+bool LinearizeTrack(const FeatureTrack& track, const PinholeCamera& camera,
+                    const std::vector<SE3>& T_mid_world, TrackLinearization* out) {
+  const int first = track.first_frame;
+  const int last = std::min(track.LastFrame(), static_cast<int>(T_mid_world.size()) - 1);
+  if (first < 0 || last - first < 1) return false;
+  Eigen::Vector3d point = TriangulateDlt(track, camera, T_mid_world, last);
+  const int count = last - first + 1;
+  out->first = first;
+  out->j_eps.resize(count);
+  out->j_point.resize(count);
+  out->residual.resize(count);
+  constexpr int kPointIterations = 3;
+  for (int iteration = 0; iteration <= kPointIterations; ++iteration) {
+    if (!point.allFinite()) return false;
+    Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d b = Eigen::Vector3d::Zero();
+    for (int k = 0; k < count; ++k) {
+      const SE3& T = T_mid_world[first + k];
+      const Eigen::Vector3d p = T * point;
+      if (!(p.z() > 1e-9)) return false;
+      out->residual[k] = camera.Project(p) - track.points[k];
+      Eigen::Matrix<double, 2, 3> j_project;
+      j_project << camera.fx / p.z(), 0.0, -camera.fx * p.x() / (p.z() * p.z()), 0.0, camera.fy / p.z(),
+          -camera.fy * p.y() / (p.z() * p.z());
+      out->j_point[k] = j_project * T.rotation();
+      // Exp(eps)^-1 X ~ X - rho - phi x X = X - rho + Hat(X) phi.
+      out->j_eps[k].leftCols<3>() = -out->j_point[k];
+      out->j_eps[k].rightCols<3>() = out->j_point[k] * Hat(point);
+      H += out->j_point[k].transpose() * out->j_point[k];
+      b -= out->j_point[k].transpose() * out->residual[k];
+    }
+    if (iteration < kPointIterations) point += H.ldlt().solve(b);
+  }
+  return true;
+}
+
+// The Schur complement of one linearised track's point, Huber-weighted
+// (`weight` per unit squared residual), into the free frames' blocks.
+void AddReducedTrack(const TrackPoseTerms& terms, const TrackLinearization& L, double weight, int num_fixed,
+                     int offset, Eigen::MatrixXd* hessian, Eigen::VectorXd* gradient) {
+  const int count = static_cast<int>(L.residual.size());
+  std::vector<double> w(count);
+  Eigen::Matrix3d H_xx = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d b_x = Eigen::Vector3d::Zero();
+  for (int k = 0; k < count; ++k) {
+    const double sigmas = L.residual[k].norm() / terms.sigma_px;
+    w[k] = weight * (sigmas <= terms.huber ? 1.0 : terms.huber / sigmas);
+    H_xx += w[k] * L.j_point[k].transpose() * L.j_point[k];
+    b_x -= w[k] * L.j_point[k].transpose() * L.residual[k];
+  }
+  const Eigen::Matrix3d H_xx_inverse = H_xx.inverse();
+  if (!H_xx_inverse.allFinite()) return;
+  for (int k = 0; k < count; ++k) {
+    const int f = L.first + k;
+    if (f < num_fixed) continue;
+    const int block = 6 * (f - offset);
+    const Eigen::Matrix<double, 6, 3> H_ex = w[k] * L.j_eps[k].transpose() * L.j_point[k];
+    hessian->block<6, 6>(block, block) += w[k] * L.j_eps[k].transpose() * L.j_eps[k];
+    gradient->segment<6>(block) -=
+        w[k] * L.j_eps[k].transpose() * L.residual[k] + H_ex * (H_xx_inverse * b_x);
+    for (int l = 0; l < count; ++l) {
+      const int g = L.first + l;
+      if (g < num_fixed) continue;
+      const Eigen::Matrix<double, 3, 6> H_xe = w[l] * L.j_point[l].transpose() * L.j_eps[l];
+      hessian->block<6, 6>(block, 6 * (g - offset)) -= H_ex * H_xx_inverse * H_xe;
+    }
+  }
+}
+
+}  // namespace
+
+double AddTrackNormalEquations(const TrackPoseTerms& terms, const std::vector<SE3>& T_world_cam,
+                               int num_fixed, int offset, double photometric_scale, Eigen::MatrixXd* hessian,
+                               Eigen::VectorXd* gradient) {
+  const int num_frames =
+      std::min(static_cast<int>(T_world_cam.size()), static_cast<int>(terms.T_cam_mid.size()));
+  std::vector<SE3> T_mid_world(num_frames);
+  for (int f = 0; f < num_frames; ++f) T_mid_world[f] = (T_world_cam[f] * terms.T_cam_mid[f]).Inverse();
+  std::vector<TrackLinearization> linear(terms.tracks.size());
+  std::vector<char> linearised(terms.tracks.size(), 0);
+  const double cap = terms.huber * terms.sigma_px;
+  double cost = 0.0;
+  for (size_t i = 0; i < terms.tracks.size(); ++i) {
+    linearised[i] = LinearizeTrack(terms.tracks[i], terms.camera, T_mid_world, &linear[i]);
+    if (!linearised[i]) continue;
+    for (const Eigen::Vector2d& r : linear[i].residual) cost += std::min(r.squaredNorm(), cap * cap);
+  }
+  if (hessian == nullptr || gradient == nullptr) return cost;
+  double gate = 1.0;
+  if (terms.min_cost > 0.0) {
+    gate = std::clamp((cost / terms.min_cost - 1.0 - terms.gate_start) / terms.gate_width, 0.0, 1.0);
+  }
+  if (!(gate > 0.0)) return cost;
+  const double weight = gate * photometric_scale * terms.weight / (terms.sigma_px * terms.sigma_px);
+  for (size_t i = 0; i < terms.tracks.size(); ++i) {
+    if (linearised[i])
+      AddReducedTrack(terms, linear[i], weight, std::max(num_fixed, 0), offset, hessian, gradient);
+  }
+  return cost;
+}
+
+double TrackCostMinimum(const TrackPoseTerms& terms, std::vector<SE3> T_world_cam, int num_fixed) {
+  TrackPoseTerms plain = terms;
+  plain.weight = 1.0;
+  plain.min_cost = 0.0;
+  num_fixed = std::max(1, num_fixed);
+  const int num_frames = static_cast<int>(T_world_cam.size());
+  double cost = AddTrackNormalEquations(plain, T_world_cam, num_fixed, num_fixed, 1.0, nullptr, nullptr);
+  if (num_frames <= num_fixed) return cost;
+  const int unknowns = 6 * (num_frames - num_fixed);
+  double lambda = 1e-4;
+  constexpr int kMaxIterations = 20;
+  for (int iteration = 0; iteration < kMaxIterations; ++iteration) {
+    Eigen::MatrixXd H = Eigen::MatrixXd::Zero(unknowns, unknowns);
+    Eigen::VectorXd g = Eigen::VectorXd::Zero(unknowns);
+    AddTrackNormalEquations(plain, T_world_cam, num_fixed, num_fixed, 1.0, &H, &g);
+    // Damped: the tracks leave the scale (and, without parallax, more) free.
+    for (int i = 0; i < unknowns; ++i) H(i, i) += lambda * H(i, i) + 1e-12;
+    const Eigen::VectorXd step = H.ldlt().solve(g);
+    if (!step.allFinite()) break;
+    std::vector<SE3> trial = T_world_cam;
+    for (int f = num_fixed; f < num_frames; ++f)
+      trial[f] = SE3::Exp(step.segment<6>(6 * (f - num_fixed))) * trial[f];
+    const double trial_cost =
+        AddTrackNormalEquations(plain, trial, num_fixed, num_fixed, 1.0, nullptr, nullptr);
+    if (trial_cost < cost) {
+      const bool converged = cost - trial_cost < 1e-6 * cost;
+      cost = trial_cost;
+      T_world_cam = std::move(trial);
+      lambda = std::max(1e-8, 0.3 * lambda);
+      if (converged) break;
+    } else {
+      lambda *= 10.0;
+    }
+  }
+  return cost;
+}
+
+namespace {
+
+// The prior's and the tracks' terms (AddPosePriorNormalEquations,
+// AddTrackNormalEquations).
+void AddPosePriorAndTrackNormalEquations(const PosePriorTerms& prior, const std::vector<SE3>& T_world_cam,
+                                         int num_fixed, int offset, double photometric_scale,
+                                         Eigen::MatrixXd* hessian, Eigen::VectorXd* gradient) {
+  AddPosePriorNormalEquations(prior, T_world_cam, num_fixed, offset, photometric_scale, hessian, gradient);
+  if (prior.tracks.any()) {
+    AddTrackNormalEquations(prior.tracks, T_world_cam, std::max(num_fixed, 0), offset, photometric_scale,
+                            hessian, gradient);
+  }
+}
+
 // The pose prior's terms in the pose system of UpdatePoses, in units of the
 // pairs' mean absolute residual (AddPosePriorNormalEquations); none while no
 // pair has a residual.
@@ -1486,7 +1667,8 @@ void AddPosePriorInPairUnits(const PosePriorTerms& prior, const std::vector<Pair
     values += eq.values;
   }
   if (values > 0.0) {
-    AddPosePriorNormalEquations(prior, T_world_cam, num_fixed, num_fixed, absolute / values, hessian, gradient);
+    AddPosePriorAndTrackNormalEquations(prior, T_world_cam, num_fixed, num_fixed, absolute / values, hessian,
+                                        gradient);
   }
 }
 
@@ -1552,7 +1734,7 @@ std::vector<Vector6d> UpdatePoses(const PinholeCamera& camera_hr, const std::vec
     for (int i = 0; i < unknowns; ++i) {
       damped(i, i) += options.pose_damping * hessian(i, i) + 1e-12;
     }
-    if (prior != nullptr && prior->any()) {
+    if (prior != nullptr && prior->any_term()) {
       AddPosePriorInPairUnits(*prior, equations, *T_world_cam, num_fixed, &damped, &gradient);
     }
     const Eigen::VectorXd step = damped.ldlt().solve(gradient);
@@ -1590,7 +1772,7 @@ class JointDepthPoseSystem::Impl {
       : T_world_cam_(T_world_cam),
         frames_(frames),
         options_(options),
-        prior_(prior != nullptr && prior->any() ? prior : nullptr),
+        prior_(prior != nullptr && prior->any_term() ? prior : nullptr),
         num_frames_(static_cast<int>(frames.size())),
         num_fixed_(std::max(1, num_fixed)),
         pixels_(camera_hr.width * camera_hr.height),
@@ -1881,8 +2063,8 @@ class JointDepthPoseSystem::Impl {
       values += system->residual_values();
     }
     if (values > 0.0) {
-      AddPosePriorNormalEquations(*prior_, T_world_cam_, num_fixed_, 0, absolute / values, &pose_normal_,
-                                  &pose_rhs_);
+      AddPosePriorAndTrackNormalEquations(*prior_, T_world_cam_, num_fixed_, 0, absolute / values,
+                                          &pose_normal_, &pose_rhs_);
     }
   }
 

@@ -141,6 +141,25 @@ struct EstimatorOptions {
   // default is measured (BENCHMARKS.md "The pose prior in the joint
   // iterations").
   double pose_prior_weight = 1e4;
+  // Feature tracks as pose evidence (joint mode; TrackPoseTerms): the
+  // reprojection errors of the initialiser's tracks (EstimatorInput::tracks),
+  // observed at mid-exposure on the estimator's blur path, each track's point
+  // eliminated, in the pose steps of every structure update, in units of the
+  // photometric terms as pose_prior_weight; 0: off. They do not depend on
+  // the depth maps nor on the blur model within the exposure. Gated per
+  // structure update: with c the tracks' cost at the current poses and
+  // c_min its least value over the poses, the weight is multiplied by
+  // clamp((c / c_min - 1 - gate_start) / gate_width, 0, 1). Where the dense
+  // iterations' poses explain the tracks nearly as well as the tracks' own
+  // optimum (c / c_min 1.03-1.13 on the benchmark's lateral, arc and forward
+  // paths, whose dense poses are more accurate than the tracks') they are
+  // left alone; on hand-held, gain and rolling-shutter paths the dense
+  // iterations leave c / c_min at 1.3-2.6, and the tracks pull the poses
+  // back (BENCHMARKS.md "Feature tracks as pose evidence").
+  double track_pose_weight = 1000.0;
+  double track_pose_sigma_px = 0.5;  // the tracks' noise, LR px (Huber above 2 sigma)
+  double track_pose_gate_start = 0.2;
+  double track_pose_gate_width = 0.5;
   // Leading frames whose poses the structure update holds (>= 1: frame 0 is
   // the gauge). The stream holds the frames shared with the previous window,
   // which then also fixes the scale.
@@ -426,6 +445,10 @@ struct EstimatorInput {
   // structure update carry the prior through it; none: through the robust
   // Sim(3) of this window's poses (AlignToPrior).
   std::optional<Sim3> world_to_prior;
+  // The initialiser's feature tracks (InitialStructure::tracks), pixels of
+  // `camera`: Estimator::Run sets them from its own initialisation; a caller
+  // of RunFromStructure may pass them (EstimatorOptions::track_pose_weight).
+  std::vector<FeatureTrack> tracks;
 };
 
 // Energy of eq:energyFunction at one point of the algorithm.

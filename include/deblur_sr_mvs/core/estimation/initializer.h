@@ -250,6 +250,9 @@ struct InitialStructure {
   std::vector<SE3> T_world_cam;
   std::vector<cv::Mat> depth_lr;  // CV_32FC1, input size; NaN where unknown
   std::string summary;            // one line per stage: matches, inliers, residuals
+  // The tracks of the points the final bundle adjustment kept (pixels of
+  // the input camera; EstimatorOptions::track_pose_weight).
+  std::vector<FeatureTrack> tracks;
 };
 
 // Thrown when the frames do not allow an initialisation (too few features or

@@ -13,6 +13,7 @@
 #include <opencv2/core.hpp>
 
 #include "deblur_sr_mvs/core/geometry/camera.h"
+#include "deblur_sr_mvs/core/geometry/frame_types.h"
 #include "deblur_sr_mvs/core/geometry/se3.h"
 #include "deblur_sr_mvs/core/geometry/visibility.h"
 #include "deblur_sr_mvs/core/imaging/capture_operator.h"
@@ -261,6 +262,42 @@ BlurPoseTerm LinearizeBlurredPairInPoses(const CaptureGeometry& geometry, const 
 // do not see the monocular scale, nor, well, the bas-relief trade of a
 // rotation against the inverse depths; the prior is the metric evidence
 // for both (docs/file_formats.md#monocular-scale).
+// Feature tracks as pose evidence (EstimatorOptions::track_pose_weight):
+// the reprojection errors of the initialiser's tracks, observed at
+// mid-exposure, with every track's point eliminated, so that they constrain
+// the poses alone and do not depend on the depth maps.
+struct TrackPoseTerms {
+  std::vector<FeatureTrack> tracks;
+  PinholeCamera camera;        // the tracks' (LR input) camera
+  std::vector<SE3> T_cam_mid;  // per frame: T_world_mid = T_world_cam * T_cam_mid
+  double sigma_px = 0.5;       // the tracks' noise, LR px
+  double huber = 2.0;          // quadratic up to this many sigmas
+  double weight = 0.0;         // in units of the photometric terms (as PosePriorTerms::weight); 0: off
+  // The gate: the weight is multiplied by clamp((cost / min_cost - 1 -
+  // gate_start) / gate_width, 0, 1), cost the tracks' cost at the current
+  // poses, min_cost its least value over the poses (TrackCostMinimum);
+  // min_cost 0: no gate.
+  double min_cost = 0.0;
+  double gate_start = 0.2;
+  double gate_width = 0.5;
+  bool any() const { return weight > 0.0 && !tracks.empty() && !T_cam_mid.empty(); }
+};
+
+// Adds the tracks' terms at T_world_cam to a pose system H eps = g (as
+// AddPosePriorNormalEquations: frame f >= num_fixed at block f - offset, in
+// units of `photometric_scale`), each track's point re-triangulated at the
+// poses (DLT, then Gauss-Newton) and eliminated by its Schur complement;
+// frames below num_fixed still fix the points. Returns the tracks' cost at
+// T_world_cam: the squared residuals (px^2), each capped at (huber
+// sigma_px)^2. With hessian == nullptr only the cost.
+double AddTrackNormalEquations(const TrackPoseTerms& terms, const std::vector<SE3>& T_world_cam,
+                               int num_fixed, int offset, double photometric_scale, Eigen::MatrixXd* hessian,
+                               Eigen::VectorXd* gradient);
+
+// The least cost of the tracks over the poses of the frames >= num_fixed
+// (>= 1), by Levenberg-Marquardt on the tracks alone from T_world_cam.
+double TrackCostMinimum(const TrackPoseTerms& terms, std::vector<SE3> T_world_cam, int num_fixed);
+
 struct PosePriorTerms {
   // Per frame: the prior's camera centre in the world; none: no prior term
   // (no prior pose, or one the alignment left out).
@@ -272,6 +309,10 @@ struct PosePriorTerms {
   // Multiplies the terms' weight (EstimatorOptions::pose_prior_weight).
   double weight = 1.0;
   bool any() const;             // some frame has a term
+  // Feature tracks as pose evidence: not a prior, but like it a pose term
+  // that the photometric pairs do not give.
+  TrackPoseTerms tracks;
+  bool any_term() const { return any() || tracks.any(); }  // some term, a track's included
 };
 
 // Adds the prior's Huber-reweighted normal equations at T_world_cam to a

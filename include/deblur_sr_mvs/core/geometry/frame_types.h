@@ -4,6 +4,8 @@
 
 #include <vector>
 
+#include <Eigen/Core>
+
 #include "deblur_sr_mvs/core/geometry/se3.h"
 
 namespace deblur_sr_mvs {
@@ -23,6 +25,16 @@ inline std::vector<double> FrameStamps(const std::vector<FrameRecord>& frames) {
   for (const FrameRecord& frame : frames) stamps.push_back(frame.stamp);
   return stamps;
 }
+
+// A feature followed through consecutive frames: its pixel (x right, y
+// down, in the LR input camera) in frames first_frame, first_frame + 1, ...
+// Tracked on the blurred frames, it observes the camera at mid-exposure,
+// t_c - exposure / 2 (with a rolling shutter: corrected to a global one).
+struct FeatureTrack {
+  int first_frame = 0;
+  std::vector<Eigen::Vector2d> points;
+  int LastFrame() const { return first_frame + static_cast<int>(points.size()) - 1; }
+};
 
 struct StampedPose {
   double stamp = 0.0;
