@@ -529,17 +529,18 @@ TrackPoseTerms WindowTrackTerms(const EstimatorOptions& options, const Estimator
   TrackPoseTerms terms;
   if (!joint || !(options.track_pose_weight > 0.0)) return terms;
   const int num_frames = static_cast<int>(input.images.size());
-  for (const FeatureTrack& track : input.tracks) {
-    if (track.first_frame >= 0 && track.first_frame < num_frames && track.points.size() >= 2) {
-      terms.tracks.push_back(track);
-    }
+  for (FeatureTrack track : input.tracks) {
+    if (track.first_frame < 0 || track.first_frame >= num_frames) continue;
+    track.points.resize(std::min<size_t>(track.points.size(), num_frames - track.first_frame));
+    if (track.points.size() >= 2) terms.tracks.push_back(std::move(track));
   }
   terms.camera = input.camera;
   terms.weight = options.track_pose_weight;
   terms.sigma_px = options.track_pose_sigma_px;
   terms.gate_start = options.track_pose_gate_start;
   terms.gate_width = options.track_pose_gate_width;
-  terms.T_cam_mid.assign(num_frames, SE3());
+  terms.T_cam_seen.resize(terms.tracks.size());
+  for (size_t i = 0; i < terms.tracks.size(); ++i) terms.T_cam_seen[i].resize(terms.tracks[i].points.size());
   return terms;
 }
 
@@ -1080,21 +1081,37 @@ void WindowSolver::UpdateFrameDepth(int t, int iteration, bool isolated, const s
 // updates (with joint_step_pose_pairs, from the pairs within the pose
 // radius); the pose update with its longer baselines follows. With
 // `isolated` (baseline) the step is kept only if it lowers the energy.
-// The tracks' terms at the current structure: each frame's mid-exposure
-// pose on its blur path (the tracks observe the blur centroid), then the
-// tracks' least cost over the poses for the gate (TrackPoseTerms).
+// The tracks' terms at the current structure: the camera of each
+// observation at the mid-exposure of its row on the frame's blur path (the
+// tracks follow the blur centroid), then the tracks' least cost over the
+// poses for the gate (TrackPoseTerms).
 void WindowSolver::RefreshTrackTerms() {
   TrackPoseTerms& terms = pose_prior_.tracks;
   if (!terms.any()) return;
-  std::vector<SE3> poses(num_frames_);
+  const double begin = NowMs();
+  std::vector<SE3> poses(num_frames_), T_cam_mid(num_frames_);
+  std::vector<CaptureGeometry> geometries(num_frames_);
   for (int f = 0; f < num_frames_; ++f) {
     const FrameStructure& frame = frames_[f];
-    const CaptureGeometry geometry = MakeCaptureGeometry(frames_, camera_hr_, f, f);
-    terms.T_cam_mid[f] =
-        frame.T_world_cam.Inverse() * PoseAtTime(geometry, frame.stamp - 0.5 * frame.exposure);
+    geometries[f] = MakeCaptureGeometry(frames_, camera_hr_, f, f);
+    T_cam_mid[f] =
+        frame.T_world_cam.Inverse() * PoseAtTime(geometries[f], frame.stamp - 0.5 * frame.exposure);
     poses[f] = frame.T_world_cam;
   }
+  for (size_t i = 0; i < terms.tracks.size(); ++i) {
+    const FeatureTrack& track = terms.tracks[i];
+    for (size_t k = 0; k < track.points.size(); ++k) {
+      const FrameStructure& frame = frames_[track.first_frame + k];
+      const double row_delay = frame.readout_time * track.points[k].y() / terms.camera.height;
+      terms.T_cam_seen[i][k] =
+          row_delay == 0.0
+              ? T_cam_mid[track.first_frame + k]
+              : frame.T_world_cam.Inverse() * PoseAtTime(geometries[track.first_frame + k],
+                                                         frame.stamp - 0.5 * frame.exposure + row_delay);
+    }
+  }
   terms.min_cost = TrackCostMinimum(terms, poses, options_.fixed_leading_poses);
+  timer_.AddSince("track terms", begin);
 }
 
 void WindowSolver::UpdateDepthsAndPosesJointly(int iteration, bool isolated,

@@ -2847,6 +2847,9 @@ struct SparseInitialisation {
   TrackedWindow window;
   SparseStructure structure;
   std::optional<SparseStructure> rejected_turn;
+  // With a rolling shutter: the tracks as observed, before the rows' delays
+  // were corrected in window.tracking (the same points); empty otherwise.
+  std::vector<Track> observed_tracks;
 };
 
 SparseInitialisation InitializeSparse(const std::vector<cv::Mat>& images_lr, const PinholeCamera& camera_lr,
@@ -2886,6 +2889,7 @@ SparseInitialisation InitializeSparse(const std::vector<cv::Mat>& images_lr, con
     rejected_turn.reset();
   }
   if (readout_time > 0.0) {
+    sparse.observed_tracks = tracks;
     const double rms = CorrectRollingShutter(camera_lr, options, threads, frames, readout_time, &tracks,
                                              &structure, summary);
     int observations = 0;
@@ -2895,7 +2899,7 @@ SparseInitialisation InitializeSparse(const std::vector<cv::Mat>& images_lr, con
   return sparse;
 }
 
-// The tracks of the points `structure` keeps as inliers.
+// The tracks of the points `structure` keeps as inliers, as given.
 std::vector<FeatureTrack> KeptTracks(const std::vector<Track>& tracks, const SparseStructure& structure) {
   std::vector<FeatureTrack> kept;
   for (const Track& track : tracks) {
@@ -2944,7 +2948,8 @@ InitialStructure InitializeStructureUnguarded(const std::vector<cv::Mat>& images
       kept_turn = true;
     }
   }
-  result.tracks = KeptTracks(tracking.tracks, kept_turn ? *rejected_turn : structure);
+  result.tracks = KeptTracks(sparse.observed_tracks.empty() ? tracking.tracks : sparse.observed_tracks,
+                             kept_turn ? *rejected_turn : structure);
   NormaliseGauge(&result, &summary);
   summary << Format("total: %.1f ms", NowMs() - start_ms);
   result.summary = summary.str();

@@ -1485,17 +1485,18 @@ struct TrackLinearization {
   std::vector<Eigen::Vector2d> residual;
 };
 
+// T_seen_world: per observation, the camera that saw it.
 Eigen::Vector3d TriangulateDlt(const FeatureTrack& track, const PinholeCamera& camera,
-                               const std::vector<SE3>& T_mid_world, int last) {
-  const int first = track.first_frame;
-  Eigen::MatrixXd A(2 * (last - first + 1), 4);
-  for (int f = first; f <= last; ++f) {
-    const Eigen::Vector3d ray = camera.Ray(track.points[f - first].x(), track.points[f - first].y());
+                               const std::vector<SE3>& T_seen_world) {
+  const int count = static_cast<int>(T_seen_world.size());
+  Eigen::MatrixXd A(2 * count, 4);
+  for (int k = 0; k < count; ++k) {
+    const Eigen::Vector3d ray = camera.Ray(track.points[k].x(), track.points[k].y());
     Eigen::Matrix<double, 3, 4> P;
-    P.leftCols<3>() = T_mid_world[f].rotation();
-    P.col(3) = T_mid_world[f].translation();
-    A.row(2 * (f - first)) = ray.x() * P.row(2) - P.row(0);
-    A.row(2 * (f - first) + 1) = ray.y() * P.row(2) - P.row(1);
+    P.leftCols<3>() = T_seen_world[k].rotation();
+    P.col(3) = T_seen_world[k].translation();
+    A.row(2 * k) = ray.x() * P.row(2) - P.row(0);
+    A.row(2 * k + 1) = ray.y() * P.row(2) - P.row(1);
   }
   Eigen::JacobiSVD<Eigen::MatrixXd> svd(A, Eigen::ComputeFullV);
   const Eigen::Vector4d h = svd.matrixV().col(3);
@@ -1504,13 +1505,11 @@ Eigen::Vector3d TriangulateDlt(const FeatureTrack& track, const PinholeCamera& c
 }
 
 bool LinearizeTrack(const FeatureTrack& track, const PinholeCamera& camera,
-                    const std::vector<SE3>& T_mid_world, TrackLinearization* out) {
-  const int first = track.first_frame;
-  const int last = std::min(track.LastFrame(), static_cast<int>(T_mid_world.size()) - 1);
-  if (first < 0 || last - first < 1) return false;
-  Eigen::Vector3d point = TriangulateDlt(track, camera, T_mid_world, last);
-  const int count = last - first + 1;
-  out->first = first;
+                    const std::vector<SE3>& T_seen_world, TrackLinearization* out) {
+  const int count = static_cast<int>(T_seen_world.size());
+  if (count < 2) return false;
+  Eigen::Vector3d point = TriangulateDlt(track, camera, T_seen_world);
+  out->first = track.first_frame;
   out->j_eps.resize(count);
   out->j_point.resize(count);
   out->residual.resize(count);
@@ -1520,7 +1519,7 @@ bool LinearizeTrack(const FeatureTrack& track, const PinholeCamera& camera,
     Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
     Eigen::Vector3d b = Eigen::Vector3d::Zero();
     for (int k = 0; k < count; ++k) {
-      const SE3& T = T_mid_world[first + k];
+      const SE3& T = T_seen_world[k];
       const Eigen::Vector3d p = T * point;
       if (!(p.z() > 1e-9)) return false;
       out->residual[k] = camera.Project(p) - track.points[k];
@@ -1577,16 +1576,21 @@ void AddReducedTrack(const TrackPoseTerms& terms, const TrackLinearization& L, d
 double AddTrackNormalEquations(const TrackPoseTerms& terms, const std::vector<SE3>& T_world_cam,
                                int num_fixed, int offset, double photometric_scale, Eigen::MatrixXd* hessian,
                                Eigen::VectorXd* gradient) {
-  const int num_frames =
-      std::min(static_cast<int>(T_world_cam.size()), static_cast<int>(terms.T_cam_mid.size()));
-  std::vector<SE3> T_mid_world(num_frames);
-  for (int f = 0; f < num_frames; ++f) T_mid_world[f] = (T_world_cam[f] * terms.T_cam_mid[f]).Inverse();
+  const int num_frames = static_cast<int>(T_world_cam.size());
   std::vector<TrackLinearization> linear(terms.tracks.size());
   std::vector<char> linearised(terms.tracks.size(), 0);
   const double cap = terms.huber * terms.sigma_px;
   double cost = 0.0;
+  std::vector<SE3> T_seen_world;
   for (size_t i = 0; i < terms.tracks.size(); ++i) {
-    linearised[i] = LinearizeTrack(terms.tracks[i], terms.camera, T_mid_world, &linear[i]);
+    const FeatureTrack& track = terms.tracks[i];
+    T_seen_world.clear();
+    for (int k = 0; k < static_cast<int>(terms.T_cam_seen[i].size()); ++k) {
+      const int f = track.first_frame + k;
+      if (f < 0 || f >= num_frames) break;
+      T_seen_world.push_back((T_world_cam[f] * terms.T_cam_seen[i][k]).Inverse());
+    }
+    linearised[i] = LinearizeTrack(track, terms.camera, T_seen_world, &linear[i]);
     if (!linearised[i]) continue;
     for (const Eigen::Vector2d& r : linear[i].residual) cost += std::min(r.squaredNorm(), cap * cap);
   }

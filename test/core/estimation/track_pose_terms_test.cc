@@ -20,8 +20,10 @@ constexpr int kFrames = 4;
 constexpr int kPoints = 40;
 
 // Four cameras moving right and turning a little, 40 points 2-4 units in
-// front, tracked in every frame (noise_px: per coordinate, Gaussian); the
-// mid-exposure offsets are small turns and shifts, as a blur path's.
+// front, tracked in every frame (noise_px: per coordinate, Gaussian); each
+// observation's camera is a small turn and shift off its frame's pose, as
+// a blur path's mid-exposure, growing down the image as a rolling
+// shutter's rows.
 struct Scene {
   std::vector<SE3> T_world_cam;
   TrackPoseTerms terms;
@@ -36,18 +38,21 @@ Scene MakeScene(double noise_px) {
   for (int f = 0; f < kFrames; ++f) {
     scene.T_world_cam.emplace_back(SO3Exp(Eigen::Vector3d(0.01 * f, -0.02 * f, 0.005 * f)),
                                    Eigen::Vector3d(0.1 * f, 0.01 * f, 0.02 * f));
-    scene.terms.T_cam_mid.emplace_back(SO3Exp(Eigen::Vector3d(-0.002, 0.003, 0.001)),
-                                       Eigen::Vector3d(-0.02, 0.001, -0.002));
   }
   for (int i = 0; i < kPoints; ++i) {
     const Eigen::Vector3d point(uniform(random), 0.7 * uniform(random), 3.0 + uniform(random));
     FeatureTrack track;
+    std::vector<SE3> T_cam_seen;
     for (int f = 0; f < kFrames; ++f) {
-      const SE3 T_mid_world = (scene.T_world_cam[f] * scene.terms.T_cam_mid[f]).Inverse();
-      const Eigen::Vector2d pixel = scene.terms.camera.Project(T_mid_world * point);
+      const double row = 0.5 + 0.3 * point.y();  // about where the point lies, 0 .. 1 down the image
+      T_cam_seen.emplace_back(SO3Exp(Eigen::Vector3d(-0.002, 0.003, 0.001) * row),
+                              Eigen::Vector3d(-0.02, 0.001, -0.002) * row);
+      const SE3 T_seen_world = (scene.T_world_cam[f] * T_cam_seen.back()).Inverse();
+      const Eigen::Vector2d pixel = scene.terms.camera.Project(T_seen_world * point);
       track.points.push_back(pixel + Eigen::Vector2d(noise(random), noise(random)));
     }
     scene.terms.tracks.push_back(track);
+    scene.terms.T_cam_seen.push_back(T_cam_seen);
   }
   scene.terms.weight = 2.0;
   scene.terms.sigma_px = 0.5;

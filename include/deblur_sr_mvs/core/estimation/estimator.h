@@ -143,7 +143,7 @@ struct EstimatorOptions {
   double pose_prior_weight = 1e4;
   // Feature tracks as pose evidence (joint mode; TrackPoseTerms): the
   // reprojection errors of the initialiser's tracks (EstimatorInput::tracks),
-  // observed at mid-exposure on the estimator's blur path, each track's point
+  // observed at mid-exposure (of their row) on the estimator's blur path, each track's point
   // eliminated, in the pose steps of every structure update, in units of the
   // photometric terms as pose_prior_weight; 0: off. They do not depend on
   // the depth maps nor on the blur model within the exposure. Gated per

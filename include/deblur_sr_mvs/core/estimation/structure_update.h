@@ -268,8 +268,11 @@ BlurPoseTerm LinearizeBlurredPairInPoses(const CaptureGeometry& geometry, const 
 // the poses alone and do not depend on the depth maps.
 struct TrackPoseTerms {
   std::vector<FeatureTrack> tracks;
-  PinholeCamera camera;        // the tracks' (LR input) camera
-  std::vector<SE3> T_cam_mid;  // per frame: T_world_mid = T_world_cam * T_cam_mid
+  PinholeCamera camera;  // the tracks' (LR input) camera
+  // Per track and observation k (frame first_frame + k): the camera when
+  // the observation was exposed (mid-exposure of its row) relative to the
+  // frame's pose, T_world_seen = T_world_cam * T_cam_seen.
+  std::vector<std::vector<SE3>> T_cam_seen;
   double sigma_px = 0.5;       // the tracks' noise, LR px
   double huber = 2.0;          // quadratic up to this many sigmas
   double weight = 0.0;         // in units of the photometric terms (as PosePriorTerms::weight); 0: off
@@ -280,7 +283,7 @@ struct TrackPoseTerms {
   double min_cost = 0.0;
   double gate_start = 0.2;
   double gate_width = 0.5;
-  bool any() const { return weight > 0.0 && !tracks.empty() && !T_cam_mid.empty(); }
+  bool any() const { return weight > 0.0 && !tracks.empty() && T_cam_seen.size() == tracks.size(); }
 };
 
 // Adds the tracks' terms at T_world_cam to a pose system H eps = g (as

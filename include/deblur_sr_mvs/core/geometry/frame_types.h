@@ -28,8 +28,8 @@ inline std::vector<double> FrameStamps(const std::vector<FrameRecord>& frames) {
 
 // A feature followed through consecutive frames: its pixel (x right, y
 // down, in the LR input camera) in frames first_frame, first_frame + 1, ...
-// Tracked on the blurred frames, it observes the camera at mid-exposure,
-// t_c - exposure / 2 (with a rolling shutter: corrected to a global one).
+// Tracked on the blurred frames, it observes the camera at mid-exposure of
+// its row: t_c - exposure / 2 + y readout_time / height.
 struct FeatureTrack {
   int first_frame = 0;
   std::vector<Eigen::Vector2d> points;
