@@ -372,7 +372,11 @@ bool StreamEstimator::ContinueTrajectory(const EstimatorInput& input, const Shar
   // scale, as their poses).
   EstimatorInput warm_input = input;
   warm_input.carried_operators = last_operators_;
-  warm_input.tracks = std::move(initial.tracks);
+  // No feature tracks (EstimatorOptions::track_pose_weight) in continued
+  // windows: there the tracks' gate opened on smooth paths and the ATE rose
+  // (an arc clip in windows of 6: 4.2 -> 6.0 mm; BENCHMARKS.md "Feature
+  // tracks as pose evidence"). A stream's first window has them.
+  warm_input.tracks.clear();
   const cv::Size hr_size(input.camera.width * options.scale, input.camera.height * options.scale);
   if (AllOfSize(shared.latents, hr_size, input.images[0].channels())) {
     warm_input.initial_latents = shared.latents;
