@@ -1800,13 +1800,10 @@ EstimatorResult Estimator::RunGainCompensated(const EstimatorInput& input, const
   if (!readable) return run(&estimator, input);
   const double start = NowMs();
   const std::vector<double> gains = EstimateFrameGains(input.images, options_.gain);
-  EstimatorInput compensated;
-  compensated.camera = input.camera;
-  compensated.frames = input.frames;
-  compensated.readout_time = input.readout_time;
-  compensated.carried_operators = input.carried_operators;
-  compensated.T_prior_cam = input.T_prior_cam;
-  compensated.tracks = input.tracks;
+  EstimatorInput compensated = input;  // the images and the warm start follow
+  compensated.images.clear();
+  compensated.initial_latents.clear();
+  compensated.world_to_prior.reset();
   // world_to_prior is not passed on: the continued windows of a stream with
   // a prior fit their own Sim(3) (AlignToPrior). Passed on (measured on
   // 2026-12-07), the node's 1 cm prior over metres

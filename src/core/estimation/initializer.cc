@@ -342,23 +342,14 @@ double ReprojectionError(const PinholeCamera& camera, const SE3& T_cam_world,
 bool TriangulateTrack(const PinholeCamera& camera, const std::vector<SE3>& T_cam_world,
                       const std::vector<char>& has_pose, const Track& track, int last_frame,
                       Eigen::Vector3d* point_world) {
-  Eigen::Matrix<double, Eigen::Dynamic, 4> A(2 * track.points.size(), 4);
-  int rows = 0;
+  std::vector<Eigen::Vector3d> rays;
+  std::vector<SE3> cameras;
   for (int frame = track.first_frame; frame <= std::min(track.LastFrame(), last_frame); ++frame) {
     if (!has_pose[frame]) continue;
-    const Eigen::Vector3d ray = camera.Ray(track.At(frame).x, track.At(frame).y);
-    Eigen::Matrix<double, 3, 4> P;
-    P.leftCols<3>() = T_cam_world[frame].rotation();
-    P.col(3) = T_cam_world[frame].translation();
-    A.row(rows++) = ray.x() * P.row(2) - P.row(0);
-    A.row(rows++) = ray.y() * P.row(2) - P.row(1);
+    rays.push_back(camera.Ray(track.At(frame).x, track.At(frame).y));
+    cameras.push_back(T_cam_world[frame]);
   }
-  if (rows < 4) return false;
-  Eigen::JacobiSVD<Eigen::MatrixXd> svd(A.topRows(rows), Eigen::ComputeFullV);
-  const Eigen::Vector4d homogeneous = svd.matrixV().col(3);
-  if (std::abs(homogeneous[3]) < 1e-12) return false;
-  *point_world = homogeneous.head<3>() / homogeneous[3];
-  return point_world->allFinite();
+  return TriangulateRays(rays, cameras, point_world);
 }
 
 // Image displacement (px) of a track between frames a and b that rotation

@@ -1485,30 +1485,14 @@ struct TrackLinearization {
   std::vector<Eigen::Vector2d> residual;
 };
 
-// T_seen_world: per observation, the camera that saw it.
-Eigen::Vector3d TriangulateDlt(const FeatureTrack& track, const PinholeCamera& camera,
-                               const std::vector<SE3>& T_seen_world) {
-  const int count = static_cast<int>(T_seen_world.size());
-  Eigen::MatrixXd A(2 * count, 4);
-  for (int k = 0; k < count; ++k) {
-    const Eigen::Vector3d ray = camera.Ray(track.points[k].x(), track.points[k].y());
-    Eigen::Matrix<double, 3, 4> P;
-    P.leftCols<3>() = T_seen_world[k].rotation();
-    P.col(3) = T_seen_world[k].translation();
-    A.row(2 * k) = ray.x() * P.row(2) - P.row(0);
-    A.row(2 * k + 1) = ray.y() * P.row(2) - P.row(1);
-  }
-  Eigen::JacobiSVD<Eigen::MatrixXd> svd(A, Eigen::ComputeFullV);
-  const Eigen::Vector4d h = svd.matrixV().col(3);
-  if (std::abs(h[3]) < 1e-12) return Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN());
-  return h.head<3>() / h[3];
-}
-
 bool LinearizeTrack(const FeatureTrack& track, const PinholeCamera& camera,
                     const std::vector<SE3>& T_seen_world, TrackLinearization* out) {
   const int count = static_cast<int>(T_seen_world.size());
   if (count < 2) return false;
-  Eigen::Vector3d point = TriangulateDlt(track, camera, T_seen_world);
+  std::vector<Eigen::Vector3d> rays(count);
+  for (int k = 0; k < count; ++k) rays[k] = camera.Ray(track.points[k].x(), track.points[k].y());
+  Eigen::Vector3d point;
+  if (!TriangulateRays(rays, T_seen_world, &point)) return false;
   out->first = track.first_frame;
   out->j_eps.resize(count);
   out->j_point.resize(count);

@@ -1,5 +1,6 @@
 #include "deblur_sr_mvs/core/geometry/se3.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include <Eigen/SVD>
@@ -217,6 +218,25 @@ Eigen::Matrix<double, 3, 6> DLeftPerturbedPointDEps(const Eigen::Vector3d& trans
   jacobian.leftCols<3>().setIdentity();
   jacobian.rightCols<3>() = -Hat(transformed_point);
   return jacobian;
+}
+
+bool TriangulateRays(const std::vector<Eigen::Vector3d>& rays, const std::vector<SE3>& T_cam_world,
+                     Eigen::Vector3d* point_world) {
+  const int count = static_cast<int>(std::min(rays.size(), T_cam_world.size()));
+  if (count < 2) return false;
+  Eigen::MatrixXd A(2 * count, 4);
+  for (int k = 0; k < count; ++k) {
+    Eigen::Matrix<double, 3, 4> P;
+    P.leftCols<3>() = T_cam_world[k].rotation();
+    P.col(3) = T_cam_world[k].translation();
+    A.row(2 * k) = rays[k].x() * P.row(2) - P.row(0);
+    A.row(2 * k + 1) = rays[k].y() * P.row(2) - P.row(1);
+  }
+  Eigen::JacobiSVD<Eigen::MatrixXd> svd(A, Eigen::ComputeFullV);
+  const Eigen::Vector4d homogeneous = svd.matrixV().col(3);
+  if (std::abs(homogeneous[3]) < 1e-12) return false;
+  *point_world = homogeneous.head<3>() / homogeneous[3];
+  return point_world->allFinite();
 }
 
 }  // namespace deblur_sr_mvs

@@ -3,6 +3,7 @@
 #include "deblur_sr_mvs/core/geometry/se3.h"
 
 #include <random>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -220,6 +221,24 @@ TEST(SE3, CubicPathFollowsAChangingAcceleration) {
         PoseOnQuadraticPath(path(-h), -h, path(h), h, path(0.0), 0.0, tau).Matrix() - path(tau).Matrix());
     EXPECT_GT(quadratic_error, 1e-5) << tau;
   }
+}
+
+// TriangulateRays: the rays of a point from three cameras give the point
+// back; one ray gives nothing.
+TEST(TriangulateRays, RecoversThePointItsRaysSee) {
+  const Eigen::Vector3d point(0.3, -0.2, 4.0);
+  std::vector<SE3> T_cam_world;
+  std::vector<Eigen::Vector3d> rays;
+  for (int k = 0; k < 3; ++k) {
+    T_cam_world.push_back(
+        SE3(SO3Exp(Eigen::Vector3d(0.02 * k, -0.03 * k, 0.01)), Eigen::Vector3d(-0.2 * k, 0.05 * k, 0.1)));
+    const Eigen::Vector3d p = T_cam_world.back() * point;
+    rays.push_back(p / p.z());
+  }
+  Eigen::Vector3d triangulated;
+  ASSERT_TRUE(TriangulateRays(rays, T_cam_world, &triangulated));
+  EXPECT_LT((triangulated - point).norm(), 1e-9);
+  EXPECT_FALSE(TriangulateRays({rays[0]}, {T_cam_world[0]}, &triangulated));
 }
 
 }  // namespace

@@ -90,4 +90,10 @@ SE3 PoseOnPolynomialPath(const std::vector<TimedPose>& nodes, const SE3& T_world
 // (eq:updateVariables), where P = exp(eps) P0.
 Eigen::Matrix<double, 3, 6> DLeftPerturbedPointDEps(const Eigen::Vector3d& transformed_point);
 
+// Linear (DLT) triangulation of the world point that ray k (camera frame,
+// z = 1) sees from camera T_cam_world[k]. False with fewer than 2 rays, a
+// point at infinity or a result that is not finite.
+bool TriangulateRays(const std::vector<Eigen::Vector3d>& rays, const std::vector<SE3>& T_cam_world,
+                     Eigen::Vector3d* point_world);
+
 }  // namespace deblur_sr_mvs
