@@ -373,9 +373,12 @@ bool StreamEstimator::ContinueTrajectory(const EstimatorInput& input, const Shar
   EstimatorInput warm_input = input;
   warm_input.carried_operators = last_operators_;
   // No feature tracks (EstimatorOptions::track_pose_weight) in continued
-  // windows: there the tracks' gate opened on smooth paths and the ATE rose
-  // (an arc clip in windows of 6: 4.2 -> 6.0 mm; BENCHMARKS.md "Feature
-  // tracks as pose evidence"). A stream's first window has them.
+  // windows: there the dense poses stay near the tie to the stream, 10-30 %
+  // above the tracks' least cost on smooth paths too, so the gate opened
+  // where the dense estimate was the better one (29 streams: ATE +2 to +5 %,
+  // an arc clip +41 to +48 %), and gated against the window's start instead
+  // it never opened (BENCHMARKS.md "Tracks in continued windows, measured
+  // again"). A stream's first window has them.
   warm_input.tracks.clear();
   const cv::Size hr_size(input.camera.width * options.scale, input.camera.height * options.scale);
   if (AllOfSize(shared.latents, hr_size, input.images[0].channels())) {
