@@ -1803,13 +1803,6 @@ EstimatorResult Estimator::RunGainCompensated(const EstimatorInput& input, const
   EstimatorInput compensated = input;  // the images and the warm start follow
   compensated.images.clear();
   compensated.initial_latents.clear();
-  compensated.world_to_prior.reset();
-  // world_to_prior is not passed on: the continued windows of a stream with
-  // a prior fit their own Sim(3) (AlignToPrior). Passed on (measured on
-  // 2026-12-07), the node's 1 cm prior over metres
-  // (NoisyPriorOverMetresGivesDepthInMetresWithinTenPercentOfTheAligned)
-  // missed: scale errors of 1.2-1.3 % on frames 6-7 against its 1.03 %
-  // bound, depth in metres 0.0115 against 1.1 x 0.0102 aligned.
   for (size_t t = 0; t < gains.size(); ++t) compensated.images.push_back(input.images[t] * (1.0 / gains[t]));
   // A warm start has its frame's brightness, as the latent images given out.
   for (size_t t = 0; t < input.initial_latents.size() && t < gains.size(); ++t) {

@@ -437,13 +437,12 @@ struct EstimatorInput {
   // pose_prior_position_sigma); the output gauge stays as without it.
   std::vector<std::optional<SE3>> T_prior_cam;
   // With T_prior_cam: the similarity that carries this window's world to
-  // the prior's frame, when the caller knows it already. A continued stream
-  // window (StreamEstimator) sets the stream's fit over the frames it has
-  // estimated: its held poses fix the window's world and scale, so a fresh
-  // fit on the window's few frames would only add the new frames' initial
-  // scale error to the prior's noise. Set: the prior's terms in the
-  // structure update carry the prior through it; none: through the robust
-  // Sim(3) of this window's poses (AlignToPrior).
+  // the prior's frame, when the caller knows it already. Set: the prior's
+  // terms in the structure update carry the prior through it; none: through
+  // the robust Sim(3) of this window's poses (AlignToPrior). A stream's
+  // continued windows with depth leave it unset (StreamEstimator::
+  // ContinueTrajectory says why); its rotation-only windows place their
+  // cameras by the stream's fit (StreamEstimator::PlaceOnPrior).
   std::optional<Sim3> world_to_prior;
   // The initialiser's feature tracks (InitialStructure::tracks), pixels of
   // `camera`: Estimator::Run sets them from its own initialisation; a caller

@@ -272,9 +272,10 @@ class StreamEstimator {
   std::map<uint64_t, cv::Mat> last_latents_;  // its latent images (HR)
   CarriedOperators last_operators_;           // its operators among the frames the next window shares
   // The frames of this trajectory segment with a pose prior, as estimated:
-  // a continued window's prior terms carry the prior into the stream's
-  // world by this fit (EstimatorInput::world_to_prior). Its options are
-  // those of the constructor's initializer.pose_prior.
+  // a rotation-only window places its new cameras on the prior by this fit
+  // (EstimatorInput::world_to_prior, PlaceOnPrior); a continued window with
+  // depth fits its own (ContinueTrajectory). Its options are those of the
+  // constructor's initializer.pose_prior.
   PosePriorAligner prior_history_;
   int window_overlap_ = StreamOptions().window_overlap;
   // Median depth of the last window with observable depth (stream units; 0
