@@ -15,6 +15,7 @@
 #include <filesystem>
 #include <iostream>
 #include <limits>
+#include <map>
 #include <optional>
 #include <string>
 #include <vector>
@@ -453,6 +454,14 @@ void AddInputPairOptions(dsm::ToolCommandLine* command_line, dsm::EstimatorOptio
                  "with --recentred-depth-pass: each pass's CG stops once its residual is below this fraction "
                  "of the right-hand side's (0: all steps; default 0.005)")
       ->check(dsm::FlagNumber(0.0, 1.0));
+  const std::map<std::string, dsm::DepthPreconditioner> preconditioners{
+      {"none", dsm::DepthPreconditioner::kNone},
+      {"jacobi", dsm::DepthPreconditioner::kJacobi},
+      {"gauss-seidel", dsm::DepthPreconditioner::kTvGaussSeidel}};
+  cli.add_option("--recentred-depth-preconditioner", options->recentred_depth_preconditioner,
+                 "with --recentred-depth-pass: the passes' CG preconditioner, none, jacobi or gauss-seidel "
+                 "(default gauss-seidel)")
+      ->transform(CLI::CheckedTransformer(preconditioners));
   cli.add_option(
          "--equal-blur-tolerance", options->equal_blur_tolerance_px,
          "joint, --structure-matching both: pose-update pairs whose frames' blurs differ by less than "

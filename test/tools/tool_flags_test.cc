@@ -133,6 +133,9 @@ TEST(EstimateSequenceTool, BadInputGivesOneLineAndExitCode2) {
                      "--output-scale");
   ExpectOneLineError("estimate_sequence", {"--input", folder, "--output", out, "--structure-matching", "x"},
                      "--structure-matching");
+  ExpectOneLineError("estimate_sequence",
+                     {"--input", folder, "--output", out, "--recentred-depth-preconditioner", "ilu"},
+                     "--recentred-depth-preconditioner");
   ExpectOneLineError("estimate_sequence", {"--output", out}, "--input");
 }
 

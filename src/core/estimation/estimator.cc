@@ -956,6 +956,7 @@ void WindowSolver::StructurePhase(int iteration, bool isolated) {
     StructureUpdateOptions pass_options = structure_options;
     pass_options.depth_cg_iterations = options_.recentred_depth_cg_iterations;
     pass_options.depth_cg_tolerance = options_.recentred_depth_cg_tolerance;
+    pass_options.depth_preconditioner = options_.recentred_depth_preconditioner;
     for (int pass = 0; pass < options_.recentred_depth_passes; ++pass) {
       BuildRecentredInputs();
       ForEachFrame([this, iteration, isolated, &poses, &pass_options](int t) {

@@ -529,9 +529,17 @@ void ApplyLaplacianGaussSeidelInverse(const cv::Mat& inverse_diagonal, const cv:
 
 void ApplyLaplacianGaussSeidel(const cv::Mat& diagonal, const cv::Mat& v, double scale, const cv::Mat& r,
                                cv::Mat* z) {
-  cv::Mat inverse;
-  InverseDiagonal(diagonal, &inverse);
-  ApplyLaplacianGaussSeidelInverse(inverse, v, scale, r, z);
+  LaplacianGaussSeidelPreconditioner(diagonal, v, scale).Apply(r, z);
+}
+
+LaplacianGaussSeidelPreconditioner::LaplacianGaussSeidelPreconditioner(const cv::Mat& diagonal,
+                                                                       const cv::Mat& v, double scale)
+    : v_(v), scale_(scale) {
+  InverseDiagonal(diagonal, &inverse_diagonal_);
+}
+
+void LaplacianGaussSeidelPreconditioner::Apply(const cv::Mat& r, cv::Mat* z) const {
+  ApplyLaplacianGaussSeidelInverse(inverse_diagonal_, v_, scale_, r, z);
 }
 
 namespace {

@@ -897,6 +897,10 @@ class DepthNormalEquations {
 
   // diag(N), the Jacobi preconditioner (after Linearize).
   const cv::Mat& diagonal() const { return diagonal_; }
+  // The TV term of N is tv_scale() D^T diag(tv_weight()) D (after
+  // Linearize; AddWeightedLaplacian).
+  const cv::Mat& tv_weight() const { return tv_weight_; }
+  double tv_scale() const { return options_.lambda_d * c2_; }
 
   // From now on Linearize also sums the pairs' absolute residuals over
   // their masks (the photometric scale of a pose prior's terms).
@@ -1227,17 +1231,30 @@ class DepthNormalEquations {
   double absolute_residuals_ = 0.0, residual_values_ = 0.0;  // of the pairs, with measure_residuals_
 };
 
-// CG on N step = rhs from a zero step, Jacobi-preconditioned when asked
-// (a zero diagonal leaves SolveJacobiPcg unpreconditioned).
+// CG on N step = rhs from a zero step with the options' preconditioner (a
+// zero diagonal leaves SolveJacobiPcg unpreconditioned).
 void SolveDepthStep(DepthNormalEquations* system, const cv::Mat& rhs, const StructureUpdateOptions& options,
                     cv::Mat* step) {
   step->setTo(0.0);
-  const cv::Mat diagonal =
-      options.depth_cg_preconditioned
-          ? system->diagonal()
-          : cv::Mat(cv::Mat::zeros(system->diagonal().size(), system->diagonal().type()));
-  SolveJacobiPcg([system](const cv::Mat& x, cv::Mat* out) { system->ApplyNormal(x, out); }, diagonal,
-                 rhs.clone(), options.depth_cg_iterations, options.depth_cg_tolerance, 1, step);
+  const auto apply_normal = [system](const cv::Mat& x, cv::Mat* out) { system->ApplyNormal(x, out); };
+  switch (options.depth_preconditioner) {
+    case DepthPreconditioner::kTvGaussSeidel: {
+      const LaplacianGaussSeidelPreconditioner sweeps(system->diagonal(), system->tv_weight(),
+                                                      system->tv_scale());
+      SolvePcg(
+          apply_normal, [&sweeps](const cv::Mat& r, cv::Mat* z) { sweeps.Apply(r, z); }, rhs.clone(),
+          options.depth_cg_iterations, options.depth_cg_tolerance, 1, step);
+      return;
+    }
+    case DepthPreconditioner::kJacobi:
+      SolveJacobiPcg(apply_normal, system->diagonal(), rhs.clone(), options.depth_cg_iterations,
+                     options.depth_cg_tolerance, 1, step);
+      return;
+    case DepthPreconditioner::kNone:
+      SolveJacobiPcg(apply_normal, cv::Mat::zeros(system->diagonal().size(), system->diagonal().type()),
+                     rhs.clone(), options.depth_cg_iterations, options.depth_cg_tolerance, 1, step);
+      return;
+  }
 }
 
 }  // namespace

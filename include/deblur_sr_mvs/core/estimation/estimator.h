@@ -283,6 +283,12 @@ struct EstimatorOptions {
   // (BENCHMARKS.md "The re-centred passes solved further").
   int recentred_depth_cg_iterations = 60;
   double recentred_depth_cg_tolerance = 0.005;
+  // With recentred_depth_pass: the passes' CG preconditioner. The TV
+  // Gauss-Seidel sweeps reach the tolerance in about a third of plain CG's
+  // steps (which rarely reaches it in 60), and at the border, which the
+  // TV term alone reaches, solve as far as 200 / 0.001 did
+  // (BENCHMARKS.md "Gauss-Seidel sweeps in the re-centred passes").
+  DepthPreconditioner recentred_depth_preconditioner = DepthPreconditioner::kTvGaussSeidel;
   // kRestoredAndInput in joint mode: in the pose update, a pair (t <- s)
   // whose frames' blurs differ by less than this many HR pixels
   // (BlurDifferenceHr at the current structure) matches its input pair

@@ -114,6 +114,19 @@ int SolvePcg(const std::function<void(const cv::Mat&, cv::Mat*)>& apply_normal,
 void ApplyLaplacianGaussSeidel(const cv::Mat& diagonal, const cv::Mat& v, double scale, const cv::Mat& r,
                                cv::Mat* z);
 
+// The same M^-1 for the many applications of one CG solve: the diagonal is
+// inverted once, at construction. `v` must outlive the preconditioner.
+class LaplacianGaussSeidelPreconditioner {
+ public:
+  LaplacianGaussSeidelPreconditioner(const cv::Mat& diagonal, const cv::Mat& v, double scale);
+  void Apply(const cv::Mat& r, cv::Mat* z) const;
+
+ private:
+  cv::Mat inverse_diagonal_;
+  const cv::Mat& v_;
+  double scale_;
+};
+
 // Jacobi-preconditioned conjugate gradients on N x = b from the current *x,
 // given residual = b - N x there (consumed): at most max_iterations steps,
 // stopping once ||r||_2 <= relative_tolerance * ||r_0||_2. `diagonal` is

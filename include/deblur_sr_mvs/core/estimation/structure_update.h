@@ -20,6 +20,19 @@
 
 namespace deblur_sr_mvs {
 
+// The preconditioner of the depth update's CG (StructureUpdateOptions).
+enum class DepthPreconditioner {
+  kNone,    // plain CG
+  kJacobi,  // 1 / diag(N)
+  // One symmetric Gauss-Seidel sweep on diag(N) + the off-diagonal depth TV
+  // stencil (LaplacianGaussSeidelPreconditioner, as the image update's
+  // ImagePreconditioner::kTvGaussSeidel): plain and Jacobi CG move the
+  // solution one pixel per step through the TV term, which is all that
+  // reaches the border pixels that few pairs see; the sweeps carry it across
+  // the image in one application.
+  kTvGaussSeidel,
+};
+
 struct StructureUpdateOptions {
   // Weight of the depth TV. The paper's 8 - 10 are in its own (unstated)
   // units of inverse depth and intensity; here the TV acts on inverse depth
@@ -36,10 +49,12 @@ struct StructureUpdateOptions {
   // depth_cg_tolerance x the right-hand side's norm (0: always all steps).
   int depth_cg_iterations = 15;
   double depth_cg_tolerance = 0.05;
-  // Jacobi preconditioning of the depth CG. Off: with it, 15 steps reach a
+  // The depth CG's preconditioner. kNone: with Jacobi, 15 steps reach a
   // different (not better) step; on the exact-prior test sequence the depth
-  // in metres came out 0.0102 rel. error against 0.0090 without it.
-  bool depth_cg_preconditioned = false;
+  // in metres came out 0.0102 rel. error against 0.0090 without it. The
+  // estimator's re-centred passes, which end the estimation, solve further
+  // with their own (EstimatorOptions::recentred_depth_preconditioner).
+  DepthPreconditioner depth_preconditioner = DepthPreconditioner::kNone;
   int pose_iterations = 6;         // Gauss-Newton steps of the joint pose update
   double residual_epsilon = 1e-3;  // L1 smoothing (intensity in [0, 1])
   double tv_epsilon = 0.05;        // TV smoothing, parallax px
