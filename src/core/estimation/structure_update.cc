@@ -1231,8 +1231,7 @@ class DepthNormalEquations {
   double absolute_residuals_ = 0.0, residual_values_ = 0.0;  // of the pairs, with measure_residuals_
 };
 
-// CG on N step = rhs from a zero step with the options' preconditioner (a
-// zero diagonal leaves SolveJacobiPcg unpreconditioned).
+// CG on N step = rhs from a zero step with the options' preconditioner.
 void SolveDepthStep(DepthNormalEquations* system, const cv::Mat& rhs, const StructureUpdateOptions& options,
                     cv::Mat* step) {
   step->setTo(0.0);
@@ -1251,8 +1250,9 @@ void SolveDepthStep(DepthNormalEquations* system, const cv::Mat& rhs, const Stru
                      options.depth_cg_tolerance, 1, step);
       return;
     case DepthPreconditioner::kNone:
-      SolveJacobiPcg(apply_normal, cv::Mat::zeros(system->diagonal().size(), system->diagonal().type()),
-                     rhs.clone(), options.depth_cg_iterations, options.depth_cg_tolerance, 1, step);
+      SolvePcg(
+          apply_normal, [](const cv::Mat& r, cv::Mat* z) { r.copyTo(*z); }, rhs.clone(),
+          options.depth_cg_iterations, options.depth_cg_tolerance, 1, step);
       return;
   }
 }
