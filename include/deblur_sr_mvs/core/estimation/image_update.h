@@ -115,7 +115,7 @@ void ApplyLaplacianGaussSeidel(const cv::Mat& diagonal, const cv::Mat& v, double
                                cv::Mat* z);
 
 // The same M^-1 for the many applications of one CG solve: the diagonal is
-// inverted once, at construction. `v` must outlive the preconditioner.
+// inverted once, at construction; `v` is shared (a cv::Mat header), not copied.
 class LaplacianGaussSeidelPreconditioner {
  public:
   LaplacianGaussSeidelPreconditioner(const cv::Mat& diagonal, const cv::Mat& v, double scale);
@@ -123,7 +123,7 @@ class LaplacianGaussSeidelPreconditioner {
 
  private:
   cv::Mat inverse_diagonal_;
-  const cv::Mat& v_;
+  cv::Mat v_;
   double scale_;
 };
 
